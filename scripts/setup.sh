@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Set-up for `make demo` / `make test` on a fresh machine:
+#   1. system packages (apt-get when root; otherwise say what to install),
+#   2. the virtual environment .venv with `pip install -e ".[dev]"` and torch==2.13.0 pinned.
+# Idempotent: a stamp file records a finished install of this pyproject.toml.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV="${VENV:-.venv}"
+PYTHON="${PYTHON:-python3}"
+APT_PKGS="libosmesa6 xvfb libusb-1.0-0 libgl1 libegl1 libxrender1"
+
+have_lib() { ldconfig -p 2>/dev/null | grep -q "$1"; }
+missing=""
+have_lib libOSMesa.so || missing="$missing libosmesa6"
+command -v Xvfb >/dev/null 2>&1 || missing="$missing xvfb"
+have_lib libusb-1.0.so || missing="$missing libusb-1.0-0"
+have_lib libGL.so.1 || missing="$missing libgl1"
+have_lib libEGL.so.1 || missing="$missing libegl1"
+have_lib libXrender.so.1 || missing="$missing libxrender1"
+if [ -n "$missing" ]; then
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
+    echo "setup: installing system packages:$missing"
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get update -qq
+    apt-get install -y -qq --no-install-recommends $APT_PKGS >/dev/null
+  else
+    echo "setup: WARNING: missing system packages:$missing" >&2
+    echo "setup: install them with: sudo apt-get install$missing" >&2
+    echo "setup: (offscreen rendering needs libosmesa6, GUI tests need xvfb, USB needs libusb-1.0-0;" >&2
+    echo "        tests that need them are skipped with a message)" >&2
+  fi
+fi
+
+stamp="$VENV/.holo_viewer_installed"
+if [ ! -x "$VENV/bin/python" ]; then
+  echo "setup: creating $VENV"
+  "$PYTHON" -m venv "$VENV"
+fi
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  echo "setup: installing holo_viewer[dev] into $VENV (torch==2.13.0 CPU)"
+  "$VENV/bin/python" -m pip install -q --upgrade pip
+  "$VENV/bin/python" -m pip install -q "torch==2.13.0"
+  "$VENV/bin/python" -m pip install -q -e ".[dev]"
+  touch "$stamp"
+fi
