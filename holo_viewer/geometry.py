@@ -1,0 +1,133 @@
+"""Rotation and covariance helpers shared by avatar and renderers (pure math, numpy and torch).
+
+Quaternions are (w, x, y, z). Functions named ``*_np`` take numpy arrays, the others
+torch tensors; both accept any leading batch shape.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "quat_to_rotmat_np", "rotmat_to_quat_np", "quat_multiply_np", "covariance_np",
+    "quat_to_rotmat", "rotmat_to_quat", "quat_multiply",
+]
+
+
+def quat_to_rotmat_np(q: np.ndarray) -> np.ndarray:
+    """(..., 4) wxyz quaternions (normalised here) -> (..., 3, 3) rotation matrices."""
+    q = np.asarray(q)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    R = np.empty(q.shape[:-1] + (3, 3), dtype=q.dtype)
+    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    R[..., 0, 1] = 2 * (x * y - w * z)
+    R[..., 0, 2] = 2 * (x * z + w * y)
+    R[..., 1, 0] = 2 * (x * y + w * z)
+    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    R[..., 1, 2] = 2 * (y * z - w * x)
+    R[..., 2, 0] = 2 * (x * z - w * y)
+    R[..., 2, 1] = 2 * (y * z + w * x)
+    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+def rotmat_to_quat_np(R: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices -> (..., 4) unit wxyz quaternions with w >= 0 (Shepperd's method)."""
+    R = np.asarray(R)
+    m = R.reshape(-1, 3, 3)
+    tr = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
+    cand = np.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=1)
+    k = np.argmax(cand, axis=1)
+    q = np.empty((m.shape[0], 4), dtype=R.dtype)
+    for case in range(4):
+        sel = k == case
+        if not np.any(sel):
+            continue
+        a = m[sel]
+        if case == 0:
+            s = np.sqrt(np.maximum(1.0 + tr[sel], 1e-30)) * 2
+            q[sel] = np.stack([0.25 * s, (a[:, 2, 1] - a[:, 1, 2]) / s, (a[:, 0, 2] - a[:, 2, 0]) / s,
+                               (a[:, 1, 0] - a[:, 0, 1]) / s], axis=1)
+        elif case == 1:
+            s = np.sqrt(np.maximum(1.0 + a[:, 0, 0] - a[:, 1, 1] - a[:, 2, 2], 1e-30)) * 2
+            q[sel] = np.stack([(a[:, 2, 1] - a[:, 1, 2]) / s, 0.25 * s, (a[:, 0, 1] + a[:, 1, 0]) / s,
+                               (a[:, 0, 2] + a[:, 2, 0]) / s], axis=1)
+        elif case == 2:
+            s = np.sqrt(np.maximum(1.0 + a[:, 1, 1] - a[:, 0, 0] - a[:, 2, 2], 1e-30)) * 2
+            q[sel] = np.stack([(a[:, 0, 2] - a[:, 2, 0]) / s, (a[:, 0, 1] + a[:, 1, 0]) / s, 0.25 * s,
+                               (a[:, 1, 2] + a[:, 2, 1]) / s], axis=1)
+        else:
+            s = np.sqrt(np.maximum(1.0 + a[:, 2, 2] - a[:, 0, 0] - a[:, 1, 1], 1e-30)) * 2
+            q[sel] = np.stack([(a[:, 1, 0] - a[:, 0, 1]) / s, (a[:, 0, 2] + a[:, 2, 0]) / s,
+                               (a[:, 1, 2] + a[:, 2, 1]) / s, 0.25 * s], axis=1)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    q = np.where(q[:, :1] < 0, -q, q)
+    return q.reshape(R.shape[:-2] + (4,))
+
+
+def quat_multiply_np(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a (x) b of (..., 4) wxyz quaternions (rotation b first, then a)."""
+    aw, ax, ay, az = np.moveaxis(np.asarray(a), -1, 0)
+    bw, bx, by, bz = np.moveaxis(np.asarray(b), -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def covariance_np(quats: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """Sigma = R S S^T R^T from (N, 4) wxyz quats and (N, 3) linear scales -> (N, 3, 3)."""
+    R = quat_to_rotmat_np(quats)
+    M = R * np.asarray(scales)[..., None, :]
+    return M @ np.swapaxes(M, -1, -2)
+
+
+# ------------------------------------------------------------------------- torch
+def quat_to_rotmat(q):  # noqa: ANN001, ANN201 - torch is imported lazily
+    """Torch: (..., 4) wxyz quaternions (normalised here) -> (..., 3, 3)."""
+    import torch
+
+    q = q / torch.linalg.norm(q, dim=-1, keepdim=True)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], dim=-1).reshape(q.shape[:-1] + (3, 3))
+
+
+def rotmat_to_quat(R):  # noqa: ANN001, ANN201
+    """Torch: (..., 3, 3) rotations -> (..., 4) unit wxyz quaternions with w >= 0.
+
+    Branch-free Shepperd selection (largest of the four candidate denominators), stable for
+    any rotation including 180 degree turns.
+    """
+    import torch
+
+    m00, m01, m02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
+    m10, m11, m12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
+    m20, m21, m22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
+    cands = torch.stack([
+        torch.stack([1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01], -1),
+        torch.stack([m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20], -1),
+        torch.stack([m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21], -1),
+        torch.stack([m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22], -1),
+    ], dim=-2)  # (..., 4 candidates, 4) each proportional to q * (4 q_k)
+    diag = torch.stack([cands[..., 0, 0], cands[..., 1, 1], cands[..., 2, 2], cands[..., 3, 3]], -1)
+    k = torch.argmax(diag, dim=-1, keepdim=True)
+    best = torch.gather(cands, -2, k[..., None].expand(*k.shape[:-1], 1, 4)).squeeze(-2)
+    q = best / torch.linalg.norm(best, dim=-1, keepdim=True)
+    return torch.where(q[..., :1] < 0, -q, q)
+
+
+def quat_multiply(a, b):  # noqa: ANN001, ANN201
+    """Torch Hamilton product a (x) b of (..., 4) wxyz quaternions."""
+    import torch
+
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([aw * bw - ax * bx - ay * by - az * bz,
+                        aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx,
+                        aw * bz + ax * by - ay * bx + az * bw], dim=-1)
