@@ -120,7 +120,7 @@ def check_array(
         found = tuple(int(n) for n in x.shape)
         if not _match_shape(found, shape, bound):
             names = ""
-            named = {k: v for k, v in bound.items() if isinstance(k, str)}
+            named = {k: v for k, v in (sizes or {}).items() if isinstance(k, str)}
             if named:
                 names = " with " + ", ".join(f"{k}={v}" for k, v in named.items())
             raise InputError(

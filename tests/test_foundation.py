@@ -1,0 +1,101 @@
+"""Package-level guarantees: cheap import, CLI conventions, validation messages, atomic writes."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from holo_viewer.cli import SUBCOMMANDS, main
+from holo_viewer.errors import ExportError, HoloViewerError, InputError
+from holo_viewer.fileio import atomic_write, load_image, save_image
+from holo_viewer.validation import check_array, check_finite_scalar
+
+HEAVY = ("vtk", "vtkmodules", "pyvista", "open3d", "usb", "hid", "matplotlib")
+
+
+def test_import_is_light():
+    code = ("import sys, holo_viewer, holo_viewer.cli; "
+            f"bad = [m for m in {HEAVY!r} if m in sys.modules]; print(','.join(bad))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "", f"import holo_viewer pulled in: {out.stdout.strip()}"
+
+
+@pytest.mark.parametrize("subpackage", ["flame", "avatar", "render", "display", "reaction"])
+def test_subpackage_import_does_not_load_gui_or_usb(subpackage):
+    code = (f"import sys, importlib; importlib.import_module('holo_viewer.{subpackage}'); "
+            f"bad = [m for m in {HEAVY!r} if m in sys.modules]; print(','.join(bad))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "", f"holo_viewer.{subpackage} pulled in: {out.stdout.strip()}"
+
+
+def test_cli_help_lists_every_subcommand():
+    out = subprocess.run([sys.executable, "-m", "holo_viewer", "--help"], capture_output=True, text=True)
+    assert out.returncode == 0
+    for name in SUBCOMMANDS:
+        assert name in out.stdout
+
+
+def test_cli_every_subcommand_has_help():
+    for name in SUBCOMMANDS:
+        out = subprocess.run([sys.executable, "-m", "holo_viewer", name, "--help"], capture_output=True, text=True)
+        assert out.returncode == 0, f"{name} --help failed: {out.stderr[-2000:]}"
+        assert "usage: holo-viewer " + name in out.stdout
+
+
+def test_cli_unknown_command_is_usage_error():
+    out = subprocess.run([sys.executable, "-m", "holo_viewer", "no-such-command"], capture_output=True, text=True)
+    assert out.returncode == 2
+
+
+def test_check_array_messages():
+    with pytest.raises(InputError, match=r"expr: expected shape \(B, 10\), found \(2, 11\)"):
+        check_array(np.zeros((2, 11)), "expr", ("B", 10))
+    sizes = {}
+    check_array(np.zeros((4, 3)), "a", ("N", 3), sizes=sizes)
+    with pytest.raises(InputError, match="N=4"):
+        check_array(np.zeros((5, 3)), "b", ("N", 3), sizes=sizes)
+    with pytest.raises(InputError, match="NaN/inf"):
+        check_array(np.array([1.0, np.inf]), "x")
+    assert check_array(np.zeros((7, 2, 3)), "p", (..., 3)).shape == (7, 2, 3)
+    import torch
+
+    with pytest.raises(InputError, match="t: expected finite"):
+        check_array(torch.tensor([0.0, float("nan")]), "t")
+    with pytest.raises(InputError, match="pain"):
+        check_finite_scalar(1.5, "pain", low=0, high=1)
+
+
+def test_errors_share_a_base():
+    assert issubclass(InputError, HoloViewerError) and issubclass(InputError, ValueError)
+
+
+def test_atomic_write_keeps_old_file_on_failure(tmp_path):
+    target = tmp_path / "out.bin"
+    target.write_bytes(b"old")
+    with pytest.raises(RuntimeError):
+        with atomic_write(target) as fh:
+            fh.write(b"new partial")
+            raise RuntimeError("boom")
+    assert target.read_bytes() == b"old"
+    assert sorted(os.listdir(tmp_path)) == ["out.bin"]  # no temp file left behind
+    with atomic_write(target) as fh:
+        fh.write(b"new")
+    assert target.read_bytes() == b"new"
+
+
+def test_save_image_round_trip_and_nan_refused(tmp_path):
+    img = np.random.default_rng(0).random((6, 5, 3)).astype(np.float32)
+    path = save_image(tmp_path / "a.png", img)
+    back = load_image(path)
+    assert back.shape == (6, 5, 3) and np.abs(back - img).max() <= 0.5 / 255 + 1e-6
+    bad = img.copy()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(ExportError, match="NaN"):
+        save_image(tmp_path / "b.png", bad)
+    assert not (tmp_path / "b.png").exists()
+    with pytest.raises(ExportError, match="not a readable image"):
+        (tmp_path / "c.png").write_bytes(b"not a png")
+        load_image(tmp_path / "c.png")
