@@ -216,6 +216,12 @@ class Gaussians:
         g = cls(means, quats, log_scales, opacity_logits, sh, extra or {})
         return g.validate() if validate else g
 
+    def save_ply(self, path: Any) -> Any:
+        """Write a binary 3DGS PLY atomically (see :func:`holo_viewer.avatar.ply.save_ply`)."""
+        from .ply import save_ply
+
+        return save_ply(self, path)
+
     def colors_dc(self) -> np.ndarray:
         """(N, 3) view-independent colour from the DC term only (numpy float)."""
         return np.maximum(self._np(self.sh[:, 0]) * SH_C0 + 0.5, 0.0)
