@@ -236,10 +236,13 @@ def _check(value: Any, key: str, shape: tuple, sizes: dict[str, int], source: st
         elif not np.issubdtype(arr.dtype, np.integer):
             raise FlameError(f"{source}: {key}: expected an integer array, found dtype {arr.dtype}")
         arr = arr.astype(np.int64)
+    # Only the named sizes this key uses go into the message.
+    bound = {k: sizes[k] for k in shape if isinstance(k, str) and k in sizes}
     try:
-        check_array(arr, key, shape, sizes=sizes, finite=True)
+        check_array(arr, key, shape, sizes=bound, finite=True)
     except InputError as exc:
         raise FlameError(f"{source}: {exc}") from exc
+    sizes.update(bound)
     return arr
 
 
@@ -276,18 +279,19 @@ def validate_flame_arrays(arrays: Mapping[str, Any], source: str = "<arrays>") -
         raise FlameError(f"{source}: missing key{'s' if len(missing) > 1 else ''} "
                          f"{', '.join(repr(k) for k in missing)} (a FLAME model needs {', '.join(REQUIRED_KEYS)}; "
                          f"found keys {sorted(arrays)})")
-    sizes: dict[str, int] = {"J": N_JOINTS, "P": 9 * (N_JOINTS - 1)}
+    sizes: dict[str, int] = {}
+    n_j, n_p = N_JOINTS, 9 * (N_JOINTS - 1)
     out: dict[str, Any] = {}
     out["v_template"] = _check(arrays["v_template"], "v_template", ("V", 3), sizes, source)
     out["shapedirs"] = _check(arrays["shapedirs"], "shapedirs", ("V", 3, "K"), sizes, source)
-    out["posedirs"] = _check(arrays["posedirs"], "posedirs", ("V", 3, "P"), sizes, source)
-    out["J_regressor"] = _check(arrays["J_regressor"], "J_regressor", ("J", "V"), sizes, source)
-    out["weights"] = _check(arrays["weights"], "weights", ("V", "J"), sizes, source)
+    out["posedirs"] = _check(arrays["posedirs"], "posedirs", ("V", 3, n_p), sizes, source)
+    out["J_regressor"] = _check(arrays["J_regressor"], "J_regressor", (n_j, "V"), sizes, source)
+    out["weights"] = _check(arrays["weights"], "weights", ("V", n_j), sizes, source)
     kin = _dense(arrays["kintree_table"])
     if np.issubdtype(kin.dtype, np.unsignedinteger):
         kin = kin.astype(np.int64)  # FLAME stores the root's parent as 2**32 - 1
         kin[kin > np.iinfo(np.int32).max] = -1
-    out["kintree_table"] = _check(kin, "kintree_table", (2, "J"), sizes, source, kind="int")
+    out["kintree_table"] = _check(kin, "kintree_table", (2, n_j), sizes, source, kind="int")
     out["kintree_table"][0, 0] = -1
     parents = out["kintree_table"][0]
     for k in range(1, N_JOINTS):
