@@ -1,0 +1,187 @@
+"""Fast multi-view CPU splat rasterizer (float32, tile-based, compiled).
+
+Same forward pass as :mod:`holo_viewer.render.reference` (tested against it), organised for
+a quilt of V views that share one orientation (DESIGN.md "Multi-view cameras"):
+
+1. **preprocess** (once per orientation group): camera-frame centres and covariances
+   ``W R S S^T R^T W^T`` (float64), culling of splats behind the near plane of every view;
+2. **sort**: one stable depth sort serves every view of the group (view depth differs
+   between the views only by a constant, so the order is the same);
+3. **project** (per chunk of views): 2D centre, conic, SH colour per view (or shared),
+   pixel box = radius box intersected with the ellipse where alpha >= threshold and the image;
+   splats whose box is empty in every view are the ones culled by the union of the frusta;
+4. **bin**: per (view, 16x16 tile) lists of splat indices in depth order (count, prefix, fill);
+5. **composite**: tiles x views in parallel, front to back with early termination, float32,
+   branch-free rows with a polynomial exp; kernel = C++ AVX2 (``_splat_cpp``) when built,
+   else numba.
+
+Memory is bounded by ``config.max_chunk_bytes``: views are processed in chunks so the per-view
+splat records and tile lists never exceed it (nothing is N x pixels).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+
+import numpy as np
+
+from ..avatar.gaussians import Gaussians
+from ..camera import Cameras
+from ..errors import RenderError
+from .config import RenderConfig, RenderResult
+from .projection import CLAMP_WIDEN
+
+__all__ = ["render", "cpp_available", "kernel_names"]
+
+_BYTES_PER_SPLAT_VIEW = 4 * 10 + 4 * 4 + 4 * 4  # rec + box + ~4 tile entries
+
+
+def _cpp():  # noqa: ANN202
+    try:
+        from . import _splat_cpp  # type: ignore[attr-defined]
+    except ImportError:
+        return None
+    return _splat_cpp
+
+
+def cpp_available() -> bool:
+    """True when the compiled C++ kernel (``holo_viewer.render._splat_cpp``) is importable."""
+    return _cpp() is not None
+
+
+def kernel_names() -> list[str]:
+    """Compositing kernels usable here ("cpp" only when the extension is built)."""
+    return (["cpp"] if cpp_available() else []) + ["numba"]
+
+
+def _groups(cameras: Cameras) -> list[np.ndarray]:
+    """Indices of cameras grouped by identical rotation (one depth sort per group)."""
+    R = cameras.R
+    left = list(range(len(cameras)))
+    groups = []
+    while left:
+        r0 = R[left[0]]
+        same = [i for i in left if np.abs(R[i] - r0).max() < 1e-12]
+        groups.append(np.array(same))
+        left = [i for i in left if i not in set(same)]
+    return groups
+
+
+def _threads(config: RenderConfig) -> int:
+    import numba
+
+    n = config.num_threads or numba.config.NUMBA_NUM_THREADS
+    n = max(1, min(int(n), numba.config.NUMBA_NUM_THREADS))
+    numba.set_num_threads(n)
+    return n
+
+
+def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None = None) -> RenderResult:
+    """Render every camera with the fast backend (see the module docstring).
+
+    Inputs are assumed validated (use :func:`holo_viewer.render.render_views`).
+
+    Returns
+    -------
+    RenderResult
+        images (V, H, W, 3) float32; timings "preprocess", "sort", "project", "bin",
+        "composite", "total"; stats n_input, n_visible, mean_blends_per_pixel, threads, kernel.
+    """
+    from . import fast_kernels as fk
+
+    config = config or RenderConfig()
+    kernel = config.kernel
+    cpp = _cpp()
+    if kernel == "cpp" and cpp is None:
+        raise RenderError("fast backend: kernel 'cpp' requested but the C++ extension "
+                          "holo_viewer.render._splat_cpp is not built (reinstall with a C++17 compiler; "
+                          "kernel='numba' works without it)")
+    use_cpp = cpp is not None and kernel in ("auto", "cpp")
+    t_start = time.perf_counter()
+    threads = _threads(config)
+    timings = dict.fromkeys(("preprocess", "sort", "project", "bin", "composite"), 0.0)
+
+    g = gaussians.numpy()
+    means = np.ascontiguousarray(g.means, dtype=np.float64)
+    quats = np.ascontiguousarray(g.quats, dtype=np.float64)
+    log_scales = np.ascontiguousarray(g.log_scales, dtype=np.float64)
+    opacity = (1.0 / (1.0 + np.exp(-np.asarray(g.opacity_logits, dtype=np.float64))))
+    degree = g.sh_degree if config.sh_degree is None else min(g.sh_degree, int(config.sh_degree))
+    sh = np.ascontiguousarray(np.asarray(g.sh)[:, : (degree + 1) ** 2], dtype=np.float32)
+    near = cameras.near if config.near is None else float(config.near)
+    V, H, W = len(cameras), cameras.height, cameras.width
+    tile = int(config.tile_size)
+    tiles_x, tiles_y = -(-W // tile), -(-H // tile)
+    n_tiles = tiles_x * tiles_y
+    images = np.empty((V, H, W, 3), dtype=np.float32)
+    bg = np.asarray(config.background, dtype=np.float32)
+    cull = -1.0 if config.cull_margin is None else float(config.cull_margin)
+    positions = cameras.positions
+    if config.shared_sh:
+        from .reference import view_colors
+
+        shared_rgb = view_colors(means, sh.astype(np.float64), degree, positions.mean(axis=0)).astype(np.float32)
+    else:
+        shared_rgb = np.zeros((1, 3), dtype=np.float32)
+    total_blends = 0
+    n_visible_mask = np.zeros(len(g), dtype=bool)
+    timings["preprocess"] += time.perf_counter() - t_start
+
+    for group in _groups(cameras):
+        t0 = time.perf_counter()
+        Wrot = np.ascontiguousarray(cameras.R[group[0]])
+        pc, cov = fk.prep_3d(means, quats, log_scales, Wrot)
+        tvec = cameras.t[group]
+        front = (pc[:, 2] + tvec[:, 2].max()) > near
+        idx = np.flatnonzero(front)
+        t1 = time.perf_counter()
+        order = idx[np.argsort(pc[idx, 2], kind="stable")].astype(np.int64)
+        t2 = time.perf_counter()
+        timings["preprocess"] += t1 - t0
+        timings["sort"] += t2 - t1
+        m = order.size
+        chunk = max(1, min(len(group), int(config.max_chunk_bytes // max(1, m * _BYTES_PER_SPLAT_VIEW))))
+        for c0 in range(0, len(group), chunk):
+            views = group[c0:c0 + chunk]
+            t3 = time.perf_counter()
+            cams = np.empty((len(views), 10))
+            cams[:, 0], cams[:, 1] = cameras.fx[views], cameras.fy[views]
+            cams[:, 2], cams[:, 3] = cameras.cx[views], cameras.cy[views]
+            cams[:, 4:7] = cameras.t[views]
+            cams[:, 7:10] = positions[views]
+            rec = np.empty((len(views), m, fk.REC), dtype=np.float32)
+            box = np.empty((len(views), m, 4), dtype=np.int32)
+            seen = fk.project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, bool(config.shared_sh),
+                                    cams, W, H, near, float(config.dilation), float(config.radius_sigmas),
+                                    float(config.alpha_threshold), cull, CLAMP_WIDEN, rec, box)
+            n_visible_mask[order[seen.astype(bool)]] = True
+            t4 = time.perf_counter()
+            off = fk.count_tiles(box, tile, tiles_x, tiles_y)
+            base = np.zeros(len(views), dtype=np.int64)
+            base[1:] = np.cumsum(off[:-1, -1])
+            ids = np.empty(int(off[:, -1].sum()), dtype=np.int32)
+            fk.fill_tiles(box, tile, tiles_x, off, base, ids)
+            t5 = time.perf_counter()
+            out = np.empty((len(views), H, W, 3), dtype=np.float32)
+            blends = np.zeros(len(views) * n_tiles, dtype=np.int64)
+            if use_cpp:
+                cpp.composite(rec, box, off, base, ids, tile, tiles_x, tiles_y, W, H,
+                              float(config.alpha_threshold), float(config.alpha_cap), float(config.t_min),
+                              bg, bool(config.clip_output), out, blends, threads)
+            else:
+                fk.composite(rec, box, off, base, ids, tile, tiles_x, tiles_y, W, H,
+                             float(config.alpha_threshold), float(config.alpha_cap), float(config.t_min),
+                             bg, bool(config.clip_output), out, blends)
+            images[views] = out
+            total_blends += int(blends.sum())
+            t6 = time.perf_counter()
+            timings["project"] += t4 - t3
+            timings["bin"] += t5 - t4
+            timings["composite"] += t6 - t5
+    timings["total"] = time.perf_counter() - t_start
+    stats = {"n_input": len(g), "n_visible": int(n_visible_mask.sum()),
+             "mean_blends_per_pixel": total_blends / float(V * H * W), "threads": threads}
+    return RenderResult(images=images, timings=timings, stats=stats,
+                        backend="fast/cpp" if use_cpp else "fast/numba")

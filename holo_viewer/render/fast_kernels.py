@@ -1,0 +1,338 @@
+"""numba kernels of the fast multi-view rasterizer (see :mod:`holo_viewer.render.fast`).
+
+All kernels are ``cache=True`` (the first compile takes seconds; later processes load it).
+Layout shared with the C++ kernel (``_cpu/splat.cpp``):
+
+* ``rec`` (V, M, REC) float32 per view and visible splat in depth order:
+  u, v (pixels), conic A, B, C, opacity, r, g, b, unused.
+* ``box`` (V, M, 4) int32: pixel columns [x0, x1) and rows [y0, y1) the splat may touch:
+  the reference's radius box intersected with the ellipse where alpha >= threshold and with
+  the image (empty: x0 >= x1).
+* ``tile_off`` (V, n_tiles + 1) int64 and ``tile_ids`` (total,) int32: per (view, tile) the
+  indices into ``rec`` of the splats touching the tile, front to back.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+__all__ = ["REC", "prep_3d", "project_views", "count_tiles", "fill_tiles", "composite"]
+
+REC = 10
+#: exp(x) for x below this is treated as exp(EXP_LO) (~2.8e-6; alpha_threshold >= 1e-5)
+EXP_LO = -12.8
+
+_SH_C0 = 0.28209479177387814
+_SH_C1 = 0.4886025119029199
+_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
+       -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+
+
+@nb.njit(parallel=True, cache=True)
+def prep_3d(means, quats, log_scales, Wrot):  # pragma: no cover - compiled
+    """Camera-frame centres (without translation) and covariances, float64.
+
+    means (N,3), quats (N,4) wxyz, log_scales (N,3), Wrot (3,3) -> pc (N,3), cov (N,6)
+    with cov = (xx, xy, xz, yy, yz, zz) of W R S S^T R^T W^T.
+    """
+    n = means.shape[0]
+    pc = np.empty((n, 3))
+    cov = np.empty((n, 6))
+    for i in nb.prange(n):
+        w, x, y, z = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+        qn = math.sqrt(w * w + x * x + y * y + z * z)
+        w, x, y, z = w / qn, x / qn, y / qn, z / qn
+        R = np.empty((3, 3))
+        R[0, 0] = 1 - 2 * (y * y + z * z); R[0, 1] = 2 * (x * y - w * z); R[0, 2] = 2 * (x * z + w * y)
+        R[1, 0] = 2 * (x * y + w * z); R[1, 1] = 1 - 2 * (x * x + z * z); R[1, 2] = 2 * (y * z - w * x)
+        R[2, 0] = 2 * (x * z - w * y); R[2, 1] = 2 * (y * z + w * x); R[2, 2] = 1 - 2 * (x * x + y * y)
+        s0, s1, s2 = math.exp(log_scales[i, 0]), math.exp(log_scales[i, 1]), math.exp(log_scales[i, 2])
+        M = np.empty((3, 3))  # M = Wrot R S
+        for r in range(3):
+            a0 = Wrot[r, 0] * R[0, 0] + Wrot[r, 1] * R[1, 0] + Wrot[r, 2] * R[2, 0]
+            a1 = Wrot[r, 0] * R[0, 1] + Wrot[r, 1] * R[1, 1] + Wrot[r, 2] * R[2, 1]
+            a2 = Wrot[r, 0] * R[0, 2] + Wrot[r, 1] * R[1, 2] + Wrot[r, 2] * R[2, 2]
+            M[r, 0] = a0 * s0
+            M[r, 1] = a1 * s1
+            M[r, 2] = a2 * s2
+            pc[i, r] = Wrot[r, 0] * means[i, 0] + Wrot[r, 1] * means[i, 1] + Wrot[r, 2] * means[i, 2]
+        cov[i, 0] = M[0, 0] * M[0, 0] + M[0, 1] * M[0, 1] + M[0, 2] * M[0, 2]
+        cov[i, 1] = M[0, 0] * M[1, 0] + M[0, 1] * M[1, 1] + M[0, 2] * M[1, 2]
+        cov[i, 2] = M[0, 0] * M[2, 0] + M[0, 1] * M[2, 1] + M[0, 2] * M[2, 2]
+        cov[i, 3] = M[1, 0] * M[1, 0] + M[1, 1] * M[1, 1] + M[1, 2] * M[1, 2]
+        cov[i, 4] = M[1, 0] * M[2, 0] + M[1, 1] * M[2, 1] + M[1, 2] * M[2, 2]
+        cov[i, 5] = M[2, 0] * M[2, 0] + M[2, 1] * M[2, 1] + M[2, 2] * M[2, 2]
+    return pc, cov
+
+
+@nb.njit(inline="always", cache=True)
+def _sh_color(sh, i, degree, dx, dy, dz, out, c):  # pragma: no cover - compiled
+    """SH colour channel c of Gaussian i along the unit direction (dx, dy, dz)."""
+    r = _SH_C0 * sh[i, 0, c]
+    if degree >= 1:
+        r += -_SH_C1 * dy * sh[i, 1, c] + _SH_C1 * dz * sh[i, 2, c] - _SH_C1 * dx * sh[i, 3, c]
+    if degree >= 2:
+        xx, yy, zz, xy, yz, xz = dx * dx, dy * dy, dz * dz, dx * dy, dy * dz, dx * dz
+        r += (_C2[0] * xy * sh[i, 4, c] + _C2[1] * yz * sh[i, 5, c] + _C2[2] * (2.0 * zz - xx - yy) * sh[i, 6, c]
+              + _C2[3] * xz * sh[i, 7, c] + _C2[4] * (xx - yy) * sh[i, 8, c])
+        if degree >= 3:
+            r += (_C3[0] * dy * (3.0 * xx - yy) * sh[i, 9, c] + _C3[1] * xy * dz * sh[i, 10, c]
+                  + _C3[2] * dy * (4.0 * zz - xx - yy) * sh[i, 11, c]
+                  + _C3[3] * dz * (2.0 * zz - 3.0 * xx - 3.0 * yy) * sh[i, 12, c]
+                  + _C3[4] * dx * (4.0 * zz - xx - yy) * sh[i, 13, c] + _C3[5] * dz * (xx - yy) * sh[i, 14, c]
+                  + _C3[6] * dx * (xx - 3.0 * yy) * sh[i, 15, c])
+    return max(r + 0.5, 0.0)
+
+
+@nb.njit(parallel=True, cache=True)
+def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_shared, cams, width, height,
+                  near, dilation, radius_sigmas, alpha_threshold, cull_margin, clamp_widen,
+                  rec, box):  # pragma: no cover - compiled
+    """Per view and splat (in depth order ``order``): 2D centre, conic, colour and pixel box.
+
+    cams (V, 13): fx, fy, cx, cy, tx, ty, tz (world->camera translation), cam_pos xyz (world).
+    cull_margin < 0 disables centre culling. Writes rec (V, M, REC) and box (V, M, 4).
+    Returns (M,) uint8: 1 where the splat's box is non-empty in at least one view.
+    """
+    m = order.shape[0]
+    nv = cams.shape[0]
+    seen = np.zeros(m, dtype=np.uint8)
+    ln_thr = math.log(alpha_threshold)
+    for k in nb.prange(m):
+        i = order[k]
+        any_v = 0
+        for v in range(nv):
+            fx, fy, cx, cy = cams[v, 0], cams[v, 1], cams[v, 2], cams[v, 3]
+            tx = pc[i, 0] + cams[v, 4]
+            ty = pc[i, 1] + cams[v, 5]
+            tz = pc[i, 2] + cams[v, 6]
+            box[v, k, 0] = 0
+            box[v, k, 1] = 0
+            box[v, k, 2] = 0
+            box[v, k, 3] = 0
+            if not tz > near:
+                continue
+            u = fx * tx / tz + cx
+            vv = fy * ty / tz + cy
+            if cull_margin >= 0.0:
+                if (u < -cull_margin * width or u > (1.0 + cull_margin) * width
+                        or vv < -cull_margin * height or vv > (1.0 + cull_margin) * height):
+                    continue
+            lo_x = (-cx - clamp_widen * width) / fx
+            hi_x = ((1.0 + clamp_widen) * width - cx) / fx
+            lo_y = (-cy - clamp_widen * height) / fy
+            hi_y = ((1.0 + clamp_widen) * height - cy) / fy
+            txc = min(max(tx / tz, lo_x), hi_x) * tz
+            tyc = min(max(ty / tz, lo_y), hi_y) * tz
+            j00 = fx / tz
+            j02 = -fx * txc / (tz * tz)
+            j11 = fy / tz
+            j12 = -fy * tyc / (tz * tz)
+            sxx, sxy, sxz, syy, syz, szz = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5]
+            # rows of M = J: (j00, 0, j02), (0, j11, j12); S2 = M Sigma M^T
+            r0x = j00 * sxx + j02 * sxz
+            r0y = j00 * sxy + j02 * syz
+            r0z = j00 * sxz + j02 * szz
+            r1y = j11 * syy + j12 * syz
+            r1z = j11 * syz + j12 * szz
+            a = r0x * j00 + r0z * j02 + dilation
+            b = r0y * j11 + r0z * j12
+            c = r1y * j11 + r1z * j12 + dilation
+            det = a * c - b * b
+            if not det > 0.0:
+                continue
+            op = opacity[i]
+            if op < alpha_threshold:
+                continue
+            mid = 0.5 * (a + c)
+            lam = mid + math.sqrt(max(mid * mid - det, 0.0))
+            rad = math.ceil(radius_sigmas * math.sqrt(max(lam, 0.0)))
+            q = 2.0 * (math.log(op) - ln_thr)  # alpha >= thr  <=>  d^T conic d <= q
+            hx = min(rad, math.sqrt(q * a) * 1.0001 + 1e-3)
+            hy = min(rad, math.sqrt(q * c) * 1.0001 + 1e-3)
+            fx0 = math.ceil(u - hx - 0.5)
+            fx1 = math.floor(u + hx - 0.5) + 1.0
+            fy0 = math.ceil(vv - hy - 0.5)
+            fy1 = math.floor(vv + hy - 0.5) + 1.0
+            x0 = int(min(max(fx0, 0.0), width))
+            x1 = int(min(max(fx1, 0.0), width))
+            y0 = int(min(max(fy0, 0.0), height))
+            y1 = int(min(max(fy1, 0.0), height))
+            if x0 >= x1 or y0 >= y1:
+                continue
+            box[v, k, 0] = x0
+            box[v, k, 1] = x1
+            box[v, k, 2] = y0
+            box[v, k, 3] = y1
+            any_v = 1
+            rec[v, k, 0] = u
+            rec[v, k, 1] = vv
+            rec[v, k, 2] = c / det
+            rec[v, k, 3] = -b / det
+            rec[v, k, 4] = a / det
+            rec[v, k, 5] = op
+            if use_shared:
+                for ch in range(3):
+                    rec[v, k, 6 + ch] = shared_rgb[i, ch]
+            else:
+                dx = means[i, 0] - cams[v, 7]
+                dy = means[i, 1] - cams[v, 8]
+                dz = means[i, 2] - cams[v, 9]
+                nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
+                if nrm > 0.0:
+                    dx, dy, dz = dx / nrm, dy / nrm, dz / nrm
+                for ch in range(3):
+                    rec[v, k, 6 + ch] = _sh_color(sh, i, degree, dx, dy, dz, rec, ch)
+            rec[v, k, 9] = 0.0
+        seen[k] = any_v
+    return seen
+
+
+@nb.njit(parallel=True, cache=True)
+def count_tiles(box, tile, tiles_x, tiles_y):  # pragma: no cover - compiled
+    """(V, n_tiles + 1) int64 exclusive prefix sums of the number of splats per tile."""
+    nv, m = box.shape[0], box.shape[1]
+    nt = tiles_x * tiles_y
+    off = np.zeros((nv, nt + 1), dtype=np.int64)
+    for v in nb.prange(nv):
+        cnt = np.zeros(nt, dtype=np.int64)
+        for k in range(m):
+            x0, x1, y0, y1 = box[v, k, 0], box[v, k, 1], box[v, k, 2], box[v, k, 3]
+            if x0 >= x1 or y0 >= y1:
+                continue
+            for ty in range(y0 // tile, (y1 - 1) // tile + 1):
+                for tx in range(x0 // tile, (x1 - 1) // tile + 1):
+                    cnt[ty * tiles_x + tx] += 1
+        s = 0
+        for t in range(nt):
+            off[v, t] = s
+            s += cnt[t]
+        off[v, nt] = s
+    return off
+
+
+@nb.njit(parallel=True, cache=True)
+def fill_tiles(box, tile, tiles_x, off, base, ids):  # pragma: no cover - compiled
+    """Write splat indices per (view, tile) in depth order into ``ids`` at ``base[v] + off[v, t]``."""
+    nv, m = box.shape[0], box.shape[1]
+    nt = off.shape[1] - 1
+    for v in nb.prange(nv):
+        cur = off[v, :nt].copy()
+        b = base[v]
+        for k in range(m):
+            x0, x1, y0, y1 = box[v, k, 0], box[v, k, 1], box[v, k, 2], box[v, k, 3]
+            if x0 >= x1 or y0 >= y1:
+                continue
+            for ty in range(y0 // tile, (y1 - 1) // tile + 1):
+                for tx in range(x0 // tile, (x1 - 1) // tile + 1):
+                    t = ty * tiles_x + tx
+                    ids[b + cur[t]] = k
+                    cur[t] += 1
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _fast_exp(x):  # pragma: no cover - compiled
+    """exp(x) for x in [EXP_LO, 0] (relative error < 2e-5): Taylor degree 6 of x/32, squared 5 times."""
+    y = max(x, np.float32(EXP_LO)) * np.float32(1.0 / 32.0)
+    e = np.float32(1.0) + y * (np.float32(1.0) + y * np.float32(0.5) * (np.float32(1.0) + y * np.float32(1.0 / 3.0) * (
+        np.float32(1.0) + y * np.float32(0.25) * (np.float32(1.0) + y * np.float32(0.2) * (
+            np.float32(1.0) + y * np.float32(1.0 / 6.0))))))
+    e = e * e
+    e = e * e
+    e = e * e
+    e = e * e
+    return e * e
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def composite(rec, box, off, base, ids, tile, tiles_x, tiles_y, width, height, alpha_threshold, alpha_cap,
+              t_min, bg, clip, out, blends):  # pragma: no cover - compiled
+    """Composite every (view, tile) front to back into ``out`` (V, H, W, 3) float32.
+
+    Per tile row the splat's box columns are processed branch-free (vectorisable): a pixel
+    blends when power <= 0, alpha >= threshold and it is not finished; it finishes (without
+    blending) when the splat would take T below t_min. ``blends`` (V * n_tiles,) gets counts.
+    """
+    nv = rec.shape[0]
+    nt = tiles_x * tiles_y
+    thr = np.float32(alpha_threshold)
+    cap = np.float32(alpha_cap)
+    tmin = np.float32(t_min)
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    for job in nb.prange(nv * nt):
+        v = job // nt
+        t = job - v * nt
+        ty = t // tiles_x
+        tx = t - ty * tiles_x
+        px0 = tx * tile
+        py0 = ty * tile
+        pw = min(tile, width - px0)
+        ph = min(tile, height - py0)
+        T = np.ones(tile * tile, dtype=np.float32)
+        R = np.zeros(tile * tile, dtype=np.float32)
+        G = np.zeros(tile * tile, dtype=np.float32)
+        Bc = np.zeros(tile * tile, dtype=np.float32)
+        live = np.ones(tile * tile, dtype=np.float32)  # 1 = still compositing
+        n_live = pw * ph
+        nbl = 0
+        b = base[v]
+        for e in range(off[v, t], off[v, t + 1]):
+            k = ids[b + e]
+            x0 = max(box[v, k, 0], px0) - px0
+            x1 = min(box[v, k, 1], px0 + pw) - px0
+            y0 = max(box[v, k, 2], py0) - py0
+            y1 = min(box[v, k, 3], py0 + ph) - py0
+            if x0 >= x1 or y0 >= y1:
+                continue
+            u = rec[v, k, 0] - np.float32(px0 + 0.5)
+            vv = rec[v, k, 1] - np.float32(py0 + 0.5)
+            ca = np.float32(-0.5) * rec[v, k, 2]
+            cb = rec[v, k, 3]
+            cc = np.float32(-0.5) * rec[v, k, 4]
+            op = rec[v, k, 5]
+            cr, cg, cbl = rec[v, k, 6], rec[v, k, 7], rec[v, k, 8]
+            for y in range(y0, y1):
+                dy = np.float32(y) - vv
+                lin = -cb * dy
+                cst = cc * dy * dy
+                row = y * tile
+                for x in range(x0, x1):
+                    dx = np.float32(x) - u
+                    power = ca * dx * dx + lin * dx + cst
+                    alpha = min(cap, op * _fast_exp(power))
+                    p = row + x
+                    ok = live[p] * np.float32((power <= zero) & (alpha >= thr))
+                    tt = T[p]
+                    test = tt * (one - alpha)
+                    fin = ok * np.float32(test < tmin)
+                    ok = ok - fin
+                    live[p] = live[p] - fin
+                    w = ok * alpha * tt
+                    R[p] += w * cr
+                    G[p] += w * cg
+                    Bc[p] += w * cbl
+                    T[p] = tt - ok * (tt - test)
+                    nbl += int(ok)
+                    n_live -= int(fin)
+            if n_live <= 0:
+                break
+        for y in range(ph):
+            for x in range(pw):
+                p = y * tile + x
+                tt = T[p]
+                r = R[p] + tt * np.float32(bg[0])
+                g = G[p] + tt * np.float32(bg[1])
+                bb = Bc[p] + tt * np.float32(bg[2])
+                if clip:
+                    r = min(max(r, zero), one)
+                    g = min(max(g, zero), one)
+                    bb = min(max(bb, zero), one)
+                out[v, py0 + y, px0 + x, 0] = r
+                out[v, py0 + y, px0 + x, 1] = g
+                out[v, py0 + y, px0 + x, 2] = bb
+        blends[job] = nbl
