@@ -74,11 +74,14 @@ class PlyHeader:
         Elements in file order (name, count, properties).
     data_offset : int
         Byte offset of the first data byte.
+    comments : tuple of str
+        Header ``comment`` lines (without the keyword).
     """
 
     format: str
     elements: tuple[_Element, ...]
     data_offset: int
+    comments: tuple[str, ...] = ()
 
 
 def read_ply_header(path: str | os.PathLike, data: bytes | None = None) -> PlyHeader:
@@ -97,6 +100,7 @@ def read_ply_header(path: str | os.PathLike, data: bytes | None = None) -> PlyHe
     fmt = None
     elements: list[_Element] = []
     cur: dict[str, Any] | None = None
+    comments: list[str] = []
 
     def close() -> None:
         if cur is not None:
@@ -104,7 +108,10 @@ def read_ply_header(path: str | os.PathLike, data: bytes | None = None) -> PlyHe
 
     for ln, line in enumerate(lines[1:], start=2):
         tok = line.split()
-        if not tok or tok[0] in ("comment", "obj_info"):
+        if tok and tok[0] == "comment":
+            comments.append(line.strip()[len("comment"):].strip())
+            continue
+        if not tok or tok[0] == "obj_info":
             continue
         if tok[0] == "format":
             if len(tok) < 2 or tok[1] not in _FORMATS:
@@ -136,7 +143,7 @@ def read_ply_header(path: str | os.PathLike, data: bytes | None = None) -> PlyHe
     close()
     if fmt is None:
         raise PlyError(f"{path}: expected a 'format' line in the header, found none")
-    return PlyHeader(fmt, tuple(elements), m.end())
+    return PlyHeader(fmt, tuple(elements), m.end(), tuple(comments))
 
 
 def _vertex_table(path: Path, header: PlyHeader, data: bytes) -> np.ndarray:
@@ -309,12 +316,14 @@ def load_ply(path: str | os.PathLike, *, normalize_quats: bool = True) -> Gaussi
     return Gaussians(means, quats, log_scales, opacity, sh, extra)
 
 
-def save_ply(gaussians: Gaussians, path: str | os.PathLike) -> Path:
+def save_ply(gaussians: Gaussians, path: str | os.PathLike, comments: "list[str] | tuple[str, ...]" = ()) -> Path:
     """Write Gaussians as a binary little-endian 3DGS PLY (atomic).
 
     Standard fields are written as float32 (the Inria layout); normals as zeros unless
     ``extra`` has ``nx``/``ny``/``nz``; each extra (N,) array becomes one property of its own
     dtype, an (N, K) array the properties ``name_0 .. name_{K-1}``.
+
+    ``comments`` are written as header ``comment`` lines (read back by :func:`read_ply_header`).
 
     Returns
     -------
@@ -365,7 +374,12 @@ def save_ply(gaussians: Gaussians, path: str | os.PathLike) -> Path:
     table = np.empty(n, dtype=dtype)
     for f, a in fields:
         table[f] = a
-    lines = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
+    lines = ["ply", "format binary_little_endian 1.0"]
+    for c in comments:
+        if "\n" in c or "\r" in c:
+            raise PlyError(f"{path}: comment: expected a single line, found {c!r}")
+        lines.append(f"comment {c}")
+    lines.append(f"element vertex {n}")
     lines += [f"property {_NP_TO_PLY[dtype.fields[f][0].str[1:]]} {f}" for f, _ in fields]
     lines.append("end_header")
     with atomic_write(path, "wb") as fh:
