@@ -1,0 +1,215 @@
+"""Geometry of the inspection scene: FLAME mesh, Gaussian ellipsoid glyphs, camera frusta.
+
+The ``*_arrays`` functions are pure numpy (testable without VTK) and return points,
+connectivity and per-element scalars; the ``*_polydata`` wrappers turn them into
+``pyvista.PolyData`` (pyvista is imported lazily, inside them).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry import quat_to_rotmat_np
+from ..validation import check_array
+
+__all__ = [
+    "frusta_arrays", "focal_plane_corners", "ellipsoid_glyph_arrays", "subsample_indices",
+    "unit_icosphere", "mesh_polydata", "frusta_polydata", "focal_plane_polydata", "glyph_polydata",
+    "image_plane", "view_colors",
+]
+
+
+# ============================================================================ numpy
+
+
+def focal_plane_corners(cameras: Any, focal_center: np.ndarray, view: int | None = None) -> np.ndarray:
+    """(4, 3) world corners of the image rectangle of ``view`` at the focal-plane depth.
+
+    Order: top-left, top-right, bottom-right, bottom-left (image orientation). ``view``
+    None = the middle view. With Algorithm 1's sheared cameras every view's rectangle at
+    the focal depth is the same focal plane.
+    """
+    c = np.asarray(focal_center, dtype=np.float64).reshape(3)
+    i = len(cameras) // 2 if view is None else int(view)
+    R, t, K = cameras.R[i], cameras.t[i], cameras.K[i]
+    depth = float((R @ c + t)[2])
+    if not depth > 0:
+        raise InputError(f"focal_center: expected in front of camera {i}, found depth {depth:.4g} m")
+    W, H = cameras.width, cameras.height
+    px = np.array([[0.0, 0.0], [W, 0.0], [W, H], [0.0, H]])
+    x = (px[:, 0] - K[0, 2]) / K[0, 0] * depth
+    y = (px[:, 1] - K[1, 2]) / K[1, 1] * depth
+    pc = np.stack([x, y, np.full(4, depth)], axis=1)
+    return (pc - t) @ R  # R^T (pc - t)
+
+
+def frusta_arrays(cameras: Any, focal_center: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Line segments of every camera's frustum from its centre to the focal plane.
+
+    Returns
+    -------
+    points : numpy.ndarray
+        (V * 5, 3) camera centre then the 4 focal-plane corners of each view.
+    lines : numpy.ndarray
+        (V * 8, 2) point-index pairs: 4 edges apex->corner and the 4 rectangle edges.
+    view_index : numpy.ndarray
+        (V * 8,) int view index of each segment.
+    """
+    V = len(cameras)
+    pts = np.empty((V, 5, 3))
+    pts[:, 0] = cameras.positions
+    for i in range(V):
+        pts[i, 1:] = focal_plane_corners(cameras, focal_center, i)
+    base = (np.arange(V) * 5)[:, None, None]
+    local = np.array([[0, 1], [0, 2], [0, 3], [0, 4], [1, 2], [2, 3], [3, 4], [4, 1]])
+    lines = (base + local[None]).reshape(-1, 2)
+    return pts.reshape(-1, 3), lines, np.repeat(np.arange(V), 8)
+
+
+_ICO_CACHE: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def unit_icosphere(subdivisions: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (P, 3) on the unit sphere and triangles (T, 3) of a subdivided icosahedron."""
+    if subdivisions in _ICO_CACHE:
+        return _ICO_CACHE[subdivisions]
+    p = (1 + 5 ** 0.5) / 2
+    v = [[-1, p, 0], [1, p, 0], [-1, -p, 0], [1, -p, 0], [0, -1, p], [0, 1, p], [0, -1, -p], [0, 1, -p],
+         [p, 0, -1], [p, 0, 1], [-p, 0, -1], [-p, 0, 1]]
+    f = [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
+         [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11],
+         [6, 2, 10], [8, 6, 7], [9, 8, 1]]
+    verts = [np.array(x, dtype=np.float64) / np.linalg.norm(x) for x in v]
+    faces = [tuple(x) for x in f]
+    for _ in range(subdivisions):
+        mid: dict[tuple[int, int], int] = {}
+
+        def midpoint(a: int, b: int) -> int:
+            key = (min(a, b), max(a, b))
+            if key not in mid:
+                m = verts[a] + verts[b]
+                verts.append(m / np.linalg.norm(m))
+                mid[key] = len(verts) - 1
+            return mid[key]
+
+        new = []
+        for a, b, c in faces:
+            ab, bc, ca = midpoint(a, b), midpoint(b, c), midpoint(c, a)
+            new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        faces = new
+    out = (np.array(verts), np.array(faces, dtype=np.int64))
+    _ICO_CACHE[subdivisions] = out
+    return out
+
+
+def subsample_indices(n: int, max_count: int, seed: int = 0) -> np.ndarray:
+    """Sorted indices of at most ``max_count`` of ``n`` items (deterministic random subset)."""
+    if max_count <= 0:
+        raise InputError(f"max_count: expected > 0, found {max_count}")
+    if n <= max_count:
+        return np.arange(n)
+    rng = np.random.default_rng(seed)
+    return np.sort(rng.choice(n, size=max_count, replace=False))
+
+
+def ellipsoid_glyph_arrays(means: np.ndarray, quats: np.ndarray, scales: np.ndarray, *,
+                           sigmas: float = 1.0, subdivisions: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle meshes of the ``sigmas``-sigma ellipsoids of N Gaussians.
+
+    Point ``p`` of Gaussian ``n`` is ``means[n] + R_n diag(sigmas * scales[n]) u_p`` for the unit
+    icosphere points ``u_p``.
+
+    Parameters
+    ----------
+    means, scales : numpy.ndarray
+        (N, 3) centres (metres) and standard deviations (metres).
+    quats : numpy.ndarray
+        (N, 4) wxyz rotations.
+
+    Returns
+    -------
+    points : numpy.ndarray
+        (N * P, 3) float64.
+    triangles : numpy.ndarray
+        (N * T, 3) int64 point indices.
+    """
+    sizes: dict[str, int] = {}
+    means = check_array(np.asarray(means, dtype=np.float64), "means", ("N", 3), sizes=sizes)
+    quats = check_array(np.asarray(quats, dtype=np.float64), "quats", ("N", 4), sizes=sizes)
+    scales = check_array(np.asarray(scales, dtype=np.float64), "scales", ("N", 3), sizes=sizes)
+    unit, tri = unit_icosphere(subdivisions)
+    R = quat_to_rotmat_np(quats)  # (N, 3, 3)
+    M = R * (sigmas * scales)[:, None, :]  # R diag(s)
+    pts = means[:, None, :] + np.einsum("nij,pj->npi", M, unit)
+    P = unit.shape[0]
+    tris = (np.arange(means.shape[0]) * P)[:, None, None] + tri[None]
+    return pts.reshape(-1, 3), tris.reshape(-1, 3)
+
+
+def view_colors(n_views: int, cmap: str = "turbo") -> np.ndarray:
+    """(n_views, 3) float RGB in [0, 1] of each view index (view 0 = first colour of ``cmap``)."""
+    import matplotlib
+
+    cm = matplotlib.colormaps[cmap]
+    return np.asarray(cm(np.linspace(0.0, 1.0, max(n_views, 1)))[:, :3], dtype=np.float64)
+
+
+# ============================================================================ pyvista
+
+
+def _faces_to_vtk(tri: np.ndarray) -> np.ndarray:
+    tri = np.asarray(tri, dtype=np.int64)
+    return np.hstack([np.full((tri.shape[0], 1), 3, dtype=np.int64), tri]).ravel()
+
+
+def mesh_polydata(vertices: np.ndarray, faces: np.ndarray) -> Any:
+    """``pyvista.PolyData`` of a triangle mesh ((V, 3) vertices, (F, 3) faces)."""
+    import pyvista as pv
+
+    v = check_array(np.asarray(vertices, dtype=np.float64), "vertices", ("V", 3))
+    return pv.PolyData(v.copy(), faces=_faces_to_vtk(faces))
+
+
+def frusta_polydata(cameras: Any, focal_center: np.ndarray) -> Any:
+    """Frustum line segments with a ``view`` cell array (int view index)."""
+    import pyvista as pv
+
+    pts, lines, vid = frusta_arrays(cameras, focal_center)
+    cells = np.hstack([np.full((lines.shape[0], 1), 2, dtype=np.int64), lines]).ravel()
+    poly = pv.PolyData(pts, lines=cells)
+    poly.cell_data["view"] = vid
+    return poly
+
+
+def focal_plane_polydata(cameras: Any, focal_center: np.ndarray) -> Any:
+    """The focal plane (zero-parallax plane) as one quad."""
+    import pyvista as pv
+
+    c = focal_plane_corners(cameras, focal_center)
+    return pv.PolyData(c, faces=np.array([4, 0, 1, 2, 3]))
+
+
+def glyph_polydata(gaussians: Any, index: np.ndarray, *, sigmas: float = 1.0, subdivisions: int = 1) -> Any:
+    """Ellipsoid glyphs of the Gaussians ``index`` with an ``rgb`` uint8 point array (DC colour)."""
+    import pyvista as pv
+
+    g = gaussians.numpy() if gaussians.is_torch else gaussians
+    idx = np.asarray(index)
+    pts, tri = ellipsoid_glyph_arrays(g.means[idx], g.quats[idx], np.exp(g.log_scales[idx]),
+                                      sigmas=sigmas, subdivisions=subdivisions)
+    poly = pv.PolyData(pts, faces=_faces_to_vtk(tri))
+    rgb = np.clip(g.colors_dc()[idx], 0.0, 1.0)
+    P = unit_icosphere(subdivisions)[0].shape[0]
+    poly.point_data["rgb"] = np.repeat((rgb * 255).astype(np.uint8), P, axis=0)
+    return poly
+
+
+def image_plane(width: float, height: float) -> Any:
+    """A ``width`` x ``height`` textured quad in the z = 0 plane (image row 0 at +y)."""
+    import pyvista as pv
+
+    return pv.Plane(center=(0.0, 0.0, 0.0), direction=(0.0, 0.0, 1.0), i_size=width, j_size=height,
+                    i_resolution=1, j_resolution=1)

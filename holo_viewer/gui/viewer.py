@@ -1,0 +1,551 @@
+"""Interactive inspection viewer (PyVista, no Qt): mesh, Gaussians, frusta, sliders, preview.
+
+Layout of the window (``pyvista.Plotter`` with three renderers)::
+
+    +-----------+--------------------------+-----------------+
+    | sliders   | 3D scene: FLAME mesh,    | selected view   |
+    | (expr,    | Gaussian ellipsoids,     | (fast renderer) |
+    |  jaw,     | 48 frusta coloured by    +-----------------+
+    |  pain...) | view, focal plane        | quilt thumbnail |
+    +-----------+--------------------------+-----------------+
+
+Sliders fire on ``EndInteractionEvent`` (``interaction_event="end"``): a release
+updates the pipeline, then the mesh (rendered at once), the Gaussian glyphs and the
+preview view, then the quilt thumbnail. Keys (``h`` shows them in the window):
+
+====  ======================================================================
+m     toggle the FLAME mesh          l   toggle mesh wireframe
+g     toggle Gaussian ellipsoids     o   toggle frusta and focal plane
+k     export the quilt PNG           n   export the native PNG
+x     export an expression-sweep mp4 i   save a screenshot PNG
+h     toggle the help overlay        q   quit
+====  ======================================================================
+
+Exports go to :attr:`ViewerConfig.out_dir`, written atomically.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import InputError
+from ..pipeline import FaceControls, Pipeline, to_uint8
+from .scene import (focal_plane_polydata, frusta_polydata, glyph_polydata, image_plane, mesh_polydata,
+                    subsample_indices, view_colors)
+
+__all__ = ["ViewerConfig", "HoloViewer", "HELP_TEXT", "scale_cameras"]
+
+HELP_TEXT = """keys
+ m  mesh on/off        l  wireframe
+ g  Gaussians on/off   o  frusta on/off
+ k  export quilt       n  export native
+ x  sweep video        i  screenshot
+ h  this help          q  quit
+sliders act on release"""
+
+
+@dataclass(frozen=True)
+class ViewerConfig:
+    """Viewer settings.
+
+    Attributes
+    ----------
+    window_size : (int, int)
+        Window width, height in pixels.
+    n_expr_sliders : int
+        Sliders for the first expression components (range +-``expr_range``).
+    max_glyphs : int
+        Gaussians drawn as ellipsoids (a deterministic random subset keeps it interactive).
+    glyph_sigmas : float
+        Ellipsoid radius in standard deviations.
+    preview_scale, thumbnail_scale : float
+        Size of the preview view and of the thumbnail quilt's tiles relative to the quilt tile.
+    auto_thumbnail : bool
+        Re-render the thumbnail quilt after every slider release (else on the ``k`` export only).
+    sweep_frames, sweep_scale : int, float
+        Frames and tile scale of the expression-sweep video.
+    out_dir : str
+        Folder of exports.
+    """
+
+    window_size: tuple[int, int] = (1600, 900)
+    n_expr_sliders: int = 4
+    expr_range: float = 2.0
+    max_glyphs: int = 2500
+    glyph_sigmas: float = 1.5
+    preview_scale: float = 0.5
+    thumbnail_scale: float = 0.125
+    auto_thumbnail: bool = True
+    sweep_frames: int = 16
+    sweep_scale: float = 0.5
+    sweep_fps: float = 8.0
+    out_dir: str = "holo_viewer_out"
+    title: str = "holo-viewer"
+
+
+def scale_cameras(cameras: Any, scale: float) -> Any:
+    """The same cameras rendering ``scale`` x the image size (intrinsics scaled alike)."""
+    from ..camera import Cameras
+
+    W = max(4, int(round(cameras.width * scale)))
+    H = max(4, int(round(cameras.height * scale)))
+    sx, sy = W / cameras.width, H / cameras.height
+    K = cameras.K.copy()
+    K[:, 0, :] *= sx
+    K[:, 1, :] *= sy
+    return Cameras(cameras.world_to_cam, K, W, H, cameras.near, cameras.far)
+
+
+class _ImagePanel:
+    """An image shown on a textured quad in its own renderer (parallel projection)."""
+
+    def __init__(self, plotter: Any, subplot: tuple[int, int], title: str) -> None:
+        self.plotter = plotter
+        self.subplot = subplot
+        self.actor: Any = None
+        self.shape: tuple[int, int] | None = None
+        self.image: np.ndarray | None = None
+        plotter.subplot(*subplot)
+        plotter.add_text(title, position="upper_left", font_size=9, color="white")
+        plotter.set_background("black", all_renderers=False)
+
+    def update(self, image: np.ndarray) -> None:
+        import pyvista as pv
+
+        img = to_uint8(np.asarray(image))
+        self.image = img
+        h, w = img.shape[:2]
+        self.plotter.subplot(*self.subplot)
+        tex = pv.Texture(np.ascontiguousarray(img[::-1]))  # VTK textures start at the bottom row
+        if self.actor is None or self.shape != (h, w):
+            if self.actor is not None:
+                self.plotter.remove_actor(self.actor, render=False)
+            plane = image_plane(w / h, 1.0)
+            self.actor = self.plotter.add_mesh(plane, texture=tex, lighting=False, reset_camera=False,
+                                               name=f"panel{self.subplot}")
+            self.shape = (h, w)
+            self.plotter.enable_parallel_projection()
+            cam = self.plotter.renderer.camera
+            cam.position = (0.0, 0.0, 5.0)
+            cam.focal_point = (0.0, 0.0, 0.0)
+            cam.up = (0.0, 1.0, 0.0)
+            cam.parallel_scale = 0.52
+        else:
+            self.actor.texture = tex
+
+
+@dataclass
+class UpdateTimings:
+    """Milliseconds from a slider release to each part of the scene being on screen."""
+
+    mesh_ms: float = float("nan")
+    preview_ms: float = float("nan")
+    thumbnail_ms: float = float("nan")
+    stages: dict[str, float | None] = field(default_factory=dict)
+
+
+class HoloViewer:
+    """The inspection window around a :class:`~holo_viewer.pipeline.Pipeline`.
+
+    Parameters
+    ----------
+    pipeline : Pipeline
+        Supplies the mesh, Gaussians (optional: ``pipeline.avatar`` may be None), cameras,
+        preview views and exports.
+    config : ViewerConfig
+    off_screen : bool
+        Render into an offscreen buffer (snapshots, tests).
+    """
+
+    def __init__(self, pipeline: Pipeline, config: ViewerConfig | None = None, *, off_screen: bool = False) -> None:
+        import pyvista as pv
+
+        self.pipeline = pipeline
+        self.config = config or ViewerConfig()
+        self.off_screen = off_screen
+        self.selected_view = len(pipeline.cameras()) // 2
+        self.show_mesh = True
+        self.wireframe = False
+        self.show_gaussians = pipeline.avatar is not None
+        self.show_frusta = True
+        self.show_help = False
+        self.timings = UpdateTimings()
+        self.exports: list[Path] = []
+        self.sliders: dict[str, Any] = {}
+        self._glyph_index: np.ndarray | None = None
+        self._thumb_key: tuple | None = None
+        self._building = True
+
+        self.plotter = pv.Plotter(shape=(2, 3), groups=[(np.s_[:], 0), (np.s_[:], 1)],
+                                  col_weights=[0.9, 2.4, 1.2], window_size=list(self.config.window_size),
+                                  off_screen=off_screen, title=self.config.title, border=False)
+        self._build()
+        self._building = False
+
+    # ================================================================== building
+    @property
+    def faces(self) -> np.ndarray:
+        return self.pipeline.model.faces.detach().cpu().numpy()
+
+    def _build(self) -> None:
+        p = self.plotter
+        pipe = self.pipeline
+        # ---- 3D scene
+        p.subplot(0, 1)
+        p.set_background("#1e2127", top="#3a4150", all_renderers=False)
+        self.mesh = mesh_polydata(pipe.mesh(), self.faces)
+        self.mesh_actor = p.add_mesh(self.mesh, color="#e8c4a8", smooth_shading=True, specular=0.2,
+                                     name="mesh", reset_camera=False)
+        self.glyphs = None
+        self.glyph_actor = None
+        if pipe.avatar is not None:
+            self._update_glyphs()
+        self._add_frusta()
+        self.status = p.add_text("", position="lower_right", font_size=8, color="white", name="status")
+        self.help_actor = p.add_text(HELP_TEXT, position="upper_left", font_size=9, color="#ffe680",
+                                     name="help")
+        self.help_actor.SetVisibility(self.show_help)
+        self._set_scene_camera()
+        # ---- image panels
+        self.preview_panel = _ImagePanel(p, (0, 2), "selected view")
+        self.thumb_panel = _ImagePanel(p, (1, 2), "quilt")
+        # ---- sliders
+        p.subplot(0, 0)
+        p.set_background("#15171b", all_renderers=False)
+        self._add_sliders()
+        # ---- keys
+        for key, fn in {"m": self.toggle_mesh, "l": self.toggle_wireframe, "g": self.toggle_gaussians,
+                        "o": self.toggle_frusta, "h": self.toggle_help, "k": self.export_quilt,
+                        "n": self.export_native, "x": self.export_sweep_video,
+                        "i": self.save_screenshot}.items():
+            p.add_key_event(key, self._guard(fn))
+        p.subplot(0, 1)
+        self._update_preview()
+        if self.config.auto_thumbnail:
+            self._update_thumbnail()
+        self._update_status()
+
+    def _set_scene_camera(self) -> None:
+        cams = self.pipeline.cameras()
+        centre, half = self.pipeline.get("framing")
+        mid = cams.positions[len(cams) // 2]
+        p = self.plotter
+        p.subplot(0, 1)
+        # look at the head and the camera rail from the front-right, above
+        d = float(np.linalg.norm(mid - centre))
+        focal = centre + np.array([0.0, 0.0, 0.5 * d])
+        direction = np.array([0.8, 0.5, 1.0]) / np.linalg.norm([0.8, 0.5, 1.0])
+        eye = focal + 2.6 * d * direction
+        p.renderer.camera_position = [tuple(eye), tuple(focal), (0.0, 1.0, 0.0)]
+        p.renderer.camera.view_angle = 30.0
+        p.renderer.reset_camera_clipping_range()
+
+    def _add_frusta(self) -> None:
+        p = self.plotter
+        p.subplot(0, 1)
+        cams = self.pipeline.cameras()
+        centre, _ = self.pipeline.get("framing")
+        self.frusta = frusta_polydata(cams, centre)
+        cols = view_colors(len(cams))
+        rgb = (cols[self.frusta.cell_data["view"]] * 255).astype(np.uint8)
+        self.frusta.cell_data["rgb"] = rgb
+        self.frusta_actor = p.add_mesh(self.frusta, scalars="rgb", rgb=True, line_width=1.0, opacity=0.55,
+                                       name="frusta", reset_camera=False, lighting=False)
+        sel = frusta_polydata(cams[self.selected_view], centre)
+        self.selected_actor = p.add_mesh(sel, color="white", line_width=3.0, name="selected",
+                                         reset_camera=False, lighting=False)
+        self.focal_actor = p.add_mesh(focal_plane_polydata(cams, centre), color="#5fa8ff", opacity=0.18,
+                                      name="focal", reset_camera=False, lighting=False, show_edges=True,
+                                      edge_color="#5fa8ff")
+        for a in (self.frusta_actor, self.selected_actor, self.focal_actor):
+            a.SetVisibility(self.show_frusta)
+
+    def _add_sliders(self) -> None:
+        pipe, cfg, p = self.pipeline, self.config, self.plotter
+        names = pipe.model.expression_names or []
+        n = min(cfg.n_expr_sliders, int(pipe.model.n_expr))
+        specs: list[tuple[str, str, tuple[float, float], float, Callable[[float], None]]] = []
+        for i in range(n):
+            label = f"expr {i}" + (f" {names[i]}" if i < len(names) else "")
+            specs.append((f"expr{i}", label, (-cfg.expr_range, cfg.expr_range), 0.0,
+                          lambda v, i=i: self.set_face(self.pipeline.face.with_expr_component(i, v))))
+        specs += [
+            ("smile", "smile", (0.0, 1.0), 0.0, lambda v: self.set_face(self.pipeline.face.with_named("smile", v))),
+            ("jaw", "jaw open (rad)", (0.0, 0.5), float(pipe.face.jaw_pose[0]),
+             lambda v: self.set_face(self.pipeline.face.replace(
+                 jaw_pose=np.array([v, *self.pipeline.face.jaw_pose[1:]])))),
+            ("pain", "pain", (0.0, 1.0), float(pipe.face.pain), lambda v: self.set_face(self.pipeline.face.replace(pain=v))),
+            ("distance", "viewer distance (m)", (0.3, 1.5), float(pipe.view.viewer_distance or 0.65),
+             lambda v: self.set_view(viewer_distance=v)),
+            ("cone", "view cone (deg)", (10.0, 60.0), float(pipe.view.view_cone or pipe.calibration.view_cone),
+             lambda v: self.set_view(view_cone=v)),
+            ("view", "selected view", (0, len(pipe.cameras()) - 1), float(self.selected_view),
+             lambda v: self.select_view(int(round(v)))),
+        ]
+        k = len(specs)
+        top, bottom = 0.96, 0.04
+        step = (top - bottom) / k
+        for j, (key, title, rng, value, fn) in enumerate(specs):
+            y = top - (j + 0.55) * step
+            w = p.add_slider_widget(self._guard(fn), rng, value=value, title=title, pointa=(0.08, y),
+                                    pointb=(0.92, y), interaction_event="end", style="modern",
+                                    title_height=0.018, fmt="%.0f" if key == "view" else "%.2f",
+                                    slider_width=0.02, tube_width=0.006, title_opacity=0.9)
+            self.sliders[key] = w
+
+    def _guard(self, fn: Callable) -> Callable:
+        """Wrap a callback: show our errors in the status line instead of killing the event loop."""
+        from ..errors import HoloViewerError
+
+        def wrapped(value: Any = None) -> None:
+            if self._building:  # pyvista fires every slider callback once on creation
+                return
+            try:
+                fn() if value is None else fn(value)
+            except HoloViewerError as exc:
+                self._set_status(f"error: {exc}")
+                self.plotter.render()
+        return wrapped
+
+    # ================================================================== updates
+    def set_face(self, face: FaceControls) -> None:
+        """Apply new face controls: mesh now, then Gaussians and preview, then thumbnail."""
+        t0 = time.perf_counter()
+        self.pipeline.set_face(face)
+        (verts,), tim = self.pipeline.compute("mesh")
+        self.mesh.points[:] = verts
+        self.mesh.Modified()
+        self.plotter.render()
+        self.timings = UpdateTimings(mesh_ms=(time.perf_counter() - t0) * 1e3)
+        self._after_change(t0)
+
+    def set_view(self, **changes: Any) -> None:
+        """Apply new view settings (viewer distance, view cone): frusta, preview, thumbnail."""
+        t0 = time.perf_counter()
+        self.pipeline.set_view(**changes)
+        self.pipeline.cameras()
+        self._refresh_frusta()
+        self.plotter.render()
+        self.timings = UpdateTimings(mesh_ms=(time.perf_counter() - t0) * 1e3)
+        self._after_change(t0)
+
+    def select_view(self, index: int) -> None:
+        t0 = time.perf_counter()
+        n = len(self.pipeline.cameras())
+        if not 0 <= index < n:
+            raise InputError(f"selected view: expected 0..{n - 1}, found {index}")
+        self.selected_view = index
+        self._refresh_frusta()
+        self.plotter.render()
+        self.timings = UpdateTimings(mesh_ms=(time.perf_counter() - t0) * 1e3)
+        self._update_preview()
+        self.timings.preview_ms = (time.perf_counter() - t0) * 1e3
+        self._update_status()
+        self.plotter.render()
+
+    def _after_change(self, t0: float) -> None:
+        if self.pipeline.avatar is not None:
+            self._update_glyphs()
+            self._update_preview()
+            self.plotter.render()
+            self.timings.preview_ms = (time.perf_counter() - t0) * 1e3
+            if self.config.auto_thumbnail:
+                self._update_thumbnail()
+                self.plotter.render()
+                self.timings.thumbnail_ms = (time.perf_counter() - t0) * 1e3
+        self.timings.stages = self.pipeline.last_timings.as_dict()
+        self._update_status()
+        self.plotter.render()
+
+    def _refresh_frusta(self) -> None:
+        vis = self.show_frusta
+        self._add_frusta()  # named actors are replaced in place
+        for a in (self.frusta_actor, self.selected_actor, self.focal_actor):
+            a.SetVisibility(vis)
+
+    def _update_glyphs(self) -> None:
+        g = self.pipeline.gaussians()
+        if self._glyph_index is None or self._glyph_index.max(initial=-1) >= len(g):
+            self._glyph_index = subsample_indices(len(g), self.config.max_glyphs)
+        poly = glyph_polydata(g, self._glyph_index, sigmas=self.config.glyph_sigmas)
+        if self.glyphs is None:
+            self.plotter.subplot(0, 1)
+            self.glyphs = poly
+            self.glyph_actor = self.plotter.add_mesh(self.glyphs, scalars="rgb", rgb=True, name="glyphs",
+                                                     reset_camera=False, smooth_shading=False)
+            self.glyph_actor.SetVisibility(self.show_gaussians)
+        else:
+            self.glyphs.points[:] = poly.points
+            self.glyphs.point_data["rgb"][:] = poly.point_data["rgb"]
+            self.glyphs.Modified()
+
+    def _preview_cameras(self) -> Any:
+        return scale_cameras(self.pipeline.cameras(), self.config.preview_scale)
+
+    def _update_preview(self) -> None:
+        if self.pipeline.avatar is None:
+            return
+        img = self.pipeline.render_view(self.selected_view, cameras=self._preview_cameras())
+        self.preview_panel.update(img)
+
+    def render_thumbnail(self) -> np.ndarray:
+        """(rows*h, cols*w, 3) uint8 quilt at ``thumbnail_scale`` of the current Gaussians."""
+        from ..display.quilt import tile_quilt
+        from ..render.api import render_views
+
+        pipe = self.pipeline
+        cams = scale_cameras(pipe.cameras(), self.config.thumbnail_scale)
+        res = render_views(pipe.gaussians(), cams, backend=pipe.backend, config=pipe.render_config)
+        return tile_quilt(to_uint8(res.images), pipe.calibration.cols, pipe.calibration.rows)
+
+    def _update_thumbnail(self) -> None:
+        if self.pipeline.avatar is None:
+            return
+        key = (self.pipeline.stage_version("gaussians"), self.pipeline.stage_version("cameras"))
+        if key == self._thumb_key:
+            return
+        self.thumb_panel.update(self.render_thumbnail())
+        self._thumb_key = key
+
+    def _set_status(self, text: str) -> None:
+        self.status.SetText(1, text)  # lower right corner
+
+    def _update_status(self) -> None:
+        t = self.timings
+        f = self.pipeline.face
+        self._set_status(f"view {self.selected_view}  pain {f.pain:.2f}\n"
+                         f"mesh {t.mesh_ms:.0f} ms  preview {t.preview_ms:.0f} ms  "
+                         f"quilt thumb {t.thumbnail_ms:.0f} ms")
+
+    # ================================================================== toggles
+    def toggle_mesh(self) -> None:
+        self.show_mesh = not self.show_mesh
+        self.mesh_actor.SetVisibility(self.show_mesh)
+        self.plotter.render()
+
+    def toggle_wireframe(self) -> None:
+        self.wireframe = not self.wireframe
+        prop = self.mesh_actor.GetProperty()
+        prop.SetRepresentationToWireframe() if self.wireframe else prop.SetRepresentationToSurface()
+        self.plotter.render()
+
+    def toggle_gaussians(self) -> None:
+        if self.glyph_actor is None:
+            return
+        self.show_gaussians = not self.show_gaussians
+        self.glyph_actor.SetVisibility(self.show_gaussians)
+        self.plotter.render()
+
+    def toggle_frusta(self) -> None:
+        self.show_frusta = not self.show_frusta
+        for a in (self.frusta_actor, self.selected_actor, self.focal_actor):
+            a.SetVisibility(self.show_frusta)
+        self.plotter.render()
+
+    def toggle_help(self) -> None:
+        self.show_help = not self.show_help
+        self.help_actor.SetVisibility(self.show_help)
+        self.plotter.render()
+
+    # ================================================================== exports
+    def _out(self, name: str) -> Path:
+        out = Path(self.config.out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        return out / name
+
+    def _stamp(self) -> str:
+        return time.strftime("%Y%m%d-%H%M%S") + f"-{len(self.exports):03d}"
+
+    def _record(self, path: Path) -> Path:
+        self.exports.append(path)
+        self._set_status(f"wrote {path}")
+        self.plotter.render()
+        return path
+
+    def export_quilt(self) -> Path:
+        """Write the full-resolution quilt PNG (``*_qs8x6a0.75.png``)."""
+        from ..display.quilt import quilt_filename
+        from ..fileio import save_image
+
+        cal = self.pipeline.calibration
+        path = self._out(quilt_filename(f"view-{self._stamp()}", cal.cols, cal.rows, cal.aspect))
+        save_image(path, self.pipeline.quilt())
+        return self._record(path)
+
+    def export_native(self) -> Path:
+        """Write the native (lenticular) PNG for the pipeline's calibration."""
+        from ..fileio import save_image
+
+        path = self._out(f"view-{self._stamp()}_native.png")
+        save_image(path, self.pipeline.native())
+        return self._record(path)
+
+    def export_sweep_video(self) -> Path:
+        """Write an mp4 of quilts sweeping smile 0 -> 1 -> 0 with the current pain (reduced tiles)."""
+        from ..display.quilt import quilt_filename
+
+        cfg, pipe = self.config, self.pipeline
+        n = max(2, cfg.sweep_frames)
+        w = np.sin(np.linspace(0.0, np.pi, n))
+        cal = pipe.calibration
+        path = self._out(quilt_filename(f"sweep-{self._stamp()}", cal.cols, cal.rows, cal.aspect, suffix=".mp4"))
+        base = pipe.face
+        quilts = []
+        from ..display.quilt import tile_quilt
+        from ..render.api import render_views
+
+        cams = scale_cameras(pipe.cameras(), cfg.sweep_scale)
+        try:
+            for wi in w:
+                pipe.set_face(base.with_named("smile", float(wi)))
+                res = render_views(pipe.gaussians(), cams, backend=pipe.backend, config=pipe.render_config)
+                quilts.append(tile_quilt(to_uint8(res.images), cal.cols, cal.rows))
+        finally:
+            pipe.set_face(base)
+        write_video(path, quilts, fps=cfg.sweep_fps)
+        return self._record(path)
+
+    def screenshot(self) -> np.ndarray:
+        """(H, W, 3) uint8 image of the whole window."""
+        img = self.plotter.screenshot(None, return_img=True)
+        return np.asarray(img)[..., :3]
+
+    def save_screenshot(self, path: str | Path | None = None) -> Path:
+        from ..fileio import save_image
+
+        target = Path(path) if path is not None else self._out(f"screenshot-{self._stamp()}.png")
+        save_image(target, self.screenshot())
+        return self._record(target)
+
+    # ================================================================== run
+    def show(self) -> None:
+        """Open the window and run the event loop until it is closed."""
+        self.plotter.show(auto_close=True)
+
+    def close(self) -> None:
+        self.plotter.close()
+
+
+def write_video(path: str | Path, frames: list[np.ndarray], fps: float) -> Path:
+    """Write uint8 frames as an H.264 mp4 atomically (display.export when present)."""
+    try:
+        from ..display.export import write_quilt_video
+    except ImportError:
+        write_quilt_video = None
+    if write_quilt_video is not None:
+        return write_quilt_video(path, frames, fps=fps)
+    import imageio.v2 as imageio
+
+    from ..fileio import atomic_path
+
+    with atomic_path(path) as tmp:
+        with imageio.get_writer(tmp, fps=fps, codec="libx264", pixelformat="yuv420p",
+                                macro_block_size=8, quality=7) as wr:
+            for f in frames:
+                wr.append_data(to_uint8(f))
+    return Path(path)

@@ -1,0 +1,797 @@
+"""The one place that chains the stages (DESIGN.md section 2), with caching and timings.
+
+::
+
+    FaceControls ─► params ─► mesh ─► gaussians ─┐
+                  shape ─► framing ─► cameras ───┴─► views ─► quilt ─► native
+
+Each stage's result is cached with a *key*: a fingerprint of the settings the stage
+reads plus the versions of the stages it consumes. Asking for a stage recomputes
+only the stages whose key changed, so changing pain re-runs
+``params -> mesh -> gaussians -> views -> quilt -> native`` but keeps the cameras,
+and changing the viewer distance re-runs ``cameras -> views -> quilt -> native`` but
+keeps the mesh and Gaussians. Every recomputation is appended to
+:attr:`Pipeline.recompute_log` and timed (:class:`StageTimings`).
+
+:meth:`Pipeline.stream` plays a FLAME sequence (or the reaction model's output) with a
+frame budget and reports the frames it dropped and held when it cannot keep up.
+
+The stage bodies call the stage modules (``flame``, ``avatar``, ``display``,
+``render``); this module holds no math of its own beyond the framing of the head.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Iterator, Literal, Mapping, Sequence
+
+import numpy as np
+
+from .errors import InputError
+from .validation import check_array, check_finite_scalar
+
+__all__ = [
+    "STAGES", "FaceControls", "ViewSettings", "StageTimings", "FrameResult", "StreamReport",
+    "Pipeline", "frame_head", "flame_sequence_frames", "FLAME_KEYS",
+]
+
+#: stage names in data-flow order
+STAGES: tuple[str, ...] = ("params", "mesh", "gaussians", "framing", "cameras", "views", "quilt", "native")
+
+#: FLAME parameter keys of GaussianAvatars' flame_param.npz, with their per-frame widths
+FLAME_KEYS: dict[str, int | None] = {"expr": None, "rotation": 3, "neck_pose": 3, "jaw_pose": 3,
+                                     "eyes_pose": 6, "translation": 3}
+
+_NAMED = ("smile", "pain", "surprise", "frown", "mouth_open", "neutral")
+
+
+# =============================================================================== settings
+
+
+def _vec(x: Any, name: str, n: int | None) -> np.ndarray:
+    a = np.asarray(x if x is not None else np.zeros(n or 0), dtype=np.float64).reshape(-1)
+    if n is not None and a.shape[0] != n:
+        raise InputError(f"{name}: expected {n} values, found {a.shape[0]}")
+    check_array(a, name, ("N",))
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class FaceControls:
+    """What drives the face: FLAME parameters plus named expressions and pain.
+
+    The final FLAME parameters are ``expr = expr + sum_i named_expression(name_i, w_i)
+    + pain_expression(pain)`` and ``jaw_pose = jaw_pose + sum_i jaw_for_expression(name_i, w_i)``.
+
+    Attributes
+    ----------
+    expr : numpy.ndarray
+        (n_expr,) or shorter base expression coefficients (zero-padded to the model's n_expr).
+    shape : numpy.ndarray
+        (n_shape,) or shorter identity coefficients (zero-padded).
+    jaw_pose, rotation, neck_pose, translation : numpy.ndarray
+        (3,) axis-angle (radians) / translation (metres).
+    eyes_pose : numpy.ndarray
+        (6,) axis-angle of both eyes.
+    named : tuple of (str, float)
+        Named expressions and intensities in [0, 1], e.g. ``(("smile", 0.8),)``.
+    pain : float
+        Pain intensity in [0, 1] (PSPI-calibrated pain face of ``flame.expressions``).
+    """
+
+    expr: Any = None
+    shape: Any = None
+    jaw_pose: Any = None
+    rotation: Any = None
+    neck_pose: Any = None
+    eyes_pose: Any = None
+    translation: Any = None
+    named: tuple[tuple[str, float], ...] = ()
+    pain: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "expr", _vec(self.expr, "expr", None))
+        object.__setattr__(self, "shape", _vec(self.shape, "shape", None))
+        for key in ("jaw_pose", "rotation", "neck_pose", "translation"):
+            object.__setattr__(self, key, _vec(getattr(self, key), key, 3))
+        object.__setattr__(self, "eyes_pose", _vec(self.eyes_pose, "eyes_pose", 6))
+        named = []
+        for item in self.named:
+            try:
+                name, w = item
+            except (TypeError, ValueError) as exc:
+                raise InputError(f"named: expected (name, intensity) pairs, found {item!r}") from exc
+            if name not in _NAMED:
+                raise InputError(f"named: expected an expression in {_NAMED}, found {name!r}")
+            named.append((str(name), check_finite_scalar(w, f"named[{name!r}]", low=0.0, high=1.0)))
+        object.__setattr__(self, "named", tuple(named))
+        object.__setattr__(self, "pain", check_finite_scalar(self.pain, "pain", low=0.0, high=1.0))
+
+    def replace(self, **changes: Any) -> "FaceControls":
+        """A copy with some fields replaced."""
+        return dataclasses.replace(self, **changes)
+
+    def with_named(self, name: str, intensity: float) -> "FaceControls":
+        """A copy with the named expression ``name`` set to ``intensity`` (0 removes it)."""
+        rest = tuple((n, w) for n, w in self.named if n != name)
+        return self.replace(named=rest + (((name, float(intensity)),) if intensity > 0 else ()))
+
+    def with_expr_component(self, index: int, value: float) -> "FaceControls":
+        """A copy with base expression coefficient ``index`` set to ``value``."""
+        if index < 0:
+            raise InputError(f"expr index: expected >= 0, found {index}")
+        e = np.zeros(max(index + 1, self.expr.shape[0]))
+        e[: self.expr.shape[0]] = self.expr
+        e[index] = value
+        return self.replace(expr=e)
+
+
+@dataclass(frozen=True)
+class ViewSettings:
+    """How the 48 quilt cameras look at the head (Algorithm 1 inputs besides the calibration).
+
+    Attributes
+    ----------
+    viewer_distance : float or None
+        Viewer's eye distance from the panel in metres (sets the fov, ``display.cameras``);
+        None = the calibration's default.
+    view_cone : float or None
+        Total view cone in degrees; None = the calibration's ``viewCone``.
+    viewer_angle : float
+        Horizontal angle (degrees) of a tracked viewer; shifts the cone centre.
+    tile_scale : float
+        Tile size relative to the calibration's quilt tile (e.g. 0.25 for a quick thumbnail quilt).
+    framing_margin : float
+        Focal-plane half-height = ``framing_margin`` x half the head's bounding-box height.
+    blend : bool
+        Two-view blending in the lenticular interleave.
+    """
+
+    viewer_distance: float | None = None
+    view_cone: float | None = None
+    viewer_angle: float = 0.0
+    tile_scale: float = 1.0
+    framing_margin: float = 1.08
+    blend: bool = False
+
+    def __post_init__(self) -> None:
+        if self.viewer_distance is not None:
+            check_finite_scalar(self.viewer_distance, "viewer_distance", low=0.05, high=20.0)
+        if self.view_cone is not None:
+            check_finite_scalar(self.view_cone, "view_cone", low=0.0, high=120.0, low_open=True)
+        check_finite_scalar(self.viewer_angle, "viewer_angle", low=-60.0, high=60.0)
+        check_finite_scalar(self.tile_scale, "tile_scale", low=0.02, high=4.0)
+        check_finite_scalar(self.framing_margin, "framing_margin", low=0.2, high=5.0)
+
+
+# =============================================================================== results
+
+
+@dataclass
+class StageTimings:
+    """Seconds spent in each stage by one request; None = served from the cache."""
+
+    params: float | None = None
+    mesh: float | None = None
+    gaussians: float | None = None
+    framing: float | None = None
+    cameras: float | None = None
+    views: float | None = None
+    quilt: float | None = None
+    native: float | None = None
+
+    @property
+    def total(self) -> float:
+        """Sum of the stages that ran (seconds)."""
+        return float(sum(v for v in dataclasses.astuple(self) if v is not None))
+
+    def recomputed(self) -> list[str]:
+        """Names of the stages that ran."""
+        return [s for s in STAGES if getattr(self, s) is not None]
+
+    def add(self, other: "StageTimings") -> None:
+        """Accumulate ``other`` into self (stages that ran in either)."""
+        for s in STAGES:
+            a, b = getattr(self, s), getattr(other, s)
+            if b is not None:
+                setattr(self, s, (a or 0.0) + b)
+
+    def as_dict(self) -> dict[str, float | None]:
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class FrameResult:
+    """One rendered frame: what was asked for and how long each stage took."""
+
+    index: int
+    timings: StageTimings
+    quilt: np.ndarray | None = None
+    native: np.ndarray | None = None
+    views: np.ndarray | None = None
+
+
+@dataclass
+class StreamReport:
+    """Outcome of :meth:`Pipeline.stream`.
+
+    Attributes
+    ----------
+    n_frames : int
+        Frames in the input sequence.
+    rendered : list of int
+        Indices of the frames that were computed (in order).
+    dropped : list of int
+        Frames skipped because the pipeline was behind schedule (policy ``"drop"``).
+    held : int
+        Display slots that showed an older frame again (one per dropped frame, plus the
+        slots a late frame overran in policy ``"all"``).
+    late : list of int
+        Frames finished after their deadline.
+    frame_seconds : list of float
+        Wall time per computed frame.
+    budget : float
+        Seconds per frame (1 / fps).
+    stage_seconds : StageTimings
+        Total seconds per stage over all computed frames.
+    """
+
+    n_frames: int
+    budget: float
+    policy: str
+    rendered: list[int] = field(default_factory=list)
+    dropped: list[int] = field(default_factory=list)
+    late: list[int] = field(default_factory=list)
+    held: int = 0
+    frame_seconds: list[float] = field(default_factory=list)
+    stage_seconds: StageTimings = field(default_factory=StageTimings)
+
+    @property
+    def achieved_fps(self) -> float:
+        """Computed frames per second of wall time."""
+        t = sum(self.frame_seconds)
+        return len(self.frame_seconds) / t if t > 0 else float("inf")
+
+    def summary(self) -> str:
+        return (f"{self.n_frames} frames at budget {self.budget * 1e3:.1f} ms ({self.policy}): "
+                f"{len(self.rendered)} rendered, {len(self.dropped)} dropped, {self.held} held, "
+                f"{len(self.late)} late; {self.achieved_fps:.2f} computed frames/s")
+
+
+# =============================================================================== framing
+
+
+def frame_head(vertices: np.ndarray, margin: float = 1.08) -> tuple[np.ndarray, float]:
+    """Focal-plane centre and half-height that frame a head like a portrait.
+
+    The focal plane passes through the centre of the head's axis-aligned bounding box
+    (FLAME frame: nose toward +z, so the plane is parallel to the face); its half-height
+    is ``margin`` x half the box height, so the head fills the portrait tile.
+
+    Parameters
+    ----------
+    vertices : numpy.ndarray
+        (V, 3) neutral head vertices in metres.
+    margin : float
+        > 1 leaves a border above and below the head.
+
+    Returns
+    -------
+    centre : numpy.ndarray
+        (3,) focal-plane centre in metres.
+    half_height : float
+        Focal-plane half-height in metres.
+    """
+    v = check_array(np.asarray(vertices, dtype=np.float64), "vertices", ("V", 3))
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    half = 0.5 * float(hi[1] - lo[1]) * float(margin)
+    if not half > 0:
+        raise InputError("vertices: expected a head with non-zero height, found a flat bounding box")
+    return centre, half
+
+
+# =============================================================================== fingerprints
+
+
+def _fingerprint(obj: Any) -> str:
+    h = hashlib.blake2b(digest_size=16)
+
+    def feed(o: Any) -> None:
+        if o is None:
+            h.update(b"N")
+        elif isinstance(o, np.ndarray):
+            a = np.ascontiguousarray(o)
+            h.update(f"A{a.dtype}{a.shape}".encode())
+            h.update(a.tobytes())
+        elif dataclasses.is_dataclass(o) and not isinstance(o, type):
+            h.update(type(o).__name__.encode())
+            for f in dataclasses.fields(o):
+                h.update(f.name.encode())
+                feed(getattr(o, f.name))
+        elif isinstance(o, (tuple, list)):
+            h.update(b"(")
+            for x in o:
+                feed(x)
+            h.update(b")")
+        elif isinstance(o, Mapping):
+            h.update(b"{")
+            for k in sorted(o):
+                feed(k)
+                feed(o[k])
+            h.update(b"}")
+        elif isinstance(o, (bool, int, float, str, np.floating, np.integer)):
+            h.update(repr(o).encode())
+        else:
+            h.update(f"id{id(o)}".encode())
+
+    feed(obj)
+    return h.hexdigest()
+
+
+@dataclass
+class _Entry:
+    key: str
+    value: Any
+    version: int
+
+
+# =============================================================================== pipeline
+
+
+class Pipeline:
+    """FLAME params -> mesh -> Gaussians -> cameras -> views -> quilt -> native, cached.
+
+    Parameters
+    ----------
+    model : FlameModel or None
+        The FLAME model; None loads the embedded default head.
+    avatar : object or None
+        A rigged Gaussian avatar bound to ``model``'s triangles (``avatar.deform(vertices)``
+        gives world :class:`~holo_viewer.avatar.Gaussians`); None builds the default avatar.
+        ``False`` disables the Gaussian stages (mesh-only use, e.g. the GUI without splats).
+    calibration : DisplayCalibration or None
+        Looking Glass calibration; None = the Portrait calibration shipped in ``assets/``.
+    face, view : FaceControls, ViewSettings
+        Initial settings.
+    backend : str
+        Renderer backend name for :func:`holo_viewer.render.render_views`.
+    render_config : RenderConfig or None
+    au_map : AUMap or None
+        Action-unit map for named expressions and pain; None = ``au_map_for(model)``.
+    """
+
+    def __init__(self, model: Any = None, avatar: Any = None, calibration: Any = None, *,
+                 face: FaceControls | None = None, view: ViewSettings | None = None,
+                 backend: str = "fast", render_config: Any = None, au_map: Any = None) -> None:
+        if model is None:
+            from .flame.default_head import load_default_model
+
+            model = load_default_model()
+        self.model = model
+        if avatar is None:
+            from .avatar import default_avatar
+
+            avatar = default_avatar(model=model) if _accepts(default_avatar, "model") else default_avatar()
+        self.avatar = avatar if avatar is not False else None
+        if calibration is None:
+            calibration = default_calibration()
+        self.calibration = calibration
+        self._au_map = au_map
+        self.face = face or FaceControls()
+        self.view = view or ViewSettings()
+        self.backend = backend
+        self.render_config = render_config
+        self._cache: dict[str, _Entry] = {}
+        self._versions = 0
+        self._timings = StageTimings()
+        #: (request number, stage) for every stage computation, oldest first
+        self.recompute_log: list[tuple[int, str]] = []
+        self._request = 0
+        self._interleaver: Any = None
+        self._interleaver_key: str | None = None
+
+    # ---------------------------------------------------------------- settings
+    @property
+    def au_map(self) -> Any:
+        if self._au_map is None:
+            from .flame.expressions import au_map_for
+
+            self._au_map = au_map_for(self.model)
+        return self._au_map
+
+    def set_face(self, face: FaceControls | None = None, **changes: Any) -> None:
+        """Replace the face controls (or some of their fields)."""
+        self.face = (face or self.face).replace(**changes) if changes else (face or self.face)
+
+    def set_view(self, view: ViewSettings | None = None, **changes: Any) -> None:
+        """Replace the view settings (or some of their fields)."""
+        base = view or self.view
+        self.view = dataclasses.replace(base, **changes) if changes else base
+
+    def set_render(self, backend: str | None = None, config: Any = None) -> None:
+        if backend is not None:
+            self.backend = backend
+        if config is not None:
+            self.render_config = config
+
+    def set_calibration(self, calibration: Any) -> None:
+        self.calibration = calibration
+
+    # ---------------------------------------------------------------- cache core
+    def _inputs(self, stage: str) -> tuple[tuple[str, ...], Any]:
+        """Upstream stages and the settings fingerprinted for ``stage``."""
+        f, v = self.face, self.view
+        if stage == "params":
+            return (), (f, id(self.model), id(self._au_map))
+        if stage == "mesh":
+            return ("params",), id(self.model)
+        if stage == "gaussians":
+            return ("mesh", "params"), id(self.avatar)
+        if stage == "framing":
+            return (), (f.shape, v.framing_margin, id(self.model))
+        if stage == "cameras":
+            return ("framing",), (v.viewer_distance, v.view_cone, v.viewer_angle, v.tile_scale,
+                                  _calib_fingerprint(self.calibration))
+        if stage == "views":
+            return ("gaussians", "cameras"), (self.backend, self.render_config)
+        if stage == "quilt":
+            return ("views",), None
+        if stage == "native":
+            return ("quilt",), (v.blend, _calib_fingerprint(self.calibration))
+        raise InputError(f"stage: expected one of {STAGES}, found {stage!r}")
+
+    def _get(self, stage: str, timings: StageTimings) -> _Entry:
+        deps, settings = self._inputs(stage)
+        dep_entries = [self._get(d, timings) for d in deps]
+        key = _fingerprint((settings, [e.version for e in dep_entries]))
+        cached = self._cache.get(stage)
+        if cached is not None and cached.key == key:
+            return cached
+        t0 = time.perf_counter()
+        value = getattr(self, f"_compute_{stage}")(*[e.value for e in dep_entries])
+        dt = time.perf_counter() - t0
+        setattr(timings, stage, (getattr(timings, stage) or 0.0) + dt)
+        self._versions += 1
+        entry = _Entry(key, value, self._versions)
+        self._cache[stage] = entry
+        self.recompute_log.append((self._request, stage))
+        return entry
+
+    def compute(self, *stages: str) -> tuple[list[Any], StageTimings]:
+        """Bring ``stages`` up to date; return their values and this request's timings."""
+        self._request += 1
+        timings = StageTimings()
+        values = [self._get(s, timings).value for s in stages]
+        self._timings = timings
+        return values, timings
+
+    def get(self, stage: str) -> Any:
+        """The up-to-date value of one stage (see :data:`STAGES`)."""
+        return self.compute(stage)[0][0]
+
+    def stage_version(self, stage: str) -> int | None:
+        """Version number of the cached value of ``stage`` (None = never computed)."""
+        e = self._cache.get(stage)
+        return None if e is None else e.version
+
+    @property
+    def last_timings(self) -> StageTimings:
+        """Timings of the latest request."""
+        return self._timings
+
+    def recomputed_in_last_request(self) -> list[str]:
+        """Stages computed by the latest request, in order."""
+        return [s for r, s in self.recompute_log if r == self._request]
+
+    def clear_cache(self) -> None:
+        self._cache.clear()
+
+    # ---------------------------------------------------------------- conveniences
+    def flame_params(self) -> dict[str, np.ndarray]:
+        return self.get("params")
+
+    def mesh(self) -> np.ndarray:
+        """(V, 3) posed vertices (float64, metres)."""
+        return self.get("mesh")
+
+    def gaussians(self) -> Any:
+        return self.get("gaussians")
+
+    def cameras(self) -> Any:
+        return self.get("cameras")
+
+    def views(self) -> np.ndarray:
+        return self.get("views")
+
+    def quilt(self) -> np.ndarray:
+        return self.get("quilt")
+
+    def native(self) -> np.ndarray:
+        return self.get("native")
+
+    def render_view(self, index: int, cameras: Any = None) -> np.ndarray:
+        """Render one view (H, W, 3) of the current Gaussians without touching the quilt cache.
+
+        Used for the GUI preview: 1/48 of the quilt's work. ``cameras`` overrides the
+        pipeline's cameras (e.g. a different tile size).
+        """
+        from .render.api import render_views
+
+        (g, cams), timings = self.compute("gaussians", "cameras") if cameras is None else \
+            ((self.get("gaussians"), cameras), self._timings)
+        if not 0 <= index < len(cams):
+            raise InputError(f"view index: expected 0..{len(cams) - 1}, found {index}")
+        t0 = time.perf_counter()
+        img = render_views(g, cams[int(index)], backend=self.backend, config=self.render_config).images[0]
+        timings.views = (timings.views or 0.0) + time.perf_counter() - t0
+        return img
+
+    # ---------------------------------------------------------------- stage bodies
+    def _compute_params(self) -> dict[str, np.ndarray]:
+        f = self.face
+        n_expr, n_shape = int(self.model.n_expr), int(self.model.n_shape)
+        if f.expr.shape[0] > n_expr:
+            raise InputError(f"expr: expected at most {n_expr} coefficients (the model's n_expr), "
+                             f"found {f.expr.shape[0]}")
+        if f.shape.shape[0] > n_shape:
+            raise InputError(f"shape: expected at most {n_shape} coefficients (the model's n_shape), "
+                             f"found {f.shape.shape[0]}")
+        expr = np.zeros(n_expr)
+        expr[: f.expr.shape[0]] = f.expr
+        jaw = f.jaw_pose.copy()
+        if f.named or f.pain > 0:
+            from .flame.expressions import jaw_for_expression, named_expression, pain_expression
+        for name, w in f.named:
+            if w > 0:
+                expr += np.asarray(named_expression(name, w, self.au_map), dtype=np.float64)[:n_expr]
+                jaw += np.asarray(jaw_for_expression(name, w), dtype=np.float64)
+        if f.pain > 0:
+            expr += np.asarray(pain_expression(f.pain, self.au_map), dtype=np.float64)[:n_expr]
+        shape = np.zeros(n_shape)
+        shape[: f.shape.shape[0]] = f.shape
+        return {"shape": shape, "expr": expr, "jaw_pose": jaw, "rotation": f.rotation.copy(),
+                "neck_pose": f.neck_pose.copy(), "eyes_pose": f.eyes_pose.copy(),
+                "translation": f.translation.copy()}
+
+    def _flame_vertices(self, params: Mapping[str, np.ndarray]) -> np.ndarray:
+        import torch
+
+        dt = self.model.dtype
+        kw = {k: torch.as_tensor(np.asarray(v)[None], dtype=dt) for k, v in params.items()}
+        with torch.no_grad():
+            out = self.model(**kw)
+        return out.vertices[0].detach().cpu().numpy().astype(np.float64)
+
+    def _compute_mesh(self, params: Mapping[str, np.ndarray]) -> np.ndarray:
+        return self._flame_vertices(params)
+
+    def _compute_gaussians(self, vertices: np.ndarray, params: Mapping[str, np.ndarray]) -> Any:
+        if self.avatar is None:
+            raise InputError("gaussians: this pipeline has no avatar (avatar=False)")
+        return deform_avatar(self.avatar, vertices, params)
+
+    def _compute_framing(self) -> tuple[np.ndarray, float]:
+        neutral = {"shape": self._compute_params()["shape"], "expr": np.zeros(int(self.model.n_expr))}
+        return frame_head(self._flame_vertices(neutral), self.view.framing_margin)
+
+    def _compute_cameras(self, framing: tuple[np.ndarray, float]) -> Any:
+        from .display.cameras import make_quilt_cameras
+
+        centre, half = framing
+        v, cal = self.view, self.calibration
+        tw, th = cal.tile_width, cal.tile_height
+        if v.tile_scale != 1.0:
+            tw, th = max(8, round(tw * v.tile_scale)), max(8, round(th * v.tile_scale))
+        return make_quilt_cameras(cal, focal_center=centre, size=half, view_cone_deg=v.view_cone,
+                                  viewer_angle_deg=v.viewer_angle, viewer_distance=v.viewer_distance,
+                                  tile_width=tw, tile_height=th, near=0.01, far=10.0)
+
+    def _compute_views(self, gaussians: Any, cameras: Any) -> np.ndarray:
+        from .render.api import render_views
+
+        return render_views(gaussians, cameras, backend=self.backend, config=self.render_config).images
+
+    def _compute_quilt(self, views: np.ndarray) -> np.ndarray:
+        from .display.quilt import tile_quilt
+
+        cols, rows = quilt_layout(self.calibration)
+        return tile_quilt(to_uint8(views), cols, rows)
+
+    def _compute_native(self, quilt: np.ndarray) -> np.ndarray:
+        from .display.lenticular import Interleaver
+
+        cols, rows = quilt_layout(self.calibration)
+        key = _fingerprint((_calib_fingerprint(self.calibration), quilt.shape, cols, rows, self.view.blend))
+        if self._interleaver is None or self._interleaver_key != key:
+            self._interleaver = Interleaver(self.calibration, quilt.shape, cols=cols, rows=rows,
+                                            mode="blend" if self.view.blend else "nearest")
+            self._interleaver_key = key
+        return self._interleaver(quilt)
+
+    # ---------------------------------------------------------------- streaming
+    def stream(self, frames: Iterable[Mapping[str, np.ndarray]] | Sequence[Mapping[str, np.ndarray]], *,
+               fps: float = 25.0, output: Literal["mesh", "gaussians", "views", "quilt", "native"] = "quilt",
+               policy: Literal["drop", "all"] = "drop", sink: Callable[[FrameResult], None] | None = None,
+               base: FaceControls | None = None, clock: Callable[[], float] = time.perf_counter,
+               progress: bool = False) -> StreamReport:
+        """Play a FLAME sequence through the pipeline with a frame budget of ``1/fps`` seconds.
+
+        Parameters
+        ----------
+        frames : iterable of mapping
+            Per-frame FLAME parameters with keys of :data:`FLAME_KEYS` (missing keys keep the
+            ``base`` controls' values); see :func:`flame_sequence_frames`.
+        fps : float
+            Playback rate; frame ``k`` is due at ``start + (k + 1) / fps``.
+        output : str
+            The last stage computed per frame.
+        policy : {"drop", "all"}
+            ``"drop"`` (live display): after a late frame, skip the frames whose display slot
+            has already passed, holding the last computed frame in their slots. ``"all"``
+            (export): compute every frame; late frames are counted.
+        sink : callable or None
+            Called with a :class:`FrameResult` for every computed frame (e.g. a video writer
+            or a display window).
+        base : FaceControls or None
+            Controls that the frames override (default: the current ones).
+        clock : callable
+            Seconds; injectable for tests.
+
+        Returns
+        -------
+        StreamReport
+        """
+        fps = check_finite_scalar(fps, "fps", low=0.0, low_open=True)
+        if policy not in ("drop", "all"):
+            raise InputError(f"policy: expected 'drop' or 'all', found {policy!r}")
+        if output not in STAGES:
+            raise InputError(f"output: expected one of {STAGES}, found {output!r}")
+        frames = list(frames)
+        budget = 1.0 / fps
+        report = StreamReport(n_frames=len(frames), budget=budget, policy=policy)
+        base = base or self.face
+        it: Iterator[int] | Any = range(len(frames))
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(frames), desc=f"stream {output}", unit="frame")
+        start = clock()
+        k = 0
+        try:
+            while k < len(frames):
+                t0 = clock()
+                self.face = _apply_frame(base, frames[k], k)
+                (value,), timings = self.compute(output)
+                t1 = clock()
+                report.rendered.append(k)
+                report.frame_seconds.append(t1 - t0)
+                report.stage_seconds.add(timings)
+                if sink is not None:
+                    res = FrameResult(index=k, timings=timings)
+                    if output in ("quilt", "native", "views"):
+                        setattr(res, output, value)
+                    sink(res)
+                deadline = start + (k + 1) * budget
+                nxt = k + 1
+                if t1 > deadline + 1e-12:
+                    report.late.append(k)
+                    slot = int(math.floor((t1 - start) / budget))  # display slot now showing
+                    if policy == "drop":
+                        nxt = max(k + 1, min(slot, len(frames)))
+                        report.dropped.extend(range(k + 1, nxt))
+                        report.held += nxt - (k + 1)
+                    else:
+                        report.held += max(0, min(slot, len(frames)) - (k + 1))
+                if bar is not None:
+                    bar.update(nxt - k)
+                k = nxt
+        finally:
+            if bar is not None:
+                bar.close()
+            self.face = base
+        return report
+
+
+# =============================================================================== helpers
+
+
+def _accepts(fn: Callable, name: str) -> bool:
+    import inspect
+
+    try:
+        return name in inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def _apply_frame(base: FaceControls, frame: Mapping[str, Any], index: int) -> FaceControls:
+    changes: dict[str, Any] = {}
+    for key, value in frame.items():
+        if key in FLAME_KEYS or key == "shape":
+            changes[key] = np.asarray(value, dtype=np.float64).reshape(-1)
+        elif key == "pain":
+            changes["pain"] = float(np.asarray(value).reshape(-1)[0])
+        else:
+            raise InputError(f"frame {index}: unknown key {key!r}; expected FLAME keys {sorted(FLAME_KEYS)}, "
+                             f"'shape' or 'pain'")
+    return base.replace(**changes)
+
+
+def flame_sequence_frames(params: Mapping[str, Any], *, source: str = "flame params") -> list[dict[str, np.ndarray]]:
+    """Split a FLAME sequence (flame_param.npz layout: per-frame keys with T rows) into frames.
+
+    Per-frame keys are those of :data:`FLAME_KEYS` (and ``pain`` (T,) when present); ``shape``
+    ((n,) or (1, n)) and ``static_offset`` are per sequence. Raises InputError naming the key
+    when the frame counts disagree.
+    """
+    T = None
+    seq: dict[str, np.ndarray] = {}
+    for key in list(FLAME_KEYS) + ["pain"]:
+        if key not in params:
+            continue
+        a = np.asarray(params[key], dtype=np.float64)
+        width = FLAME_KEYS.get(key)
+        if key == "pain":
+            a = a.reshape(-1, 1)
+        elif a.ndim == 1:
+            a = a[None]
+        if a.ndim != 2 or (width is not None and a.shape[1] != width):
+            raise InputError(f"{source}: {key}: expected shape (T, {width or 'n'}), found {np.shape(params[key])}")
+        if not np.all(np.isfinite(a)):
+            raise InputError(f"{source}: {key}: contains NaN/inf")
+        if T is None:
+            T = a.shape[0]
+        elif a.shape[0] != T:
+            raise InputError(f"{source}: {key}: expected {T} frames (as the other keys), found {a.shape[0]}")
+        seq[key] = a
+    if T is None:
+        raise InputError(f"{source}: expected at least one of the keys {sorted(FLAME_KEYS)}, found "
+                         f"{sorted(params)}")
+    shape = None
+    if "shape" in params:
+        shape = np.asarray(params["shape"], dtype=np.float64).reshape(-1)
+    frames = []
+    for t in range(T):
+        fr = {k: (v[t, 0] if k == "pain" else v[t]) for k, v in seq.items()}
+        if shape is not None:
+            fr["shape"] = shape
+        frames.append(fr)
+    return frames
+
+
+def default_calibration() -> Any:
+    """The fixture-style Looking Glass Portrait calibration shipped in ``assets/``."""
+    from .display.calibration import DisplayCalibration
+
+    return DisplayCalibration.load(None)
+
+
+def _calib_fingerprint(calib: Any) -> str:
+    if dataclasses.is_dataclass(calib):
+        return _fingerprint(calib)
+    return f"id{id(calib)}"
+
+
+def quilt_layout(calib: Any) -> tuple[int, int]:
+    """(cols, rows) of the calibration's quilt."""
+    return int(calib.cols), int(calib.rows)
+
+
+def to_uint8(images: np.ndarray) -> np.ndarray:
+    """Float images in [0, 1] -> uint8 (rounded, clipped); uint8 passes through."""
+    a = np.asarray(images)
+    if a.dtype == np.uint8:
+        return a
+    return np.clip(np.rint(a * 255.0), 0, 255).astype(np.uint8)
+
+
+def deform_avatar(avatar: Any, vertices: np.ndarray, params: Mapping[str, np.ndarray]) -> Any:
+    """World Gaussians of ``avatar`` for posed ``vertices`` (V, 3) (FLAME ``params`` for blend shapes)."""
+    return avatar.deform(vertices)
