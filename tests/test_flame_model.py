@@ -403,6 +403,10 @@ def test_bad_tensor_parameter_raises(small: dict) -> None:
     model = FlameModel.from_arrays(small)
     with pytest.raises(InputError, match="expr: expected finite"):
         model(expr=torch.tensor([[0.0, 0, 0, float("nan"), 0, 0]]))
+    with pytest.raises(InputError, match="jaw_pose: expected a real-valued array"):
+        model(jaw_pose=["a", "b", "c"])
+    with pytest.raises(InputError, match="rotation: expected a real-valued tensor"):
+        model(rotation=torch.zeros(3, dtype=torch.bool))
     with pytest.raises(InputError, match="n_expr"):
         FlameModel.from_arrays(small, n_expr=-1)
 

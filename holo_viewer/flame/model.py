@@ -260,8 +260,7 @@ class FlameModel(torch.nn.Module):
         """Validate one parameter -> (B or 1, width) tensor in the model dtype/device, or None."""
         if value is None:
             return None
-        if not isinstance(value, Tensor):
-            value = np.asarray(value, dtype=np.float64) if not isinstance(value, np.ndarray) else value
+        value = _as_numeric(value, name)
         if value.ndim == 1:
             value = value[None]
         if value.ndim != 2:
@@ -375,8 +374,7 @@ class FlameModel(torch.nn.Module):
     def _static_offset(self, value: Any, batch: list[int]) -> Tensor | None:
         if value is None:
             return None
-        if not isinstance(value, Tensor):
-            value = np.asarray(value, dtype=np.float64) if not isinstance(value, np.ndarray) else value
+        value = _as_numeric(value, "static_offset")
         if value.ndim == 2:
             value = value[None]
         n_found = value.shape[1] if value.ndim == 3 else -1
@@ -397,6 +395,22 @@ class FlameModel(torch.nn.Module):
     def rest_vertices(self) -> Tensor:
         """The template (zero shape, expression and pose), shape (V, 3)."""
         return self.v_template
+
+
+def _as_numeric(value: Any, name: str) -> Any:
+    """A real-valued tensor or float ndarray, or InputError naming the parameter."""
+    if isinstance(value, Tensor):
+        if value.is_floating_point() or not (value.is_complex() or value.dtype == torch.bool):
+            return value
+        raise InputError(f"{name}: expected a real-valued tensor, found dtype {value.dtype}")
+    try:
+        arr = np.asarray(value)
+        if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+            raise TypeError(arr.dtype)
+        return arr
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name}: expected a real-valued array, found {type(value).__name__} "
+                         f"({exc})") from exc
 
 
 def _bind_batch(batch: list[int], b: int, name: str, found: tuple[int, ...]) -> None:
