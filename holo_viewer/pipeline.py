@@ -82,6 +82,9 @@ class FaceControls:
         Named expressions and intensities in [0, 1], e.g. ``(("smile", 0.8),)``.
     pain : float
         Pain intensity in [0, 1] (PSPI-calibrated pain face of ``flame.expressions``).
+    dynamic_offset : numpy.ndarray or None
+        (V, 3) per-frame vertex offsets in metres (GaussianAvatars ``dynamic_offset``), added to
+        the avatar's ``static_offset``.
     """
 
     expr: Any = None
@@ -93,8 +96,15 @@ class FaceControls:
     translation: Any = None
     named: tuple[tuple[str, float], ...] = ()
     pain: float = 0.0
+    dynamic_offset: Any = None
 
     def __post_init__(self) -> None:
+        if self.dynamic_offset is not None:
+            off = np.array(self.dynamic_offset, dtype=np.float64)
+            off = off.reshape(off.shape[-2:]) if off.ndim == 3 and off.shape[0] == 1 else off
+            check_array(off, "dynamic_offset", ("V", 3))
+            off.setflags(write=False)
+            object.__setattr__(self, "dynamic_offset", off)
         object.__setattr__(self, "expr", _vec(self.expr, "expr", None))
         object.__setattr__(self, "shape", _vec(self.shape, "shape", None))
         for key in ("jaw_pose", "rotation", "neck_pose", "translation"):
@@ -379,6 +389,9 @@ class Pipeline:
 
             avatar = default_avatar(model=model) if _accepts(default_avatar, "model") else default_avatar()
         self.avatar = avatar if avatar is not False else None
+        #: per-subject FLAME parameters of the avatar (``shape``, ``static_offset``)
+        self.identity = {k: np.asarray(v.detach().cpu() if hasattr(v, "detach") else v, dtype=np.float64)
+                         for k, v in (getattr(self.avatar, "identity", None) or {}).items()}
         if calibration is None:
             calibration = default_calibration()
         self.calibration = calibration
@@ -434,7 +447,7 @@ class Pipeline:
         if stage == "gaussians":
             return ("mesh", "params"), id(self.avatar)
         if stage == "framing":
-            return (), (f.shape, v.framing_margin, id(self.model))
+            return (), (f.shape, v.framing_margin, id(self.model), id(self.avatar))
         if stage == "cameras":
             return ("framing",), (v.viewer_distance, v.view_cone, v.viewer_angle, v.tile_scale,
                                   _calib_fingerprint(self.calibration))
@@ -554,10 +567,17 @@ class Pipeline:
         if f.pain > 0:
             expr += np.asarray(pain_expression(f.pain, self.au_map), dtype=np.float64)[:n_expr]
         shape = np.zeros(n_shape)
-        shape[: f.shape.shape[0]] = f.shape
-        return {"shape": shape, "expr": expr, "jaw_pose": jaw, "rotation": f.rotation.copy(),
+        src = f.shape if f.shape.shape[0] or "shape" not in self.identity else self.identity["shape"].reshape(-1)
+        shape[: min(n_shape, src.shape[0])] = src[:n_shape]
+        out = {"shape": shape, "expr": expr, "jaw_pose": jaw, "rotation": f.rotation.copy(),
                 "neck_pose": f.neck_pose.copy(), "eyes_pose": f.eyes_pose.copy(),
                 "translation": f.translation.copy()}
+        offset = self.identity.get("static_offset")
+        if f.dynamic_offset is not None:
+            offset = f.dynamic_offset if offset is None else offset.reshape(f.dynamic_offset.shape) + f.dynamic_offset
+        if offset is not None:
+            out["static_offset"] = np.asarray(offset).reshape(-1, 3)
+        return out
 
     def _flame_vertices(self, params: Mapping[str, np.ndarray]) -> np.ndarray:
         import torch
@@ -577,7 +597,9 @@ class Pipeline:
         return deform_avatar(self.avatar, vertices, params)
 
     def _compute_framing(self) -> tuple[np.ndarray, float]:
-        neutral = {"shape": self._compute_params()["shape"], "expr": np.zeros(int(self.model.n_expr))}
+        neutral = {"shape": self._compute_params()["shape"]}
+        if "static_offset" in self.identity:
+            neutral["static_offset"] = self.identity["static_offset"].reshape(-1, 3)
         return frame_head(self._flame_vertices(neutral), self.view.framing_margin)
 
     def _compute_cameras(self, framing: tuple[np.ndarray, float]) -> Any:
@@ -615,8 +637,7 @@ class Pipeline:
         return self._interleaver(quilt)
 
     # ---------------------------------------------------------------- streaming
-    def stream(self, frames: Iterable[Mapping[str, np.ndarray]] | Sequence[Mapping[str, np.ndarray]], *,
-               fps: float = 25.0, output: Literal["mesh", "gaussians", "views", "quilt", "native"] = "quilt",
+    def stream(self, frames: Iterable[Mapping[str, Any]], *, fps: float = 25.0, output: str = "quilt",
                policy: Literal["drop", "all"] = "drop", sink: Callable[[FrameResult], None] | None = None,
                base: FaceControls | None = None, clock: Callable[[], float] = time.perf_counter,
                progress: bool = False) -> StreamReport:
@@ -625,21 +646,22 @@ class Pipeline:
         Parameters
         ----------
         frames : iterable of mapping
-            Per-frame FLAME parameters with keys of :data:`FLAME_KEYS` (missing keys keep the
-            ``base`` controls' values); see :func:`flame_sequence_frames`.
+            Per-frame FLAME parameters with keys of :data:`FLAME_KEYS` (plus ``shape``, ``pain``;
+            missing keys keep the ``base`` controls' values); see :func:`flame_sequence_frames`.
         fps : float
             Playback rate; frame ``k`` is due at ``start + (k + 1) / fps``.
         output : str
-            The last stage computed per frame.
+            The last stage computed per frame (``"mesh"``, ``"gaussians"``, ``"views"``,
+            ``"quilt"`` or ``"native"``).
         policy : {"drop", "all"}
             ``"drop"`` (live display): after a late frame, skip the frames whose display slot
-            has already passed, holding the last computed frame in their slots. ``"all"``
-            (export): compute every frame; late frames are counted.
+            has already passed; the last computed frame is held in their slots. ``"all"``
+            (export): compute every frame; late frames are counted, and the slots they overran
+            are counted as held.
         sink : callable or None
-            Called with a :class:`FrameResult` for every computed frame (e.g. a video writer
-            or a display window).
+            Called with a :class:`FrameResult` for every computed frame (a display, a writer).
         base : FaceControls or None
-            Controls that the frames override (default: the current ones).
+            Controls that the frames override (default: the current ones; restored at the end).
         clock : callable
             Seconds; injectable for tests.
 
@@ -647,16 +669,31 @@ class Pipeline:
         -------
         StreamReport
         """
+        report = StreamReport(n_frames=0, budget=0.0, policy=policy)
+        for res in self.iter_stream(frames, fps=fps, output=output, policy=policy, base=base, clock=clock,
+                                    report=report, progress=progress):
+            if sink is not None:
+                sink(res)
+        return report
+
+    def iter_stream(self, frames: Iterable[Mapping[str, Any]], *, fps: float = 25.0, output: str = "quilt",
+                    policy: Literal["drop", "all"] = "drop", base: FaceControls | None = None,
+                    clock: Callable[[], float] = time.perf_counter, report: StreamReport | None = None,
+                    progress: bool = False) -> Iterator[FrameResult]:
+        """Generator form of :meth:`stream`: yields each computed :class:`FrameResult` and fills
+        ``report`` (pass your own to read it afterwards). The time the consumer spends between
+        frames counts against the budget, as a display or encoder would."""
         fps = check_finite_scalar(fps, "fps", low=0.0, low_open=True)
         if policy not in ("drop", "all"):
             raise InputError(f"policy: expected 'drop' or 'all', found {policy!r}")
-        if output not in STAGES:
-            raise InputError(f"output: expected one of {STAGES}, found {output!r}")
+        if output not in STAGES or output in ("params", "framing", "cameras"):
+            raise InputError(f"output: expected one of mesh, gaussians, views, quilt, native, found {output!r}")
         frames = list(frames)
         budget = 1.0 / fps
-        report = StreamReport(n_frames=len(frames), budget=budget, policy=policy)
+        if report is None:
+            report = StreamReport(n_frames=0, budget=budget, policy=policy)
+        report.n_frames, report.budget, report.policy = len(frames), budget, policy
         base = base or self.face
-        it: Iterator[int] | Any = range(len(frames))
         bar = None
         if progress:
             from tqdm import tqdm
@@ -669,26 +706,23 @@ class Pipeline:
                 t0 = clock()
                 self.face = _apply_frame(base, frames[k], k)
                 (value,), timings = self.compute(output)
+                res = FrameResult(index=k, timings=timings)
+                if output in ("quilt", "native", "views"):
+                    setattr(res, output, value)
+                yield res
                 t1 = clock()
                 report.rendered.append(k)
                 report.frame_seconds.append(t1 - t0)
                 report.stage_seconds.add(timings)
-                if sink is not None:
-                    res = FrameResult(index=k, timings=timings)
-                    if output in ("quilt", "native", "views"):
-                        setattr(res, output, value)
-                    sink(res)
                 deadline = start + (k + 1) * budget
                 nxt = k + 1
                 if t1 > deadline + 1e-12:
                     report.late.append(k)
-                    slot = int(math.floor((t1 - start) / budget))  # display slot now showing
+                    slot = min(int(math.floor((t1 - start) / budget)), len(frames))  # slot showing now
                     if policy == "drop":
-                        nxt = max(k + 1, min(slot, len(frames)))
+                        nxt = max(k + 1, slot)
                         report.dropped.extend(range(k + 1, nxt))
-                        report.held += nxt - (k + 1)
-                    else:
-                        report.held += max(0, min(slot, len(frames)) - (k + 1))
+                    report.held += max(0, slot - (k + 1))
                 if bar is not None:
                     bar.update(nxt - k)
                 k = nxt
@@ -696,7 +730,6 @@ class Pipeline:
             if bar is not None:
                 bar.close()
             self.face = base
-        return report
 
 
 # =============================================================================== helpers
@@ -718,6 +751,8 @@ def _apply_frame(base: FaceControls, frame: Mapping[str, Any], index: int) -> Fa
             changes[key] = np.asarray(value, dtype=np.float64).reshape(-1)
         elif key == "pain":
             changes["pain"] = float(np.asarray(value).reshape(-1)[0])
+        elif key == "dynamic_offset":
+            changes["dynamic_offset"] = np.asarray(value, dtype=np.float64).reshape(-1, 3)
         else:
             raise InputError(f"frame {index}: unknown key {key!r}; expected FLAME keys {sorted(FLAME_KEYS)}, "
                              f"'shape' or 'pain'")

@@ -180,6 +180,10 @@ class HoloViewer:
         self._glyph_index: np.ndarray | None = None
         self._thumb_key: tuple | None = None
         self._building = True
+        self._executor: Any = None
+        self._thumb_future: Any = None
+        self._thumb_pending_key: tuple | None = None
+        self._thumb_started = 0.0
 
         self.plotter = pv.Plotter(shape=(2, 3), groups=[(np.s_[:], 0), (np.s_[:], 1)],
                                   col_weights=[0.9, 2.4, 1.2], window_size=list(self.config.window_size),
@@ -227,7 +231,7 @@ class HoloViewer:
         p.subplot(0, 1)
         self._update_preview()
         if self.config.auto_thumbnail:
-            self._update_thumbnail()
+            self._update_thumbnail(wait=True)
         self._update_status()
 
     def _set_scene_camera(self) -> None:
@@ -356,8 +360,6 @@ class HoloViewer:
             self.timings.preview_ms = (time.perf_counter() - t0) * 1e3
             if self.config.auto_thumbnail:
                 self._update_thumbnail()
-                self.plotter.render()
-                self.timings.thumbnail_ms = (time.perf_counter() - t0) * 1e3
         self.timings.stages = self.pipeline.last_timings.as_dict()
         self._update_status()
         self.plotter.render()
@@ -394,23 +396,51 @@ class HoloViewer:
         self.preview_panel.update(img)
 
     def render_thumbnail(self) -> np.ndarray:
-        """(rows*h, cols*w, 3) uint8 quilt at ``thumbnail_scale`` of the current Gaussians."""
-        from ..display.quilt import tile_quilt
-        from ..render.api import render_views
-
+        """(rows*h, cols*w, 3) uint8 quilt at ``thumbnail_scale`` of the current Gaussians (blocking)."""
         pipe = self.pipeline
-        cams = scale_cameras(pipe.cameras(), self.config.thumbnail_scale)
-        res = render_views(pipe.gaussians(), cams, backend=pipe.backend, config=pipe.render_config)
-        return tile_quilt(to_uint8(res.images), pipe.calibration.cols, pipe.calibration.rows)
+        return _render_thumbnail(pipe.gaussians(), scale_cameras(pipe.cameras(), self.config.thumbnail_scale),
+                                 pipe.backend, pipe.render_config, pipe.calibration.cols, pipe.calibration.rows)
 
-    def _update_thumbnail(self) -> None:
+    def _update_thumbnail(self, wait: bool = False) -> None:
+        """Start rendering the thumbnail quilt in a worker thread (the window stays responsive);
+        :meth:`poll_thumbnail` shows it when done. ``wait`` blocks until it is shown."""
         if self.pipeline.avatar is None:
             return
         key = (self.pipeline.stage_version("gaussians"), self.pipeline.stage_version("cameras"))
-        if key == self._thumb_key:
-            return
-        self.thumb_panel.update(self.render_thumbnail())
+        if key != self._thumb_key and key != self._thumb_pending_key:
+            pipe = self.pipeline
+            args = (pipe.gaussians(), scale_cameras(pipe.cameras(), self.config.thumbnail_scale), pipe.backend,
+                    pipe.render_config, pipe.calibration.cols, pipe.calibration.rows)
+            if self._executor is None:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="holo-thumb")
+            self._thumb_future = self._executor.submit(_render_thumbnail, *args)
+            self._thumb_pending_key = key
+            self._thumb_started = time.perf_counter()
+        if wait:
+            self.poll_thumbnail(wait=True)
+
+    def poll_thumbnail(self, wait: bool = False) -> bool:
+        """Show the thumbnail quilt if its worker finished (``wait``: block for it). True if shown."""
+        fut = self._thumb_future
+        if fut is None or (not wait and not fut.done()):
+            return False
+        self._thumb_future = None
+        img = fut.result()  # re-raises a worker error here, in the GUI thread
+        key, self._thumb_pending_key = self._thumb_pending_key, None
+        self.thumb_panel.update(img)
         self._thumb_key = key
+        self.timings.thumbnail_ms = (time.perf_counter() - self._thumb_started) * 1e3
+        self._update_status()
+        self.plotter.render()
+        return True
+
+    def _on_timer(self, *_: Any) -> None:
+        try:
+            self.poll_thumbnail()
+        except Exception as exc:  # noqa: BLE001 - a worker failure must not kill the event loop
+            self._set_status(f"thumbnail failed: {exc}")
 
     def _set_status(self, text: str) -> None:
         self.status.SetText(1, text)  # lower right corner
@@ -486,28 +516,27 @@ class HoloViewer:
         return self._record(path)
 
     def export_sweep_video(self) -> Path:
-        """Write an mp4 of quilts sweeping smile 0 -> 1 -> 0 with the current pain (reduced tiles)."""
+        """Write an mp4 of quilts sweeping smile 0 -> 1 -> 0 at the current pain (tiles at ``sweep_scale``)."""
+        from ..display.export import write_quilt_video
         from ..display.quilt import quilt_filename
 
         cfg, pipe = self.config, self.pipeline
-        n = max(2, cfg.sweep_frames)
-        w = np.sin(np.linspace(0.0, np.pi, n))
         cal = pipe.calibration
         path = self._out(quilt_filename(f"sweep-{self._stamp()}", cal.cols, cal.rows, cal.aspect, suffix=".mp4"))
         base = pipe.face
-        quilts = []
-        from ..display.quilt import tile_quilt
-        from ..render.api import render_views
-
         cams = scale_cameras(pipe.cameras(), cfg.sweep_scale)
+        weights = np.sin(np.linspace(0.0, np.pi, max(2, cfg.sweep_frames)))
+
+        def frames() -> Any:
+            for w in weights:
+                pipe.set_face(base.with_named("smile", float(w)))
+                yield _render_thumbnail(pipe.gaussians(), cams, pipe.backend, pipe.render_config, cal.cols, cal.rows)
+
         try:
-            for wi in w:
-                pipe.set_face(base.with_named("smile", float(wi)))
-                res = render_views(pipe.gaussians(), cams, backend=pipe.backend, config=pipe.render_config)
-                quilts.append(tile_quilt(to_uint8(res.images), cal.cols, cal.rows))
+            write_quilt_video(path, frames(), fps=cfg.sweep_fps, total=len(weights), preset="veryfast")
         finally:
             pipe.set_face(base)
-        write_video(path, quilts, fps=cfg.sweep_fps)
+            pipe.get("gaussians")
         return self._record(path)
 
     def screenshot(self) -> np.ndarray:
@@ -525,27 +554,24 @@ class HoloViewer:
     # ================================================================== run
     def show(self) -> None:
         """Open the window and run the event loop until it is closed."""
-        self.plotter.show(auto_close=True)
+        iren = self.plotter.iren
+        if iren is not None:
+            iren.add_observer("TimerEvent", self._on_timer)
+            self.plotter.show(auto_close=False, interactive_update=True)
+            iren.create_timer(200, repeating=True)
+            iren.start()
+        self.close()
 
     def close(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown(wait=True, cancel_futures=True)
+            self._executor = None
         self.plotter.close()
 
 
-def write_video(path: str | Path, frames: list[np.ndarray], fps: float) -> Path:
-    """Write uint8 frames as an H.264 mp4 atomically (display.export when present)."""
-    try:
-        from ..display.export import write_quilt_video
-    except ImportError:
-        write_quilt_video = None
-    if write_quilt_video is not None:
-        return write_quilt_video(path, frames, fps=fps)
-    import imageio.v2 as imageio
+def _render_thumbnail(gaussians: Any, cameras: Any, backend: str, config: Any, cols: int, rows: int) -> np.ndarray:
+    from ..display.quilt import tile_quilt
+    from ..render.api import render_views
 
-    from ..fileio import atomic_path
-
-    with atomic_path(path) as tmp:
-        with imageio.get_writer(tmp, fps=fps, codec="libx264", pixelformat="yuv420p",
-                                macro_block_size=8, quality=7) as wr:
-            for f in frames:
-                wr.append_data(to_uint8(f))
-    return Path(path)
+    res = render_views(gaussians, cameras, backend=backend, config=config)
+    return tile_quilt(to_uint8(res.images), cols, rows)

@@ -1,0 +1,250 @@
+"""Pipeline: stage caching (recompute log), framing, streaming with a frame budget.
+
+A small random FLAME-format model (``flame.testing``) with a few hundred Gaussians bound
+to its triangles keeps every stage fast; the default head is used where the expression
+map (pain, named expressions) is needed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from holo_viewer.errors import InputError
+from holo_viewer.pipeline import (STAGES, FaceControls, Pipeline, StageTimings, ViewSettings, flame_sequence_frames,
+                                  frame_head)
+
+
+def _small_avatar(model, n=400, seed=0):
+    from holo_viewer.avatar import Gaussians, RiggedAvatar
+
+    rng = np.random.default_rng(seed)
+    F = int(model.faces.shape[0])
+    local = Gaussians(
+        means=rng.normal(scale=0.2, size=(n, 3)).astype(np.float32),
+        quats=rng.normal(size=(n, 4)).astype(np.float32),
+        log_scales=np.log(rng.uniform(0.05, 0.3, size=(n, 3))).astype(np.float32),
+        opacity_logits=rng.normal(1.0, 0.5, size=n).astype(np.float32),
+        sh=rng.normal(scale=0.5, size=(n, 4, 3)).astype(np.float32),
+        extra={"binding": rng.integers(0, F, size=n).astype(np.int64)},
+    )
+    return RiggedAvatar(model, local)
+
+
+@pytest.fixture(scope="module")
+def small_model():
+    from holo_viewer.flame.model import FlameModel
+    from holo_viewer.flame.testing import random_flame_arrays
+
+    return FlameModel.from_arrays(random_flame_arrays(n_vertices=300, n_shape=8, n_expr=6, seed=1))
+
+
+@pytest.fixture()
+def small_pipeline(small_model):
+    return Pipeline(model=small_model, avatar=_small_avatar(small_model),
+                    view=ViewSettings(tile_scale=0.1))
+
+
+def _log_of_last(p: Pipeline) -> list[str]:
+    return p.recomputed_in_last_request()
+
+
+def test_first_request_computes_every_stage_once(small_pipeline):
+    p = small_pipeline
+    native = p.native()
+    assert native.shape == (p.calibration.screen_h, p.calibration.screen_w, 3)
+    assert sorted(_log_of_last(p)) == sorted(STAGES)
+    p.native()
+    assert _log_of_last(p) == []  # everything cached
+    t = p.last_timings
+    assert isinstance(t, StageTimings) and t.recomputed() == []
+
+
+def test_expression_change_reruns_face_stages_not_cameras(small_pipeline):
+    p = small_pipeline
+    p.native()
+    cams_v = p.stage_version("cameras")
+    p.set_face(expr=np.array([1.0, -0.5]))
+    p.native()
+    assert _log_of_last(p) == ["params", "mesh", "gaussians", "views", "quilt", "native"]
+    assert p.stage_version("cameras") == cams_v
+    assert p.last_timings.cameras is None and p.last_timings.mesh is not None
+
+
+def test_viewer_distance_reruns_camera_stages_not_mesh(small_pipeline):
+    p = small_pipeline
+    p.native()
+    mesh_v, g_v = p.stage_version("mesh"), p.stage_version("gaussians")
+    before = p.cameras()
+    p.set_view(viewer_distance=1.2)
+    p.native()
+    assert _log_of_last(p) == ["cameras", "views", "quilt", "native"]
+    assert (p.stage_version("mesh"), p.stage_version("gaussians")) == (mesh_v, g_v)
+    assert not np.allclose(before.K, p.cameras().K)  # the fov follows the distance
+
+
+def test_blend_mode_reruns_only_native(small_pipeline):
+    p = small_pipeline
+    p.native()
+    p.set_view(blend=True)
+    p.native()
+    assert _log_of_last(p) == ["native"]
+
+
+def test_same_value_is_a_cache_hit(small_pipeline):
+    p = small_pipeline
+    p.set_face(expr=np.array([0.3]))
+    p.quilt()
+    p.set_face(expr=np.array([0.3]))  # a new object with equal content
+    p.quilt()
+    assert _log_of_last(p) == []
+
+
+def test_mesh_follows_flame_model(small_model, small_pipeline):
+    import torch
+
+    p = small_pipeline
+    p.set_face(expr=np.array([0.5, 0.1, 0, 0, 0, -0.2]), jaw_pose=np.array([0.2, 0, 0]))
+    with torch.no_grad():
+        ref = small_model(expr=torch.tensor([[0.5, 0.1, 0, 0, 0, -0.2]]), jaw_pose=torch.tensor([[0.2, 0.0, 0.0]]))
+    np.testing.assert_allclose(p.mesh(), ref.vertices[0].numpy(), atol=1e-6)
+
+
+def test_views_are_gaussians_rendered_by_the_renderer(small_pipeline):
+    from holo_viewer.render.api import render_views
+
+    p = small_pipeline
+    views = p.views()
+    ref = render_views(p.gaussians(), p.cameras(), backend="reference").images
+    assert views.shape == ref.shape
+    assert np.abs(views - ref).max() < 2e-3
+    assert views.std() > 0.01  # not blank
+
+
+def test_quilt_tiles_views_bottom_left_first(small_pipeline):
+    p = small_pipeline
+    views, quilt = p.views(), p.quilt()
+    V, H, W, _ = views.shape
+    cols, rows = p.calibration.cols, p.calibration.rows
+    assert quilt.shape == (rows * H, cols * W, 3) and quilt.dtype == np.uint8
+    v0 = np.clip(np.rint(views[0] * 255), 0, 255).astype(np.uint8)
+    np.testing.assert_array_equal(quilt[-H:, :W], v0)  # view 0 = bottom-left tile
+
+
+def test_framing_centres_the_head(small_pipeline):
+    p = small_pipeline
+    centre, half = p.get("framing")
+    rest = p._flame_vertices({"shape": np.zeros(p.model.n_shape)})
+    lo, hi = rest.min(0), rest.max(0)
+    np.testing.assert_allclose(centre, 0.5 * (lo + hi))
+    assert half == pytest.approx(0.5 * (hi[1] - lo[1]) * p.view.framing_margin)
+    # the focal-plane centre projects to the middle of every view (sheared cameras)
+    uv, depth = p.cameras().project(centre[None])
+    np.testing.assert_allclose(uv[:, 0, 0], p.cameras().width / 2, atol=1e-6)
+    np.testing.assert_allclose(uv[:, 0, 1], p.cameras().height / 2, atol=1e-6)
+    # the head (top to bottom) fits inside the tile height with the margin
+    top_bottom = np.array([[centre[0], hi[1], centre[2]], [centre[0], lo[1], centre[2]]])
+    uv, _ = p.cameras()[len(p.cameras()) // 2].project(top_bottom)
+    frac = (uv[0, 1, 1] - uv[0, 0, 1]) / p.cameras().height
+    assert frac == pytest.approx(1.0 / p.view.framing_margin, rel=1e-6)
+
+
+def test_frame_head_rejects_flat_input():
+    with pytest.raises(InputError, match="height"):
+        frame_head(np.zeros((10, 3)))
+    with pytest.raises(InputError, match="vertices"):
+        frame_head(np.full((10, 3), np.nan))
+
+
+def test_face_controls_validate():
+    with pytest.raises(InputError, match="pain"):
+        FaceControls(pain=1.5)
+    with pytest.raises(InputError, match="jaw_pose"):
+        FaceControls(jaw_pose=[0.1, 0.2])
+    with pytest.raises(InputError, match="named"):
+        FaceControls(named=(("grin", 0.5),))
+    with pytest.raises(InputError, match="expr"):
+        FaceControls(expr=[np.nan])
+
+
+def test_too_many_expression_coefficients_is_a_clear_error(small_pipeline):
+    small_pipeline.set_face(expr=np.ones(50))
+    with pytest.raises(InputError, match="n_expr"):
+        small_pipeline.mesh()
+
+
+# ------------------------------------------------------------------ streaming
+
+
+def _sequence(T=10, n_expr=6):
+    rng = np.random.default_rng(0)
+    return {"expr": rng.normal(scale=0.3, size=(T, n_expr)), "jaw_pose": np.zeros((T, 3)),
+            "rotation": np.zeros((T, 3)), "neck_pose": np.zeros((T, 3)), "eyes_pose": np.zeros((T, 6)),
+            "translation": np.zeros((T, 3)), "shape": np.zeros(8)}
+
+
+def test_flame_sequence_frames_checks_lengths():
+    seq = _sequence(5)
+    frames = flame_sequence_frames(seq)
+    assert len(frames) == 5 and frames[2]["expr"].shape == (6,)
+    bad = dict(seq, jaw_pose=np.zeros((4, 3)))
+    with pytest.raises(InputError, match="jaw_pose.*5 frames"):
+        flame_sequence_frames(bad)
+    with pytest.raises(InputError, match="eyes_pose"):
+        flame_sequence_frames(dict(seq, eyes_pose=np.zeros((5, 3))))
+
+
+def test_stream_all_frames_when_fast_enough(small_pipeline):
+    p = small_pipeline
+    frames = flame_sequence_frames(_sequence(6))
+    seen = []
+    rep = p.stream(frames, fps=1e-3, output="mesh", policy="drop", sink=lambda r: seen.append(r.index))
+    assert rep.rendered == list(range(6)) and seen == list(range(6))
+    assert rep.dropped == [] and rep.held == 0 and rep.late == []
+    assert rep.stage_seconds.mesh is not None
+
+
+def test_stream_drops_and_holds_when_slow(small_pipeline):
+    p = small_pipeline
+    frames = flame_sequence_frames(_sequence(10))
+    state = {"t": 0.0}
+
+    def clock():
+        return state["t"]
+
+    def sink(res):  # each computed frame costs 2.5 budgets of 0.1 s
+        state["t"] += 0.25
+
+    rep = p.stream(frames, fps=10.0, output="mesh", policy="drop", sink=sink, clock=clock)
+    # frame 0 ends at 0.25 s (slot 2): frame 1 dropped, frame 2 next; ends 0.5 (slot 5): 3, 4 dropped ...
+    assert rep.rendered == [0, 2, 5, 7]
+    assert rep.dropped == [1, 3, 4, 6, 8, 9]
+    assert rep.held == len(rep.dropped)
+    assert set(rep.rendered) | set(rep.dropped) == set(range(10))
+    assert rep.late == rep.rendered
+    # "all" computes every frame and counts the overrun slots as held
+    state["t"] = 0.0
+    rep2 = p.stream(frames, fps=10.0, output="mesh", policy="all", sink=sink, clock=clock)
+    assert rep2.rendered == list(range(10)) and rep2.dropped == []
+    assert rep2.held > 0 and len(rep2.late) == 10
+
+
+def test_stream_restores_controls_and_reports_quilts(small_pipeline):
+    p = small_pipeline
+    base = FaceControls(expr=[0.2])
+    p.set_face(base)
+    frames = flame_sequence_frames(_sequence(3))
+    got = []
+    rep = p.stream(frames, fps=1e-3, output="quilt", policy="all", sink=lambda r: got.append(r.quilt))
+    assert p.face is base
+    assert len(got) == 3 and got[0].shape == p.quilt().shape and not np.array_equal(got[0], got[1])
+    assert "3 frames" in rep.summary()
+
+
+def test_stream_rejects_bad_arguments(small_pipeline):
+    with pytest.raises(InputError, match="policy"):
+        small_pipeline.stream([], policy="skip")
+    with pytest.raises(InputError, match="fps"):
+        small_pipeline.stream([], fps=0)
+    with pytest.raises(InputError, match="unknown key"):
+        small_pipeline.stream([{"exprs": np.zeros(6)}], fps=1e-3, output="mesh")
