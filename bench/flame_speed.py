@@ -82,7 +82,7 @@ def bench_model(name: str, arrays: dict, repeat: int, device: str) -> list[dict]
     probe = FlameModel.from_arrays(arrays, n_shape=None, n_expr=None, dtype=torch.float64)
     n_shape, n_expr = probe.n_shape, probe.n_expr
     k_total = arrays["shapedirs"].shape[2]
-    n_shape_file = int(np.asarray(arrays.get("n_shape", 300 if k_total >= 300 else 0)))
+    n_shape_file = int(np.asarray(arrays.get("n_shape", 300 if k_total >= 300 else 0)).reshape(()))
     rng = np.random.default_rng(0)
     rows: list[dict] = []
 
