@@ -19,6 +19,18 @@ from .errors import ExportError
 __all__ = ["atomic_write", "atomic_path", "save_image", "load_image", "save_npz"]
 
 
+def _target_mode(target: Path) -> int:
+    """Permission bits for a new file: the existing target's, else 0o666 minus the umask.
+
+    ``mkstemp`` creates files readable by the owner only; outputs should get the usual mode.
+    """
+    if target.exists():
+        return target.stat().st_mode & 0o7777
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it onto ``path`` on success.
@@ -36,6 +48,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         yield tmp_path
         if not tmp_path.exists() or tmp_path.stat().st_size == 0:
             raise ExportError(f"{target}: writer produced no data")
+        os.chmod(tmp_path, _target_mode(target))
         os.replace(tmp_path, target)
     finally:
         if tmp_path.exists():

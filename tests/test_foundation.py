@@ -84,6 +84,12 @@ def test_atomic_write_keeps_old_file_on_failure(tmp_path):
     with atomic_write(target) as fh:
         fh.write(b"new")
     assert target.read_bytes() == b"new"
+    fresh = tmp_path / "fresh.bin"
+    with atomic_write(fresh) as fh:
+        fh.write(b"x")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert fresh.stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's owner-only 0600
 
 
 def test_save_image_round_trip_and_nan_refused(tmp_path):
