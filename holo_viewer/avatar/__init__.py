@@ -23,5 +23,7 @@ _LAZY = {"RiggedAvatar": "rigged", "load_gaussian_avatar": "gaussian_avatars", "
 
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
-        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        obj = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = obj  # also replaces the submodule attribute that shares the name
+        return obj
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

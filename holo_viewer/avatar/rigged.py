@@ -29,13 +29,22 @@ from torch import Tensor
 
 from ..errors import AvatarError, InputError
 from ..validation import check_array
-from .binding import bind_to_world, face_frames
+from .binding import DEGENERATE_EPS, bind_to_world, face_frames
 from .gaussians import Gaussians
 
 __all__ = ["RiggedAvatar"]
 
 #: When more than this fraction of faces moved, a cached deform recomputes everything.
 _CACHE_FULL_FRACTION = 0.6
+
+
+def _kernels() -> Any:
+    """The numba kernels module, or None when numba is not installed."""
+    try:
+        from . import _bind_kernels
+    except ImportError:  # numba missing: torch path
+        return None
+    return _bind_kernels
 
 
 def _binding_from(local: Gaussians, binding: Any, n_faces: int, context: str) -> Tensor:
@@ -105,6 +114,9 @@ class RiggedAvatar:
         rest = flame_model.v_template[None]
         self._n_degenerate = int(face_frames(rest, faces)[3].sum())
         self.last_cache_fraction: float | None = None
+        #: "auto" (numba on CPU without autograd, else torch) or "torch"
+        self.backend = "auto"
+        self._np_cache: tuple[np.ndarray, ...] | None = None
         #: above this fraction of moved faces a cached deform recomputes everything (cheaper)
         self.cache_full_fraction = _CACHE_FULL_FRACTION
 
@@ -142,10 +154,40 @@ class RiggedAvatar:
             (B, V, 3) or (V, 3) posed mesh vertices, metres.
         """
         verts = self._vertices(vertices)
+        if self._use_fast(verts):
+            return self._deform_fast(verts)
         rot, scale, centre, degenerate = face_frames(verts, self.faces)
         self._n_degenerate = int(degenerate.any(dim=0).sum())
         loc = self.local
         return bind_to_world(loc.means, loc.quats, loc.log_scales, self.binding, rot, scale, centre)
+
+    # ------------------------------------------------------------------ numba fast path
+    def _use_fast(self, verts: Tensor) -> bool:
+        if self.backend == "torch" or verts.device.type != "cpu" or verts.requires_grad:
+            return False
+        return _kernels() is not None
+
+    def _np_local(self) -> tuple[np.ndarray, ...]:
+        if self._np_cache is None:
+            loc = self.local
+            self._np_cache = (self.faces.cpu().numpy().astype(np.int64), self.binding.cpu().numpy(),
+                              loc.means.detach().cpu().numpy(), loc.quats.detach().cpu().numpy(),
+                              loc.log_scales.detach().cpu().numpy())
+        return self._np_cache
+
+    def _deform_fast(self, verts: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        k = _kernels()
+        faces, binding, mu, ql, ls = self._np_local()
+        b, n = verts.shape[0], binding.shape[0]
+        dt = verts.dtype
+        means, quats, log_scales = (torch.empty((b, n, c), dtype=dt) for c in (3, 4, 3))
+        n_deg = np.zeros(faces.shape[0], bool)
+        for i in range(b):
+            frame, deg = k.frames(verts[i].detach().contiguous().numpy(), faces, DEGENERATE_EPS)
+            n_deg |= deg
+            k.bind_nb(frame, binding, mu, ql, ls, means[i].numpy(), quats[i].numpy(), log_scales[i].numpy())
+        self._n_degenerate = int(n_deg.sum())
+        return means, quats, log_scales
 
     def _wrap(self, means: Tensor, quats: Tensor, log_scales: Tensor) -> Gaussians:
         loc = self.local
@@ -192,6 +234,18 @@ class RiggedAvatar:
             self.last_cache_fraction = n_moved / moved.shape[0]
             if n_moved == 0:
                 return c["means"], c["quats"], c["log_scales"]
+            if self.last_cache_fraction <= self.cache_full_fraction and self._use_fast(verts):
+                k = _kernels()
+                faces, binding, mu, ql, ls = self._np_local()
+                frame, deg = k.frames(verts.detach().contiguous().numpy(), faces, DEGENERATE_EPS)
+                self._n_degenerate = int(deg.sum())
+                g_idx = np.flatnonzero(moved.numpy()[binding])
+                means, quats, log_scales = c["means"].clone(), c["quats"].clone(), c["log_scales"].clone()
+                k.bind_subset_nb(frame, binding, mu, ql, ls, g_idx, means.numpy(), quats.numpy(),
+                                 log_scales.numpy())
+                fv = torch.where(moved[:, None, None], face_verts, c["face_verts"])
+                self._cache = {"face_verts": fv, "means": means, "quats": quats, "log_scales": log_scales}
+                return means, quats, log_scales
             if self.last_cache_fraction <= self.cache_full_fraction:
                 face_idx = torch.nonzero(moved).squeeze(1)
                 rot, scale, centre, degenerate = face_frames(verts[None], self.faces[face_idx])
