@@ -9,12 +9,12 @@ from .calibration import PRESETS, DevicePreset, DisplayCalibration, QuiltLayout,
 from .cameras import fov_for_viewer_distance, make_quilt_cameras, quilt_cameras_to_opengl, sdk_view_projection
 from .lenticular import Interleaver, interleave, interleave_reference, reference_views
 from .quilt import parse_quilt_filename, quilt_filename, split_quilt, tile_quilt
-from .simulate import VirtualDisplay, identify_bar, test_pattern_views
+from .simulate import VirtualDisplay, identify_bar, id_pattern_views
 
 __all__ = [
     "DisplayCalibration", "QuiltLayout", "DevicePreset", "PRESETS", "preset_for_serial",
     "make_quilt_cameras", "fov_for_viewer_distance", "sdk_view_projection", "quilt_cameras_to_opengl",
     "tile_quilt", "split_quilt", "quilt_filename", "parse_quilt_filename",
     "Interleaver", "interleave", "interleave_reference", "reference_views",
-    "VirtualDisplay", "test_pattern_views", "identify_bar",
+    "VirtualDisplay", "id_pattern_views", "identify_bar",
 ]

@@ -35,7 +35,7 @@ import numpy as np
 from ..errors import InputError
 from .calibration import DisplayCalibration
 
-__all__ = ["VirtualDisplay", "test_pattern_views", "identify_bar"]
+__all__ = ["VirtualDisplay", "id_pattern_views", "identify_bar"]
 
 
 @dataclass(frozen=True)
@@ -176,7 +176,7 @@ def _box(a: np.ndarray, window: tuple[int, int], stride: int) -> np.ndarray:
     return (S[y1][:, x1] - S[y0][:, x1] - S[y1][:, x0] + S[y0][:, x0])
 
 
-def test_pattern_views(n_views: int, height: int, width: int, kind: str = "bars") -> np.ndarray:
+def id_pattern_views(n_views: int, height: int, width: int, kind: str = "bars") -> np.ndarray:
     """(N, H, W, 3) uint8 views that identify themselves.
 
     ``flat``: view ``k`` is one flat colour (hue ``k / N``, full saturation).
@@ -198,7 +198,7 @@ def test_pattern_views(n_views: int, height: int, width: int, kind: str = "bars"
 
 
 def identify_bar(image: np.ndarray, n_views: int) -> tuple[int, np.ndarray]:
-    """Which bar slot of :func:`test_pattern_views` ("bars") is brightest in ``image``.
+    """Which bar slot of :func:`id_pattern_views` ("bars") is brightest in ``image``.
 
     Returns the slot index and the (N,) mean brightness per slot.
     """

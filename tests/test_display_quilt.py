@@ -1,0 +1,72 @@
+"""Quilt tiling/splitting, file naming, PNG and mp4 export."""
+
+import numpy as np
+import pytest
+
+from holo_viewer.display.export import load_quilt, save_native_png, save_quilt_png, write_quilt_video
+from holo_viewer.display.quilt import parse_quilt_filename, quilt_filename, split_quilt, tile_quilt
+from holo_viewer.errors import ExportError, InputError
+
+
+@pytest.mark.parametrize("cols,rows,n", [(8, 6, 48), (3, 2, 6), (5, 9, 45), (4, 3, 10), (1, 1, 1)])
+def test_round_trip_and_bottom_left_is_view0(cols, rows, n):
+    rng = np.random.default_rng(cols * 10 + rows)
+    views = rng.integers(0, 256, (n, 7, 5, 3), dtype=np.uint8)
+    q = tile_quilt(views, cols, rows)
+    assert q.shape == (rows * 7, cols * 5, 3)
+    assert np.array_equal(split_quilt(q, cols, rows, n), views)
+    assert np.array_equal(q[-7:, :5], views[0])  # bottom-left tile
+    if n == cols * rows:
+        assert np.array_equal(q[:7, -5:], views[-1])  # top-right tile
+    if n > 1 and cols > 1:
+        assert np.array_equal(q[-7:, 5:10], views[1])  # left to right first
+
+
+def test_non_multiple_quilt_reads_from_bottom_left():
+    views = np.arange(6)[:, None, None, None] * np.ones((6, 4, 3, 1), np.uint8)
+    q = tile_quilt(views, 3, 2)
+    padded = np.concatenate([np.full((1, 9, 1), 99, np.uint8), q], axis=0)  # extra top row
+    padded = np.concatenate([padded, np.full((9, 2, 1), 99, np.uint8)], axis=1)  # extra right columns
+    assert np.array_equal(split_quilt(padded, 3, 2), views)
+
+
+def test_names():
+    assert quilt_filename("face", 8, 6, 0.75) == "face_qs8x6a0.75.png"
+    assert quilt_filename("x", 5, 9, 16 / 9) == "x_qs5x9a1.7778.png"
+    assert parse_quilt_filename("/a/b/face_qs8x6a0.75.png") == (8, 6, 0.75)
+    assert parse_quilt_filename("my_qs2x2a1_qs11x6a0.5625.mp4") == (11, 6, 0.5625)
+    with pytest.raises(InputError, match="_qs"):
+        parse_quilt_filename("face.png")
+    with pytest.raises(InputError):
+        tile_quilt(np.zeros((7, 2, 2, 3)), 3, 2)
+
+
+def test_png_export_and_reload(tmp_path):
+    rng = np.random.default_rng(1)
+    views = rng.integers(0, 256, (48, 8, 6, 3), dtype=np.uint8)
+    p = save_quilt_png(tmp_path / "face", views, 8, 6, 0.75)
+    assert p.name == "face_qs8x6a0.75.png"
+    back, layout = load_quilt(p)
+    assert layout == (8, 6, 0.75)
+    assert np.array_equal(np.rint(back * 255).astype(np.uint8), views)
+    assert save_quilt_png(tmp_path, views, 8, 6, 0.75).name == "quilt_qs8x6a0.75.png"
+    with pytest.raises(ExportError, match="name says"):
+        save_quilt_png(tmp_path / "x_qs4x4a1.png", views, 8, 6, 0.75)
+    assert save_native_png(tmp_path / "n.png", views[0]).exists()
+    with pytest.raises(ExportError, match="png"):
+        save_native_png(tmp_path / "n.jpg", views[0])
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["face_qs8x6a0.75.png", "n.png", "quilt_qs8x6a0.75.png"]
+
+
+def test_video_export(tmp_path):
+    import imageio.v2 as imageio
+
+    frames = [np.full((21, 30, 3), 40 * i, np.uint8) for i in range(5)]  # odd height
+    p = write_quilt_video(tmp_path / "q_qs3x3a1.mp4", frames, fps=10, progress=False, preset="ultrafast")
+    got = [f for f in imageio.get_reader(str(p))]  # (list() asks len(), which is inf for mp4)
+    assert len(got) == 5 and got[0].shape == (22, 30, 3)
+    assert abs(int(got[3][15, 15, 0]) - 120) <= 3
+    assert [f.name for f in tmp_path.iterdir()] == ["q_qs3x3a1.mp4"]  # no temp files left
+    with pytest.raises(ExportError, match="frame 1"):
+        write_quilt_video(tmp_path / "bad.mp4", [frames[0], np.zeros((4, 4, 3), np.uint8)], progress=False)
+    assert not (tmp_path / "bad.mp4").exists()
