@@ -36,7 +36,7 @@ from .validation import check_array, check_finite_scalar
 
 __all__ = [
     "STAGES", "FaceControls", "ViewSettings", "StageTimings", "FrameResult", "StreamReport",
-    "Pipeline", "frame_head", "flame_sequence_frames", "FLAME_KEYS",
+    "Pipeline", "frame_head", "flame_sequence_frames", "apply_frame", "FLAME_KEYS", "to_uint8",
 ]
 
 #: stage names in data-flow order
@@ -360,10 +360,10 @@ class Pipeline:
     Parameters
     ----------
     model : FlameModel or None
-        The FLAME model; None loads the embedded default head.
+        The FLAME model; None = the avatar's ``flame_model`` (or the embedded default head).
     avatar : object or None
         A rigged Gaussian avatar bound to ``model``'s triangles (``avatar.deform(vertices)``
-        gives world :class:`~holo_viewer.avatar.Gaussians`); None builds the default avatar.
+        gives world :class:`~holo_viewer.avatar.Gaussians`); None = the default avatar.
         ``False`` disables the Gaussian stages (mesh-only use, e.g. the GUI without splats).
     calibration : DisplayCalibration or None
         Looking Glass calibration; None = the Portrait calibration shipped in ``assets/``.
@@ -379,15 +379,20 @@ class Pipeline:
     def __init__(self, model: Any = None, avatar: Any = None, calibration: Any = None, *,
                  face: FaceControls | None = None, view: ViewSettings | None = None,
                  backend: str = "fast", render_config: Any = None, au_map: Any = None) -> None:
+        if avatar is None:
+            from .avatar import default_avatar
+
+            avatar = default_avatar()  # bound to the default head with teeth
+            if model is not None and model is not avatar.flame_model:
+                raise InputError("model: the default avatar is bound to the default head (with teeth); pass "
+                                 "avatar=False for a mesh-only pipeline or an avatar bound to your model")
+        if model is None:
+            model = getattr(avatar, "flame_model", None) if avatar is not False else None
         if model is None:
             from .flame.default_head import load_default_model
 
             model = load_default_model()
         self.model = model
-        if avatar is None:
-            from .avatar import default_avatar
-
-            avatar = default_avatar(model=model) if _accepts(default_avatar, "model") else default_avatar()
         self.avatar = avatar if avatar is not False else None
         #: per-subject FLAME parameters of the avatar (``shape``, ``static_offset``)
         self.identity = {k: np.asarray(v.detach().cpu() if hasattr(v, "detach") else v, dtype=np.float64)
@@ -396,6 +401,7 @@ class Pipeline:
             calibration = default_calibration()
         self.calibration = calibration
         self._au_map = au_map
+        self._au_map_version = 0
         self.face = face or FaceControls()
         self.view = view or ViewSettings()
         self.backend = backend
@@ -417,6 +423,11 @@ class Pipeline:
 
             self._au_map = au_map_for(self.model)
         return self._au_map
+
+    def set_au_map(self, au_map: Any) -> None:
+        """Use another action-unit map (``flame.expressions.AUMap``) for named expressions and pain."""
+        self._au_map = au_map
+        self._au_map_version += 1
 
     def set_face(self, face: FaceControls | None = None, **changes: Any) -> None:
         """Replace the face controls (or some of their fields)."""
@@ -441,7 +452,7 @@ class Pipeline:
         """Upstream stages and the settings fingerprinted for ``stage``."""
         f, v = self.face, self.view
         if stage == "params":
-            return (), (f, id(self.model), id(self._au_map))
+            return (), (f, id(self.model), self._au_map_version)
         if stage == "mesh":
             return ("params",), id(self.model)
         if stage == "gaussians":
@@ -584,8 +595,14 @@ class Pipeline:
 
         dt = self.model.dtype
         kw = {k: torch.as_tensor(np.asarray(v)[None], dtype=dt) for k, v in params.items()}
-        with torch.no_grad():
-            out = self.model(**kw)
+        # one frame of LBS is ~1 ms single-threaded; torch's thread pool costs 50 ms on a busy CPU
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            with torch.no_grad():
+                out = self.model(**kw)
+        finally:
+            torch.set_num_threads(threads)
         return out.vertices[0].detach().cpu().numpy().astype(np.float64)
 
     def _compute_mesh(self, params: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -704,7 +721,7 @@ class Pipeline:
         try:
             while k < len(frames):
                 t0 = clock()
-                self.face = _apply_frame(base, frames[k], k)
+                self.face = apply_frame(base, frames[k], k)
                 (value,), timings = self.compute(output)
                 res = FrameResult(index=k, timings=timings)
                 if output in ("quilt", "native", "views"):
@@ -744,7 +761,8 @@ def _accepts(fn: Callable, name: str) -> bool:
         return False
 
 
-def _apply_frame(base: FaceControls, frame: Mapping[str, Any], index: int) -> FaceControls:
+def apply_frame(base: FaceControls, frame: Mapping[str, Any], index: int = 0) -> FaceControls:
+    """``base`` with the FLAME parameters of one sequence frame (see :func:`flame_sequence_frames`)."""
     changes: dict[str, Any] = {}
     for key, value in frame.items():
         if key in FLAME_KEYS or key == "shape":
@@ -789,6 +807,11 @@ def flame_sequence_frames(params: Mapping[str, Any], *, source: str = "flame par
     if T is None:
         raise InputError(f"{source}: expected at least one of the keys {sorted(FLAME_KEYS)}, found "
                          f"{sorted(params)}")
+    dyn = params.get("dynamic_offset") if isinstance(params, Mapping) else None
+    if dyn is not None:
+        dyn = np.asarray(dyn, dtype=np.float64)
+        if dyn.ndim != 3 or dyn.shape[0] != T or dyn.shape[2] != 3:
+            raise InputError(f"{source}: dynamic_offset: expected shape ({T}, V, 3), found {dyn.shape}")
     shape = None
     if "shape" in params:
         shape = np.asarray(params["shape"], dtype=np.float64).reshape(-1)
@@ -797,6 +820,8 @@ def flame_sequence_frames(params: Mapping[str, Any], *, source: str = "flame par
         fr = {k: (v[t, 0] if k == "pain" else v[t]) for k, v in seq.items()}
         if shape is not None:
             fr["shape"] = shape
+        if dyn is not None:
+            fr["dynamic_offset"] = dyn[t]
         frames.append(fr)
     return frames
 

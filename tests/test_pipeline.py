@@ -248,3 +248,43 @@ def test_stream_rejects_bad_arguments(small_pipeline):
         small_pipeline.stream([], fps=0)
     with pytest.raises(InputError, match="unknown key"):
         small_pipeline.stream([{"exprs": np.zeros(6)}], fps=1e-3, output="mesh")
+
+
+# ------------------------------------------------------------------ default head: pain, named expressions
+
+
+@pytest.fixture(scope="module")
+def head_pipeline():
+    from holo_viewer.flame.default_head import load_default_model
+
+    model = load_default_model()
+    return Pipeline(model=model, avatar=_small_avatar(model, n=600), view=ViewSettings(tile_scale=0.1))
+
+
+def test_pain_reruns_only_the_stages_after_it(head_pipeline):
+    p = head_pipeline
+    p.set_face(FaceControls())
+    p.native()
+    versions = {s: p.stage_version(s) for s in STAGES}
+    p.set_face(pain=0.8)
+    p.native()
+    assert _log_of_last(p) == ["params", "mesh", "gaussians", "views", "quilt", "native"]
+    assert p.stage_version("cameras") == versions["cameras"]
+    assert p.stage_version("framing") == versions["framing"]
+    assert all(p.stage_version(s) != versions[s] for s in ("params", "mesh", "gaussians", "views", "quilt", "native"))
+
+
+def test_pain_and_smile_move_the_face(head_pipeline):
+    from holo_viewer.flame.expressions import au_map_for, named_expression, pain_expression, pspi
+
+    p = head_pipeline
+    p.set_face(FaceControls())
+    neutral = p.mesh().copy()
+    p.set_face(FaceControls(pain=1.0, named=(("smile", 0.5),)))
+    params = p.flame_params()
+    au = au_map_for(p.model)
+    expected = named_expression("smile", 0.5, au) + pain_expression(1.0, au)
+    np.testing.assert_allclose(params["expr"], expected, atol=1e-12)
+    assert pspi(params["expr"], au) > 8.0
+    moved = np.linalg.norm(p.mesh() - neutral, axis=1)
+    assert moved.max() > 1e-3  # millimetres of motion somewhere on the face

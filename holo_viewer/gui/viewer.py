@@ -34,7 +34,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import InputError
-from ..pipeline import FaceControls, Pipeline, to_uint8
+from ..pipeline import FaceControls, Pipeline, apply_frame, to_uint8
 from .scene import (focal_plane_polydata, frusta_polydata, glyph_polydata, image_plane, mesh_polydata,
                     subsample_indices, view_colors)
 
@@ -58,7 +58,9 @@ class ViewerConfig:
     window_size : (int, int)
         Window width, height in pixels.
     n_expr_sliders : int
-        Sliders for the first expression components (range +-``expr_range``).
+        Number of expression-component sliders: the components named ``expr_names`` when the model
+        names its components (the default head: action units, range 0..1.5), else the first ones
+        (range +-``expr_range`` standard deviations).
     max_glyphs : int
         Gaussians drawn as ellipsoids (a deterministic random subset keeps it interactive).
     glyph_sigmas : float
@@ -75,6 +77,7 @@ class ViewerConfig:
 
     window_size: tuple[int, int] = (1600, 900)
     n_expr_sliders: int = 4
+    expr_names: tuple[str, ...] = ("AU2_L", "AU4", "AU9", "AU20")
     expr_range: float = 2.0
     max_glyphs: int = 2500
     glyph_sigmas: float = 1.5
@@ -160,12 +163,17 @@ class HoloViewer:
     config : ViewerConfig
     off_screen : bool
         Render into an offscreen buffer (snapshots, tests).
+    frames : list of dict, optional
+        A FLAME sequence (:func:`~holo_viewer.pipeline.flame_sequence_frames`): adds a frame slider.
     """
 
-    def __init__(self, pipeline: Pipeline, config: ViewerConfig | None = None, *, off_screen: bool = False) -> None:
+    def __init__(self, pipeline: Pipeline, config: ViewerConfig | None = None, *, off_screen: bool = False,
+                 frames: list[dict[str, np.ndarray]] | None = None) -> None:
         import pyvista as pv
 
         self.pipeline = pipeline
+        self.frames = frames
+        self._frame_base = pipeline.face
         self.config = config or ViewerConfig()
         self.off_screen = off_screen
         self.selected_view = len(pipeline.cameras()) // 2
@@ -180,6 +188,7 @@ class HoloViewer:
         self._glyph_index: np.ndarray | None = None
         self._thumb_key: tuple | None = None
         self._building = True
+        self._opened = False
         self._executor: Any = None
         self._thumb_future: Any = None
         self._thumb_pending_key: tuple | None = None
@@ -271,12 +280,16 @@ class HoloViewer:
 
     def _add_sliders(self) -> None:
         pipe, cfg, p = self.pipeline, self.config, self.plotter
-        names = pipe.model.expression_names or []
-        n = min(cfg.n_expr_sliders, int(pipe.model.n_expr))
+        names = list(pipe.model.expression_names or [])
         specs: list[tuple[str, str, tuple[float, float], float, Callable[[float], None]]] = []
-        for i in range(n):
-            label = f"expr {i}" + (f" {names[i]}" if i < len(names) else "")
-            specs.append((f"expr{i}", label, (-cfg.expr_range, cfg.expr_range), 0.0,
+        chosen = [names.index(n) for n in cfg.expr_names if n in names] if names else []
+        if not chosen:
+            chosen = list(range(min(cfg.n_expr_sliders, int(pipe.model.n_expr))))
+        rng = (0.0, 1.5) if getattr(pipe.model, "is_default_head", False) else (-cfg.expr_range, cfg.expr_range)
+        for i in chosen[: cfg.n_expr_sliders]:
+            label = f"expr {i}" + (f" ({names[i]})" if i < len(names) else "")
+            value = float(pipe.face.expr[i]) if i < pipe.face.expr.shape[0] else 0.0
+            specs.append((f"expr{i}", label, rng, value,
                           lambda v, i=i: self.set_face(self.pipeline.face.with_expr_component(i, v))))
         specs += [
             ("smile", "smile", (0.0, 1.0), 0.0, lambda v: self.set_face(self.pipeline.face.with_named("smile", v))),
@@ -291,6 +304,9 @@ class HoloViewer:
             ("view", "selected view", (0, len(pipe.cameras()) - 1), float(self.selected_view),
              lambda v: self.select_view(int(round(v)))),
         ]
+        if self.frames is not None and len(self.frames) > 1:
+            specs.insert(0, ("frame", "sequence frame", (0, len(self.frames) - 1), 0.0,
+                             lambda v: self.set_face(apply_frame(self._frame_base, self.frames[int(round(v))]))))
         k = len(specs)
         top, bottom = 0.96, 0.04
         step = (top - bottom) / k
@@ -298,7 +314,7 @@ class HoloViewer:
             y = top - (j + 0.55) * step
             w = p.add_slider_widget(self._guard(fn), rng, value=value, title=title, pointa=(0.08, y),
                                     pointb=(0.92, y), interaction_event="end", style="modern",
-                                    title_height=0.018, fmt="%.0f" if key == "view" else "%.2f",
+                                    title_height=0.018, fmt="%.0f" if key in ("view", "frame") else "%.2f",
                                     slider_width=0.02, tube_width=0.006, title_opacity=0.9)
             self.sliders[key] = w
 
@@ -552,12 +568,19 @@ class HoloViewer:
         return self._record(target)
 
     # ================================================================== run
+    def open(self) -> None:
+        """Map the window and draw it without entering the event loop (tests, scripted use)."""
+        if not self._opened:
+            self.plotter.show(auto_close=False, interactive_update=True)
+            self._opened = True
+        self.plotter.render()
+
     def show(self) -> None:
         """Open the window and run the event loop until it is closed."""
         iren = self.plotter.iren
-        if iren is not None:
+        self.open()
+        if iren is not None and not self.off_screen:
             iren.add_observer("TimerEvent", self._on_timer)
-            self.plotter.show(auto_close=False, interactive_update=True)
             iren.create_timer(200, repeating=True)
             iren.start()
         self.close()

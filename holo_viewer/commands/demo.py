@@ -1,0 +1,171 @@
+"""``holo-viewer demo``: the main job on the default avatar (what ``make demo`` runs).
+
+Writes, atomically, into ``--out DIR``:
+
+* ``head/``: the default head's renders (neutral, smile, pain, mouth open from three angles and a
+  contact sheet; ``flame.preview.write_head_renders``),
+* ``default_qs8x6a0.75.png``: the 48-view quilt of a smile with pain,
+* ``default_native.png``: its lenticular native image for the shipped Portrait calibration
+  (``assets/lkg_portrait_visual.json``),
+* ``default_reaction_qs8x6a0.75.mp4``: a quilt video of the avatar reacting, through the shipped
+  listener-reaction model, to a synthesized speaker clip,
+* ``timings.json``: the per-stage timings printed at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+__all__ = ["add_arguments", "run", "format_timing_table"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", default="out", help="output folder (default: out)")
+    parser.add_argument("--smile", type=float, default=0.8, help="smile intensity of the quilt, 0..1 (default 0.8)")
+    parser.add_argument("--pain", type=float, default=0.6, help="pain intensity of the quilt and the reaction, 0..1")
+    parser.add_argument("--seconds", type=float, default=2.0, help="length of the reaction video (default 2 s)")
+    parser.add_argument("--fps", type=float, default=25.0, help="frame rate of the reaction video (default 25)")
+    parser.add_argument("--video-scale", type=float, default=1.0,
+                        help="tile size of the video relative to the 420x560 quilt tile (default 1)")
+    parser.add_argument("--renderer", default="fast", help="splat renderer backend (default fast)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the synthesized speaker clip")
+    parser.add_argument("--skip-head-renders", action="store_true", help="do not write head/ (faster)")
+
+
+def format_timing_table(rows: list[tuple[str, float, str]]) -> str:
+    """A fixed-width table of (step, seconds, note) rows."""
+    w = max(len(r[0]) for r in rows) if rows else 10
+    lines = [f"{'step':<{w}}  {'seconds':>9}  note", f"{'-' * w}  {'-' * 9}  {'-' * 30}"]
+    for name, sec, note in rows:
+        lines.append(f"{name:<{w}}  {sec:>9.3f}  {note}")
+    return "\n".join(lines)
+
+
+def _reaction_frames(seconds: float, pain: float, seed: int, fps: float) -> tuple[list[dict], str]:
+    """Listener FLAME frames from the reaction model for a synthesized speaker clip."""
+    from ..errors import ReactionError
+    from ..pipeline import flame_sequence_frames
+
+    try:
+        from ..reaction import generate_demo_reaction
+    except ImportError as exc:
+        raise ReactionError("demo: holo_viewer.reaction.generate_demo_reaction is not available; the reaction "
+                            f"video needs the listener-reaction model ({exc})") from exc
+    params = generate_demo_reaction(seconds=seconds, pain=pain, seed=seed)
+    frames = flame_sequence_frames(params, source="reaction model output")
+    src_fps = float(params.get("fps", 25.0)) if isinstance(params, dict) else 25.0
+    if abs(src_fps - fps) > 1e-9:  # resample to the video rate (nearest frame)
+        import numpy as np
+
+        n = max(1, int(round(len(frames) * fps / src_fps)))
+        idx = np.minimum(np.round(np.arange(n) * src_fps / fps).astype(int), len(frames) - 1)
+        frames = [frames[i] for i in idx]
+    return frames, f"{len(frames)} frames from the reaction model at {fps:g} fps"
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+    from tqdm import tqdm
+
+    from ..display.export import write_quilt_video
+    from ..display.quilt import quilt_filename
+    from ..errors import InputError
+    from ..fileio import atomic_write, save_image
+    from ..pipeline import FaceControls, Pipeline, StageTimings, ViewSettings
+
+    for name in ("smile", "pain"):
+        v = getattr(args, name)
+        if not 0.0 <= v <= 1.0:
+            raise InputError(f"--{name}: expected a value in [0, 1], found {v}")
+    if not (0 < args.seconds <= 60 and 0 < args.fps <= 120 and 0.05 <= args.video_scale <= 1.0):
+        raise InputError(f"--seconds/--fps/--video-scale: expected (0, 60], (0, 120], [0.05, 1], found "
+                         f"{args.seconds}, {args.fps}, {args.video_scale}")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows: list[tuple[str, float, str]] = []
+    t_all = time.perf_counter()
+    steps = tqdm(total=6, desc="demo", unit="step")
+
+    def step(name: str, t0: float, note: str = "") -> None:
+        rows.append((name, time.perf_counter() - t0, note))
+        steps.set_postfix_str(name)
+        steps.update(1)
+
+    # 1. the default avatar
+    t0 = time.perf_counter()
+    pipe = Pipeline(backend=args.renderer, face=FaceControls(named=(("smile", args.smile),), pain=args.pain))
+    step("load default avatar", t0, f"{len(pipe.avatar)} Gaussians, {pipe.model.n_vertices} vertices")
+
+    # 2. head renders (issue 2)
+    t0 = time.perf_counter()
+    if args.skip_head_renders:
+        step("head renders", t0, "skipped")
+    else:
+        from ..flame.preview import write_head_renders
+
+        files = write_head_renders(out / "head", pipe.model, verbose=False)
+        step("head renders", t0, f"{len(files)} PNGs in {out / 'head'}")
+
+    # 3. quilt of a smile with pain, 4. native image
+    cal = pipe.calibration
+    t0 = time.perf_counter()
+    (quilt,), quilt_t = pipe.compute("quilt")
+    qpath = save_image(out / quilt_filename("default", cal.cols, cal.rows, cal.aspect), quilt)
+    step("quilt (smile + pain)", t0, f"{qpath.name} {quilt.shape[1]}x{quilt.shape[0]}")
+    t0 = time.perf_counter()
+    (native,), native_t = pipe.compute("native")
+    npath = save_image(out / "default_native.png", native)
+    step("native image", t0, f"{npath.name} {native.shape[1]}x{native.shape[0]} ({cal.source or 'calibration'})")
+    first = StageTimings()
+    first.add(quilt_t)
+    first.add(native_t)
+
+    # 5. reaction to a synthesized speaker clip
+    t0 = time.perf_counter()
+    frames, note = _reaction_frames(args.seconds, args.pain, args.seed, args.fps)
+    step("reaction model", t0, note)
+
+    # 6. quilt video, streamed through the pipeline
+    t0 = time.perf_counter()
+    if args.video_scale != 1.0:
+        pipe.set_view(tile_scale=args.video_scale)
+    from ..pipeline import StreamReport
+
+    report = StreamReport(n_frames=0, budget=0.0, policy="all")
+    base = FaceControls(pain=args.pain)
+    quilts = (r.quilt for r in pipe.iter_stream(frames, fps=args.fps, output="quilt", policy="all", base=base,
+                                                 report=report))
+    vpath = write_quilt_video(out / quilt_filename("default_reaction", cal.cols, cal.rows, cal.aspect,
+                                                   suffix=".mp4"), quilts, fps=args.fps, total=len(frames),
+                              preset="veryfast")
+    step("reaction quilt video", t0, f"{vpath.name}: {report.summary()}")
+    steps.close()
+    total = time.perf_counter() - t_all
+
+    # timing tables
+    print()
+    print(format_timing_table(rows + [("total", total, "")]))
+    print()
+    per = report.stage_seconds
+    n = max(1, len(report.rendered))
+    stage_rows = []
+    for s in ("params", "mesh", "gaussians", "framing", "cameras", "views", "quilt", "native"):
+        a, b = getattr(first, s), getattr(per, s)
+        stage_rows.append((s, a or 0.0, "" if b is None else f"video: {b / n * 1e3:.1f} ms/frame"))
+    print("pipeline stages (first full quilt + native; video mean per frame):")
+    print(format_timing_table(stage_rows))
+    record = {"steps": {r[0]: {"seconds": r[1], "note": r[2]} for r in rows}, "total_seconds": total,
+              "first_quilt_stage_seconds": first.as_dict(),
+              "video": {"frames": len(report.rendered), "fps": args.fps, "tile_scale": args.video_scale,
+                        "stage_seconds_per_frame": {k: (v / n if v is not None else None)
+                                                    for k, v in per.as_dict().items()},
+                        "late_frames": len(report.late), "achieved_fps": report.achieved_fps},
+              "config": {"smile": args.smile, "pain": args.pain, "seconds": args.seconds,
+                         "renderer": args.renderer, "n_gaussians": len(pipe.avatar)}}
+    with atomic_write(out / "timings.json", "w") as fh:
+        json.dump(record, fh, indent=2, default=lambda o: float(o) if isinstance(o, np.floating) else str(o))
+    print(f"\nwrote {qpath}\nwrote {npath}\nwrote {vpath}\nwrote {out / 'timings.json'}")
+    return 0
