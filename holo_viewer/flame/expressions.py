@@ -1,0 +1,384 @@
+"""Facial action units (AUs), pain and named expressions for FLAME-format models.
+
+Pure numpy apart from :meth:`AUMap.load_json` / :meth:`AUMap.to_json`.
+
+AU intensities use the FACS-like 0..5 scale (A = 1 ... E = 5); AU43 (eyes closed)
+uses 0..1 as in PSPI. An :class:`AUMap` turns intensities into expression
+coefficients of one model, linearly: ``expr = intensities @ matrix`` with
+``matrix`` of shape (n_au, n_expr).
+
+AU map JSON format
+------------------
+::
+
+    {
+      "n_expr": 100,                      # expression coefficients of the model
+      "aus": {                            # AU name -> coefficients for intensity 1
+        "AU4":  [0.0, 0.12, ..., 0.0],    # exactly n_expr finite numbers
+        "AU12": [...],
+        ...
+      }
+    }
+
+AU names must come from :data:`AU_NAMES`; AUs left out cannot be expressed.
+Coefficients are per unit intensity on the 0..5 scale (per unit for AU43), so
+intensity 5 of "AU12" adds ``5 * aus["AU12"]`` to the expression vector. Pass
+such a file as ``--au-map FILE`` on the command line, or ``au_map_path=`` to
+:func:`au_map_for`. The default head needs none: its expression basis is named
+(``AU12_L`` ...), coefficient 1.0 = full intensity 5.
+
+Pain
+----
+PSPI = AU4 + max(AU6, AU7) + max(AU9, AU10) + AU43 (0..16) [Prkachin & Solomon].
+:func:`pain_aus` maps pain p in [0, 1] to a canonical pain face dominated by the
+PSPI action units (brow lowering, orbital tightening, levator contraction, eye
+closure) with lighter AU20/AU25/AU26; PSPI(p = 1) = 12.7, PSPI(0) = 0, strictly
+increasing in p.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import FlameError, InputError
+from ..fileio import atomic_write
+
+__all__ = ["AU_NAMES", "AU_MAX", "REACT_AUS", "AUMap", "default_au_map", "au_map_for", "expression_from_aus",
+           "pain_aus", "pain_expression", "estimate_aus", "pspi", "pspi_from_aus", "named_expression",
+           "jaw_for_expression", "EXPRESSION_NAMES_KNOWN", "PAIN_PEAK"]
+
+AU_NAMES: tuple[str, ...] = ("AU1", "AU2", "AU4", "AU5", "AU6", "AU7", "AU9", "AU10", "AU12", "AU14", "AU15",
+                             "AU16", "AU17", "AU18", "AU20", "AU23", "AU24", "AU25", "AU26", "AU43")
+#: The 15 AUs of the REACT challenge features (all expressible on the default head).
+REACT_AUS = ("AU1", "AU2", "AU4", "AU6", "AU7", "AU9", "AU10", "AU12", "AU14", "AU15", "AU17", "AU23",
+             "AU24", "AU25", "AU26")
+#: Maximum intensity per AU (5 on the FACS-like scale; AU43 is 0..1).
+AU_MAX = {name: (1.0 if name == "AU43" else 5.0) for name in AU_NAMES}
+
+#: Default-head expression components driven by each AU (coefficient 1 = intensity 5; AU43: 1 = 1).
+_DEFAULT_COMPONENTS = {
+    "AU1": ("AU1_L", "AU1_R"), "AU2": ("AU2_L", "AU2_R"), "AU4": ("AU4",), "AU5": ("AU5",), "AU6": ("AU6",),
+    "AU7": ("AU7",), "AU9": ("AU9",), "AU10": ("AU10",), "AU12": ("AU12_L", "AU12_R"), "AU14": ("AU14",),
+    "AU15": ("AU15",), "AU16": ("AU16",), "AU17": ("AU17",), "AU18": ("AU18",), "AU20": ("AU20",),
+    "AU23": ("AU23",), "AU24": ("AU24",), "AU25": ("AU25",), "AU26": ("AU26",), "AU43": ("AU43_L", "AU43_R"),
+}
+
+#: Canonical pain face at p = 1 (PSPI = 4 + 4 + 4 + 0.7 = 12.7).
+PAIN_PEAK = {"AU4": 4.0, "AU6": 3.5, "AU7": 4.0, "AU9": 3.0, "AU10": 4.0, "AU43": 0.7,
+             "AU20": 1.0, "AU25": 1.5, "AU26": 1.0}
+_PSPI_CORE = ("AU4", "AU43")
+
+_NAMED = {
+    "neutral": {},
+    "smile": {"AU6": 2.5, "AU12": 4.0, "AU25": 1.0},
+    "surprise": {"AU1": 4.0, "AU2": 4.0, "AU5": 3.0, "AU25": 2.5, "AU26": 2.0},
+    "frown": {"AU4": 4.0, "AU15": 3.0, "AU17": 2.5},
+    "mouth_open": {"AU25": 3.0, "AU26": 1.5},
+}
+EXPRESSION_NAMES_KNOWN = ("neutral", "smile", "pain", "surprise", "frown", "mouth_open")
+_JAW = {"neutral": 0.0, "smile": 0.03, "pain": 0.06, "surprise": 0.14, "frown": 0.0, "mouth_open": 0.30}
+
+
+@dataclass(frozen=True)
+class AUMap:
+    """Linear map from AU intensities to a model's expression coefficients.
+
+    Attributes
+    ----------
+    names : tuple of str
+        AU names (a subset of :data:`AU_NAMES`, in that order).
+    matrix : numpy.ndarray
+        (n_au, n_expr) float64; ``expr = intensities @ matrix``.
+    """
+
+    names: tuple[str, ...]
+    matrix: np.ndarray
+
+    def __post_init__(self) -> None:
+        m = np.asarray(self.matrix, dtype=np.float64)
+        names = tuple(str(n) for n in self.names)
+        for n in names:
+            if n not in AU_NAMES:
+                raise InputError(f"AUMap: unknown AU {n!r}; expected names from {', '.join(AU_NAMES)}")
+        if len(set(names)) != len(names):
+            raise InputError(f"AUMap: duplicate AU names in {names}")
+        if m.ndim != 2 or m.shape[0] != len(names):
+            raise InputError(f"AUMap: matrix: expected shape ({len(names)}, n_expr), found {m.shape}")
+        bad = ~np.isfinite(m)
+        if bad.any():
+            i, j = np.argwhere(bad)[0]
+            raise InputError(f"AUMap: aus.{names[i]}[{j}]: expected a finite number, found {m[i, j]}")
+        object.__setattr__(self, "names", names)
+        object.__setattr__(self, "matrix", m)
+
+    @property
+    def n_expr(self) -> int:
+        """Number of expression coefficients."""
+        return int(self.matrix.shape[1])
+
+    def row(self, name: str) -> np.ndarray:
+        """(n_expr,) coefficients of one AU per unit intensity."""
+        if name not in self.names:
+            raise InputError(f"AU map: {name} is not in this map (it has {', '.join(self.names)})")
+        return self.matrix[self.names.index(name)]
+
+    @classmethod
+    def from_dict(cls, data: Any, n_expr: int | None = None, source: str = "<dict>") -> "AUMap":
+        """Build from the JSON structure (see the module docstring); errors name the field."""
+        if not isinstance(data, Mapping):
+            raise InputError(f"{source}: expected a JSON object with 'n_expr' and 'aus', found {type(data).__name__}")
+        if "n_expr" not in data:
+            raise InputError(f"{source}: n_expr: missing (expected the number of expression coefficients, "
+                             f"an integer)")
+        ne = data["n_expr"]
+        if isinstance(ne, bool) or not isinstance(ne, int) or ne < 1:
+            raise InputError(f"{source}: n_expr: expected a positive integer, found {ne!r}")
+        if n_expr is not None and ne != int(n_expr):
+            raise InputError(f"{source}: n_expr: expected {int(n_expr)} (the model's expression coefficients), "
+                             f"found {ne}")
+        aus = data.get("aus")
+        if not isinstance(aus, Mapping) or not aus:
+            raise InputError(f"{source}: aus: expected a non-empty object mapping AU names to coefficient "
+                             f"lists, found {aus!r:.60}")
+        rows = {}
+        for name, values in aus.items():
+            if name not in AU_NAMES:
+                raise InputError(f"{source}: aus.{name}: unknown AU; expected one of {', '.join(AU_NAMES)}")
+            if not isinstance(values, (list, tuple)):
+                raise InputError(f"{source}: aus.{name}: expected a list of {ne} numbers, found "
+                                 f"{type(values).__name__}")
+            if len(values) != ne:
+                raise InputError(f"{source}: aus.{name}: expected {ne} coefficients (n_expr), found {len(values)}")
+            row = np.empty(ne)
+            for j, x in enumerate(values):
+                if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+                    raise InputError(f"{source}: aus.{name}[{j}]: expected a finite number, found {x!r}")
+                row[j] = float(x)
+            rows[name] = row
+        names = tuple(n for n in AU_NAMES if n in rows)
+        return cls(names=names, matrix=np.stack([rows[n] for n in names]))
+
+    @classmethod
+    def load_json(cls, path: str | os.PathLike, n_expr: int | None = None) -> "AUMap":
+        """Read an AU map JSON file (format in the module docstring).
+
+        Parameters
+        ----------
+        path : path
+            The JSON file.
+        n_expr : int, optional
+            The model's expression count; the file's ``n_expr`` must equal it.
+
+        Raises
+        ------
+        InputError
+            Unreadable JSON, or a field with the wrong type, length or value (named).
+        """
+        p = Path(path)
+        try:
+            text = p.read_text(encoding="utf-8")
+        except FileNotFoundError as exc:
+            raise InputError(f"{p}: AU map file not found") from exc
+        except OSError as exc:
+            raise InputError(f"{p}: cannot read the AU map ({exc})") from exc
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{p}: not valid JSON ({exc})") from exc
+        return cls.from_dict(data, n_expr=n_expr, source=str(p))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON structure."""
+        return {"n_expr": self.n_expr, "aus": {n: [float(x) for x in self.matrix[i]] for i, n in enumerate(self.names)}}
+
+    def to_json(self, path: str | os.PathLike) -> Path:
+        """Write the map as JSON (atomically); floats round-trip exactly."""
+        target = Path(path)
+        with atomic_write(target, "w") as fh:
+            json.dump(self.to_dict(), fh, indent=1)
+        return target
+
+
+def default_au_map(n_expr: int | None = None) -> AUMap:
+    """AU map of the embedded default head (expression order of ``head_blendshapes.EXPRESSION_NAMES``).
+
+    Parameters
+    ----------
+    n_expr : int, optional
+        Expression count of the loaded model (columns beyond the 24 named components are
+        zero; a smaller count drops the components past it).
+    """
+    from .head_blendshapes import EXPRESSION_NAMES
+
+    k = len(EXPRESSION_NAMES) if n_expr is None else int(n_expr)
+    if k < 1:
+        raise InputError(f"n_expr: expected a positive integer, found {n_expr!r}")
+    m = np.zeros((len(AU_NAMES), k))
+    for i, au in enumerate(AU_NAMES):
+        for comp in _DEFAULT_COMPONENTS[au]:
+            j = EXPRESSION_NAMES.index(comp)
+            if j < k:
+                m[i, j] = 1.0 / AU_MAX[au]
+    return AUMap(names=AU_NAMES, matrix=m)
+
+
+def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None) -> AUMap:
+    """The AU map for a loaded model: a JSON file if given, the default map for the default head.
+
+    Raises
+    ------
+    FlameError
+        A user FLAME model and no AU map file (the message says how to supply one).
+    """
+    n_expr = int(model.n_expr)
+    if au_map_path is not None:
+        return AUMap.load_json(au_map_path, n_expr=n_expr)
+    if getattr(model, "is_default_head", False):
+        from .head_blendshapes import EXPRESSION_NAMES
+
+        names = model.expression_names
+        if names is not None and list(names) != list(EXPRESSION_NAMES[:len(names)]):
+            raise FlameError(f"{getattr(model, 'source', 'model')}: expression_names do not match this version "
+                             f"of the default head ({names[:4]}... vs {list(EXPRESSION_NAMES[:4])}...); "
+                             f"rebuild it with scripts/build_default_head.py")
+        return default_au_map(n_expr)
+    raise FlameError(
+        f"{getattr(model, 'source', 'model')}: this FLAME model has no AU map, so action units and pain "
+        f"cannot be turned into its {n_expr} expression coefficients. Supply a JSON file with --au-map FILE "
+        f"(or au_map_path=FILE), format: {{\"n_expr\": {n_expr}, \"aus\": {{\"AU4\": [{n_expr} numbers], "
+        f"\"AU12\": [...], ...}}}} giving the expression coefficients per unit AU intensity (0..5 scale; "
+        f"AU43 0..1); see holo_viewer/flame/expressions.py and docs/default_head.md.")
+
+
+def _check_intensity(name: str, value: Any) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"aus[{name!r}]: expected a number, found {value!r}") from exc
+    if not math.isfinite(x) or x < 0 or x > AU_MAX[name] + 1e-9:
+        raise InputError(f"aus[{name!r}]: expected an intensity in [0, {AU_MAX[name]:g}], found {value!r}")
+    return x
+
+
+def expression_from_aus(aus: Mapping[str, float], au_map: AUMap) -> np.ndarray:
+    """Expression coefficients (n_expr,) for AU intensities ``{"AU12": 3.0, ...}``."""
+    expr = np.zeros(au_map.n_expr)
+    for name, value in aus.items():
+        if name not in AU_NAMES:
+            raise InputError(f"aus: unknown AU {name!r}; expected one of {', '.join(AU_NAMES)}")
+        x = _check_intensity(name, value)
+        if x:
+            expr += x * au_map.row(name)
+    return expr
+
+
+def _check_p(p: Any) -> np.ndarray:
+    arr = np.asarray(p, dtype=np.float64) if not isinstance(p, str) else None
+    if arr is None or arr.ndim > 1:
+        raise InputError(f"p: expected a pain intensity in [0, 1] or an array (T,), found {p!r:.60}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"p: expected values in [0, 1], found NaN/inf in {arr!r:.60}")
+    if np.any(arr < 0) or np.any(arr > 1):
+        raise InputError(f"p: expected values in [0, 1], found range [{arr.min()}, {arr.max()}]")
+    return arr
+
+
+def pain_aus(p: float) -> dict[str, float]:
+    """AU intensities of the canonical pain face at pain ``p`` in [0, 1].
+
+    The PSPI action units grow linearly with p; eye closure (AU43) follows
+    ``0.7 p^1.5`` (eyes narrow first, close late); AU20/AU25/AU26 grow linearly.
+    PSPI(p) = 12 p + 0.7 p^1.5: 0 at p = 0, 12.7 at p = 1, strictly increasing.
+    """
+    x = float(_check_p(p))
+    out = {k: v * x for k, v in PAIN_PEAK.items()}
+    out["AU43"] = PAIN_PEAK["AU43"] * x ** 1.5
+    return out
+
+
+def pain_expression(p: Any, au_map: AUMap) -> np.ndarray:
+    """Expression coefficients of the pain face: p scalar -> (n_expr,), p (T,) -> (T, n_expr)."""
+    arr = _check_p(p)
+    missing = [a for a in _PSPI_CORE if a not in au_map.names]
+    if not any(a in au_map.names for a in ("AU6", "AU7")):
+        missing.append("AU6 or AU7")
+    if not any(a in au_map.names for a in ("AU9", "AU10")):
+        missing.append("AU9 or AU10")
+    if missing:
+        raise InputError(f"AU map: pain needs {', '.join(missing)} (PSPI action units), which the map lacks")
+
+    def one(x: float) -> np.ndarray:
+        return expression_from_aus({k: v for k, v in pain_aus(x).items() if k in au_map.names}, au_map)
+
+    if arr.ndim == 0:
+        return one(float(arr))
+    return np.stack([one(float(x)) for x in arr]) if len(arr) else np.zeros((0, au_map.n_expr))
+
+
+def estimate_aus(expr: Any, au_map: AUMap) -> np.ndarray:
+    """Least-squares AU intensities (..., n_au) from expression coefficients (..., n_expr), clipped to range."""
+    e = np.asarray(expr, dtype=np.float64)
+    if e.ndim < 1 or e.shape[-1] != au_map.n_expr:
+        raise InputError(f"expr: expected shape (..., {au_map.n_expr}), found {e.shape}")
+    if not np.all(np.isfinite(e)):
+        raise InputError("expr: contains NaN/inf")
+    pinv = np.linalg.pinv(au_map.matrix)  # (n_expr, n_au)
+    est = e @ pinv
+    hi = np.array([AU_MAX[n] for n in au_map.names])
+    return np.clip(est, 0.0, hi)
+
+
+def pspi_from_aus(aus: Mapping[str, float]) -> float:
+    """PSPI = AU4 + max(AU6, AU7) + max(AU9, AU10) + AU43 (missing AUs count 0)."""
+    g = lambda k: float(aus.get(k, 0.0))  # noqa: E731
+    return g("AU4") + max(g("AU6"), g("AU7")) + max(g("AU9"), g("AU10")) + g("AU43")
+
+
+def pspi(expr: Any, au_map: AUMap | None = None) -> np.ndarray:
+    """PSPI (...) estimated from expression coefficients (..., n_expr) via :func:`estimate_aus`.
+
+    ``au_map`` defaults to the default head's map (sized to ``expr``'s last axis).
+    """
+    e = np.asarray(expr, dtype=np.float64)
+    if au_map is None:
+        if e.ndim < 1:
+            raise InputError(f"expr: expected shape (..., n_expr), found {e.shape}")
+        au_map = default_au_map(e.shape[-1])
+    est = estimate_aus(e, au_map)
+    col = {n: est[..., i] for i, n in enumerate(au_map.names)}
+    z = np.zeros(est.shape[:-1])
+    g = lambda k: col.get(k, z)  # noqa: E731
+    return g("AU4") + np.maximum(g("AU6"), g("AU7")) + np.maximum(g("AU9"), g("AU10")) + g("AU43")
+
+
+def _check_name(name: str) -> str:
+    if name not in EXPRESSION_NAMES_KNOWN:
+        raise InputError(f"expression name: expected one of {', '.join(EXPRESSION_NAMES_KNOWN)}, found {name!r}")
+    return name
+
+
+def named_expression(name: str, intensity: float, au_map: AUMap) -> np.ndarray:
+    """Expression coefficients (n_expr,) of a named expression at ``intensity`` in [0, 1].
+
+    Names: neutral, smile, pain, surprise, frown, mouth_open (combine with
+    :func:`jaw_for_expression` for the jaw rotation).
+    """
+    _check_name(name)
+    x = float(np.asarray(_check_p(intensity)))
+    if name == "pain":
+        return pain_expression(x, au_map)
+    return expression_from_aus({k: v * x for k, v in _NAMED[name].items()}, au_map)
+
+
+def jaw_for_expression(name: str, intensity: float) -> np.ndarray:
+    """Axis-angle jaw pose (3,) in radians for a named expression (positive x opens the mouth)."""
+    _check_name(name)
+    x = float(np.asarray(_check_p(intensity)))
+    return np.array([_JAW[name] * x, 0.0, 0.0])

@@ -1,0 +1,340 @@
+"""Offscreen shaded renders of a triangle mesh (VTK), and the default head's demo renders.
+
+``render_mesh`` is generic (any (V, 3) mesh with per-vertex colours) so the GUI
+snapshot can reuse it. VTK is imported lazily; with no ``DISPLAY`` and no choice
+made by the user, ``VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow`` (OSMesa)
+is set before the import. Views are named cameras around the FLAME frame
+(+y up, the face looking along +z): ``front`` (on the +z axis), ``three_quarter``
+(40 degrees toward the subject's left, +x), ``side`` (on the +x axis), ``back``,
+``top``, or ``(yaw_deg, pitch_deg)`` tuples.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import InputError, MissingDependencyError, RenderError
+from ..validation import check_array
+
+__all__ = ["render_mesh", "region_colors", "smooth_vertex_colors", "REGION_COLORS", "contact_sheet", "write_head_renders",
+           "HEAD_POSES"]
+
+_VIEWS = {"front": (0.0, 0.0), "three_quarter": (40.0, 5.0), "side": (90.0, 0.0), "back": (180.0, 0.0),
+          "top": (0.0, 70.0), "left": (-90.0, 0.0), "right": (90.0, 0.0)}
+
+#: Linear RGB in [0, 1] per region name of the default head.
+REGION_COLORS = {
+    "skin": (0.86, 0.66, 0.55), "scalp": (0.25, 0.17, 0.12), "brows": (0.3, 0.2, 0.14),
+    "lips": (0.74, 0.4, 0.4), "eyeball_left": (0.95, 0.94, 0.92), "eyeball_right": (0.95, 0.94, 0.92),
+    "iris": (0.3, 0.45, 0.6), "pupil": (0.04, 0.04, 0.05), "ears": (0.84, 0.62, 0.52),
+    "mouth_interior": (0.45, 0.16, 0.17), "eye_pocket": (0.5, 0.25, 0.25), "neck": (0.84, 0.64, 0.53),
+    "nostrils": (0.5, 0.3, 0.27), "teeth": (0.93, 0.92, 0.86),
+}
+
+
+def _import_vtk():
+    if not os.environ.get("DISPLAY") and "VTK_DEFAULT_OPENGL_WINDOW" not in os.environ:
+        os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = "vtkOSOpenGLRenderWindow"
+    try:
+        import vtk  # noqa: F401
+        from vtk.util import numpy_support
+    except ImportError as exc:  # pragma: no cover - vtk is a core dependency
+        raise MissingDependencyError("vtk", "offscreen mesh preview", "core") from exc
+    return vtk, numpy_support
+
+
+def region_colors(region: np.ndarray, region_names: Sequence[str], n_vertices: int | None = None) -> np.ndarray:
+    """Per-vertex colours from region labels; vertices beyond the labels (e.g. teeth) are teeth-white.
+
+    Parameters
+    ----------
+    region : numpy.ndarray
+        (V0,) int labels into ``region_names``.
+    region_names : sequence of str
+        Names; unknown names get the skin colour.
+    n_vertices : int, optional
+        Total vertex count V >= V0 (FLAME teeth appended after the labelled vertices).
+
+    Returns
+    -------
+    numpy.ndarray
+        (V, 3) float32 colours in [0, 1].
+    """
+    region = np.asarray(region, dtype=np.int64)
+    n = len(region) if n_vertices is None else int(n_vertices)
+    table = np.array([REGION_COLORS.get(str(name), REGION_COLORS["skin"]) for name in region_names])
+    out = np.tile(np.asarray(REGION_COLORS["teeth"]), (n, 1))
+    out[: len(region)] = table[np.clip(region, 0, len(table) - 1)]
+    return out.astype(np.float32)
+
+
+def smooth_vertex_colors(colors: np.ndarray, faces: np.ndarray, iterations: int = 2) -> np.ndarray:
+    """Average each vertex colour with its face neighbours (softens region boundaries).
+
+    Parameters
+    ----------
+    colors : numpy.ndarray
+        (V, 3) colours.
+    faces : numpy.ndarray
+        (F, 3) triangles.
+    iterations : int
+        Number of averaging passes.
+
+    Returns
+    -------
+    numpy.ndarray
+        (V, 3) float32 colours.
+    """
+    c = np.asarray(colors, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    n = len(c)
+    for _ in range(int(iterations)):
+        acc = c.copy()
+        cnt = np.ones(n)
+        for a, b in ((0, 1), (1, 2), (2, 0), (1, 0), (2, 1), (0, 2)):
+            np.add.at(acc, f[:, a], c[f[:, b]])
+            np.add.at(cnt, f[:, a], 1.0)
+        c = acc / cnt[:, None]
+    return c.astype(np.float32)
+
+
+def _camera_dir(view: Any) -> tuple[np.ndarray, str]:
+    if isinstance(view, str):
+        if view not in _VIEWS:
+            raise InputError(f"views: unknown view {view!r}; expected one of {sorted(_VIEWS)} or (yaw, pitch)")
+        yaw, pitch = _VIEWS[view]
+        name = view
+    else:
+        try:
+            yaw, pitch = (float(a) for a in view)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"views: expected a view name or (yaw_deg, pitch_deg), found {view!r}") from exc
+        name = f"yaw{yaw:g}_pitch{pitch:g}"
+    y, p = np.radians(yaw), np.radians(pitch)
+    return np.array([np.cos(p) * np.sin(y), np.sin(p), np.cos(p) * np.cos(y)]), name
+
+
+def render_mesh(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    views: Sequence[Any] = ("front", "three_quarter", "side"),
+    size: tuple[int, int] = (512, 512),
+    colors: np.ndarray | None = None,
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0),
+    fov_deg: float = 20.0,
+    target: np.ndarray | None = None,
+    distance: float | None = None,
+) -> list[np.ndarray]:
+    """Render a shaded triangle mesh offscreen from named views.
+
+    Parameters
+    ----------
+    vertices : numpy.ndarray
+        (V, 3) positions, metres, FLAME frame (+y up, face toward +z).
+    faces : numpy.ndarray
+        (F, 3) integer triangles.
+    views : sequence
+        View names (``front``, ``three_quarter``, ``side``, ``back``, ``top``, ``left``,
+        ``right``) or (yaw_deg, pitch_deg) pairs; yaw turns toward +x.
+    size : (int, int)
+        Image (width, height) in pixels.
+    colors : numpy.ndarray, optional
+        (V, 3) per-vertex RGB in [0, 1]; default a uniform skin tone.
+    background : (float, float, float)
+        Background RGB.
+    fov_deg : float
+        Vertical field of view of the perspective camera.
+    target, distance : optional
+        Look-at point (default: bounding-box centre) and camera distance (default:
+        framing the bounding sphere).
+
+    Returns
+    -------
+    list of numpy.ndarray
+        One (height, width, 3) float32 image in [0, 1] per view, row 0 at the top.
+    """
+    v = np.asarray(check_array(vertices, "vertices", ("V", 3)), dtype=np.float64)
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
+        raise InputError(f"faces: expected an integer array of shape (F, 3), found {f.dtype} {f.shape}")
+    if f.size and (f.min() < 0 or f.max() >= len(v)):
+        raise InputError(f"faces: indices must lie in [0, {len(v)}), found [{f.min()}, {f.max()}]")
+    if colors is None:
+        colors = np.tile(np.asarray(REGION_COLORS["skin"]), (len(v), 1))
+    colors = np.asarray(check_array(colors, "colors", (len(v), 3)), dtype=np.float64)
+    w, h = int(size[0]), int(size[1])
+    if w < 8 or h < 8:
+        raise InputError(f"size: expected at least 8x8 pixels, found {size}")
+    cam_dirs = [_camera_dir(view)[0] for view in views]  # validate names before any GL work
+    vtk, nps = _import_vtk()
+
+    pts = vtk.vtkPoints()
+    pts.SetData(nps.numpy_to_vtk(np.ascontiguousarray(v), deep=True))
+    polys = vtk.vtkCellArray()
+    offsets = np.arange(0, 3 * len(f) + 1, 3, dtype=np.int64)
+    polys.SetData(nps.numpy_to_vtkIdTypeArray(offsets, deep=True),
+                  nps.numpy_to_vtkIdTypeArray(np.ascontiguousarray(f, dtype=np.int64).ravel(), deep=True))
+    poly = vtk.vtkPolyData()
+    poly.SetPoints(pts)
+    poly.SetPolys(polys)
+    rgb = nps.numpy_to_vtk(np.ascontiguousarray(np.clip(colors, 0, 1) * 255).astype(np.uint8), deep=True)
+    rgb.SetName("rgb")
+    poly.GetPointData().SetScalars(rgb)
+    normals = vtk.vtkPolyDataNormals()
+    normals.SetInputData(poly)
+    normals.SetFeatureAngle(60.0)
+    normals.SplittingOff()
+    normals.ConsistencyOff()
+    normals.AutoOrientNormalsOff()
+    mapper = vtk.vtkPolyDataMapper()
+    mapper.SetInputConnection(normals.GetOutputPort())
+    mapper.SetColorModeToDirectScalars()
+    actor = vtk.vtkActor()
+    actor.SetMapper(mapper)
+    prop = actor.GetProperty()
+    prop.SetInterpolationToPhong()
+    prop.SetAmbient(0.25)
+    prop.SetDiffuse(0.8)
+    prop.SetSpecular(0.12)
+    prop.SetSpecularPower(20)
+
+    ren = vtk.vtkRenderer()
+    ren.AddActor(actor)
+    ren.SetBackground(*background)
+    ren.AutomaticLightCreationOff()
+    win = vtk.vtkRenderWindow()
+    win.SetOffScreenRendering(1)
+    win.SetSize(w, h)
+    win.AddRenderer(ren)
+    lo, hi = v.min(0), v.max(0)
+    centre = 0.5 * (lo + hi) if target is None else np.asarray(target, dtype=np.float64)
+    radius = 0.5 * float(np.linalg.norm(hi - lo))
+    dist = distance if distance is not None else 1.1 * radius / np.tan(np.radians(fov_deg) / 2)
+    images = []
+    try:
+        for d in cam_dirs:
+            cam = ren.GetActiveCamera()
+            eye = centre + dist * d
+            cam.SetPosition(*eye)
+            cam.SetFocalPoint(*centre)
+            up = np.array([0.0, 1.0, 0.0]) if abs(d[1]) < 0.95 else np.array([0.0, 0.0, -1.0])
+            cam.SetViewUp(*up)
+            cam.SetViewAngle(fov_deg)
+            cam.SetClippingRange(max(dist - 3 * radius, 1e-3), dist + 3 * radius)
+            ren.RemoveAllLights()
+            right = np.cross(d, up)
+            right /= np.linalg.norm(right)
+            for offset, intensity in ((0.6 * up + 0.5 * right, 0.75), (-0.4 * right + 0.1 * up, 0.35),
+                                      (np.zeros(3), 0.25)):
+                light = vtk.vtkLight()
+                light.SetLightTypeToSceneLight()
+                light.SetPosition(*(centre + dist * (d + offset)))
+                light.SetFocalPoint(*centre)
+                light.SetIntensity(intensity)
+                ren.AddLight(light)
+            win.Render()
+            grab = vtk.vtkWindowToImageFilter()
+            grab.SetInput(win)
+            grab.SetInputBufferTypeToRGB()
+            grab.ReadFrontBufferOff()
+            grab.Update()
+            img = grab.GetOutput()
+            arr = nps.vtk_to_numpy(img.GetPointData().GetScalars()).reshape(h, w, 3)
+            images.append(np.ascontiguousarray(arr[::-1]).astype(np.float32) / 255.0)
+    except (RuntimeError, ValueError, TypeError, AttributeError) as exc:  # VTK/GL failures
+        raise RenderError(f"render_mesh: offscreen VTK rendering failed ({exc})") from exc
+    finally:
+        win.Finalize()
+    return images
+
+
+def contact_sheet(rows: Sequence[Sequence[np.ndarray]], pad: int = 4,
+                  background: float = 1.0) -> np.ndarray:
+    """Tile images (all the same size) into one grid image; row r, column c = rows[r][c]."""
+    if not rows or not rows[0]:
+        raise InputError("contact_sheet: expected at least one image")
+    h, w = rows[0][0].shape[:2]
+    n_r, n_c = len(rows), max(len(r) for r in rows)
+    sheet = np.full((n_r * h + (n_r + 1) * pad, n_c * w + (n_c + 1) * pad, 3), background, np.float32)
+    for i, row in enumerate(rows):
+        for j, img in enumerate(row):
+            if img.shape[:2] != (h, w):
+                raise InputError(f"contact_sheet: image [{i}][{j}] has shape {img.shape}, expected {(h, w, 3)}")
+            y0, x0 = pad + i * (h + pad), pad + j * (w + pad)
+            sheet[y0:y0 + h, x0:x0 + w] = img[..., :3]
+    return sheet
+
+
+#: The poses of :func:`write_head_renders`: name -> (expression name, intensity).
+HEAD_POSES = (("neutral", 0.0), ("smile", 1.0), ("pain", 1.0), ("mouth_open", 1.0))
+
+
+def write_head_renders(out_dir: str | os.PathLike, model: Any,
+                       views: Sequence[str] = ("front", "three_quarter", "side"),
+                       size: tuple[int, int] = (400, 480), verbose: bool = True) -> list[Path]:
+    """Pose a FLAME-format model (neutral, smile, pain, mouth open), render and write PNGs.
+
+    Writes ``{pose}_{view}.png`` for every pose and view and ``contact_sheet.png``
+    (rows = poses, columns = views), atomically.
+
+    Parameters
+    ----------
+    out_dir : path
+        Output folder (created).
+    model : FlameModel
+        The default head (or any model that :func:`~holo_viewer.flame.expressions.au_map_for` accepts).
+    views : sequence of str
+        View names for :func:`render_mesh`.
+    size : (int, int)
+        (width, height) of each view.
+    verbose : bool
+        Print each written file.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files written, contact sheet last.
+    """
+    import torch
+
+    from ..fileio import save_image
+    from .expressions import au_map_for, jaw_for_expression, named_expression
+
+    out = Path(out_dir)
+    au_map = au_map_for(model)
+    faces = model.faces.cpu().numpy()
+    meta = getattr(model, "metadata", {}) or {}
+    n_v = int(model.n_vertices)
+    if "vertex_region" in meta and "region_names" in meta:
+        colors = region_colors(meta["vertex_region"], [str(s) for s in meta["region_names"]], n_v)
+        colors = smooth_vertex_colors(colors, faces, 1)
+    else:
+        colors = None
+    written: list[Path] = []
+    sheet_rows = []
+    for name, intensity in HEAD_POSES:
+        expr = named_expression(name, intensity, au_map)
+        jaw = jaw_for_expression(name, intensity)
+        with torch.no_grad():
+            outp = model(expr=torch.as_tensor(expr, dtype=model.dtype)[None],
+                         jaw_pose=torch.as_tensor(jaw, dtype=model.dtype)[None])
+        verts = outp.vertices[0].cpu().numpy().astype(np.float64)
+        rest_lo, rest_hi = verts.min(0), verts.max(0)
+        target = 0.5 * (rest_lo + rest_hi)
+        imgs = render_mesh(verts, faces, views=views, size=size, colors=colors, target=target,
+                           distance=0.95)
+        sheet_rows.append(imgs)
+        for view, img in zip(views, imgs):
+            path = save_image(out / f"{name}_{view}.png", img)
+            written.append(path)
+            if verbose:
+                print(f"wrote {path}")
+    sheet = save_image(out / "contact_sheet.png", contact_sheet(sheet_rows))
+    written.append(sheet)
+    if verbose:
+        print(f"wrote {sheet}  (rows: {', '.join(n for n, _ in HEAD_POSES)}; columns: {', '.join(views)})")
+    return written

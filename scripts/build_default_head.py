@@ -1,0 +1,42 @@
+"""Regenerate assets/default_head.npz (the embedded default head) and report its size.
+
+Usage: python scripts/build_default_head.py [--out assets/default_head.npz] [--renders DIR]
+The build is deterministic: running it twice gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import time
+from pathlib import Path
+
+import numpy as np
+
+from holo_viewer.flame.default_head import _repo_asset, build_default_head, write_default_head
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=_repo_asset(), help="target .npz (default: the committed asset)")
+    ap.add_argument("--renders", type=Path, default=None, help="also write demo renders of the head here")
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    arrays = build_default_head()
+    t1 = time.perf_counter()
+    path = write_default_head(args.out, arrays)
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+    v, f = arrays["v_template"], arrays["f"]
+    print(f"wrote {path}: {path.stat().st_size / 1e6:.2f} MB, sha256 {digest}, build {t1 - t0:.1f} s")
+    print(f"  vertices {len(v)}, faces {len(f)}, shape {int(arrays['n_shape'])}, expression {int(arrays['n_expr'])}")
+    print(f"  extent (m): x {np.ptp(v[:, 0]):.3f}  y {np.ptp(v[:, 1]):.3f}  z {np.ptp(v[:, 2]):.3f}")
+    if args.renders is not None:
+        from holo_viewer.flame.model import FlameModel
+        from holo_viewer.flame.preview import write_head_renders
+
+        write_head_renders(args.renders, FlameModel.load(path, n_shape=None, n_expr=None))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

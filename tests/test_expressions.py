@@ -1,0 +1,147 @@
+"""AUs, AU maps (JSON), pain and PSPI, named expressions."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from holo_viewer.errors import FlameError, InputError
+from holo_viewer.flame import expressions as ex
+from holo_viewer.flame.default_head import load_default_model
+from holo_viewer.flame.head_blendshapes import EXPRESSION_NAMES
+
+
+@pytest.fixture(scope="module")
+def amap():
+    return ex.default_au_map()
+
+
+def test_au_names_cover_react_and_issue():
+    for au in ex.REACT_AUS + ("AU5", "AU20", "AU43"):
+        assert au in ex.AU_NAMES
+    assert len(ex.REACT_AUS) == 15
+
+
+def test_default_map_full_intensity_is_coefficient_one(amap):
+    assert amap.matrix.shape == (len(ex.AU_NAMES), len(EXPRESSION_NAMES))
+    e = ex.expression_from_aus({"AU12": 5.0, "AU43": 1.0}, amap)
+    assert e[EXPRESSION_NAMES.index("AU12_L")] == 1.0 and e[EXPRESSION_NAMES.index("AU12_R")] == 1.0
+    assert e[EXPRESSION_NAMES.index("AU43_L")] == 1.0
+    assert np.linalg.matrix_rank(amap.matrix) == len(ex.AU_NAMES)  # every AU expressible, separable
+
+
+def test_pain_zero_is_neutral_and_peak_pspi(amap):
+    assert np.all(ex.pain_expression(0.0, amap) == 0)
+    assert ex.pspi_from_aus(ex.pain_aus(0.0)) == 0
+    peak = ex.pspi(ex.pain_expression(1.0, amap), amap)
+    assert 12 <= float(peak) <= 16
+    assert abs(float(peak) - ex.pspi_from_aus(ex.pain_aus(1.0))) < 1e-9
+    aus = ex.pain_aus(1.0)
+    dominant = {k for k, v in aus.items() if k != "AU43" and v >= 3.0}
+    assert dominant == {"AU4", "AU6", "AU7", "AU9", "AU10"} and aus["AU43"] > 0.5
+
+
+def test_pain_monotone_spearman_one(amap):
+    from scipy.stats import spearmanr
+
+    p = np.linspace(0, 1, 41)
+    e = ex.pain_expression(p, amap)
+    assert e.shape == (41, amap.n_expr)
+    s = ex.pspi(e, amap)
+    assert np.all(np.diff(s) > 0)
+    assert spearmanr(p, s).statistic == pytest.approx(1.0)
+
+
+def test_pspi_recovers_from_coefficients(amap):
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        aus = {n: float(rng.uniform(0, ex.AU_MAX[n])) for n in ex.AU_NAMES}
+        e = ex.expression_from_aus(aus, amap)
+        assert float(ex.pspi(e)) == pytest.approx(ex.pspi_from_aus(aus), abs=1e-9)
+        est = ex.estimate_aus(e, amap)
+        assert np.allclose(est, [aus[n] for n in amap.names], atol=1e-9)
+    # clipping to the valid range
+    assert np.all(ex.estimate_aus(-np.ones(amap.n_expr), amap) == 0)
+
+
+def test_au_map_json_round_trip(amap, tmp_path):
+    path = amap.to_json(tmp_path / "map.json")
+    back = ex.AUMap.load_json(path, n_expr=amap.n_expr)
+    assert back.names == amap.names and np.array_equal(back.matrix, amap.matrix)
+
+
+def _write(tmp_path, data, raw=None):
+    p = tmp_path / "bad.json"
+    p.write_text(raw if raw is not None else json.dumps(data))
+    return p
+
+
+@pytest.mark.parametrize("data, raw, field", [
+    ({"aus": {"AU4": [0.0] * 3}}, None, "n_expr"),
+    ({"n_expr": 3, "aus": {"AU4": [0.0] * 2}}, None, "aus.AU4"),
+    ({"n_expr": 3, "aus": {"AU99": [0.0] * 3}}, None, "aus.AU99"),
+    (None, '{"n_expr": 3, "aus": {"AU12": [0.0, NaN, 1.0]}}', r"aus.AU12\[1\]"),
+    ({"n_expr": 4, "aus": {"AU4": [0.0] * 4}}, None, "n_expr: expected 3"),
+    ({"n_expr": 3, "aus": []}, None, "aus"),
+    (None, "{not json", "not valid JSON"),
+])
+def test_bad_au_map_json_names_the_field(tmp_path, data, raw, field):
+    with pytest.raises(InputError, match=field):
+        ex.AUMap.load_json(_write(tmp_path, data, raw), n_expr=3)
+
+
+def test_au_map_for_default_and_user_model(tmp_path):
+    model = load_default_model()
+    amap = ex.au_map_for(model)
+    assert amap.n_expr == model.n_expr
+    from holo_viewer.flame.default_head import build_default_head
+    from holo_viewer.flame.model import FlameModel
+
+    arrays = build_default_head()
+    del arrays["holo_viewer_default_head"]
+    user = FlameModel.from_arrays(arrays, n_shape=None, n_expr=None)
+    with pytest.raises(FlameError, match="--au-map"):
+        ex.au_map_for(user)
+    path = amap.to_json(tmp_path / "user.json")
+    assert ex.au_map_for(user, path).n_expr == user.n_expr
+    with pytest.raises(FlameError, match="AU map"):
+        ex.au_map_for(user)
+
+
+def test_bad_intensities_and_names(amap):
+    with pytest.raises(InputError, match="AU12"):
+        ex.expression_from_aus({"AU12": 6.0}, amap)
+    with pytest.raises(InputError, match="AU43"):
+        ex.expression_from_aus({"AU43": 2.0}, amap)
+    with pytest.raises(InputError, match="AU77"):
+        ex.expression_from_aus({"AU77": 1.0}, amap)
+    with pytest.raises(InputError, match="p"):
+        ex.pain_expression(float("nan"), amap)
+    with pytest.raises(InputError, match="p"):
+        ex.pain_expression(1.5, amap)
+    with pytest.raises(InputError, match="expression name"):
+        ex.named_expression("grin", 1.0, amap)
+
+
+def test_named_expressions_and_jaw(amap):
+    for name in ex.EXPRESSION_NAMES_KNOWN:
+        e = ex.named_expression(name, 1.0, amap)
+        assert e.shape == (amap.n_expr,)
+        assert (np.abs(e).sum() == 0) == (name == "neutral")
+    assert np.allclose(ex.named_expression("pain", 0.5, amap), ex.pain_expression(0.5, amap))
+    assert ex.jaw_for_expression("mouth_open", 1.0)[0] > 0.2
+    assert np.all(ex.jaw_for_expression("neutral", 1.0) == 0)
+
+
+def test_smile_on_model_lifts_mouth_corners():
+    model = load_default_model(dtype=torch.float64)
+    amap = ex.au_map_for(model)
+    rest = model().vertices[0].numpy()
+    smile = model(expr=torch.as_tensor(ex.named_expression("smile", 1.0, amap))[None]).vertices[0].numpy()
+    v = rest
+    front = (v[:, 2] > 0.06) & (np.abs(v[:, 1] + 0.068) < 0.006)
+    corners = np.where(front & (np.abs(v[:, 0]) > 0.018) & (np.abs(v[:, 0]) < 0.026))[0]
+    assert len(corners) and np.all(smile[corners, 1] - rest[corners, 1] > 0.002)
