@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import copy
 import os
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -128,7 +129,7 @@ class BlendshapeAvatar:
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_rigged(cls, rigged: RiggedAvatar, n_expr: int | None = None, include_jaw: bool = False,
-                    drop_tol: float = 1e-7) -> "BlendshapeAvatar":
+                    drop_tol: float = 1e-7, exact_jvp: bool = False) -> "BlendshapeAvatar":
         """Linearise a rigged avatar at zero expression and pose (forward-mode AD, float64).
 
         Parameters
@@ -142,6 +143,10 @@ class BlendshapeAvatar:
         drop_tol : float
             Entries whose mean moves by less than ``drop_tol`` metres and whose quaternion and
             log-scale change by less than ``1000 drop_tol`` per unit coefficient are dropped.
+        exact_jvp : bool
+            Differentiate the whole per-Gaussian pipeline with ``torch.func.jvp`` (slow reference).
+            Default: differentiate the per-face frames (rotation, quaternion, scale, centre) by
+            ``jvp`` and apply the chain rule per Gaussian in closed form (same derivative).
         """
         model = rigged.flame_model
         k_expr = int(model.n_expr if n_expr is None else n_expr)
@@ -167,18 +172,22 @@ class BlendshapeAvatar:
 
         zero = torch.zeros(k_tot, dtype=torch.float64)
         with torch.no_grad():
-            base = params_of(zero)
             root = m64(**ident).joints[0, 0].numpy()
-        n = base.shape[0]
-        dense = np.zeros((k_tot, n, _P), np.float32)
-        for k in range(k_tot):
-            tangent = torch.zeros(k_tot, dtype=torch.float64)
-            tangent[k] = 1.0
-            _, d = torch.func.jvp(params_of, (zero,), (tangent,))
-            dense[k] = d.numpy()
+        if exact_jvp:  # reference: forward-mode AD through the whole rigged avatar
+            with torch.no_grad():
+                base = params_of(zero).numpy()
+            n = base.shape[0]
+            dense = np.zeros((k_tot, n, _P), np.float32)
+            for k in range(k_tot):
+                tangent = torch.zeros(k_tot, dtype=torch.float64)
+                tangent[k] = 1.0
+                _, d = torch.func.jvp(params_of, (zero,), (tangent,))
+                dense[k] = d.numpy()
+        else:
+            base, dense = _linearise_by_faces(m64, av64, ident, k_expr, include_jaw)
         mask = (np.abs(dense[..., :3]).max(-1) >= drop_tol) | (np.abs(dense[..., 3:]).max(-1) >= 1e3 * drop_tol)
         loc = rigged.local
-        return cls(base.numpy(), _Sparse.from_dense(dense, mask), k_expr, include_jaw,
+        return cls(base, _Sparse.from_dense(dense, mask), k_expr, include_jaw,
                    loc.opacity_logits.detach().cpu().numpy(), loc.sh.detach().cpu().numpy(), root,
                    (model.expression_names or [])[:k_expr] or None)
 
@@ -280,7 +289,7 @@ class BlendshapeAvatar:
         try:
             with np.load(path, allow_pickle=False) as z:
                 data = {k: z[k] for k in z.files}
-        except (OSError, ValueError, EOFError) as exc:
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise AvatarError(f"{path}: cannot read blend-shape avatar ({exc})") from None
         missing = [k for k in keys if k not in data]
         if missing:
@@ -303,3 +312,58 @@ class BlendshapeAvatar:
                        bool(data["has_jaw"]), data["opacity_logits"], data["sh"], data["root"], names)
         except AvatarError as exc:
             raise AvatarError(f"{path}: {exc}") from None
+
+
+def _linearise_by_faces(m64: Any, av64: RiggedAvatar, ident: dict[str, Any], k_expr: int,
+                        include_jaw: bool) -> tuple[np.ndarray, np.ndarray]:
+    """B_0 (N, 10) and dense B (K, N, 10), float64 face-level jvp + closed-form chain rule.
+
+    With x = s R mu + c, q = q_f (x) q_l, l = l_l + log s per Gaussian::
+
+        dx = ds R mu + s dR mu + dc,   dq = dq_f (x) q_l,   dl = ds / s
+    """
+    from .binding import face_frames
+    from ..geometry import rotmat_to_quat
+
+    faces = av64.faces
+    n_e = m64.n_expr
+    k_tot = k_expr + (3 if include_jaw else 0)
+
+    def face_params(coeffs: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        kw: dict[str, Any] = dict(ident)
+        kw["expr"] = torch.nn.functional.pad(coeffs[:k_expr], (0, n_e - k_expr))[None]
+        if include_jaw:
+            kw["jaw_pose"] = coeffs[k_expr:][None]
+        verts = m64(**kw).vertices
+        rot, scale, centre, _ = face_frames(verts, faces)
+        return rot[0], scale[0], centre[0], rotmat_to_quat(rot[0])
+
+    zero = torch.zeros(k_tot, dtype=torch.float64)
+    with torch.no_grad():
+        rot, scale, centre, fq = (t.numpy() for t in face_params(zero))
+    b = av64.binding.numpy()
+    loc = av64.local
+    mu = loc.means.detach().double().numpy()
+    ql = loc.quats.detach().double().numpy()
+    ql = ql / np.linalg.norm(ql, axis=1, keepdims=True)
+    from ..geometry import quat_multiply_np
+
+    rmu = np.einsum("nij,nj->ni", rot[b], mu)  # R mu
+    base = np.concatenate([scale[b, None] * rmu + centre[b], quat_multiply_np(fq[b], ql),
+                           loc.log_scales.detach().double().numpy() + np.log(scale[b])[:, None]], axis=1)
+    dense = np.zeros((k_tot, b.shape[0], _P), np.float32)
+    for k in range(k_tot):
+        tangent = torch.zeros(k_tot, dtype=torch.float64)
+        tangent[k] = 1.0
+        _, (d_rot, d_scale, d_centre, d_q) = torch.func.jvp(face_params, (zero,), (tangent,))
+        d_rot, d_scale, d_centre, d_q = d_rot.numpy(), d_scale.numpy(), d_centre.numpy(), d_q.numpy()
+        moved = np.flatnonzero((np.abs(d_rot).reshape(len(d_scale), -1).max(1) > 0) | (d_scale != 0)
+                               | (np.abs(d_centre).max(1) > 0))
+        sel = np.flatnonzero(np.isin(b, moved))
+        bs_ = b[sel]
+        dx = (d_scale[bs_, None] * rmu[sel] + scale[bs_, None] * np.einsum("nij,nj->ni", d_rot[bs_], mu[sel])
+              + d_centre[bs_])
+        dq = quat_multiply_np(d_q[bs_], ql[sel])
+        dl = np.repeat((d_scale[bs_] / scale[bs_])[:, None], 3, axis=1)
+        dense[k, sel] = np.concatenate([dx, dq, dl], axis=1)
+    return base, dense

@@ -12,6 +12,7 @@ and optionally ``dynamic_offset`` (T, V, 3). Its FLAME mesh has teeth (5143 vert
 from __future__ import annotations
 
 import os
+import zipfile
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Iterator
@@ -110,7 +111,7 @@ def load_flame_params(path: str | os.PathLike, n_vertices: int | tuple[int, ...]
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise AvatarError(f"{path}: cannot read FLAME parameters ({exc})") from None
     if "expr" not in data:
         raise AvatarError(f"{path}: missing key 'expr'; expected keys shape, expr, rotation, neck_pose, jaw_pose, "

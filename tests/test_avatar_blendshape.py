@@ -1,0 +1,168 @@
+"""Blend-shape avatar against the rigged avatar; back-face culling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from holo_viewer.avatar import BlendshapeAvatar, Gaussians, RiggedAvatar, cull_backfacing
+from holo_viewer.avatar.culling import face_visibility, visible_mask
+from holo_viewer.camera import Cameras, intrinsics, look_at
+from holo_viewer.errors import AvatarError, InputError
+from holo_viewer.flame.model import FlameModel
+from holo_viewer.flame.testing import random_flame_arrays
+
+
+@pytest.fixture(scope="module")
+def rigged() -> RiggedAvatar:
+    arrays = random_flame_arrays(n_vertices=200, n_shape=4, n_expr=5, seed=1)
+    v, f = arrays["v_template"], arrays["f"]
+    e0, e2 = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+    height = np.linalg.norm(np.cross(e0, e2), axis=1) / np.maximum(np.linalg.norm(e0, axis=1), 1e-30)
+    arrays["f"] = f[height > 1e-3]  # no (near-)degenerate faces: their fallback frame is not equivariant
+    model = FlameModel.from_arrays(arrays)
+    rng = np.random.default_rng(0)
+    n = 600
+    g = Gaussians(rng.normal(scale=0.3, size=(n, 3)), rng.normal(size=(n, 4)), rng.normal(-1, 0.2, size=(n, 3)),
+                  rng.normal(size=n), rng.normal(size=(n, 4, 3)),
+                  extra={"binding": rng.integers(0, model.faces.shape[0], n)})
+    return RiggedAvatar(model, g, identity={"shape": rng.normal(size=4)})
+
+
+@pytest.fixture(scope="module")
+def blend(rigged) -> BlendshapeAvatar:
+    return BlendshapeAvatar.from_rigged(rigged, include_jaw=True)
+
+
+def _params(g: Gaussians) -> np.ndarray:
+    q = g.quats.double().numpy()
+    return np.concatenate([g.means.double().numpy(), q, g.log_scales.double().numpy()], axis=1)
+
+
+def test_equals_rigged_at_zero(rigged, blend):
+    r, b = rigged.pose(), blend.pose(np.zeros(5))
+    np.testing.assert_allclose(b.means.numpy(), r.means.numpy(), atol=1e-6)
+    np.testing.assert_allclose(b.quats.numpy(), r.quats.numpy(), atol=1e-6)
+    np.testing.assert_allclose(b.log_scales.numpy(), r.log_scales.numpy(), atol=1e-5)
+    assert torch.equal(b.opacity_logits, r.opacity_logits.float()) and torch.equal(b.sh, r.sh.float())
+
+
+def test_first_order_agreement(rigged, blend):
+    rng = np.random.default_rng(2)
+    direction = rng.normal(size=5)
+    jaw_dir = np.array([0.3, 0.05, 0.0])
+    errs = []
+    for eps in (1e-1, 1e-2):
+        r = _params(rigged.pose(expr=eps * direction, jaw_pose=eps * jaw_dir))
+        b = _params(blend.pose(eps * direction, jaw_pose=eps * jaw_dir))
+        errs.append(np.abs(r - b)[:, :3].max())
+    # second-order remainder: 10x smaller step -> ~100x smaller error (float32 floor 1e-7)
+    assert errs[1] < errs[0] / 30 + 2e-7, errs
+
+
+def test_face_chain_rule_equals_full_jvp(rigged, blend):
+    exact = BlendshapeAvatar.from_rigged(rigged, include_jaw=True, exact_jvp=True)
+    np.testing.assert_allclose(exact.base, blend.base, atol=1e-7)
+    np.testing.assert_allclose(exact._sparse.to_dense(8), blend._sparse.to_dense(8), rtol=1e-5, atol=1e-7)
+
+
+def test_sparse_kernel_equals_dense_product(blend):
+    coeffs = np.random.default_rng(3).normal(size=(3, 5)).astype(np.float32)
+    jaw = np.random.default_rng(4).normal(scale=0.1, size=(3, 3)).astype(np.float32)
+    blend.backend = "auto"
+    a = blend.blend_tensors(coeffs, jaw)
+    blend.backend = "torch"
+    b = blend.blend_tensors(coeffs, jaw)
+    blend.backend = "auto"
+    for x, y in zip(a, b):
+        torch.testing.assert_close(x, y, rtol=1e-5, atol=1e-6)
+
+
+def test_rigid_head_pose_exact(rigged, blend):
+    e = np.random.default_rng(5).normal(scale=0.01, size=5)
+    rot, tr = np.array([0.2, -0.4, 0.1]), np.array([0.01, 0.02, -0.03])
+    r = rigged.pose(expr=e, rotation=rot, translation=tr)
+    b = blend.pose(e, rotation=rot, translation=tr)
+    b0 = blend.pose(e)
+    r0 = rigged.pose(expr=e)
+    # the blend-shape error is the same before and after the rigid motion
+    err_posed = (r.means - b.means).norm(dim=-1)
+    err_rest = (r0.means - b0.means).norm(dim=-1)
+    torch.testing.assert_close(err_posed, err_rest, atol=1e-5, rtol=0)
+
+
+def test_save_load_round_trip_and_errors(tmp_path, blend):
+    p = blend.save(tmp_path / "bs.npz")
+    b2 = BlendshapeAvatar.load(p)
+    e = np.linspace(-1, 1, 5)
+    assert torch.equal(b2.pose(e, jaw_pose=[0.1, 0, 0]).means, blend.pose(e, jaw_pose=[0.1, 0, 0]).means)
+    with np.load(p) as z:
+        data = dict(z)
+    bad = dict(data)
+    bad.pop("vals")
+    np.savez(tmp_path / "missing.npz", **bad)
+    with pytest.raises(AvatarError, match="missing.npz: missing keys \\['vals'\\]"):
+        BlendshapeAvatar.load(tmp_path / "missing.npz")
+    bad = dict(data, base=np.where(np.arange(data["base"].size).reshape(data["base"].shape) == 7, np.nan,
+                                    data["base"]))
+    np.savez(tmp_path / "nan.npz", **bad)
+    with pytest.raises(AvatarError, match="nan.npz: base: holds NaN/inf"):
+        BlendshapeAvatar.load(tmp_path / "nan.npz")
+    bad = dict(data, ptr=data["ptr"][:-1])
+    np.savez(tmp_path / "ptr.npz", **bad)
+    with pytest.raises(AvatarError, match="ptr.npz: ptr/comp/vals"):
+        BlendshapeAvatar.load(tmp_path / "ptr.npz")
+    (tmp_path / "trunc.npz").write_bytes(p.read_bytes()[:300])
+    with pytest.raises(AvatarError, match="trunc.npz: cannot read"):
+        BlendshapeAvatar.load(tmp_path / "trunc.npz")
+
+
+def test_bad_coefficients(blend):
+    with pytest.raises(InputError, match="expr"):
+        blend.pose(np.zeros(9))
+    with pytest.raises(InputError, match="expr: expected finite"):
+        blend.pose(np.array([np.nan, 0, 0, 0, 0]))
+    with pytest.raises(InputError, match="jaw_pose"):
+        blend.pose(np.zeros(5), jaw_pose=np.zeros(4))
+
+
+# --------------------------------------------------------------------------- culling
+def _cams(angles_deg, dist=0.6) -> Cameras:
+    w2c = [look_at([dist * np.sin(np.deg2rad(a)), 0, dist * np.cos(np.deg2rad(a))], [0, 0, 0]) for a in angles_deg]
+    return Cameras(np.stack(w2c), intrinsics(500, 500, 100, 100), 200, 200)
+
+
+def test_visible_mask_margin():
+    centres = np.zeros((3, 3))
+    normals = np.array([[0, 0, 1.0], [0, 0, -1.0], [1.0, 0, 0]])
+    cam = np.array([[0, 0, 1.0]])
+    assert visible_mask(centres, normals, cam, 0.0).tolist() == [True, False, False]
+    # a normal at exactly 90 degrees is kept by any positive margin
+    assert visible_mask(centres, normals, cam, 5.0).tolist() == [True, False, True]
+
+
+def test_cull_sphere_keeps_front_half():
+    # a closed sphere mesh: faces pointing away from all cameras are dropped
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    cams = _cams(np.linspace(-20, 20, 5))
+    keep = face_visibility(sphere.vertices, sphere.faces, cams, margin_deg=0.0)
+    z = sphere.triangles_center[:, 2]
+    assert keep[z > 0.02].all() and not keep[z < -0.05].any()
+    assert 0.4 < keep.mean() < 0.65
+
+
+def test_cull_rigged_and_gaussians(rigged):
+    cams = _cams([0, 10])
+    out = rigged.flame_model()
+    mask = cull_backfacing(rigged, cams, 10.0, vertices=out.vertices)
+    assert mask.shape == (rigged.n_gaussians,) and 0 < mask.sum() < mask.size
+    g = rigged.pose()
+    normals = np.tile([0.0, 0.0, -1.0], (len(g), 1))
+    assert not cull_backfacing(g, cams, 0.0, normals=normals).any()
+    with pytest.raises(InputError, match="normals"):
+        cull_backfacing(g, cams)
+    with pytest.raises(InputError, match="vertices"):
+        cull_backfacing(rigged, cams)
