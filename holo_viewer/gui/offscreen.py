@@ -41,9 +41,11 @@ def offscreen_viewer(scene: Any, window_size: tuple[int, int] = (1600, 900), **c
 
     pipeline = getattr(scene, "pipeline", scene)
     frames = getattr(scene, "frames", None)
+    config.setdefault("show_status", False)  # timings differ run to run; keep snapshots reproducible
     with osmesa_window():
         viewer = HoloViewer(pipeline, ViewerConfig(window_size=tuple(window_size), **config), off_screen=True,
                             frames=frames)
+        viewer.open()
     try:
         yield viewer
     finally:

@@ -33,7 +33,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import HoloViewerError, InputError
 from ..pipeline import FaceControls, Pipeline, apply_frame, to_uint8
 from .scene import (focal_plane_polydata, frusta_polydata, glyph_polydata, image_plane, mesh_polydata,
                     subsample_indices, view_colors)
@@ -65,6 +65,8 @@ class ViewerConfig:
         Gaussians drawn as ellipsoids (a deterministic random subset keeps it interactive).
     glyph_sigmas : float
         Ellipsoid radius in standard deviations.
+    glyph_subdivisions : int
+        Icosphere subdivisions of each ellipsoid (0: 20 triangles; software OpenGL pays per triangle).
     preview_scale, thumbnail_scale : float
         Size of the preview view and of the thumbnail quilt's tiles relative to the quilt tile.
     auto_thumbnail : bool
@@ -73,15 +75,20 @@ class ViewerConfig:
         Frames and tile scale of the expression-sweep video.
     out_dir : str
         Folder of exports.
+    show_status : bool
+        Show the status line (timings, last export) in the lower right corner.
+    multi_samples : int
+        MSAA samples (pyvista's default 8 costs ~3x per frame with software OpenGL; 0 = off).
     """
 
-    window_size: tuple[int, int] = (1600, 900)
+    window_size: tuple[int, int] = (1400, 800)
     n_expr_sliders: int = 4
     expr_names: tuple[str, ...] = ("AU2_L", "AU4", "AU9", "AU20")
     expr_range: float = 2.0
-    max_glyphs: int = 2500
+    max_glyphs: int = 1500
     glyph_sigmas: float = 1.5
-    preview_scale: float = 0.5
+    glyph_subdivisions: int = 0
+    preview_scale: float = 0.4
     thumbnail_scale: float = 0.125
     auto_thumbnail: bool = True
     sweep_frames: int = 16
@@ -89,6 +96,8 @@ class ViewerConfig:
     sweep_fps: float = 8.0
     out_dir: str = "holo_viewer_out"
     title: str = "holo-viewer"
+    show_status: bool = True
+    multi_samples: int = 0
 
 
 def scale_cameras(cameras: Any, scale: float) -> Any:
@@ -124,7 +133,7 @@ class _ImagePanel:
         self.image = img
         h, w = img.shape[:2]
         self.plotter.subplot(*self.subplot)
-        tex = pv.Texture(np.ascontiguousarray(img[::-1]))  # VTK textures start at the bottom row
+        tex = pv.Texture(np.ascontiguousarray(img))  # pyvista maps row 0 to the top of the quad
         if self.actor is None or self.shape != (h, w):
             if self.actor is not None:
                 self.plotter.remove_actor(self.actor, render=False)
@@ -137,9 +146,17 @@ class _ImagePanel:
             cam.position = (0.0, 0.0, 5.0)
             cam.focal_point = (0.0, 0.0, 0.0)
             cam.up = (0.0, 1.0, 0.0)
-            cam.parallel_scale = 0.52
+            self._fit(w / h)
         else:
             self.actor.texture = tex
+
+    def _fit(self, image_aspect: float) -> None:
+        """Parallel scale so the whole image (height 1, width ``image_aspect``) fits the viewport."""
+        ren = self.plotter.renderer
+        x0, y0, x1, y1 = ren.GetViewport()
+        W, H = self.plotter.window_size
+        vp_aspect = max((x1 - x0) * W, 1.0) / max((y1 - y0) * H, 1.0)
+        ren.camera.parallel_scale = 0.52 * max(1.0, image_aspect / vp_aspect)
 
 
 @dataclass
@@ -196,7 +213,8 @@ class HoloViewer:
 
         self.plotter = pv.Plotter(shape=(2, 3), groups=[(np.s_[:], 0), (np.s_[:], 1)],
                                   col_weights=[0.9, 2.4, 1.2], window_size=list(self.config.window_size),
-                                  off_screen=off_screen, title=self.config.title, border=False)
+                                  off_screen=off_screen, title=self.config.title, border=False,
+                                  theme=_theme(self.config))
         self._build()
         self._building = False
 
@@ -251,9 +269,9 @@ class HoloViewer:
         p.subplot(0, 1)
         # look at the head and the camera rail from the front-right, above
         d = float(np.linalg.norm(mid - centre))
-        focal = centre + np.array([0.0, 0.0, 0.5 * d])
-        direction = np.array([0.8, 0.5, 1.0]) / np.linalg.norm([0.8, 0.5, 1.0])
-        eye = focal + 2.6 * d * direction
+        focal = centre + np.array([0.0, 0.0, 0.3 * d])
+        direction = np.array([1.0, 0.45, 0.8]) / np.linalg.norm([1.0, 0.45, 0.8])
+        eye = focal + 1.5 * d * direction
         p.renderer.camera_position = [tuple(eye), tuple(focal), (0.0, 1.0, 0.0)]
         p.renderer.camera.view_angle = 30.0
         p.renderer.reset_camera_clipping_range()
@@ -267,14 +285,13 @@ class HoloViewer:
         cols = view_colors(len(cams))
         rgb = (cols[self.frusta.cell_data["view"]] * 255).astype(np.uint8)
         self.frusta.cell_data["rgb"] = rgb
-        self.frusta_actor = p.add_mesh(self.frusta, scalars="rgb", rgb=True, line_width=1.0, opacity=0.55,
+        self.frusta_actor = p.add_mesh(self.frusta, scalars="rgb", rgb=True, line_width=1.0,
                                        name="frusta", reset_camera=False, lighting=False)
         sel = frusta_polydata(cams[self.selected_view], centre)
         self.selected_actor = p.add_mesh(sel, color="white", line_width=3.0, name="selected",
                                          reset_camera=False, lighting=False)
-        self.focal_actor = p.add_mesh(focal_plane_polydata(cams, centre), color="#5fa8ff", opacity=0.18,
-                                      name="focal", reset_camera=False, lighting=False, show_edges=True,
-                                      edge_color="#5fa8ff")
+        self.focal_actor = p.add_mesh(focal_plane_polydata(cams, centre), color="#5fa8ff", style="wireframe",
+                                      line_width=2.0, name="focal", reset_camera=False, lighting=False)
         for a in (self.frusta_actor, self.selected_actor, self.focal_actor):
             a.SetVisibility(self.show_frusta)
 
@@ -372,13 +389,16 @@ class HoloViewer:
         if self.pipeline.avatar is not None:
             self._update_glyphs()
             self._update_preview()
+            self.timings.stages = self.pipeline.last_timings.as_dict()
+            self._update_status()
             self.plotter.render()
             self.timings.preview_ms = (time.perf_counter() - t0) * 1e3
+            self._update_status()
             if self.config.auto_thumbnail:
                 self._update_thumbnail()
-        self.timings.stages = self.pipeline.last_timings.as_dict()
-        self._update_status()
-        self.plotter.render()
+        else:
+            self._update_status()
+            self.plotter.render()
 
     def _refresh_frusta(self) -> None:
         vis = self.show_frusta
@@ -390,7 +410,8 @@ class HoloViewer:
         g = self.pipeline.gaussians()
         if self._glyph_index is None or self._glyph_index.max(initial=-1) >= len(g):
             self._glyph_index = subsample_indices(len(g), self.config.max_glyphs)
-        poly = glyph_polydata(g, self._glyph_index, sigmas=self.config.glyph_sigmas)
+        poly = glyph_polydata(g, self._glyph_index, sigmas=self.config.glyph_sigmas,
+                              subdivisions=self.config.glyph_subdivisions)
         if self.glyphs is None:
             self.plotter.subplot(0, 1)
             self.glyphs = poly
@@ -459,7 +480,7 @@ class HoloViewer:
             self._set_status(f"thumbnail failed: {exc}")
 
     def _set_status(self, text: str) -> None:
-        self.status.SetText(1, text)  # lower right corner
+        self.status.SetText(1, text if self.config.show_status else "")  # lower right corner
 
     def _update_status(self) -> None:
         t = self.timings
@@ -532,7 +553,9 @@ class HoloViewer:
         return self._record(path)
 
     def export_sweep_video(self) -> Path:
-        """Write an mp4 of quilts sweeping smile 0 -> 1 -> 0 at the current pain (tiles at ``sweep_scale``)."""
+        """Write an mp4 of quilts sweeping smile 0 -> 1 -> 0 at the current pain (tiles at ``sweep_scale``).
+
+        Models without an action-unit map sweep their first expression component instead."""
         from ..display.export import write_quilt_video
         from ..display.quilt import quilt_filename
 
@@ -543,9 +566,17 @@ class HoloViewer:
         cams = scale_cameras(pipe.cameras(), cfg.sweep_scale)
         weights = np.sin(np.linspace(0.0, np.pi, max(2, cfg.sweep_frames)))
 
+        try:
+            pipe.au_map  # noqa: B018 - named expressions need the model's action-unit map
+            def sweep(w: float) -> FaceControls:
+                return base.with_named("smile", w)
+        except HoloViewerError:  # a FLAME model without an AU map: sweep its first component
+            def sweep(w: float) -> FaceControls:
+                return base.with_expr_component(0, cfg.expr_range * w)
+
         def frames() -> Any:
             for w in weights:
-                pipe.set_face(base.with_named("smile", float(w)))
+                pipe.set_face(sweep(float(w)))
                 yield _render_thumbnail(pipe.gaussians(), cams, pipe.backend, pipe.render_config, cal.cols, cal.rows)
 
         try:
@@ -590,6 +621,19 @@ class HoloViewer:
             self._executor.shutdown(wait=True, cancel_futures=True)
             self._executor = None
         self.plotter.close()
+
+
+def _theme(config: ViewerConfig) -> Any:
+    """A copy of pyvista's global theme with our anti-aliasing settings (the global one is left alone)."""
+    import copy
+
+    import pyvista as pv
+
+    theme = copy.deepcopy(pv.global_theme)
+    theme.multi_samples = int(config.multi_samples)
+    theme.anti_aliasing = None
+    theme.depth_peeling.enabled = False
+    return theme
 
 
 def _render_thumbnail(gaussians: Any, cameras: Any, backend: str, config: Any, cols: int, rows: int) -> np.ndarray:
