@@ -172,9 +172,11 @@ def test_batched_deform_matches_single_frames():
         torch.testing.assert_close(outs[i].means, one.means, rtol=1e-5, atol=1e-6)
 
 
-def test_cache_exact_with_zero_tolerance_and_skips_unmoved():
+@pytest.mark.parametrize("backend", ["auto", "torch"])
+def test_cache_exact_with_zero_tolerance_and_skips_unmoved(backend):
     model = _model(torch.float32)
     av = RiggedAvatar(model, _local(500, model.faces.shape[0]))
+    av.backend = backend
     av.pose(cache=True)
     assert av.last_cache_fraction == 1.0
     frames = [dict(jaw_pose=[0.2, 0, 0]), dict(jaw_pose=[0.2, 0, 0]), dict(eyes_pose=[0, 0.3, 0, 0, 0.3, 0]),
@@ -194,9 +196,11 @@ def test_cache_exact_with_zero_tolerance_and_skips_unmoved():
     assert av.last_cache_fraction == 0.0
 
 
-def test_cache_tolerance_bounds_staleness():
+@pytest.mark.parametrize("backend", ["auto", "torch"])
+def test_cache_tolerance_bounds_staleness(backend):
     model = _model(torch.float64)
     av = RiggedAvatar(model, _local(300, model.faces.shape[0]))
+    av.backend = backend
     tol = 1e-3
     av.pose(cache=True, cache_tol=tol)
     for t in np.linspace(0, 0.01, 12):

@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["face_frames_nb", "bind_nb", "bind_subset_nb"]
+__all__ = ["face_frames_nb", "bind_nb", "bind_subset_nb", "moved_faces_nb", "bind_cached_nb"]
 
 
 @njit(cache=True, inline="always")
@@ -23,14 +23,18 @@ def _cross(ax, ay, az, bx, by, bz):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True, parallel=True)
-def face_frames_nb(verts, faces, eps, frame, degenerate):  # noqa: ANN001, ANN201
+def face_frames_nb(verts, faces, eps, frame, degenerate, mask):  # noqa: ANN001, ANN201
     """Per-face packed frames.
 
     verts (V, 3) float; faces (F, 3) int64; writes ``frame`` (F, 17) float64 =
-    [s R column-major (9), centre (3), q(R) wxyz (4), log s (1)] and ``degenerate`` (F,) bool.
+    [s R column-major (9), centre (3), q(R) wxyz (4), log s (1)] and ``degenerate`` (F,) bool,
+    for the faces where ``mask`` (F,) is True (other rows are left untouched).
     """
     nf = faces.shape[0]
     for f in prange(nf):
+        if not mask[f]:
+            degenerate[f] = False
+            continue
         i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
         v0x, v0y, v0z = float(verts[i0, 0]), float(verts[i0, 1]), float(verts[i0, 2])
         v1x, v1y, v1z = float(verts[i1, 0]), float(verts[i1, 1]), float(verts[i1, 2])
@@ -134,10 +138,45 @@ def bind_subset_nb(frame, binding, mu, ql, ls, index, out_m, out_q, out_ls):  # 
         _one(frame, binding, mu, ql, ls, i, i, out_m, out_q, out_ls)
 
 
-def frames(verts: np.ndarray, faces: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray]:
-    """Packed (F, 17) float64 frames and (F,) degenerate flags for one mesh."""
+@njit(cache=True, parallel=True)
+def moved_faces_nb(verts, faces, ref, tol, moved):  # noqa: ANN001, ANN201
+    """moved[f] = some vertex of face f differs from ref[f] (F, 3, 3) by > tol in a coordinate;
+    ref rows of moved faces are updated to the current positions. Returns nothing."""
+    for f in prange(faces.shape[0]):
+        m = False
+        for a in range(3):
+            vi = faces[f, a]
+            for c in range(3):
+                if abs(verts[vi, c] - ref[f, a, c]) > tol:
+                    m = True
+        moved[f] = m
+        if m:
+            for a in range(3):
+                vi = faces[f, a]
+                for c in range(3):
+                    ref[f, a, c] = verts[vi, c]
+
+
+@njit(cache=True, parallel=True)
+def bind_cached_nb(frame, moved, binding, mu, ql, ls, prev_m, prev_q, prev_ls, out_m, out_q,  # noqa: ANN001
+                   out_ls):  # noqa: ANN001, ANN201
+    """out = recomputed for Gaussians on moved faces, else copied from prev."""
+    for i in prange(binding.shape[0]):
+        if moved[binding[i]]:
+            _one(frame, binding, mu, ql, ls, i, i, out_m, out_q, out_ls)
+        else:
+            for c in range(3):
+                out_m[i, c] = prev_m[i, c]
+                out_ls[i, c] = prev_ls[i, c]
+            for c in range(4):
+                out_q[i, c] = prev_q[i, c]
+
+
+def frames(verts: np.ndarray, faces: np.ndarray, eps: float, mask: np.ndarray | None = None
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Packed (F, 17) float64 frames and (F,) degenerate flags for one mesh (rows outside ``mask`` undefined)."""
     nf = faces.shape[0]
     frame = np.empty((nf, 17), np.float64)
     deg = np.empty(nf, np.bool_)
-    face_frames_nb(verts, faces, eps, frame, deg)
+    face_frames_nb(verts, faces, eps, frame, deg, np.ones(nf, np.bool_) if mask is None else mask)
     return frame, deg

@@ -40,11 +40,15 @@ def visible_mask(centres: np.ndarray, normals: np.ndarray, cam_positions: np.nda
         Extra angle beyond 90 degrees, in degrees (-90 < margin < 90).
     """
     thr = -np.sin(np.deg2rad(margin_deg))
+    cams = np.asarray(cam_positions, np.float64)
+    centres = np.asarray(centres, np.float64)
+    normals = np.asarray(normals, np.float64)
     keep = np.zeros(centres.shape[0], bool)
-    for p in np.asarray(cam_positions, np.float64):  # V is small (48)
-        d = p[None] - centres
-        dist = np.linalg.norm(d, axis=1)
-        keep |= (normals * d).sum(1) > thr * dist
+    for start in range(0, centres.shape[0], 20_000):  # bounded memory: (V, chunk, 3)
+        c, n = centres[start:start + 20_000], normals[start:start + 20_000]
+        d = cams[:, None, :] - c[None]
+        dist = np.sqrt(np.einsum("vmc,vmc->vm", d, d))
+        keep[start:start + c.shape[0]] = (np.einsum("vmc,mc->vm", d, n) > thr * dist).any(axis=0)
     return keep
 
 

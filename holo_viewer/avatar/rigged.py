@@ -226,6 +226,8 @@ class RiggedAvatar:
         self._cache = None
 
     def _deform_cached(self, verts: Tensor, tol: float) -> tuple[Tensor, Tensor, Tensor]:
+        if self._use_fast(verts):
+            return self._deform_cached_fast(verts, tol)
         face_verts = verts[self.faces]  # (F, 3, 3)
         c = self._cache
         if c is not None:
@@ -234,18 +236,6 @@ class RiggedAvatar:
             self.last_cache_fraction = n_moved / moved.shape[0]
             if n_moved == 0:
                 return c["means"], c["quats"], c["log_scales"]
-            if self.last_cache_fraction <= self.cache_full_fraction and self._use_fast(verts):
-                k = _kernels()
-                faces, binding, mu, ql, ls = self._np_local()
-                frame, deg = k.frames(verts.detach().contiguous().numpy(), faces, DEGENERATE_EPS)
-                self._n_degenerate = int(deg.sum())
-                g_idx = np.flatnonzero(moved.numpy()[binding])
-                means, quats, log_scales = c["means"].clone(), c["quats"].clone(), c["log_scales"].clone()
-                k.bind_subset_nb(frame, binding, mu, ql, ls, g_idx, means.numpy(), quats.numpy(),
-                                 log_scales.numpy())
-                fv = torch.where(moved[:, None, None], face_verts, c["face_verts"])
-                self._cache = {"face_verts": fv, "means": means, "quats": quats, "log_scales": log_scales}
-                return means, quats, log_scales
             if self.last_cache_fraction <= self.cache_full_fraction:
                 face_idx = torch.nonzero(moved).squeeze(1)
                 rot, scale, centre, degenerate = face_frames(verts[None], self.faces[face_idx])
@@ -260,8 +250,7 @@ class RiggedAvatar:
                 means[g_idx] = m[0]
                 quats[g_idx] = q[0]
                 log_scales[g_idx] = s[0]
-                fv = c["face_verts"].clone()
-                fv[face_idx] = face_verts[face_idx]
+                fv = torch.where(moved[:, None, None], face_verts, c["face_verts"])
                 self._cache = {"face_verts": fv, "means": means, "quats": quats, "log_scales": log_scales}
                 return means, quats, log_scales
         else:
@@ -269,6 +258,32 @@ class RiggedAvatar:
         m, q, s = self.deform_tensors(verts[None])
         self._cache = {"face_verts": face_verts, "means": m[0], "quats": q[0], "log_scales": s[0]}
         return m[0], q[0], s[0]
+
+    def _deform_cached_fast(self, verts: Tensor, tol: float) -> tuple[Tensor, Tensor, Tensor]:
+        """Numba version: fused moved-face test, frames of all faces, and copy-or-recompute per Gaussian."""
+        k = _kernels()
+        faces, binding, mu, ql, ls = self._np_local()
+        v = verts.detach().contiguous().numpy()
+        c = self._cache
+        if c is None or "ref" not in c:
+            self.last_cache_fraction = 1.0
+            m, q, s = self._deform_fast(verts[None])
+            self._cache = {"ref": v[faces].astype(np.float64), "means": m[0], "quats": q[0], "log_scales": s[0]}
+            return m[0], q[0], s[0]
+        moved = np.empty(faces.shape[0], np.bool_)
+        k.moved_faces_nb(v, faces, c["ref"], tol, moved)  # updates ref for moved faces
+        n_moved = int(moved.sum())
+        self.last_cache_fraction = n_moved / moved.shape[0]
+        if n_moved == 0:
+            return c["means"], c["quats"], c["log_scales"]
+        frame, deg = k.frames(v, faces, DEGENERATE_EPS, moved)
+        self._n_degenerate = int(deg.sum())  # among the recomputed faces
+        n, dt = binding.shape[0], verts.dtype
+        means, quats, log_scales = (torch.empty((n, d), dtype=dt) for d in (3, 4, 3))
+        k.bind_cached_nb(frame, moved, binding, mu, ql, ls, c["means"].numpy(), c["quats"].numpy(),
+                         c["log_scales"].numpy(), means.numpy(), quats.numpy(), log_scales.numpy())
+        c.update(means=means, quats=quats, log_scales=log_scales)
+        return means, quats, log_scales
 
     def pose(self, cache: bool = False, cache_tol: float = 0.0, **flame_params: Any) -> Gaussians | list[Gaussians]:
         """Run the FLAME model with ``flame_params`` (``identity`` fills missing keys), then deform.

@@ -1,0 +1,252 @@
+"""Deformation speed vs error: rigged, rigged with caching, blend-shape; back-face culling.
+
+For the default avatar (100k Gaussians, float32, batch 1) this measures
+
+* time per frame (best-of-N and median wall time, best process time) of
+  ``RiggedAvatar.pose`` (FLAME + binding), the cached variant on a sequence that moves one
+  expression component at a time, and ``BlendshapeAvatar.pose``;
+* the blend-shape centre error against the rigged avatar (mean / max in mm) over sweeps of
+  each expression component to +-0.25 .. 3 standard deviations (default head: 1 std = 1.0) and
+  over random combinations with every |psi_k| <= s;
+* the caching error for positive tolerances;
+* rendered-image PSNR (fast renderer) of blend-shape vs rigged and of back-face culling vs no
+  culling on views of the 48-view quilt cone, with the render time saved; also for a
+  semi-transparent copy of the avatar, where culling is not safe.
+
+Prints tables and writes JSON (``--json FILE``). Timings depend on the load of this shared
+CPU: best-of-N and process times are the robust numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+
+def _timeit(fn: Callable[[], Any], repeat: int) -> dict[str, float]:
+    fn()  # warm-up (numba compile, caches)
+    walls, procs = [], []
+    for _ in range(repeat):
+        t0, p0 = time.perf_counter(), time.process_time()
+        fn()
+        walls.append(time.perf_counter() - t0)
+        procs.append(time.process_time() - p0)
+    return {"best_ms": 1e3 * min(walls), "median_ms": 1e3 * statistics.median(walls),
+            "best_process_ms": 1e3 * min(procs)}
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return float("inf") if mse == 0 else 10 * np.log10(1.0 / mse)
+
+
+def _sweep_errors(rig: Any, blend: Any, levels: list[float], n_random: int, seed: int) -> list[dict[str, Any]]:
+    k = blend.n_expr
+    rng = np.random.default_rng(seed)
+    rows = []
+    for s in levels:
+        single_mean, single_max = [], []
+        for comp in range(k):
+            for sign in (1.0, -1.0):
+                e = np.zeros(k, np.float32)
+                e[comp] = sign * s
+                err = (rig.pose(expr=e).means - blend.pose(e).means).norm(dim=-1) * 1e3
+                single_mean.append(float(err.mean()))
+                single_max.append(float(err.max()))
+        comb_mean, comb_max = [], []
+        for _ in range(n_random):
+            e = rng.uniform(-s, s, k).astype(np.float32)
+            err = (rig.pose(expr=e).means - blend.pose(e).means).norm(dim=-1) * 1e3
+            comb_mean.append(float(err.mean()))
+            comb_max.append(float(err.max()))
+        rows.append({"level_std": s, "single_mean_mm": float(np.mean(single_mean)),
+                     "single_worst_mean_mm": float(np.max(single_mean)), "single_max_mm": float(np.max(single_max)),
+                     "random_mean_mm": float(np.mean(comb_mean)), "random_max_mm": float(np.max(comb_max))})
+    return rows
+
+
+def _sequence(k: int, frames_per_comp: int, level: float) -> np.ndarray:
+    """Ramp one component at a time 0 -> level -> 0 (a talking-head-like local motion)."""
+    seq = []
+    ramp = level * np.sin(np.linspace(0, np.pi, frames_per_comp))
+    for comp in range(k):
+        for a in ramp:
+            e = np.zeros(k, np.float32)
+            e[comp] = a
+            seq.append(e)
+    return np.stack(seq)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n-gaussians", type=int, default=100_000)
+    ap.add_argument("--repeat", type=int, default=30, help="timing repetitions (best-of)")
+    ap.add_argument("--threads", type=int, default=1, help="torch and numba threads")
+    ap.add_argument("--levels", type=str, default="0.25,0.5,1,2,3", help="sweep levels in standard deviations")
+    ap.add_argument("--n-random", type=int, default=8, help="random combinations per level")
+    ap.add_argument("--render-views", type=int, default=6, help="views of the 48-view cone rendered for PSNR (0: skip)")
+    ap.add_argument("--margin-deg", type=float, default=10.0, help="back-face culling margin (also 0, 20, 30)")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+
+    import numba
+
+    from holo_viewer.avatar import BlendshapeAvatar, cull_backfacing, default_avatar
+
+    torch.set_num_threads(args.threads)
+    numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    levels = [float(x) for x in args.levels.split(",")]
+    t0 = time.perf_counter()
+    rig = default_avatar(n_gaussians=args.n_gaussians)
+    t_gen = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    blend = BlendshapeAvatar.from_rigged(rig)
+    t_lin = time.perf_counter() - t0
+    k = blend.n_expr
+    print(f"default avatar: {rig.n_gaussians} Gaussians, {k} expression components, "
+          f"load/generate {t_gen:.1f} s, linearise {t_lin:.1f} s, blend nnz {blend.nnz} "
+          f"({blend.nnz / len(blend):.2f} per Gaussian); threads {args.threads}")
+
+    # ---------------------------------------------------------------- timing
+    rng = np.random.default_rng(0)
+    e_rand = rng.normal(size=k).astype(np.float32)
+    seq = _sequence(k, 6, 1.0)
+    timings: dict[str, dict[str, float]] = {}
+    timings["rigged"] = _timeit(lambda: rig.pose(expr=e_rand), args.repeat)
+    timings["rigged_flame_only"] = _timeit(lambda: rig.flame_model(expr=e_rand), args.repeat)
+    verts = rig.flame_model(expr=e_rand).vertices
+    timings["rigged_binding_only"] = _timeit(lambda: rig.deform(verts), args.repeat)
+    timings["blendshape"] = _timeit(lambda: blend.pose(e_rand), args.repeat)
+
+    def run_seq(cache: bool, tol: float) -> Callable[[], None]:
+        state = {"i": 0}
+
+        def step() -> None:
+            rig.pose(expr=seq[state["i"] % len(seq)], cache=cache, cache_tol=tol)
+            state["i"] += 1
+        return step
+
+    cache_rows = []
+    for tol in (0.0, 1e-6, 1e-5, 1e-4):
+        rig.reset_cache()
+        tm = _timeit(run_seq(True, tol), max(args.repeat, len(seq)))
+        # error of the cached sequence against the uncached rigged avatar, and moved fraction
+        rig.reset_cache()
+        errs, fracs = [], []
+        for e in seq:
+            c = rig.pose(expr=e, cache=True, cache_tol=tol)
+            fracs.append(rig.last_cache_fraction)
+            errs.append(float((c.means - rig.pose(expr=e).means).norm(dim=-1).max()) * 1e3)
+        cache_rows.append({"tol_m": tol, **tm, "max_err_mm": max(errs), "mean_moved_face_fraction": float(np.mean(fracs))})
+    rig.reset_cache()
+    timings["rigged_sequence_nocache"] = _timeit(run_seq(False, 0.0), max(args.repeat, len(seq)))
+    bstate = {"i": 0}
+
+    def blend_step() -> None:
+        blend.pose(seq[bstate["i"] % len(seq)])
+        bstate["i"] += 1
+    timings["blendshape_sequence"] = _timeit(blend_step, max(args.repeat, len(seq)))
+
+    base = timings["rigged"]["best_ms"]
+    print("\nTime per frame (batch 1, float32)")
+    print(f"{'method':32s} {'best ms':>9s} {'median ms':>10s} {'proc ms':>9s} {'speed-up':>9s}")
+    for name, tm in timings.items():
+        print(f"{name:32s} {tm['best_ms']:9.2f} {tm['median_ms']:10.2f} {tm['best_process_ms']:9.2f} "
+              f"{base / tm['best_ms']:9.2f}")
+    seq_base = timings["rigged_sequence_nocache"]["best_ms"]
+    print("\nCaching on a one-component-at-a-time sequence (ramps to 1 std)")
+    print(f"{'cache_tol m':>12s} {'best ms':>9s} {'median ms':>10s} {'moved faces':>12s} {'max err mm':>11s} {'speed-up':>9s}")
+    for r in cache_rows:
+        print(f"{r['tol_m']:12.0e} {r['best_ms']:9.2f} {r['median_ms']:10.2f} {r['mean_moved_face_fraction']:12.3f} "
+              f"{r['max_err_mm']:11.4f} {seq_base / r['median_ms']:9.2f}")
+
+    # ---------------------------------------------------------------- blend-shape error curve
+    sweep = _sweep_errors(rig, blend, levels, args.n_random, seed=1)
+    print("\nBlend-shape centre error vs rigged (mm)")
+    print(f"{'|psi| std':>9s} {'single mean':>12s} {'single worst mean':>18s} {'single max':>11s} "
+          f"{'random mean':>12s} {'random max':>11s}")
+    for r in sweep:
+        print(f"{r['level_std']:9.2f} {r['single_mean_mm']:12.5f} {r['single_worst_mean_mm']:18.5f} "
+              f"{r['single_max_mm']:11.4f} {r['random_mean_mm']:12.5f} {r['random_max_mm']:11.4f}")
+
+    # ---------------------------------------------------------------- renders: PSNR and culling
+    render_rows: list[dict[str, Any]] = []
+    cull_rows: list[dict[str, Any]] = []
+    if args.render_views > 0:
+        from holo_viewer.display.cameras import make_quilt_cameras
+        from holo_viewer.render.api import render_views
+
+        cams48 = make_quilt_cameras(None, focal_center=(0.0, -0.01, 0.0), size=0.16)
+        idx = np.unique(np.linspace(0, len(cams48) - 1, args.render_views).round().astype(int))
+        cams = cams48[idx]
+        for s in (0.0, 1.0, 3.0):
+            e = np.zeros(k, np.float32)
+            e[:] = s * np.random.default_rng(7).uniform(-1, 1, k)
+            ref = render_views(rig.pose(expr=e), cams, backend="fast").images
+            img = render_views(blend.pose(e), cams, backend="fast").images
+            render_rows.append({"level_std": s, "psnr_db": _psnr(ref, img)})
+        print("\nBlend-shape vs rigged, rendered PSNR (random psi with |psi_k| <= level)")
+        for r in render_rows:
+            print(f"  level {r['level_std']:.1f} std: {r['psnr_db']:.2f} dB")
+
+        margins = sorted({0.0, args.margin_deg, 20.0, 30.0})
+        scenes = [(f"opaque, margin {m:g} deg", None, m) for m in margins]
+        scenes.append((f"opacity 0.3, margin {args.margin_deg:g} deg", 0.3, args.margin_deg))
+        full_cache: dict[Any, Any] = {}
+        for label, opacity, margin in scenes:
+            out = rig.flame_model(expr=e_rand)
+            g = rig.deform(out.vertices)
+            if opacity is not None:
+                g = g.replace(opacity_logits=torch.full_like(g.opacity_logits, float(np.log(opacity / (1 - opacity)))))
+            t_mask = _timeit(lambda: cull_backfacing(rig, cams48, margin, vertices=out.vertices), 5)
+            mask = cull_backfacing(rig, cams48, margin, vertices=out.vertices)
+            gc = g.subset(torch.as_tensor(mask))
+            if opacity not in full_cache:
+                full_cache[opacity] = (_timeit(lambda: render_views(g, cams, backend="fast"), 2),
+                                       render_views(g, cams, backend="fast").images)
+            t_full, full = full_cache[opacity]
+            t_cull = _timeit(lambda: render_views(gc, cams, backend="fast"), 2)
+            culled = render_views(gc, cams, backend="fast").images
+            cull_rows.append({"scene": label, "kept_fraction": float(mask.mean()), "mask_ms": t_mask["best_ms"],
+                              "render_full_ms": t_full["best_ms"], "render_culled_ms": t_cull["best_ms"],
+                              "render_time_saved_fraction": 1 - t_cull["best_ms"] / t_full["best_ms"],
+                              "psnr_db": _psnr(full, culled), "max_abs_err": float(np.abs(full - culled).max()),
+                              "views": len(cams), "margin_deg": margin})
+        print(f"\nBack-face culling over the 48-view cone ({len(cams)} of the views rendered)")
+        print(f"{'scene':32s} {'kept':>6s} {'mask ms':>8s} {'full ms':>9s} {'culled ms':>10s} {'saved':>6s} "
+              f"{'PSNR dB':>8s}")
+        for r in cull_rows:
+            print(f"{r['scene']:32s} {r['kept_fraction']:6.3f} {r['mask_ms']:8.2f} {r['render_full_ms']:9.0f} "
+                  f"{r['render_culled_ms']:10.0f} {r['render_time_saved_fraction']:6.2f} {r['psnr_db']:8.2f}")
+
+    result = {
+        "config": {"n_gaussians": rig.n_gaussians, "n_expr": k, "threads": args.threads, "repeat": args.repeat,
+                   "levels": levels, "n_random": args.n_random, "dtype": "float32", "batch": 1,
+                   "render_views": args.render_views, "margin_deg": args.margin_deg,
+                   "blend_nnz": blend.nnz, "generate_s": t_gen, "linearise_s": t_lin},
+        "baseline": "rigged (FLAME forward + triangle binding), best-of-N wall time",
+        "timings": timings,
+        "ratios_to_rigged": {name: base / tm["best_ms"] for name, tm in timings.items()},
+        "cache": cache_rows,
+        "blendshape_error": sweep,
+        "blendshape_render_psnr": render_rows,
+        "culling": cull_rows,
+    }
+    if args.json is not None:
+        from holo_viewer.fileio import atomic_write
+
+        with atomic_write(args.json, "w") as fh:
+            json.dump(result, fh, indent=2)
+        print(f"\nwrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
