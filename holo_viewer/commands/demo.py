@@ -27,7 +27,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--smile", type=float, default=0.8, help="smile intensity of the quilt, 0..1 (default 0.8)")
     parser.add_argument("--pain", type=float, default=0.6, help="pain intensity of the quilt and the reaction, 0..1")
     parser.add_argument("--seconds", type=float, default=2.0, help="length of the reaction video (default 2 s)")
-    parser.add_argument("--fps", type=float, default=25.0, help="frame rate of the reaction video (default 25)")
+    parser.add_argument("--fps", type=float, default=25.0,
+                        help="frame rate of the reaction video (default 25; lowered when --time-budget needs it)")
+    parser.add_argument("--time-budget", type=float, default=270.0,
+                        help="seconds the whole demo may take (default 270): when the quilt rate measured on "
+                             "the first quilt cannot fill the video at --fps in time, the video uses a lower "
+                             "frame rate (same length) and says so; 0 = no limit")
     parser.add_argument("--video-scale", type=float, default=1.0,
                         help="tile size of the video relative to the 420x560 quilt tile (default 1)")
     parser.add_argument("--renderer", default="fast", help="splat renderer backend (default fast)")
@@ -50,7 +55,7 @@ def _reaction_frames(seconds: float, pain: float, seed: int, fps: float) -> tupl
     from ..pipeline import flame_sequence_frames
 
     try:
-        from ..reaction import generate_demo_reaction
+        from ..reaction.api import generate_demo_reaction
     except ImportError as exc:
         raise ReactionError("demo: holo_viewer.reaction.generate_demo_reaction is not available; the reaction "
                             f"video needs the listener-reaction model ({exc})") from exc
@@ -123,9 +128,20 @@ def run(args: argparse.Namespace) -> int:
     first.add(quilt_t)
     first.add(native_t)
 
-    # 5. reaction to a synthesized speaker clip
+    # 5. reaction to a synthesized speaker clip; the video frame rate the time budget allows
+    fps = float(args.fps)
+    per_frame = (quilt_t.views or 0.0) + (quilt_t.quilt or 0.0) + 0.3  # + encoding (conservative for scale < 1)
+    if args.time_budget > 0:
+        left = args.time_budget - (time.perf_counter() - t_all) - 5.0
+        affordable = max(2.0, left / max(per_frame, 1e-3) / args.seconds)
+        if affordable < fps:
+            new_fps = max(2.0, float(np.floor(affordable)))
+            print(f"demo: one quilt takes {per_frame:.1f} s here; to finish within --time-budget "
+                  f"{args.time_budget:g} s the {args.seconds:g}-second video uses {new_fps:g} fps instead of "
+                  f"{fps:g} (raise --time-budget or lower --fps to choose)")
+            fps = new_fps
     t0 = time.perf_counter()
-    frames, note = _reaction_frames(args.seconds, args.pain, args.seed, args.fps)
+    frames, note = _reaction_frames(args.seconds, args.pain, args.seed, fps)
     step("reaction model", t0, note)
 
     # 6. quilt video, streamed through the pipeline
@@ -135,11 +151,11 @@ def run(args: argparse.Namespace) -> int:
     from ..pipeline import StreamReport
 
     report = StreamReport(n_frames=0, budget=0.0, policy="all")
-    base = FaceControls(pain=args.pain)
-    quilts = (r.quilt for r in pipe.iter_stream(frames, fps=args.fps, output="quilt", policy="all", base=base,
+    base = FaceControls()  # the reaction model's expressions already carry the requested pain
+    quilts = (r.quilt for r in pipe.iter_stream(frames, fps=fps, output="quilt", policy="all", base=base,
                                                  report=report))
     vpath = write_quilt_video(out / quilt_filename("default_reaction", cal.cols, cal.rows, cal.aspect,
-                                                   suffix=".mp4"), quilts, fps=args.fps, total=len(frames),
+                                                   suffix=".mp4"), quilts, fps=fps, total=len(frames),
                               preset="veryfast")
     step("reaction quilt video", t0, f"{vpath.name}: {report.summary()}")
     steps.close()
@@ -159,7 +175,8 @@ def run(args: argparse.Namespace) -> int:
     print(format_timing_table(stage_rows))
     record = {"steps": {r[0]: {"seconds": r[1], "note": r[2]} for r in rows}, "total_seconds": total,
               "first_quilt_stage_seconds": first.as_dict(),
-              "video": {"frames": len(report.rendered), "fps": args.fps, "tile_scale": args.video_scale,
+              "video": {"frames": len(report.rendered), "fps": fps, "requested_fps": args.fps,
+                        "tile_scale": args.video_scale,
                         "stage_seconds_per_frame": {k: (v / n if v is not None else None)
                                                     for k, v in per.as_dict().items()},
                         "late_frames": len(report.late), "achieved_fps": report.achieved_fps},
