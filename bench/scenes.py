@@ -36,15 +36,13 @@ def quilt_cameras(n_views: int = 48, width: int = 420, height: int = 560, size: 
     """
     if use_display:
         try:
-            from holo_viewer.display.cameras import make_quilt_cameras  # type: ignore[import-not-found]
+            from holo_viewer.display.cameras import make_quilt_cameras
         except ImportError:
             make_quilt_cameras = None
         if make_quilt_cameras is not None:
-            try:
-                return make_quilt_cameras(n_views=n_views, width=width, height=height, size=size,
-                                          fov_deg=fov_deg, view_cone_deg=cone_deg)
-            except TypeError:
-                pass
+            return make_quilt_cameras(None, focal_center=target, size=size, fov_deg=fov_deg, n_views=n_views,
+                                      view_cone_deg=cone_deg, tile_width=width, tile_height=height,
+                                      near=0.01, far=100.0)
     tan_half = math.tan(math.radians(fov_deg) / 2.0)
     dist = size / tan_half
     fy = height / (2.0 * tan_half)
@@ -78,8 +76,8 @@ def _sh(rng: np.random.Generator, n: int, degree: int, view_dep: float) -> np.nd
     return sh
 
 
-def shell_scene(n: int = 100_000, degree: int = 3, seed: int = 0, semi_axes=(0.085, 0.13, 0.10),
-                scale_mm: float = 2.4, center=(0.0, 0.0, 0.0)) -> Gaussians:
+def shell_scene(n: int = 100_000, degree: int = 3, seed: int = 0, semi_axes=(0.10, 0.14, 0.10),
+                scale_mm: float = 1.4, center=(0.0, 0.0, 0.0)) -> Gaussians:
     """A head-sized ellipsoidal shell of ``n`` flat-ish Gaussians (tangent to the surface).
 
     Default semi-axes (m) overfill the quilt cameras' 0.18 x 0.24 m focal plane; the default

@@ -35,6 +35,9 @@ from .projection import CLAMP_WIDEN
 
 __all__ = ["render", "cpp_available", "kernel_names"]
 
+#: C++ kernel mode: 0 = AVX2 when the CPU has it, 1 = scalar (tests set this), 2 = require AVX2
+_CPP_MODE = 0
+
 _BYTES_PER_SPLAT_VIEW = 4 * 10 + 4 * 4 + 4 * 4  # rec + box + ~4 tile entries
 
 
@@ -100,6 +103,7 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
                           "kernel='numba' works without it)")
     use_cpp = cpp is not None and kernel in ("auto", "cpp")
     t_start = time.perf_counter()
+    cpu_start = time.process_time()
     threads = _threads(config)
     timings = dict.fromkeys(("preprocess", "sort", "project", "bin", "composite"), 0.0)
 
@@ -126,6 +130,8 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
     else:
         shared_rgb = np.zeros((1, 3), dtype=np.float32)
     total_blends = 0
+    total_entries = 0
+    path = ""
     n_visible_mask = np.zeros(len(g), dtype=bool)
     timings["preprocess"] += time.perf_counter() - t_start
 
@@ -162,14 +168,15 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
             base = np.zeros(len(views), dtype=np.int64)
             base[1:] = np.cumsum(off[:-1, -1])
             ids = np.empty(int(off[:, -1].sum()), dtype=np.int32)
+            total_entries += ids.size
             fk.fill_tiles(box, tile, tiles_x, off, base, ids)
             t5 = time.perf_counter()
             out = np.empty((len(views), H, W, 3), dtype=np.float32)
             blends = np.zeros(len(views) * n_tiles, dtype=np.int64)
             if use_cpp:
-                cpp.composite(rec, box, off, base, ids, tile, tiles_x, tiles_y, W, H,
-                              float(config.alpha_threshold), float(config.alpha_cap), float(config.t_min),
-                              bg, bool(config.clip_output), out, blends, threads)
+                path = cpp.composite(rec, box, off, base, ids, len(views), m, tile, tiles_x, tiles_y, W, H,
+                                     float(config.alpha_threshold), float(config.alpha_cap), float(config.t_min),
+                                     bg, bool(config.clip_output), out, blends, threads, _CPP_MODE)
             else:
                 fk.composite(rec, box, off, base, ids, tile, tiles_x, tiles_y, W, H,
                              float(config.alpha_threshold), float(config.alpha_cap), float(config.t_min),
@@ -182,6 +189,7 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
             timings["composite"] += t6 - t5
     timings["total"] = time.perf_counter() - t_start
     stats = {"n_input": len(g), "n_visible": int(n_visible_mask.sum()),
-             "mean_blends_per_pixel": total_blends / float(V * H * W), "threads": threads}
+             "mean_blends_per_pixel": total_blends / float(V * H * W), "threads": threads,
+             "cpu_seconds": time.process_time() - cpu_start, "tile_entries": total_entries}
     return RenderResult(images=images, timings=timings, stats=stats,
-                        backend="fast/cpp" if use_cpp else "fast/numba")
+                        backend=f"fast/cpp-{path}" if use_cpp else "fast/numba")

@@ -4,7 +4,8 @@ All kernels are ``cache=True`` (the first compile takes seconds; later processes
 Layout shared with the C++ kernel (``_cpu/splat.cpp``):
 
 * ``rec`` (V, M, REC) float32 per view and visible splat in depth order:
-  u, v (pixels), conic A, B, C, opacity, r, g, b, unused.
+  u, v (pixels), conic A, B, C, opacity, r, g, b, q = 2 ln(opacity / alpha_threshold)
+  (the splat has alpha >= threshold where d^T conic d <= q).
 * ``box`` (V, M, 4) int32: pixel columns [x0, x1) and rows [y0, y1) the splat may touch:
   the reference's radius box intersected with the ellipse where alpha >= threshold and with
   the image (empty: x0 >= x1).
@@ -70,22 +71,28 @@ def prep_3d(means, quats, log_scales, Wrot):  # pragma: no cover - compiled
 
 
 @nb.njit(inline="always", cache=True)
-def _sh_color(sh, i, degree, dx, dy, dz, out, c):  # pragma: no cover - compiled
-    """SH colour channel c of Gaussian i along the unit direction (dx, dy, dz)."""
-    r = _SH_C0 * sh[i, 0, c]
+def _sh_basis(degree, x, y, z, basis):  # pragma: no cover - compiled
+    """Fill basis[:(degree+1)^2] for the unit direction (x, y, z) (order of holo_viewer.render.sh)."""
+    basis[0] = _SH_C0
     if degree >= 1:
-        r += -_SH_C1 * dy * sh[i, 1, c] + _SH_C1 * dz * sh[i, 2, c] - _SH_C1 * dx * sh[i, 3, c]
+        basis[1] = -_SH_C1 * y
+        basis[2] = _SH_C1 * z
+        basis[3] = -_SH_C1 * x
     if degree >= 2:
-        xx, yy, zz, xy, yz, xz = dx * dx, dy * dy, dz * dz, dx * dy, dy * dz, dx * dz
-        r += (_C2[0] * xy * sh[i, 4, c] + _C2[1] * yz * sh[i, 5, c] + _C2[2] * (2.0 * zz - xx - yy) * sh[i, 6, c]
-              + _C2[3] * xz * sh[i, 7, c] + _C2[4] * (xx - yy) * sh[i, 8, c])
+        xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+        basis[4] = _C2[0] * xy
+        basis[5] = _C2[1] * yz
+        basis[6] = _C2[2] * (2.0 * zz - xx - yy)
+        basis[7] = _C2[3] * xz
+        basis[8] = _C2[4] * (xx - yy)
         if degree >= 3:
-            r += (_C3[0] * dy * (3.0 * xx - yy) * sh[i, 9, c] + _C3[1] * xy * dz * sh[i, 10, c]
-                  + _C3[2] * dy * (4.0 * zz - xx - yy) * sh[i, 11, c]
-                  + _C3[3] * dz * (2.0 * zz - 3.0 * xx - 3.0 * yy) * sh[i, 12, c]
-                  + _C3[4] * dx * (4.0 * zz - xx - yy) * sh[i, 13, c] + _C3[5] * dz * (xx - yy) * sh[i, 14, c]
-                  + _C3[6] * dx * (xx - 3.0 * yy) * sh[i, 15, c])
-    return max(r + 0.5, 0.0)
+            basis[9] = _C3[0] * y * (3.0 * xx - yy)
+            basis[10] = _C3[1] * xy * z
+            basis[11] = _C3[2] * y * (4.0 * zz - xx - yy)
+            basis[12] = _C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
+            basis[13] = _C3[4] * x * (4.0 * zz - xx - yy)
+            basis[14] = _C3[5] * z * (xx - yy)
+            basis[15] = _C3[6] * x * (xx - 3.0 * yy)
 
 
 @nb.njit(parallel=True, cache=True)
@@ -102,9 +109,22 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
     nv = cams.shape[0]
     seen = np.zeros(m, dtype=np.uint8)
     ln_thr = math.log(alpha_threshold)
+    nk = (degree + 1) * (degree + 1)
     for k in nb.prange(m):
         i = order[k]
         any_v = 0
+        basis = np.empty(16)
+        op = opacity[i]
+        if op < alpha_threshold:
+            for v in range(nv):
+                box[v, k, 0] = 0
+                box[v, k, 1] = 0
+                box[v, k, 2] = 0
+                box[v, k, 3] = 0
+            seen[k] = 0
+            continue
+        q = 2.0 * (math.log(op) - ln_thr)  # alpha >= thr  <=>  d^T conic d <= q
+        sxx, sxy, sxz, syy, syz, szz = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5]
         for v in range(nv):
             fx, fy, cx, cy = cams[v, 0], cams[v, 1], cams[v, 2], cams[v, 3]
             tx = pc[i, 0] + cams[v, 4]
@@ -132,7 +152,6 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
             j02 = -fx * txc / (tz * tz)
             j11 = fy / tz
             j12 = -fy * tyc / (tz * tz)
-            sxx, sxy, sxz, syy, syz, szz = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5]
             # rows of M = J: (j00, 0, j02), (0, j11, j12); S2 = M Sigma M^T
             r0x = j00 * sxx + j02 * sxz
             r0y = j00 * sxy + j02 * syz
@@ -145,13 +164,9 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
             det = a * c - b * b
             if not det > 0.0:
                 continue
-            op = opacity[i]
-            if op < alpha_threshold:
-                continue
             mid = 0.5 * (a + c)
             lam = mid + math.sqrt(max(mid * mid - det, 0.0))
             rad = math.ceil(radius_sigmas * math.sqrt(max(lam, 0.0)))
-            q = 2.0 * (math.log(op) - ln_thr)  # alpha >= thr  <=>  d^T conic d <= q
             hx = min(rad, math.sqrt(q * a) * 1.0001 + 1e-3)
             hy = min(rad, math.sqrt(q * c) * 1.0001 + 1e-3)
             fx0 = math.ceil(u - hx - 0.5)
@@ -185,9 +200,13 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
                 nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
                 if nrm > 0.0:
                     dx, dy, dz = dx / nrm, dy / nrm, dz / nrm
+                _sh_basis(degree, dx, dy, dz, basis)
                 for ch in range(3):
-                    rec[v, k, 6 + ch] = _sh_color(sh, i, degree, dx, dy, dz, rec, ch)
-            rec[v, k, 9] = 0.0
+                    acc = 0.0
+                    for kk in range(nk):
+                        acc += basis[kk] * sh[i, kk, ch]
+                    rec[v, k, 6 + ch] = max(acc + 0.5, 0.0)
+            rec[v, k, 9] = q
         seen[k] = any_v
     return seen
 
@@ -248,6 +267,42 @@ def _fast_exp(x):  # pragma: no cover - compiled
     return e * e
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _blend_row(T, R, G, B, live, p0, n, fx0, fx1, dx0, ca, lin, cst, op, cap, thr, tmin, cr, cg, cb):  # pragma: no cover
+    """Blend one splat into the ``n`` pixels p0..p0+n-1 of one tile row, branch-free.
+
+    Pixel x (0..n-1) takes part when fx0 <= x < fx1 (the splat's box); dx = x + dx0 is its
+    offset from the splat centre; power = ca dx^2 + lin dx + cst. A fixed trip count of a
+    whole tile row and unsigned indices (numba's negative-index wraparound blocks it) let
+    LLVM vectorise the loop. Returns (blends, newly finished pixels) as float32.
+    """
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    nfin = np.float32(0.0)
+    nbl = np.float32(0.0)
+    for xi in range(n):
+        p = nb.uint64(p0 + xi)
+        xf = np.float32(nb.int32(xi))
+        dx = xf + dx0
+        power = ca * dx * dx + lin * dx + cst
+        alpha = min(cap, op * _fast_exp(power))
+        lv = live[p]
+        ok = lv if ((power <= zero) & (alpha >= thr) & (xf >= fx0) & (xf < fx1)) else zero
+        tt = T[p]
+        test = tt * (one - alpha)
+        fin = ok if test < tmin else zero
+        ok = ok - fin
+        live[p] = lv - fin
+        w = ok * alpha * tt
+        R[p] += w * cr
+        G[p] += w * cg
+        B[p] += w * cb
+        T[p] = tt - ok * (tt - test)
+        nbl += ok
+        nfin += fin
+    return nbl, nfin
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def composite(rec, box, off, base, ids, tile, tiles_x, tiles_y, width, height, alpha_threshold, alpha_cap,
               t_min, bg, clip, out, blends):  # pragma: no cover - compiled
@@ -298,27 +353,10 @@ def composite(rec, box, off, base, ids, tile, tiles_x, tiles_y, width, height, a
             cr, cg, cbl = rec[v, k, 6], rec[v, k, 7], rec[v, k, 8]
             for y in range(y0, y1):
                 dy = np.float32(y) - vv
-                lin = -cb * dy
-                cst = cc * dy * dy
-                row = y * tile
-                for x in range(x0, x1):
-                    dx = np.float32(x) - u
-                    power = ca * dx * dx + lin * dx + cst
-                    alpha = min(cap, op * _fast_exp(power))
-                    p = row + x
-                    ok = live[p] * np.float32((power <= zero) & (alpha >= thr))
-                    tt = T[p]
-                    test = tt * (one - alpha)
-                    fin = ok * np.float32(test < tmin)
-                    ok = ok - fin
-                    live[p] = live[p] - fin
-                    w = ok * alpha * tt
-                    R[p] += w * cr
-                    G[p] += w * cg
-                    Bc[p] += w * cbl
-                    T[p] = tt - ok * (tt - test)
-                    nbl += int(ok)
-                    n_live -= int(fin)
+                nb_row, nfin = _blend_row(T, R, G, Bc, live, y * tile, tile, np.float32(x0), np.float32(x1), -u,
+                                          ca, -cb * dy, cc * dy * dy, op, cap, thr, tmin, cr, cg, cbl)
+                nbl += int(nb_row)
+                n_live -= int(nfin)
             if n_live <= 0:
                 break
         for y in range(ph):
