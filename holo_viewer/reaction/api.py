@@ -1,0 +1,164 @@
+"""Using a trained reaction model: speaker files in, listener FLAME parameters out.
+
+``speaker.npz`` format (documented in docs/reaction.md): per-frame FLAME parameters of the
+speaker at 25 fps with GaussianAvatars' key names, ``expr`` (T, n_expr) of the default head
+(fewer columns are zero-padded), ``jaw_pose`` (T, 3) and ``rotation`` (T, 3) axis-angle in
+radians; optional ``fps`` (scalar, must be 25). The speaker WAV must be 16 kHz and span the
+same T frames (within one frame).
+
+The output is a ``flame_param.npz``-style dict: ``expr`` (T, n_expr), ``jaw_pose`` (T, 3),
+``rotation`` (T, 3), ``neck_pose`` (T, 3), ``eyes_pose`` (T, 6), ``translation`` (T, 3) (zeros
+where the model does not predict), ``shape`` (n_shape,) zeros (the default head's identity).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import InputError, ReactionError
+from ..validation import check_array, check_finite_scalar
+from .audio import AudioConfig, log_mel
+from .features import FPS, flame_from_state, state_from_flame
+from .model import generate
+from .train import ReactionBundle, load_checkpoint
+
+__all__ = ["default_checkpoint_path", "load_default_bundle", "load_speaker_npz", "react", "flame_params_from_states",
+           "generate_demo_reaction"]
+
+
+def default_checkpoint_path() -> Path:
+    """``assets/reaction_default.pt`` of the repository (the shipped small checkpoint)."""
+    return Path(__file__).resolve().parents[2] / "assets" / "reaction_default.pt"
+
+
+@functools.lru_cache(maxsize=2)
+def _cached(path: str, mtime: float) -> ReactionBundle:
+    return load_checkpoint(path)
+
+
+def load_default_bundle(path: str | os.PathLike | None = None) -> ReactionBundle:
+    """Load (and cache) a reaction checkpoint; default: the shipped one."""
+    p = Path(path) if path is not None else default_checkpoint_path()
+    if not p.is_file():
+        raise ReactionError(f"{p}: reaction checkpoint not found; train one with "
+                            f"`holo-viewer train-reaction --out {p}`")
+    return _cached(str(p), p.stat().st_mtime)
+
+
+def _default_n_shape() -> int:
+    from ..flame.default_head import default_head_path
+
+    with np.load(default_head_path()) as z:
+        return int(z["n_shape"]) if "n_shape" in z.files else 0
+
+
+def load_speaker_npz(path: str | os.PathLike, au_map) -> np.ndarray:
+    """Speaker face states (T, S) from a speaker.npz (see the module docstring)."""
+    p = Path(path)
+    if not p.is_file():
+        raise ReactionError(f"{p}: speaker file not found")
+    try:
+        z = np.load(p, allow_pickle=False)
+    except (ValueError, OSError) as exc:
+        raise ReactionError(f"{p}: not a readable .npz file ({exc})") from exc
+    with z:
+        missing = [k for k in ("expr", "jaw_pose", "rotation") if k not in z.files]
+        if missing:
+            raise ReactionError(f"{p}: missing keys {missing}; expected expr (T, n_expr), jaw_pose (T, 3), "
+                                f"rotation (T, 3); found {sorted(z.files)}")
+        if "fps" in z.files and float(z["fps"]) != FPS:
+            raise ReactionError(f"{p}: fps: expected {FPS}, found {float(z['fps'])}")
+        try:
+            return state_from_flame(z["expr"], z["jaw_pose"], z["rotation"], au_map)
+        except InputError as exc:
+            raise InputError(f"{p}: {exc}") from exc
+
+
+def flame_params_from_states(states: np.ndarray, au_map, n_shape: int | None = None) -> dict[str, np.ndarray]:
+    """GaussianAvatars ``flame_param.npz`` arrays (float32) of listener face states (T, S)."""
+    fl = flame_from_state(states, au_map)
+    T = fl["expr"].shape[0]
+    n_shape = _default_n_shape() if n_shape is None else int(n_shape)
+    z3 = np.zeros((T, 3), np.float32)
+    return {"expr": fl["expr"], "jaw_pose": fl["jaw_pose"], "rotation": fl["rotation"], "neck_pose": z3.copy(),
+            "eyes_pose": np.zeros((T, 6), np.float32), "translation": z3.copy(),
+            "shape": np.zeros(n_shape, np.float32)}
+
+
+def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_state: np.ndarray,
+          pain: float = 0.0, listener_past: np.ndarray | None = None, temperature: float = 0.0,
+          top_k: int | None = None, seed: int = 0) -> np.ndarray:
+    """Listener face states (T, S) reacting to a speaker clip, streamed k frames at a time.
+
+    Parameters
+    ----------
+    bundle : ReactionBundle
+    audio : numpy.ndarray, shape (L,), mono at ``sample_rate`` (must be 16 kHz), L ~ T * 640
+    sample_rate : int
+    speaker_state : numpy.ndarray, shape (T, S)
+    pain : float in [0, 1]
+    listener_past : numpy.ndarray, shape (P, S), optional
+        Listener frames before the clip (the most recent ``listener_window`` are used).
+    temperature, top_k, seed : decoding (temperature 0 = argmax)
+    """
+    cfg = bundle.model.config
+    S = cfg.state_dim
+    speaker_state = check_array(speaker_state, "speaker_state", ("T", S))
+    T = speaker_state.shape[0]
+    pain = check_finite_scalar(pain, "pain", low=0.0, high=1.0)
+    feats = log_mel(audio, sample_rate, T, AudioConfig(n_mels=cfg.n_mels))
+    past = None
+    if listener_past is not None:
+        past = torch.from_numpy(np.asarray(check_array(listener_past, "listener_past", ("P", S)),
+                                           dtype=np.float32))[None]
+    out = generate(bundle.model, bundle.centroids(), feats[None],
+                   torch.from_numpy(np.asarray(speaker_state, dtype=np.float32))[None],
+                   torch.tensor([pain], dtype=torch.float32), listener_past=past, temperature=temperature,
+                   top_k=top_k, seed=seed)
+    return out[0].numpy()
+
+
+def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 0, temperature: float = 1.0,
+                           top_k: int | None = 20, checkpoint: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
+    """Listener FLAME parameters reacting to a synthesized speaker clip, with the shipped checkpoint.
+
+    Parameters
+    ----------
+    seconds : float > 0
+        Clip length; T = round(seconds * 25) frames.
+    pain : float in [0, 1]
+        Requested pain level.
+    seed : int
+        Seeds the synthetic speaker and the sampling.
+    temperature, top_k : decoding (temperature 0 = argmax)
+    checkpoint : path, optional (default ``assets/reaction_default.pt``)
+
+    Returns
+    -------
+    dict
+        ``flame_param.npz`` arrays: ``expr`` (T, n_expr), ``jaw_pose``/``rotation``/``neck_pose``/
+        ``translation`` (T, 3), ``eyes_pose`` (T, 6), ``shape`` (n_shape,), float32.
+    """
+    from ..flame.expressions import default_au_map, jaw_for_expression
+    from .data import SyntheticConfig, synth_speaker
+
+    seconds = check_finite_scalar(seconds, "seconds", low=0.0, low_open=True)
+    if seconds > 600:
+        raise InputError(f"seconds: expected at most 600, found {seconds}")
+    bundle = load_default_bundle(checkpoint)
+    au_map = default_au_map()
+    if tuple(au_map.names) != tuple(bundle.au_names):
+        raise ReactionError(f"checkpoint AU order {list(bundle.au_names)} differs from the default head's "
+                            f"{list(au_map.names)}; retrain the reaction model")
+    T = max(1, int(round(seconds * FPS)))
+    cfg = SyntheticConfig(seconds=T / FPS)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
+    sp = synth_speaker(rng, cfg, au_map.names, np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64))
+    states = react(bundle, sp.waveform, cfg.audio.sample_rate, sp.state, pain=pain, temperature=temperature,
+                   top_k=top_k, seed=seed)
+    return flame_params_from_states(states, au_map)
