@@ -158,10 +158,13 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
             r0z = j00 * sxz + j02 * szz
             r1y = j11 * syy + j12 * syz
             r1z = j11 * syz + j12 * szz
-            a = r0x * j00 + r0z * j02 + dilation
+            sa = r0x * j00 + r0z * j02
             b = r0y * j11 + r0z * j12
-            c = r1y * j11 + r1z * j12 + dilation
-            det = a * c - b * b
+            sc = r1y * j11 + r1z * j12
+            a = sa + dilation
+            c = sc + dilation
+            # det(S + d I) without cancellation (see projection.conic_and_radius)
+            det = max(sa * sc - b * b, 0.0) + dilation * (sa + sc) + dilation * dilation
             if not det > 0.0:
                 continue
             mid = 0.5 * (a + c)

@@ -68,10 +68,19 @@ class Projected:
     valid: np.ndarray
 
 
-def conic_and_radius(cov2d: np.ndarray, radius_sigmas: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Inverse of (N, 3) 2D covariances (a, b, c), its radius and a validity mask (det > 0)."""
+def conic_and_radius(cov2d: np.ndarray, radius_sigmas: float,
+                     dilation: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Inverse of (N, 3) 2D covariances (a, b, c), its radius and a validity mask (det > 0).
+
+    ``cov2d`` includes the ``dilation`` on its diagonal. The determinant is evaluated as
+    ``max(det(S), 0) + dilation * tr(S) + dilation^2`` with ``S = cov2d - dilation I`` (the
+    projected covariance, positive semi-definite in exact arithmetic): the same number, but
+    without the cancellation that makes ``a c - b^2`` of a huge, nearly rank-1 footprint
+    (a needle close to the camera) come out <= 0 or wildly wrong.
+    """
     a, b, c = cov2d[:, 0], cov2d[:, 1], cov2d[:, 2]
-    det = a * c - b * b
+    sa, sc = a - dilation, c - dilation
+    det = np.maximum(sa * sc - b * b, 0.0) + dilation * (sa + sc) + dilation * dilation
     valid = det > 0
     safe = np.where(valid, det, 1.0)
     conic = np.stack([c / safe, -b / safe, a / safe], axis=1)
@@ -117,8 +126,9 @@ def project_gaussians(means: np.ndarray, cov3d: np.ndarray, world_to_cam: np.nda
     J[:, 1, 2] = -fy * tyc / (tzs * tzs)
     M = J @ W  # (N, 2, 3)
     S = M @ cov3d @ np.swapaxes(M, 1, 2)  # (N, 2, 2)
-    cov2d = np.stack([S[:, 0, 0] + dilation, S[:, 0, 1], S[:, 1, 1] + dilation], axis=1)
-    conic, radius, ok = conic_and_radius(cov2d, radius_sigmas)
+    b = 0.5 * (S[:, 0, 1] + S[:, 1, 0])  # symmetric by construction; average the rounding
+    cov2d = np.stack([S[:, 0, 0] + dilation, b, S[:, 1, 1] + dilation], axis=1)
+    conic, radius, ok = conic_and_radius(cov2d, radius_sigmas, dilation)
     valid = front & ok & np.isfinite(cov2d).all(axis=1)
     return Projected(tz, np.stack([u, v], axis=1), cov2d, conic, radius, valid)
 
