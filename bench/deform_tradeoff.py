@@ -135,6 +135,9 @@ def main(argv: list[str] | None = None) -> int:
     verts = rig.flame_model(expr=e_rand).vertices
     timings["rigged_binding_only"] = _timeit(lambda: rig.deform(verts), args.repeat)
     timings["blendshape"] = _timeit(lambda: blend.pose(e_rand), args.repeat)
+    rig.backend = "torch"  # the pure-torch binding (GaussianAvatars-style), for reference
+    timings["rigged_torch_path"] = _timeit(lambda: rig.pose(expr=e_rand), max(5, args.repeat // 3))
+    rig.backend = "auto"
 
     def run_seq(cache: bool, tol: float) -> Callable[[], None]:
         state = {"i": 0}

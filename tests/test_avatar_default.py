@@ -91,3 +91,20 @@ def test_numba_and_torch_binding_agree(small):
     d = torch_av.pose(jaw_pose=[0.2, 0.0, 0.0])
     assert small.last_cache_fraction < 0.5
     torch.testing.assert_close(c.means, d.means, atol=2e-7, rtol=1e-6)
+
+
+def test_disk_cache_round_trip(tmp_path, monkeypatch):
+    import importlib
+
+    mod = importlib.import_module("holo_viewer.avatar.default_avatar")
+
+    monkeypatch.setenv("HOLO_VIEWER_CACHE", str(tmp_path))
+    gen = mod._cached_local.__wrapped__
+    local, binding, names = gen(3000, 1, 5, True)
+    files = list(tmp_path.glob("default_avatar_*.npz"))
+    assert len(files) == 1
+    again, binding2, _ = gen(3000, 1, 5, True)  # read back from the file
+    assert np.array_equal(again.means, local.means) and np.array_equal(binding2, binding)
+    files[0].write_bytes(b"garbage")  # a corrupt cache file is regenerated, not trusted
+    third, _, _ = gen(3000, 1, 5, True)
+    assert np.array_equal(third.sh, local.sh)
