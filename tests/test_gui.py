@@ -134,15 +134,20 @@ def test_window_opens_on_the_x_display(window, xvfb):
 
 
 def test_slider_changes_mesh_and_preview(window):
-    mesh_before = np.array(window.mesh.points)
+    drawn = window.mesh_actor.mapper.dataset  # the polydata VTK draws
+    mesh_before = np.array(drawn.points)
     preview_before = window.preview_panel.image.copy()
+    shot_before = window.screenshot()
     _fire_slider(window.sliders["expr0"], 1.5)
     assert window.pipeline.face.expr[0] == pytest.approx(1.5)
-    moved = np.linalg.norm(np.array(window.mesh.points) - mesh_before, axis=1)
+    moved = np.linalg.norm(np.array(drawn.points) - mesh_before, axis=1)
     assert moved.max() > 1e-4
-    np.testing.assert_allclose(np.array(window.mesh.points), window.pipeline.mesh(), atol=1e-6)
+    np.testing.assert_allclose(np.array(drawn.points), window.pipeline.mesh(), atol=1e-6)
     assert not np.array_equal(window.preview_panel.image, preview_before)
     assert window.timings.mesh_ms > 0 and window.timings.preview_ms >= window.timings.mesh_ms
+    # what the window shows changed too (mesh, glyphs and preview panel)
+    shot_after = window.screenshot()
+    assert np.abs(shot_after.astype(int) - shot_before).max() > 50
     # the thumbnail quilt renders in a worker thread and is shown when done
     window.poll_thumbnail(wait=True)
     assert window.thumb_panel.image is not None

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..errors import HoloViewerError, InputError
 from ..pipeline import FaceControls, Pipeline, apply_frame, to_uint8
-from .scene import (focal_plane_polydata, frusta_polydata, glyph_polydata, image_plane, mesh_polydata,
+from .scene import (focal_plane_polydata, vertex_normals, frusta_polydata, glyph_polydata, image_plane, mesh_polydata,
                     subsample_indices, view_colors)
 
 __all__ = ["ViewerConfig", "HoloViewer", "HELP_TEXT", "scale_cameras"]
@@ -232,6 +232,8 @@ class HoloViewer:
         self.mesh = mesh_polydata(pipe.mesh(), self.faces)
         self.mesh_actor = p.add_mesh(self.mesh, color="#e8c4a8", smooth_shading=True, specular=0.2,
                                      name="mesh", reset_camera=False)
+        # smooth shading makes pyvista draw a copy with normals: update that one
+        self.mesh = self.mesh_actor.mapper.dataset
         self.glyphs = None
         self.glyph_actor = None
         if pipe.avatar is not None:
@@ -355,11 +357,20 @@ class HoloViewer:
         t0 = time.perf_counter()
         self.pipeline.set_face(face)
         (verts,), tim = self.pipeline.compute("mesh")
-        self.mesh.points[:] = verts
-        self.mesh.Modified()
+        self._set_mesh_points(verts)
+        # the glyphs are stale until the Gaussians are recomputed: leave them out of this frame,
+        # which halves its cost with software OpenGL
+        if self.glyph_actor is not None and self.show_gaussians:
+            self.glyph_actor.SetVisibility(False)
         self.plotter.render()
         self.timings = UpdateTimings(mesh_ms=(time.perf_counter() - t0) * 1e3)
         self._after_change(t0)
+
+    def _set_mesh_points(self, verts: np.ndarray) -> None:
+        self.mesh.points[:] = verts
+        if "Normals" in self.mesh.point_data:
+            self.mesh.point_data["Normals"][:] = vertex_normals(verts, self.faces)
+        self.mesh.Modified()
 
     def set_view(self, **changes: Any) -> None:
         """Apply new view settings (viewer distance, view cone): frusta, preview, thumbnail."""
@@ -388,6 +399,7 @@ class HoloViewer:
     def _after_change(self, t0: float) -> None:
         if self.pipeline.avatar is not None:
             self._update_glyphs()
+            self.glyph_actor.SetVisibility(self.show_gaussians)
             self._update_preview()
             self.timings.stages = self.pipeline.last_timings.as_dict()
             self._update_status()
