@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     from ..display.quilt import quilt_filename
     from ..errors import InputError
     from ..fileio import atomic_write, save_image
-    from ..pipeline import FaceControls, Pipeline, StageTimings, ViewSettings
+    from ..pipeline import FaceControls, Pipeline, StageTimings
 
     for name in ("smile", "pain"):
         v = getattr(args, name)
@@ -130,7 +130,8 @@ def run(args: argparse.Namespace) -> int:
 
     # 5. reaction to a synthesized speaker clip; the video frame rate the time budget allows
     fps = float(args.fps)
-    per_frame = (quilt_t.views or 0.0) + (quilt_t.quilt or 0.0) + 0.3  # + encoding (conservative for scale < 1)
+    # seconds per video frame: rendering (measured on the first quilt, +30% for a busy CPU) + H.264 encoding
+    per_frame = 1.3 * ((quilt_t.views or 0.0) + (quilt_t.quilt or 0.0)) + 0.4
     if args.time_budget > 0:
         left = args.time_budget - (time.perf_counter() - t_all) - 5.0
         affordable = max(2.0, left / max(per_frame, 1e-3) / args.seconds)

@@ -271,9 +271,9 @@ class HoloViewer:
         p.subplot(0, 1)
         # look at the head and the camera rail from the front-right, above
         d = float(np.linalg.norm(mid - centre))
-        focal = centre + np.array([0.0, 0.0, 0.3 * d])
-        direction = np.array([1.0, 0.45, 0.8]) / np.linalg.norm([1.0, 0.45, 0.8])
-        eye = focal + 1.5 * d * direction
+        focal = centre + np.array([0.0, 0.0, 0.2 * d])
+        direction = np.array([1.0, 0.4, 1.1]) / np.linalg.norm([1.0, 0.4, 1.1])
+        eye = focal + 1.05 * d * direction
         p.renderer.camera_position = [tuple(eye), tuple(focal), (0.0, 1.0, 0.0)]
         p.renderer.camera.view_angle = 30.0
         p.renderer.reset_camera_clipping_range()
@@ -311,7 +311,7 @@ class HoloViewer:
             specs.append((f"expr{i}", label, rng, value,
                           lambda v, i=i: self.set_face(self.pipeline.face.with_expr_component(i, v))))
         specs += [
-            ("smile", "smile", (0.0, 1.0), 0.0, lambda v: self.set_face(self.pipeline.face.with_named("smile", v))),
+            ("smile", "smile", (0.0, 1.0), dict(pipe.face.named).get("smile", 0.0), lambda v: self.set_face(self.pipeline.face.with_named("smile", v))),
             ("jaw", "jaw open (rad)", (0.0, 0.5), float(pipe.face.jaw_pose[0]),
              lambda v: self.set_face(self.pipeline.face.replace(
                  jaw_pose=np.array([v, *self.pipeline.face.jaw_pose[1:]])))),

@@ -1,0 +1,320 @@
+"""Settings and results of the pipeline (pure data, no stage code): what drives the face
+(:class:`FaceControls`), how the cameras look (:class:`ViewSettings`), per-stage timings, and the
+streaming report; plus FLAME sequence helpers. Re-exported by :mod:`holo_viewer.pipeline`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from .errors import InputError
+from .validation import check_array, check_finite_scalar
+
+__all__ = ["STAGES", "FLAME_KEYS", "FaceControls", "ViewSettings", "StageTimings", "FrameResult", "StreamReport",
+           "apply_frame", "flame_sequence_frames"]
+
+#: stage names in data-flow order
+STAGES: tuple[str, ...] = ("params", "mesh", "gaussians", "framing", "cameras", "views", "quilt", "native")
+
+#: FLAME parameter keys of GaussianAvatars' flame_param.npz, with their per-frame widths
+FLAME_KEYS: dict[str, int | None] = {"expr": None, "rotation": 3, "neck_pose": 3, "jaw_pose": 3,
+                                     "eyes_pose": 6, "translation": 3}
+
+_NAMED = ("smile", "pain", "surprise", "frown", "mouth_open", "neutral")
+
+
+# =============================================================================== settings
+
+
+def _vec(x: Any, name: str, n: int | None) -> np.ndarray:
+    a = np.asarray(x if x is not None else np.zeros(n or 0), dtype=np.float64).reshape(-1)
+    if n is not None and a.shape[0] != n:
+        raise InputError(f"{name}: expected {n} values, found {a.shape[0]}")
+    check_array(a, name, ("N",))
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class FaceControls:
+    """What drives the face: FLAME parameters plus named expressions and pain.
+
+    The final FLAME parameters are ``expr = expr + sum_i named_expression(name_i, w_i)
+    + pain_expression(pain)`` and ``jaw_pose = jaw_pose + sum_i jaw_for_expression(name_i, w_i)``.
+
+    Attributes
+    ----------
+    expr : numpy.ndarray
+        (n_expr,) or shorter base expression coefficients (zero-padded to the model's n_expr).
+    shape : numpy.ndarray
+        (n_shape,) or shorter identity coefficients (zero-padded).
+    jaw_pose, rotation, neck_pose, translation : numpy.ndarray
+        (3,) axis-angle (radians) / translation (metres).
+    eyes_pose : numpy.ndarray
+        (6,) axis-angle of both eyes.
+    named : tuple of (str, float)
+        Named expressions and intensities in [0, 1], e.g. ``(("smile", 0.8),)``.
+    pain : float
+        Pain intensity in [0, 1] (PSPI-calibrated pain face of ``flame.expressions``).
+    dynamic_offset : numpy.ndarray or None
+        (V, 3) per-frame vertex offsets in metres (GaussianAvatars ``dynamic_offset``), added to
+        the avatar's ``static_offset``.
+    """
+
+    expr: Any = None
+    shape: Any = None
+    jaw_pose: Any = None
+    rotation: Any = None
+    neck_pose: Any = None
+    eyes_pose: Any = None
+    translation: Any = None
+    named: tuple[tuple[str, float], ...] = ()
+    pain: float = 0.0
+    dynamic_offset: Any = None
+
+    def __post_init__(self) -> None:
+        if self.dynamic_offset is not None:
+            off = np.array(self.dynamic_offset, dtype=np.float64)
+            off = off.reshape(off.shape[-2:]) if off.ndim == 3 and off.shape[0] == 1 else off
+            check_array(off, "dynamic_offset", ("V", 3))
+            off.setflags(write=False)
+            object.__setattr__(self, "dynamic_offset", off)
+        object.__setattr__(self, "expr", _vec(self.expr, "expr", None))
+        object.__setattr__(self, "shape", _vec(self.shape, "shape", None))
+        for key in ("jaw_pose", "rotation", "neck_pose", "translation"):
+            object.__setattr__(self, key, _vec(getattr(self, key), key, 3))
+        object.__setattr__(self, "eyes_pose", _vec(self.eyes_pose, "eyes_pose", 6))
+        named = []
+        for item in self.named:
+            try:
+                name, w = item
+            except (TypeError, ValueError) as exc:
+                raise InputError(f"named: expected (name, intensity) pairs, found {item!r}") from exc
+            if name not in _NAMED:
+                raise InputError(f"named: expected an expression in {_NAMED}, found {name!r}")
+            named.append((str(name), check_finite_scalar(w, f"named[{name!r}]", low=0.0, high=1.0)))
+        object.__setattr__(self, "named", tuple(named))
+        object.__setattr__(self, "pain", check_finite_scalar(self.pain, "pain", low=0.0, high=1.0))
+
+    def replace(self, **changes: Any) -> "FaceControls":
+        """A copy with some fields replaced."""
+        return dataclasses.replace(self, **changes)
+
+    def with_named(self, name: str, intensity: float) -> "FaceControls":
+        """A copy with the named expression ``name`` set to ``intensity`` (0 removes it)."""
+        rest = tuple((n, w) for n, w in self.named if n != name)
+        return self.replace(named=rest + (((name, float(intensity)),) if intensity > 0 else ()))
+
+    def with_expr_component(self, index: int, value: float) -> "FaceControls":
+        """A copy with base expression coefficient ``index`` set to ``value``."""
+        if index < 0:
+            raise InputError(f"expr index: expected >= 0, found {index}")
+        e = np.zeros(max(index + 1, self.expr.shape[0]))
+        e[: self.expr.shape[0]] = self.expr
+        e[index] = value
+        return self.replace(expr=e)
+
+
+@dataclass(frozen=True)
+class ViewSettings:
+    """How the 48 quilt cameras look at the head (Algorithm 1 inputs besides the calibration).
+
+    Attributes
+    ----------
+    viewer_distance : float or None
+        Viewer's eye distance from the panel in metres (sets the fov, ``display.cameras``);
+        None = the calibration's default.
+    view_cone : float or None
+        Total view cone in degrees; None = the calibration's ``viewCone``.
+    viewer_angle : float
+        Horizontal angle (degrees) of a tracked viewer; shifts the cone centre.
+    tile_scale : float
+        Tile size relative to the calibration's quilt tile (e.g. 0.25 for a quick thumbnail quilt).
+    framing_margin : float
+        Focal-plane half-height = ``framing_margin`` x half the head's bounding-box height.
+    blend : bool
+        Two-view blending in the lenticular interleave.
+    """
+
+    viewer_distance: float | None = None
+    view_cone: float | None = None
+    viewer_angle: float = 0.0
+    tile_scale: float = 1.0
+    framing_margin: float = 1.08
+    blend: bool = False
+
+    def __post_init__(self) -> None:
+        if self.viewer_distance is not None:
+            check_finite_scalar(self.viewer_distance, "viewer_distance", low=0.05, high=20.0)
+        if self.view_cone is not None:
+            check_finite_scalar(self.view_cone, "view_cone", low=0.0, high=120.0, low_open=True)
+        check_finite_scalar(self.viewer_angle, "viewer_angle", low=-60.0, high=60.0)
+        check_finite_scalar(self.tile_scale, "tile_scale", low=0.02, high=4.0)
+        check_finite_scalar(self.framing_margin, "framing_margin", low=0.2, high=5.0)
+
+
+# =============================================================================== results
+
+
+@dataclass
+class StageTimings:
+    """Seconds spent in each stage by one request; None = served from the cache."""
+
+    params: float | None = None
+    mesh: float | None = None
+    gaussians: float | None = None
+    framing: float | None = None
+    cameras: float | None = None
+    views: float | None = None
+    quilt: float | None = None
+    native: float | None = None
+
+    @property
+    def total(self) -> float:
+        """Sum of the stages that ran (seconds)."""
+        return float(sum(v for v in dataclasses.astuple(self) if v is not None))
+
+    def recomputed(self) -> list[str]:
+        """Names of the stages that ran."""
+        return [s for s in STAGES if getattr(self, s) is not None]
+
+    def add(self, other: "StageTimings") -> None:
+        """Accumulate ``other`` into self (stages that ran in either)."""
+        for s in STAGES:
+            a, b = getattr(self, s), getattr(other, s)
+            if b is not None:
+                setattr(self, s, (a or 0.0) + b)
+
+    def as_dict(self) -> dict[str, float | None]:
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class FrameResult:
+    """One rendered frame: what was asked for and how long each stage took."""
+
+    index: int
+    timings: StageTimings
+    quilt: np.ndarray | None = None
+    native: np.ndarray | None = None
+    views: np.ndarray | None = None
+
+
+@dataclass
+class StreamReport:
+    """Outcome of :meth:`Pipeline.stream`.
+
+    Attributes
+    ----------
+    n_frames : int
+        Frames in the input sequence.
+    rendered : list of int
+        Indices of the frames that were computed (in order).
+    dropped : list of int
+        Frames skipped because the pipeline was behind schedule (policy ``"drop"``).
+    held : int
+        Display slots that showed an older frame again (one per dropped frame, plus the
+        slots a late frame overran in policy ``"all"``).
+    late : list of int
+        Frames finished after their deadline.
+    frame_seconds : list of float
+        Wall time per computed frame.
+    budget : float
+        Seconds per frame (1 / fps).
+    stage_seconds : StageTimings
+        Total seconds per stage over all computed frames.
+    """
+
+    n_frames: int
+    budget: float
+    policy: str
+    rendered: list[int] = field(default_factory=list)
+    dropped: list[int] = field(default_factory=list)
+    late: list[int] = field(default_factory=list)
+    held: int = 0
+    frame_seconds: list[float] = field(default_factory=list)
+    stage_seconds: StageTimings = field(default_factory=StageTimings)
+
+    @property
+    def achieved_fps(self) -> float:
+        """Computed frames per second of wall time."""
+        t = sum(self.frame_seconds)
+        return len(self.frame_seconds) / t if t > 0 else float("inf")
+
+    def summary(self) -> str:
+        return (f"{self.n_frames} frames at budget {self.budget * 1e3:.1f} ms ({self.policy}): "
+                f"{len(self.rendered)} rendered, {len(self.dropped)} dropped, {self.held} held, "
+                f"{len(self.late)} late; {self.achieved_fps:.2f} computed frames/s")
+
+
+
+# =============================================================================== sequences
+
+
+def apply_frame(base: FaceControls, frame: Mapping[str, Any], index: int = 0) -> FaceControls:
+    """``base`` with the FLAME parameters of one sequence frame (see :func:`flame_sequence_frames`)."""
+    changes: dict[str, Any] = {}
+    for key, value in frame.items():
+        if key in FLAME_KEYS or key == "shape":
+            changes[key] = np.asarray(value, dtype=np.float64).reshape(-1)
+        elif key == "pain":
+            changes["pain"] = float(np.asarray(value).reshape(-1)[0])
+        elif key == "dynamic_offset":
+            changes["dynamic_offset"] = np.asarray(value, dtype=np.float64).reshape(-1, 3)
+        else:
+            raise InputError(f"frame {index}: unknown key {key!r}; expected FLAME keys {sorted(FLAME_KEYS)}, "
+                             f"'shape' or 'pain'")
+    return base.replace(**changes)
+
+
+def flame_sequence_frames(params: Mapping[str, Any], *, source: str = "flame params") -> list[dict[str, np.ndarray]]:
+    """Split a FLAME sequence (flame_param.npz layout: per-frame keys with T rows) into frames.
+
+    Per-frame keys are those of :data:`FLAME_KEYS` (and ``pain`` (T,) when present); ``shape``
+    ((n,) or (1, n)) and ``static_offset`` are per sequence. Raises InputError naming the key
+    when the frame counts disagree.
+    """
+    T = None
+    seq: dict[str, np.ndarray] = {}
+    for key in list(FLAME_KEYS) + ["pain"]:
+        if key not in params:
+            continue
+        a = np.asarray(params[key], dtype=np.float64)
+        width = FLAME_KEYS.get(key)
+        if key == "pain":
+            a = a.reshape(-1, 1)
+        elif a.ndim == 1:
+            a = a[None]
+        if a.ndim != 2 or (width is not None and a.shape[1] != width):
+            raise InputError(f"{source}: {key}: expected shape (T, {width or 'n'}), found {np.shape(params[key])}")
+        if not np.all(np.isfinite(a)):
+            raise InputError(f"{source}: {key}: contains NaN/inf")
+        if T is None:
+            T = a.shape[0]
+        elif a.shape[0] != T:
+            raise InputError(f"{source}: {key}: expected {T} frames (as the other keys), found {a.shape[0]}")
+        seq[key] = a
+    if T is None:
+        raise InputError(f"{source}: expected at least one of the keys {sorted(FLAME_KEYS)}, found "
+                         f"{sorted(params)}")
+    dyn = params.get("dynamic_offset") if isinstance(params, Mapping) else None
+    if dyn is not None:
+        dyn = np.asarray(dyn, dtype=np.float64)
+        if dyn.ndim != 3 or dyn.shape[0] != T or dyn.shape[2] != 3:
+            raise InputError(f"{source}: dynamic_offset: expected shape ({T}, V, 3), found {dyn.shape}")
+    shape = None
+    if "shape" in params:
+        shape = np.asarray(params["shape"], dtype=np.float64).reshape(-1)
+    frames = []
+    for t in range(T):
+        fr = {k: (v[t, 0] if k == "pain" else v[t]) for k, v in seq.items()}
+        if shape is not None:
+            fr["shape"] = shape
+        if dyn is not None:
+            fr["dynamic_offset"] = dyn[t]
+        frames.append(fr)
+    return frames
