@@ -270,3 +270,57 @@ def test_open3d_backend_missing_is_a_clear_error(monkeypatch, capsys):
     assert rc == 1
     err = capsys.readouterr().err
     assert "open3d" in err and "pip install" in err
+
+
+# ------------------------------------------------------------------ loading the scene (no window)
+
+
+def test_load_scene_errors_name_the_problem(tmp_path):
+    from holo_viewer.errors import InputError
+    from holo_viewer.flame.io import save_flame_npz
+    from holo_viewer.flame.testing import random_flame_arrays
+    from holo_viewer.gui.loading import load_scene
+
+    with pytest.raises(InputError, match="missing.ply: file not found"):
+        load_scene(str(tmp_path / "missing.ply"))
+    model_path = save_flame_npz(tmp_path / "flame.npz", random_flame_arrays(n_vertices=200, n_shape=4, n_expr=3))
+    with pytest.raises(InputError, match="--avatar default"):
+        load_scene("default", flame_model=model_path)
+
+
+def test_load_scene_static_ply_and_mesh_only(tmp_path):
+    from holo_viewer.avatar import save_ply
+    from holo_viewer.flame.io import save_flame_npz
+    from holo_viewer.flame.testing import random_flame_arrays
+    from holo_viewer.gui.loading import StaticAvatar, load_scene
+
+    model_path = save_flame_npz(tmp_path / "flame.npz", random_flame_arrays(n_vertices=200, n_shape=4, n_expr=3))
+    scene = load_scene("none", flame_model=model_path)
+    assert scene.pipeline.avatar is None and scene.pipeline.mesh().shape == (200, 3)
+    g = _small_scene().gaussians().numpy()
+    ply = save_ply(g.replace(extra={}), tmp_path / "static.ply")
+    scene = load_scene(str(ply), flame_model=model_path)
+    assert isinstance(scene.pipeline.avatar, StaticAvatar) and "static" in scene.description
+    before = np.asarray(scene.pipeline.gaussians().means).copy()
+    scene.pipeline.set_face(expr=[1.0, 0.5])
+    np.testing.assert_array_equal(np.asarray(scene.pipeline.gaussians().means), before)
+
+
+def test_flame_params_sequence_adds_a_frame_slider(tmp_path):
+    from holo_viewer.flame.default_head import load_default_model
+    from holo_viewer.gui.loading import load_scene
+    from holo_viewer.gui.offscreen import offscreen_viewer
+
+    T, n_expr = 4, load_default_model().n_expr
+    expr = np.zeros((T, n_expr))
+    expr[:, 4] = np.linspace(0.0, 1.0, T)  # brows lowering over the sequence
+    np.savez(tmp_path / "seq.npz", expr=expr, jaw_pose=np.zeros((T, 3)), rotation=np.zeros((T, 3)),
+             neck_pose=np.zeros((T, 3)), eyes_pose=np.zeros((T, 6)), translation=np.zeros((T, 3)),
+             shape=np.zeros(5))
+    scene = load_scene("none", flame_params=tmp_path / "seq.npz")
+    assert len(scene.frames) == T
+    with offscreen_viewer(scene, window_size=(480, 270)) as viewer:
+        first = np.array(viewer.mesh.points)
+        _fire_slider(viewer.sliders["frame"], T - 1)
+        assert viewer.pipeline.face.expr[4] == pytest.approx(1.0)
+        assert np.abs(np.array(viewer.mesh.points) - first).max() > 1e-4

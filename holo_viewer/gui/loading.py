@@ -59,6 +59,16 @@ def load_scene(avatar: str | os.PathLike | None = "default", flame_model: str | 
 
     cal = DisplayCalibration.load(calibration)
     spec = "default" if avatar is None else str(avatar)
+    is_ply = spec.lower() not in ("default", "none")
+    rigged_ply = False
+    if is_ply:
+        ply = Path(spec)
+        if not ply.exists():
+            raise InputError(f"--avatar {ply}: file not found (expected 'default', 'none' or a PLY path)")
+        from ..avatar.ply import read_ply_header
+
+        read_ply_header(ply)  # a clear PlyError for a file that is not a PLY
+        rigged_ply = _ply_has_binding(ply)
     model = None
     if flame_model is not None:
         from ..flame.model import FlameModel
@@ -66,8 +76,8 @@ def load_scene(avatar: str | os.PathLike | None = "default", flame_model: str | 
         path = Path(flame_model)
         if not path.exists():
             raise InputError(f"--flame-model {path}: file not found")
-        # GaussianAvatars binds to FLAME with teeth; a plain mesh view does not need them
-        model = FlameModel.load(path, add_teeth=spec.lower().endswith(".ply"))
+        # GaussianAvatars binds its Gaussians to FLAME with teeth; the mesh alone does not need them
+        model = FlameModel.load(path, add_teeth=rigged_ply)
 
     params = None
     if spec.lower() == "default":
@@ -88,13 +98,7 @@ def load_scene(avatar: str | os.PathLike | None = "default", flame_model: str | 
         desc = "FLAME mesh only"
     else:
         ply = Path(spec)
-        if not ply.exists():
-            raise InputError(f"--avatar {ply}: file not found (expected 'default', 'none' or a PLY path)")
-        from ..avatar.ply import read_ply_header
-
-        read_ply_header(ply)  # a clear PlyError for a file that is not a PLY
-        has_binding = _ply_has_binding(ply)
-        if has_binding:
+        if rigged_ply:
             from ..avatar import load_gaussian_avatar
 
             av, params = load_gaussian_avatar(ply, flame_params, flame_model=model)
