@@ -10,8 +10,8 @@ import torch
 
 from holo_viewer.flame.default_head import (build_default_head, default_head_path, load_default_model,
                                             write_default_head)
-from holo_viewer.flame.head_blendshapes import EXPRESSION_NAMES
-from holo_viewer.flame.head_sculpt import EYE_CENTRES, EYE_RADIUS, sculpt_head
+from holo_viewer.flame.head_blendshapes import EXPRESSION_NAMES, LID_FLOOR_Y, MOUTH_COMPONENTS
+from holo_viewer.flame.head_sculpt import EYE_CENTRES, EYE_RADIUS, LID_RADIUS, sculpt_head
 from holo_viewer.flame.lbs import lbs_reference_np
 from holo_viewer.flame.model import FlameModel
 
@@ -76,6 +76,13 @@ def test_every_required_au_component_present(head):
     for au in ("AU1", "AU2", "AU4", "AU5", "AU6", "AU7", "AU9", "AU10", "AU12", "AU14", "AU15", "AU17",
                "AU20", "AU23", "AU24", "AU25", "AU26", "AU43"):
         assert any(n == au or n.startswith(au + "_") for n in names), au
+
+
+@pytest.fixture(scope="module")
+def committed():
+    """The committed asset as float64 arrays (the regression tests check it as well as a rebuild)."""
+    with np.load(default_head_path(build_if_missing=False)) as d:
+        return {k: (d[k].astype(np.float64) if d[k].dtype == np.float32 else d[k]) for k in d.files}
 
 
 def _edges(f):
@@ -309,3 +316,82 @@ def test_write_head_renders(tmp_path, capsys):
                                        "mouth_open_front.png", "contact_sheet.png"]
     assert all(p.exists() for p in paths)
     assert "contact_sheet.png" in capsys.readouterr().out
+
+
+# ----------------------------------------------------------------------------- eyes vs. jaw / mouth
+# Regression (issue 2): the lower-lid rims are lower-side duplicates of a cut grid row, like the
+# lower lip; the jaw mask used to give every such duplicate jaw weight 1, so opening the jaw
+# (jaw_pose or AU26) tore the lower eyelids down over the eyeballs.
+
+def _eye_zone(v):
+    """(V,) bool: within 15 mm of an eyeball centre, or above the lower-lid skin (y > LID_FLOOR_Y)."""
+    near = np.min([np.linalg.norm(v - c, axis=1) for c in EYE_CENTRES], axis=0) < 0.015
+    return near | (v[:, 1] > LID_FLOOR_Y)
+
+
+def _lid_ids(mesh):
+    return np.concatenate([mesh.parts[f"lid_{s}_{e}"] for s in ("upper", "lower") for e in range(2)])
+
+
+@pytest.mark.parametrize("which", ["built", "committed"])
+def test_jaw_never_moves_the_eyes(which, head, committed, mesh):
+    arrays = head if which == "built" else committed
+    v, w = arrays["v_template"], arrays["weights"]
+    zone = _eye_zone(v)
+    lids = _lid_ids(mesh)
+    assert zone[lids].all() and zone.sum() > 300
+    assert np.all(w[zone, 2] == 0.0), f"jaw weight on {np.flatnonzero(zone & (w[:, 2] > 0))[:12]}"
+    assert np.all(arrays["posedirs"][zone] == 0.0)
+    no_corr = dict(arrays, posedirs=np.zeros_like(arrays["posedirs"]))
+    for arr in (arrays, no_corr):  # with and without the pose correctives
+        rest = _pose(arr)
+        for jaw in ([0.35, 0.0, 0.0], [0.2, 0.1, -0.05]):
+            opened = _pose(arr, jaw=jaw)
+            assert np.abs(opened[zone] - rest[zone]).max() < 1e-12
+    # the lower lip still follows the jaw
+    lo = mesh.parts["mouth_lower"]
+    assert np.all(w[lo[1:-1], 2] == 1.0)
+
+
+@pytest.mark.parametrize("which", ["built", "committed"])
+def test_mouth_components_leave_the_eyes_alone(which, head, committed):
+    arrays = head if which == "built" else committed
+    v = arrays["v_template"]
+    zone = _eye_zone(v)
+    nose_tip_y = v[np.argmax(v[:, 2]), 1]
+    above_tip = v[:, 1] > nose_tip_y
+    ramus = np.abs(v[:, 0]) > 0.055  # AU26 = jaw rotation: the skin over the ramus up to the hinge
+    for name in MOUTH_COMPONENTS:
+        d = _comp(arrays, name)
+        assert np.all(d[zone] == 0.0), f"{name} moves {np.flatnonzero(zone & np.any(d != 0, axis=1))[:12]}"
+        if name in ("AU10", "AU12_L", "AU12_R"):  # alar lift / cheek lift: allowed above the nose tip
+            continue
+        allowed = ramus if name == "AU26" else np.zeros(len(v), dtype=bool)
+        assert np.all(d[above_tip & ~allowed] == 0.0), f"{name} moves above the nose tip"
+    # the jaw drop / lips part still do their job
+    assert np.linalg.norm(_comp(arrays, "AU26"), axis=1).max() > 0.015
+    assert np.linalg.norm(_comp(arrays, "AU25"), axis=1).max() > 0.003
+
+
+@pytest.mark.parametrize("which", ["built", "committed"])
+def test_lower_lids_follow_lid_aus(which, head, committed, mesh):
+    arrays = head if which == "built" else committed
+    v = arrays["v_template"]
+    for e, tag in ((0, "L"), (1, "R")):
+        up, lo = mesh.parts[f"lid_upper_{e}"], mesh.parts[f"lid_lower_{e}"]
+        inner = lo[1:-1]
+        d7 = _comp(arrays, "AU7")
+        # AU7 raises the lower rim (up to 11 deg of pitch) sliding on the lid sphere
+        assert d7[inner, 1].max() > 0.0015 and np.all(d7[inner, 1] > 0)
+        r = np.linalg.norm(v[inner] + d7[inner] - EYE_CENTRES[e], axis=1)
+        assert np.allclose(r, LID_RADIUS, atol=1e-5)
+        assert np.all(_comp(arrays, f"AU43_{tag}")[inner] == 0.0)  # AU43 moves the upper lid (and the corners)
+        # a pain-like face: eyes closed while the jaw is open; the lids meet, the lower lid stays
+        expr = np.zeros(int(arrays["n_expr"]))
+        names = list(arrays["expression_names"])
+        for n, c in (("AU43_L", 1.0), ("AU43_R", 1.0), ("AU25", 1.0), ("AU26", 1.0), ("AU20", 0.5)):
+            expr[names.index(n)] = c
+        rest = _pose(arrays)
+        posed = _pose(arrays, expr=expr, jaw=[0.3, 0.0, 0.0])
+        assert np.abs(posed[inner] - rest[inner]).max() < 1e-12
+        assert np.linalg.norm(posed[up[1:-1]] - posed[inner], axis=1).max() < 1.5e-3

@@ -38,7 +38,7 @@ __all__ = ["build_default_head", "default_head_path", "load_default_model", "wri
            "BUILDER_VERSION", "ASSET_NAME"]
 
 #: Bumped whenever the generated head changes (stored in the asset).
-BUILDER_VERSION = 1
+BUILDER_VERSION = 2  # 2: jaw / mouth masks no longer catch the lower-lid rims (issue 2)
 ASSET_NAME = "default_head.npz"
 _FLOAT_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights")
 

@@ -26,7 +26,8 @@ import numpy as np
 
 from .head_sculpt import EYE_CENTRES, HINGE, REGION_NAMES, HeadMesh, smoothstep
 
-__all__ = ["EXPRESSION_NAMES", "SHAPE_NAMES", "shape_basis", "expression_basis", "N_GENERIC_SHAPE"]
+__all__ = ["EXPRESSION_NAMES", "SHAPE_NAMES", "shape_basis", "expression_basis", "N_GENERIC_SHAPE",
+           "MOUTH_COMPONENTS", "LID_FLOOR_Y"]
 
 EXPRESSION_NAMES = ("AU1_L", "AU1_R", "AU2_L", "AU2_R", "AU4", "AU5", "AU6", "AU7", "AU9", "AU10",
                     "AU12_L", "AU12_R", "AU14", "AU15", "AU16", "AU17", "AU18", "AU20", "AU23", "AU24",
@@ -37,6 +38,15 @@ SHAPE_NAMES = ("head_width", "head_depth", "head_height", "face_length", "face_w
                "lip_thickness", "ear_size", "ear_protrusion", "neck_width", "forehead_slope",
                "cheek_fullness")
 N_GENERIC_SHAPE = 9
+#: Components that act on the mouth, lips, cheeks or jaw. None of them moves a vertex above
+#: ``LID_FLOOR_Y`` (the eyelids and everything above them); all but AU10 (its alar lift) and
+#: AU12 (its cheek lift) are also exactly zero above the nose tip, except that AU26 (a
+#: linearised jaw rotation) moves the skin over the mandibular ramus (|x| > 0.055 m) up to
+#: the hinge level, as the jaw does.
+MOUTH_COMPONENTS = ("AU10", "AU12_L", "AU12_R", "AU14", "AU15", "AU16", "AU17", "AU18", "AU20",
+                    "AU23", "AU24", "AU25", "AU26")
+#: y (metres) below which the lower-lid skin rows end; mouth components vanish above it.
+LID_FLOOR_Y = -0.012
 
 
 def _g(p: np.ndarray, centre, radii) -> np.ndarray:
@@ -70,10 +80,18 @@ class _Ctx:
         k = self.row - r_m
         self.k_mouth = k
         near_mouth = self.surf & (np.abs(self.v[:, 0]) < 1.6 * self.corner_x) & (self.v[:, 2] > 0.02)
-        self.upper = near_mouth & ((k < 0) | ((k == 0) & ~head.lower))
-        self.lower = near_mouth & ((k > 0) | ((k == 0) & head.lower))
+        lip_low = head.lower_lip_side  # the mouth slit's lower side, not the lower-lid rims
+        self.upper = near_mouth & ((k < 0) | ((k == 0) & ~lip_low))
+        self.lower = near_mouth & ((k > 0) | ((k == 0) & lip_low))
         t = self.v[:, 0] / self.corner_x
         self.lat = np.clip(1 - t * t, 0, 1)
+        # compact vertical supports of the mouth components (exactly 0 above their top):
+        # below the nose tip for the lip/corner/chin fields, below the eyelids (LID_FLOOR_Y)
+        # for the cheek and alar parts of AU12 / AU10
+        y = self.v[:, 1]
+        self.y_tip = float(self.v[np.argmax(np.where(self.surf, self.v[:, 2], -np.inf)), 1])
+        self.below_tip = 1.0 - smoothstep(y, self.y_tip - 0.008, self.y_tip)
+        self.below_lids = 1.0 - smoothstep(y, LID_FLOOR_Y - 0.016, LID_FLOOR_Y)
 
     def rows_w(self, side: str, n_rows: float) -> np.ndarray:
         """Weight decaying with the row distance from the mouth line on one side."""
@@ -115,12 +133,12 @@ class _Ctx:
     def corner(self, s: int, rx: float = 0.016, ry: float = 0.014) -> np.ndarray:
         p = self.v
         return (np.exp(-((p[:, 0] - s * self.corner_x) / rx) ** 2 - ((p[:, 1] - self.mouth_y) / ry) ** 2)
-                * _front(p, 0.03, 0.06) * self.surf)
+                * _front(p, 0.03, 0.06) * self.surf * self.below_tip)
 
     def lips(self) -> np.ndarray:
         p = self.v
         return (np.exp(-(p[:, 0] / (1.15 * self.corner_x)) ** 4 - ((p[:, 1] - self.mouth_y) / 0.011) ** 2)
-                * _front(p, 0.05, 0.07) * self.surf)
+                * _front(p, 0.05, 0.07) * self.surf * self.below_tip)
 
 
 def _propagate_bag(head: HeadMesh, d: np.ndarray) -> np.ndarray:
@@ -189,11 +207,11 @@ def expression_basis(head: HeadMesh, jaw: np.ndarray) -> np.ndarray:
     ul = c.rows_w("upper", 7) * (0.35 + 0.65 * np.sqrt(c.lat))
     d[:, 1] = 0.004 * ul
     d[:, 2] = 0.0012 * ul
-    d[:, 1] += 0.0012 * _g(p, (0, -0.04, 0.1), (0.02, 0.01, 1e3)) * c.surf * _front(p, 0.07, 0.09)
+    d[:, 1] += 0.0012 * _g(p, (0, -0.04, 0.1), (0.02, 0.01, 1e3)) * c.surf * _front(p, 0.07, 0.09) * c.below_lids
     comps["AU10"] = d
     for s, tag in ((1, "L"), (-1, "R")):
         m = c.corner(s)
-        ck = _g(p, (s * 0.036, -0.032, 0), (0.016, 0.014, 1e3)) * _front(p, 0.03, 0.06) * c.surf
+        ck = _g(p, (s * 0.036, -0.032, 0), (0.016, 0.014, 1e3)) * _front(p, 0.03, 0.06) * c.surf * c.below_lids
         d = np.zeros((c.n, 3))
         d[:, 0] = s * 0.0035 * m
         d[:, 1] = 0.008 * m + 0.003 * ck
@@ -217,7 +235,7 @@ def expression_basis(head: HeadMesh, jaw: np.ndarray) -> np.ndarray:
     d[:, 2] = 0.001 * ll
     comps["AU16"] = d
     d = np.zeros((c.n, 3))
-    chin = _g(p, (0, -0.095, 0.06), (0.025, 0.018, 1e3)) * _front(p, 0.03, 0.05) * c.surf
+    chin = _g(p, (0, -0.095, 0.06), (0.025, 0.018, 1e3)) * _front(p, 0.03, 0.05) * c.surf * c.below_tip
     lipz = (c.rows_w("lower", 5) + 0.6 * c.rows_w("upper", 3)) * np.sqrt(c.lat)
     d[:, 1] = 0.003 * chin + 0.0015 * lipz
     d[:, 2] = 0.002 * chin + 0.0022 * lipz

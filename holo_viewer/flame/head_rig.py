@@ -59,7 +59,7 @@ def jaw_mask(head: HeadMesh) -> np.ndarray:
     on_line = np.abs(d) < 1e-9
     slit = on_line & (ph < phi_c - 1e-9)
     w_up[slit] = 0.0
-    w_up[head.lower[grid_ids]] = 1.0
+    w_up[head.lower_lip_side[grid_ids]] = 1.0  # the mouth slit only: never the lower-lid rims
     m_back = 1.0 - smoothstep(ph, 1.3, 1.62)
     p = v[grid_ids]
     m_low = smoothstep(p[:, 1] + 0.6 * p[:, 2], -0.108, -0.086)
@@ -132,9 +132,10 @@ def jaw_corrective_posedirs(head: HeadMesh, weights: np.ndarray) -> np.ndarray:
 
     With the jaw opened by angle a about x, ``R[2, 1] = -R[1, 2] = sin a`` (features
     16 and 14 of the row-major ``vec(R_k - I)``). Per unit ``sin a`` the corrective
-    pulls the cheeks beside the mouth 4 mm inward (they hollow when the mouth opens)
+    pulls the cheeks beside the mouth 4 mm inward (they hollow when the mouth opens;
+    cut off smoothly to exactly zero 30 mm above the mouth line, below the nose tip)
     and brings the lower lip 10 mm forward (it rolls back less than a rigid
-    rotation would make it).
+    rotation would make it; jaw-weighted, so zero wherever the jaw weight is).
     """
     v = head.vertices
     n = len(v)
@@ -144,8 +145,9 @@ def jaw_corrective_posedirs(head: HeadMesh, weights: np.ndarray) -> np.ndarray:
     corner_x = abs(float(v[head.grid[r_m, c1], 0]))
     mouth_y = float(v[head.grid[r_m, 0 + (c0 + c1) // 2], 1])
     x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    # compact support in y: exactly zero from just below the nose tip up (never near the eyes)
     cheek = (np.exp(-((np.abs(x) - corner_x - 0.015) / 0.012) ** 2 - ((y - mouth_y) / 0.018) ** 2)
-             * (z > 0.0) * np.isfinite(head.theta))
+             * (1.0 - smoothstep(y, mouth_y + 0.012, mouth_y + 0.03)) * (z > 0.0) * np.isfinite(head.theta))
     lip = jaw * np.exp(-(x / (1.2 * corner_x)) ** 2 - ((y - mouth_y + 0.005) / 0.008) ** 2) * (z > 0.04)
     d = np.zeros((n, 3))
     d[:, 0] = -np.sign(x) * 0.004 * cheek

@@ -75,7 +75,8 @@ class HeadMesh:
     theta, phi : numpy.ndarray
         (V,) grid parameters of surface vertices in radians (NaN for eyes, ears, bag, pockets).
     lower : numpy.ndarray
-        (V,) bool: the vertex is a duplicate on the lower side of a slit (lower lip / lower lid).
+        (V,) bool: the vertex is a duplicate on the lower side of *any* slit (the mouth or
+        either palpebral fissure). Code about the mouth must use :attr:`lower_lip_side`.
     parts : dict
         Named vertex-index arrays: ``eyeball_0``/``eyeball_1``, ``pocket_0``/``pocket_1``,
         ``ear_0``/``ear_1``, ``bag``, ``mouth_upper``/``mouth_lower`` (slit edges, left to right,
@@ -105,6 +106,17 @@ class HeadMesh:
     mouth_slit: tuple = ()
     grid: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
     lid_pitch: np.ndarray = field(default_factory=lambda: np.zeros((0,)))
+
+    @property
+    def lower_lip_side(self) -> np.ndarray:
+        """(V,) bool: the lower-side duplicates of the *mouth* slit only (not the eye slits).
+
+        The eye fissures are cut the same way as the mouth, so :attr:`lower` also flags
+        the lower-lid rims; the jaw and the lip masks must not pick those up.
+        """
+        out = np.zeros(len(self.vertices), dtype=bool)
+        out[self.parts["mouth_lower"][1:-1]] = True
+        return out
 
 
 # --------------------------------------------------------------------------- SDF sculpture
