@@ -5,8 +5,8 @@
 * :func:`shell_scene` - a head-sized ellipsoidal shell of Gaussians that overfills a
   420x560 portrait frame like a face does (~45 blends per pixel at 100k Gaussians).
 * :func:`random_scene` - Gaussians scattered in a box in front of the cameras.
-* :func:`default_scene` - the default avatar when ``holo_viewer.avatar.default_avatar`` exists,
-  else the shell.
+* :func:`default_scene` - the default avatar at rest (``holo_viewer.avatar.default_avatar``)
+  when it exists, else the shell; :func:`framed_cameras` frames it like the pipeline does.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from holo_viewer.avatar.gaussians import Gaussians
 from holo_viewer.camera import Cameras
 from holo_viewer.geometry import rotmat_to_quat_np
 
-__all__ = ["quilt_cameras", "shell_scene", "random_scene", "default_scene", "random_quats"]
+__all__ = ["quilt_cameras", "shell_scene", "random_scene", "default_scene", "framed_cameras", "random_quats"]
 
 SIZE, FOV_DEG, CONE_DEG = 0.12, 14.0, 40.0
 
@@ -127,19 +127,28 @@ def random_scene(n: int = 2000, degree: int = 3, seed: int = 0, extent=(0.1, 0.1
 
 
 def default_scene(n: int = 100_000) -> tuple[Gaussians, str]:
-    """(Gaussians, name): the default avatar if its module exists, else the shell scene."""
+    """(Gaussians, name): the default avatar at rest if it exists, else the shell scene."""
     try:
-        from holo_viewer.avatar import default_avatar  # type: ignore[attr-defined]
+        from holo_viewer.avatar.default_avatar import default_avatar
     except ImportError:
         return shell_scene(n), f"shell{n // 1000}k"
-    for fn in ("default_gaussians", "load_default_avatar", "default_avatar"):
-        f = getattr(default_avatar, fn, None)
-        if callable(f):
-            try:
-                g = f()
-            except Exception:  # noqa: BLE001 - fall back to the synthetic scene, reported by name
-                break
-            g = getattr(g, "gaussians", g)
-            if isinstance(g, Gaussians):
-                return g, "default_avatar"
-    return shell_scene(n), f"shell{n // 1000}k"
+    return default_avatar(n).rest(), f"default_avatar{n // 1000}k"
+
+
+def framed_cameras(g: Gaussians, n_views: int = 48, width: int = 420, height: int = 560,
+                   margin: float = 1.08) -> Cameras:
+    """Quilt cameras framing ``g`` as the pipeline frames a head (``pipeline.frame_head``).
+
+    The focal plane passes through the centre of the bounding box of the Gaussian centres,
+    with half-height ``margin`` x half the box height (the pipeline uses the neutral FLAME
+    vertices; the avatar's Gaussians lie on them).
+    """
+    means = np.asarray(Gaussians._np(g.means), dtype=np.float64)
+    try:
+        from holo_viewer.pipeline import frame_head
+
+        centre, half = frame_head(means, margin)
+    except ImportError:
+        lo, hi = means.min(axis=0), means.max(axis=0)
+        centre, half = 0.5 * (lo + hi), 0.5 * float(hi[1] - lo[1]) * margin
+    return quilt_cameras(n_views, width, height, size=half, target=tuple(centre))
