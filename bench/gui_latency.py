@@ -5,7 +5,7 @@ Run under an X server (a real display, or ``xvfb-run -s "-screen 0 1920x1080x24"
 exactly what a mouse release does), records the viewer's own timings, and prints a table:
 median and max milliseconds for "mesh" (pipeline params+mesh and one window render) and "preview"
 (Gaussians, glyphs, the selected view rendered by the fast renderer, second window render), plus the
-thumbnail quilt (rendered in a worker thread). ``--json FILE`` writes the records; ``--screenshot PNG``
+thumbnail quilt (rendered in a worker process). ``--json FILE`` writes the records; ``--screenshot PNG``
 saves the window after the last release.
 """
 

@@ -148,7 +148,7 @@ def test_slider_changes_mesh_and_preview(window):
     # what the window shows changed too (mesh, glyphs and preview panel)
     shot_after = window.screenshot()
     assert np.abs(shot_after.astype(int) - shot_before).max() > 50
-    # the thumbnail quilt renders in a worker thread and is shown when done
+    # the thumbnail quilt renders in a worker process and is shown when done
     window.poll_thumbnail(wait=True)
     assert window.thumb_panel.image is not None
 

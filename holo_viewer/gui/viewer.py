@@ -206,8 +206,7 @@ class HoloViewer:
         self._thumb_key: tuple | None = None
         self._building = True
         self._opened = False
-        self._executor: Any = None
-        self._thumb_future: Any = None
+        self._worker: Any = None
         self._thumb_pending_key: tuple | None = None
         self._thumb_started = 0.0
 
@@ -446,41 +445,46 @@ class HoloViewer:
 
     def render_thumbnail(self) -> np.ndarray:
         """(rows*h, cols*w, 3) uint8 quilt at ``thumbnail_scale`` of the current Gaussians (blocking)."""
+        from .thumbnail_worker import render_thumbnail
+
         pipe = self.pipeline
-        return _render_thumbnail(pipe.gaussians(), scale_cameras(pipe.cameras(), self.config.thumbnail_scale),
-                                 pipe.backend, pipe.render_config, pipe.calibration.cols, pipe.calibration.rows)
+        return render_thumbnail(pipe.gaussians(), scale_cameras(pipe.cameras(), self.config.thumbnail_scale),
+                                pipe.backend, pipe.render_config, pipe.calibration.cols, pipe.calibration.rows)
 
     def _update_thumbnail(self, wait: bool = False) -> None:
-        """Start rendering the thumbnail quilt in a worker thread (the window stays responsive);
+        """Start rendering the thumbnail quilt in the worker process (the window stays responsive);
         :meth:`poll_thumbnail` shows it when done. ``wait`` blocks until it is shown."""
         if self.pipeline.avatar is None:
             return
         key = (self.pipeline.stage_version("gaussians"), self.pipeline.stage_version("cameras"))
         if key != self._thumb_key and key != self._thumb_pending_key:
             pipe = self.pipeline
-            args = (pipe.gaussians(), scale_cameras(pipe.cameras(), self.config.thumbnail_scale), pipe.backend,
-                    pipe.render_config, pipe.calibration.cols, pipe.calibration.rows)
-            if self._executor is None:
-                from concurrent.futures import ThreadPoolExecutor
+            args = (pipe.gaussians().numpy(), scale_cameras(pipe.cameras(), self.config.thumbnail_scale),
+                    pipe.backend, pipe.render_config, pipe.calibration.cols, pipe.calibration.rows)
+            if self._worker is None:
+                from .thumbnail_worker import ThumbnailWorker
 
-                self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="holo-thumb")
-            self._thumb_future = self._executor.submit(_render_thumbnail, *args)
+                self._worker = ThumbnailWorker()
+            self._worker.submit(key, args)
             self._thumb_pending_key = key
             self._thumb_started = time.perf_counter()
         if wait:
-            self.poll_thumbnail(wait=True)
+            while self.poll_thumbnail(wait=True) and self._worker is not None and self._worker.busy:
+                pass
 
     def poll_thumbnail(self, wait: bool = False) -> bool:
-        """Show the thumbnail quilt if its worker finished (``wait``: block for it). True if shown."""
-        fut = self._thumb_future
-        if fut is None or (not wait and not fut.done()):
+        """Show the newest finished thumbnail quilt (``wait``: block for the running job). True if shown."""
+        if self._worker is None:
             return False
-        self._thumb_future = None
-        img = fut.result()  # re-raises a worker error here, in the GUI thread
-        key, self._thumb_pending_key = self._thumb_pending_key, None
+        done = self._worker.poll(wait=wait)
+        if done is None:
+            return False
+        key, img = done
+        if key == self._thumb_pending_key:
+            self._thumb_pending_key = None
+            self.timings.thumbnail_ms = (time.perf_counter() - self._thumb_started) * 1e3
         self.thumb_panel.update(img)
         self._thumb_key = key
-        self.timings.thumbnail_ms = (time.perf_counter() - self._thumb_started) * 1e3
         self._update_status()
         self.plotter.render()
         return True
@@ -570,6 +574,7 @@ class HoloViewer:
         Models without an action-unit map sweep their first expression component instead."""
         from ..display.export import write_quilt_video
         from ..display.quilt import quilt_filename
+        from .thumbnail_worker import render_thumbnail
 
         cfg, pipe = self.config, self.pipeline
         cal = pipe.calibration
@@ -589,7 +594,7 @@ class HoloViewer:
         def frames() -> Any:
             for w in weights:
                 pipe.set_face(sweep(float(w)))
-                yield _render_thumbnail(pipe.gaussians(), cams, pipe.backend, pipe.render_config, cal.cols, cal.rows)
+                yield render_thumbnail(pipe.gaussians(), cams, pipe.backend, pipe.render_config, cal.cols, cal.rows)
 
         try:
             write_quilt_video(path, frames(), fps=cfg.sweep_fps, total=len(weights), preset="veryfast")
@@ -629,9 +634,9 @@ class HoloViewer:
         self.close()
 
     def close(self) -> None:
-        if self._executor is not None:
-            self._executor.shutdown(wait=True, cancel_futures=True)
-            self._executor = None
+        if self._worker is not None:
+            self._worker.close()
+            self._worker = None
         self.plotter.close()
 
 
@@ -646,11 +651,3 @@ def _theme(config: ViewerConfig) -> Any:
     theme.anti_aliasing = None
     theme.depth_peeling.enabled = False
     return theme
-
-
-def _render_thumbnail(gaussians: Any, cameras: Any, backend: str, config: Any, cols: int, rows: int) -> np.ndarray:
-    from ..display.quilt import tile_quilt
-    from ..render.api import render_views
-
-    res = render_views(gaussians, cameras, backend=backend, config=config)
-    return tile_quilt(to_uint8(res.images), cols, rows)

@@ -1,0 +1,114 @@
+"""A worker process that renders the viewer's thumbnail quilt.
+
+VTK's event loop (``vtkRenderWindowInteractor::Start``) holds Python's GIL, so a worker *thread*
+gets only the moments when the loop calls back into Python (measured: ~4% of a core). The
+thumbnail therefore renders in a separate process, started once with ``python -m
+holo_viewer.gui.thumbnail_worker`` (no re-import of the caller's ``__main__``, unlike
+multiprocessing's spawn). Jobs and results are pickled over the child's stdin / stdout, between
+processes of the same program only. At most one job is in flight; a newer request replaces a
+queued one, so a burst of slider releases renders only the latest state.
+"""
+
+from __future__ import annotations
+
+import pickle
+import select
+import subprocess
+import sys
+from typing import Any
+
+__all__ = ["ThumbnailWorker", "render_thumbnail"]
+
+
+def render_thumbnail(gaussians: Any, cameras: Any, backend: str, config: Any, cols: int, rows: int) -> Any:
+    """Render ``cameras`` and tile them into a uint8 quilt (runs in the worker)."""
+    from ..display.quilt import tile_quilt
+    from ..pipeline import to_uint8
+    from ..render.api import render_views
+
+    res = render_views(gaussians, cameras, backend=backend, config=config)
+    return tile_quilt(to_uint8(res.images), cols, rows)
+
+
+class ThumbnailWorker:
+    """The parent's handle on the worker process."""
+
+    def __init__(self) -> None:
+        self._proc: subprocess.Popen | None = None
+        self._in_flight: Any = None  # key of the running job
+        self._queued: tuple[Any, tuple] | None = None
+
+    def _start(self) -> subprocess.Popen:
+        if self._proc is None or self._proc.poll() is not None:
+            self._proc = subprocess.Popen([sys.executable, "-m", "holo_viewer.gui.thumbnail_worker"],
+                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+            self._in_flight = None
+        return self._proc
+
+    @property
+    def busy(self) -> bool:
+        return self._in_flight is not None or self._queued is not None
+
+    def submit(self, key: Any, args: tuple) -> None:
+        """Render ``args`` (see :func:`render_thumbnail`) for ``key``; replaces a queued job."""
+        if self._in_flight is not None:
+            self._queued = (key, args)
+            return
+        proc = self._start()
+        pickle.dump((key, args), proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+        proc.stdin.flush()
+        self._in_flight = key
+
+    def poll(self, wait: bool = False) -> tuple[Any, Any] | None:
+        """(key, quilt) of a finished job, or None. Raises RuntimeError if the job failed."""
+        proc = self._proc
+        if self._in_flight is None or proc is None:
+            return None
+        if not wait and not select.select([proc.stdout], [], [], 0)[0]:
+            return None
+        try:
+            key, (status, value) = pickle.load(proc.stdout)
+        except EOFError:
+            self._in_flight = None
+            raise RuntimeError(f"thumbnail worker exited (code {proc.poll()})") from None
+        self._in_flight = None
+        if self._queued is not None:
+            q, self._queued = self._queued, None
+            self.submit(*q)
+        if status != "ok":
+            raise RuntimeError(f"thumbnail worker: {value}")
+        return key, value
+
+    def close(self) -> None:
+        proc, self._proc = self._proc, None
+        self._queued = self._in_flight = None
+        if proc is None:
+            return
+        try:
+            proc.stdin.close()
+            proc.wait(timeout=10)
+        except (OSError, subprocess.TimeoutExpired):
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+
+
+def main() -> int:
+    """Worker loop: read (key, args) jobs from stdin, write (key, (status, value)) to stdout."""
+    inp, out = sys.stdin.buffer, sys.stdout.buffer
+    sys.stdout = sys.stderr  # keep stdout for results only
+    while True:
+        try:
+            key, args = pickle.load(inp)
+        except EOFError:
+            return 0
+        try:
+            result: tuple[str, Any] = ("ok", render_thumbnail(*args))
+        except Exception as exc:  # noqa: BLE001 - reported to the parent, which shows it
+            result = ("error", f"{type(exc).__name__}: {exc}")
+        pickle.dump((key, result), out, protocol=pickle.HIGHEST_PROTOCOL)
+        out.flush()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
