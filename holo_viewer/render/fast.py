@@ -31,7 +31,7 @@ from ..avatar.gaussians import Gaussians
 from ..camera import Cameras
 from ..errors import RenderError
 from .config import RenderConfig, RenderResult
-from .projection import CLAMP_WIDEN
+from .projection import clamp_limits
 
 __all__ = ["render", "cpp_available", "kernel_names"]
 
@@ -152,16 +152,18 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
         for c0 in range(0, len(group), chunk):
             views = group[c0:c0 + chunk]
             t3 = time.perf_counter()
-            cams = np.empty((len(views), 10))
+            cams = np.empty((len(views), 14))
             cams[:, 0], cams[:, 1] = cameras.fx[views], cameras.fy[views]
             cams[:, 2], cams[:, 3] = cameras.cx[views], cameras.cy[views]
             cams[:, 4:7] = cameras.t[views]
             cams[:, 7:10] = positions[views]
+            for j, vi in enumerate(views):
+                cams[j, 10:14] = clamp_limits(cameras.fx[vi], cameras.fy[vi], cameras.cx[vi], cameras.cy[vi], W, H)
             rec = np.empty((len(views), m, fk.REC), dtype=np.float32)
             box = np.empty((len(views), m, 4), dtype=np.int32)
             seen = fk.project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, bool(config.shared_sh),
                                     cams, W, H, near, float(config.dilation), float(config.radius_sigmas),
-                                    float(config.alpha_threshold), cull, CLAMP_WIDEN, rec, box)
+                                    float(config.alpha_threshold), cull, rec, box)
             n_visible_mask[order[seen.astype(bool)]] = True
             t4 = time.perf_counter()
             off = fk.count_tiles(box, tile, tiles_x, tiles_y)

@@ -97,11 +97,11 @@ def _sh_basis(degree, x, y, z, basis):  # pragma: no cover - compiled
 
 @nb.njit(parallel=True, cache=True)
 def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_shared, cams, width, height,
-                  near, dilation, radius_sigmas, alpha_threshold, cull_margin, clamp_widen,
-                  rec, box):  # pragma: no cover - compiled
+                  near, dilation, radius_sigmas, alpha_threshold, cull_margin, rec, box):  # pragma: no cover - compiled
     """Per view and splat (in depth order ``order``): 2D centre, conic, colour and pixel box.
 
-    cams (V, 13): fx, fy, cx, cy, tx, ty, tz (world->camera translation), cam_pos xyz (world).
+    cams (V, 14): fx, fy, cx, cy, tx, ty, tz (world->camera translation), cam_pos xyz (world),
+    clamp limits lo_x, hi_x, lo_y, hi_y of t.x/t.z and t.y/t.z (projection.clamp_limits).
     cull_margin < 0 disables centre culling. Writes rec (V, M, REC) and box (V, M, 4).
     Returns (M,) uint8: 1 where the splat's box is non-empty in at least one view.
     """
@@ -136,22 +136,20 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
             box[v, k, 3] = 0
             if not tz > near:
                 continue
-            u = fx * tx / tz + cx
-            vv = fy * ty / tz + cy
+            itz = 1.0 / tz
+            u = fx * tx * itz + cx
+            vv = fy * ty * itz + cy
             if cull_margin >= 0.0:
                 if (u < -cull_margin * width or u > (1.0 + cull_margin) * width
                         or vv < -cull_margin * height or vv > (1.0 + cull_margin) * height):
                     continue
-            lo_x = (-cx - clamp_widen * width) / fx
-            hi_x = ((1.0 + clamp_widen) * width - cx) / fx
-            lo_y = (-cy - clamp_widen * height) / fy
-            hi_y = ((1.0 + clamp_widen) * height - cy) / fy
-            txc = min(max(tx / tz, lo_x), hi_x) * tz
-            tyc = min(max(ty / tz, lo_y), hi_y) * tz
-            j00 = fx / tz
-            j02 = -fx * txc / (tz * tz)
-            j11 = fy / tz
-            j12 = -fy * tyc / (tz * tz)
+            # clamp limits of t/t.z (projection.clamp_limits), precomputed per view
+            txc = min(max(tx * itz, cams[v, 10]), cams[v, 11]) * tz
+            tyc = min(max(ty * itz, cams[v, 12]), cams[v, 13]) * tz
+            j00 = fx * itz
+            j02 = -fx * txc * itz * itz
+            j11 = fy * itz
+            j12 = -fy * tyc * itz * itz
             # rows of M = J: (j00, 0, j02), (0, j11, j12); S2 = M Sigma M^T
             r0x = j00 * sxx + j02 * sxz
             r0y = j00 * sxy + j02 * syz
@@ -189,9 +187,10 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
             any_v = 1
             rec[v, k, 0] = u
             rec[v, k, 1] = vv
-            rec[v, k, 2] = c / det
-            rec[v, k, 3] = -b / det
-            rec[v, k, 4] = a / det
+            idet = 1.0 / det
+            rec[v, k, 2] = c * idet
+            rec[v, k, 3] = -b * idet
+            rec[v, k, 4] = a * idet
             rec[v, k, 5] = op
             if use_shared:
                 for ch in range(3):
