@@ -167,3 +167,23 @@ def test_bad_inputs_raise_clear_errors():
         M.frcorr(p, g, np.eye(3))
     with pytest.raises(InputError, match="FRSyn needs"):
         M.frsyn(np.zeros((1, 1, 40, 25)), np.zeros((1, 40, 25)))
+
+
+@pytest.mark.slow
+def test_frrea_renders_frames_and_separates_sets():
+    from holo_viewer.reaction.frrea import FrameRenderer, frrea
+
+    r = FrameRenderer(size=32, n_gaussians=5000)
+    S = r.au_map.matrix.shape[0] + 6
+    rng = np.random.default_rng(0)
+    calm = np.zeros((6, S))
+    calm[:, :S - 6] = 0.05 * rng.random((6, S - 6))
+    wild = np.zeros((6, S))
+    wild[:, :S - 6] = rng.random((6, S - 6))
+    wild[:, S - 3:] = rng.normal(0, 0.25, (6, 3))
+    imgs = r.render(wild[:2])
+    assert imgs.shape == (2, 32, 32, 3) and 0.0 < imgs.mean() < 1.0
+    same = frrea(calm, calm[::-1], r, n_frames=6)
+    diff = frrea(calm, wild, r, n_frames=6)
+    assert same == pytest.approx(0.0, abs=1e-6)  # the same frames in another order
+    assert diff > 1e-3

@@ -17,6 +17,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--top-k", type=int, default=20, help="top-k sampling (default 20; 0 = all tokens)")
     parser.add_argument("--seed", type=int, default=0, help="sampling and Random-baseline seed")
     parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    parser.add_argument("--frrea-frames", type=int, default=48, help="frames rendered per method for FRRea "
+                        "(48x48 frontal renders, simple features, NOT Inception; 0 = skip)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -37,8 +39,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"generating the synthetic test split (seed {data_cfg.seed}) ...")
     test = make_synthetic_split("test", data_cfg)
     train = make_synthetic_split("train", data_cfg)
-    result = evaluate(bundle, test, train.listener_attr, k_samples=args.samples, temperature=args.temperature,
-                      top_k=args.top_k or None, seed=args.seed)
+    result = evaluate(bundle, test, train, k_samples=args.samples, temperature=args.temperature,
+                      top_k=args.top_k or None, seed=args.seed, frrea_frames=args.frrea_frames)
     print(format_table(result))
     if args.json:
         with atomic_write(args.json, "w") as fh:

@@ -10,7 +10,7 @@ import numpy as np
 from ..validation import check_array
 
 __all__ = ["gt_baseline", "random_baseline", "mime_baseline", "mean_frame_baseline", "mean_sequence_baseline",
-           "all_baselines"]
+           "all_baselines", "state_baselines"]
 
 
 def gt_baseline(listener_gt: np.ndarray, k: int) -> np.ndarray:
@@ -52,4 +52,23 @@ def all_baselines(listener_gt: np.ndarray, speaker_gt: np.ndarray, train_listene
         "Mime": mime_baseline(speaker_gt, k),
         "MeanFr": mean_frame_baseline(train_listener, n, k, t),
         "MeanSeq": mean_sequence_baseline(train_listener, n, k, t),
+    }
+
+
+def state_baselines(listener_state: np.ndarray, speaker_state: np.ndarray, train_listener_state: np.ndarray,
+                    n_au: int, k: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """The same baselines as face states (N, K, T, S), for rendering (FRRea).
+
+    Random draws AU values U[0, 1) (intensity / scale) with a neutral pose; the others are the
+    face-state counterparts of :func:`all_baselines`.
+    """
+    n, t, s = np.shape(listener_state)
+    rnd = np.zeros((n, k, t, s))
+    rnd[..., :n_au] = np.random.default_rng(seed).random((n, k, t, n_au))
+    return {
+        "GT": gt_baseline(listener_state, k),
+        "Random": rnd,
+        "Mime": mime_baseline(speaker_state, k),
+        "MeanFr": mean_frame_baseline(train_listener_state, n, k, t),
+        "MeanSeq": mean_sequence_baseline(train_listener_state, n, k, t),
     }

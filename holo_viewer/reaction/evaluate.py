@@ -98,11 +98,13 @@ class EvalResult:
                 "settings": self.settings}
 
 
-def evaluate(bundle: ReactionBundle, test: ReactionSplit, train_listener_attr: np.ndarray, k_samples: int = 10,
-             temperature: float = 1.0, top_k: int | None = 20, seed: int = 0, log=print) -> EvalResult:
+def evaluate(bundle: ReactionBundle, test: ReactionSplit, train: ReactionSplit, k_samples: int = 10,
+             temperature: float = 1.0, top_k: int | None = 20, seed: int = 0, frrea_frames: int = 0,
+             log=print) -> EvalResult:
     """Model and baselines on one split; the model's K reactions are streamed from the speaker only.
 
-    ``train_listener_attr`` (M, T, 25) gives the MeanFr / MeanSeq baselines.
+    ``train`` gives the MeanFr / MeanSeq baselines. ``frrea_frames > 0`` renders that many random
+    frames per method (and of the ground truth) for FRRea (:mod:`holo_viewer.reaction.frrea`).
     """
     from ..flame.expressions import default_au_map
 
@@ -110,17 +112,32 @@ def evaluate(bundle: ReactionBundle, test: ReactionSplit, train_listener_attr: n
     states = generate_reactions(bundle, test, k_samples, temperature, top_k, seed)
     t_gen = time.time() - t0
     preds = {"Ours": attributes_from_state(states, bundle.au_names)}
-    preds.update(all_baselines(test.listener_attr, test.speaker_attr, train_listener_attr, k_samples, seed))
+    preds.update(all_baselines(test.listener_attr, test.speaker_attr, train.listener_attr, k_samples, seed))
     order = ["GT", "Random", "Mime", "MeanFr", "MeanSeq", "Ours"]
     metrics = {}
     for name in order:
         t1 = time.time()
         metrics[name] = compute_metrics(preds[name], test.listener_attr, test.speaker_attr, test.neighbour)
         log(f"  {name}: metrics in {time.time() - t1:.1f} s")
+    if frrea_frames > 0:
+        from dataclasses import replace as _replace
+
+        from .baselines import state_baselines
+        from .frrea import FrameRenderer, frrea
+
+        renderer = FrameRenderer()
+        st = {"Ours": states, **state_baselines(test.listener_state, test.speaker_state, train.listener_state,
+                                                len(bundle.au_names), k_samples, seed)}
+        for name in order:
+            t1 = time.time()
+            v = frrea(test.listener_state, st[name], renderer, n_frames=frrea_frames, seed=seed)
+            metrics[name] = _replace(metrics[name], frrea=v)
+            log(f"  {name}: FRRea in {time.time() - t1:.1f} s")
     rho, _ = pain_following(states, test.pain, default_au_map())
     settings = {"split": test.name, "n_clips": test.n_clips, "frames": test.n_frames, "k_samples": k_samples,
                 "temperature": temperature, "top_k": top_k, "seed": seed, "generation_seconds": t_gen,
-                "frrea": "not computed (see docs/reaction.md)"}
+                "frrea": (f"{frrea_frames} random frames per set, 48x48 frontal renders, simple_image_features "
+                          "(NOT Inception)") if frrea_frames > 0 else "not computed"}
     return EvalResult(metrics, rho, settings)
 
 
@@ -137,5 +154,6 @@ def format_table(result: EvalResult) -> str:
         lines.append(f"{name:<10}" + "".join(cells))
     lines.append(f"Pain following: Spearman(requested pain, mean PSPI of generated frames) = {result.pain_spearman:.3f}")
     lines.append("FRSyn = official TLCC (first reaction, constant-dimension NaN wins argmax); "
-                 "FRSyn* = NaN-robust, all K. FRRea: n/a (see docs/reaction.md).")
+                 "FRSyn* = NaN-robust, all K.")
+    lines.append(f"FRRea: {result.settings.get('frrea', 'not computed')}")
     return "\n".join(lines)

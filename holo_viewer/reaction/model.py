@@ -43,7 +43,7 @@ class ModelConfig:
 
     n_mels: int = 40
     state_dim: int = 24
-    n_codes: int = 1024
+    n_codes: int = 512
     d_model: int = 64
     n_heads: int = 4
     enc_layers: int = 2

@@ -1,8 +1,11 @@
 """Facial-feature tokenizer: a learned codebook (k-means) over per-frame face states.
 
 Each frame's face state ``x`` (S,) is mapped to the index of its nearest centroid in a
-weighted metric ``|w * (x - c)|`` (``w`` = 1 / max(std, 0.02) per dimension, fitted on the
-training frames) and decoded back to that centroid. Why a k-means codebook rather than FSQ
+weighted metric ``|w * (x - c)|`` and decoded back to that centroid. The training code uses
+fixed weights (:func:`state_weights`): 1 per AU unit (intensity / 5) and 5 per radian of jaw
+and head rotation, so codes are spent on expression changes that matter for the REACT
+attributes and on visible head motion (nods, 0.1 rad = 0.5 units) rather than on small,
+unpredictable head sway. Why a k-means codebook rather than FSQ
 (docs/reaction.md, "Tokenizer"): the codes sit where the data is (an FSQ grid spends most of
 its 8*5*5*5 cells on face states that never occur), the fit is a few seconds of Lloyd
 iterations with no autoencoder to train (the 10-minute CPU budget), it is deterministic
@@ -19,7 +22,12 @@ import torch
 from ..errors import ReactionError
 from ..validation import check_array
 
-__all__ = ["Codebook", "fit_codebook"]
+__all__ = ["Codebook", "fit_codebook", "state_weights"]
+
+
+def state_weights(n_au: int, pose_weight: float = 5.0) -> np.ndarray:
+    """Metric weights (n_au + 6,): 1 for AU dimensions, ``pose_weight`` per radian for jaw and rotation."""
+    return np.concatenate([np.ones(n_au), np.full(6, pose_weight)]).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -68,7 +76,7 @@ class Codebook:
 
 
 def fit_codebook(states: np.ndarray, n_codes: int = 1024, iters: int = 20, max_points: int = 40000,
-                 seed: int = 0) -> Codebook:
+                 seed: int = 0, weights: np.ndarray | None = None) -> Codebook:
     """Fit a k-means codebook (k-means++ init, Lloyd iterations, dead codes re-seeded).
 
     Parameters
@@ -82,6 +90,8 @@ def fit_codebook(states: np.ndarray, n_codes: int = 1024, iters: int = 20, max_p
     max_points : int
         Frames used for the fit (a seeded random subset when M is larger).
     seed : int
+    weights : numpy.ndarray, shape (S,), optional
+        Metric weights; default ``1 / max(std, 0.02)`` of each dimension of the fitted frames.
 
     Returns
     -------
@@ -93,7 +103,10 @@ def fit_codebook(states: np.ndarray, n_codes: int = 1024, iters: int = 20, max_p
         x = x[rng.choice(x.shape[0], max_points, replace=False)]
     if x.shape[0] < n_codes:
         raise ReactionError(f"states: need at least n_codes={n_codes} frames to fit the codebook, found {x.shape[0]}")
-    w = (1.0 / np.maximum(x.std(axis=0), 0.02)).astype(np.float32)
+    if weights is None:
+        w = (1.0 / np.maximum(x.std(axis=0), 0.02)).astype(np.float32)
+    else:
+        w = np.asarray(check_array(weights, "weights", (x.shape[1],)), dtype=np.float32)
     xw = torch.from_numpy(x * w)
     # k-means++
     first = int(rng.integers(x.shape[0]))

@@ -29,7 +29,7 @@ from ..fileio import atomic_path
 from .audio import AudioConfig
 from .data import ReactionSplit, SyntheticConfig, make_synthetic_split
 from .model import ModelConfig, ReactionModel
-from .tokens import Codebook, fit_codebook
+from .tokens import Codebook, fit_codebook, state_weights
 
 __all__ = ["TrainConfig", "ReactionBundle", "train", "load_checkpoint", "save_checkpoint", "load_train_config",
            "train_config_from_dict",
@@ -45,7 +45,8 @@ class TrainConfig:
     seed: int = 0
     data: SyntheticConfig = field(default_factory=SyntheticConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
-    n_codes: int = 1024
+    n_codes: int = 512
+    pose_weight: float = 5.0
     batch_size: int = 32
     max_steps: int = 3000
     lr: float = 2e-3
@@ -242,7 +243,8 @@ def train(cfg: TrainConfig, out: str | os.PathLike, resume: bool = False, progre
         log(f"resuming from {partial} at step {state['step']}")
     else:
         log(f"fitting the {cfg.n_codes}-code codebook ...")
-        codebook = fit_codebook(tr.listener_state.reshape(-1, tr.listener_state.shape[2]), cfg.n_codes, seed=cfg.seed)
+        codebook = fit_codebook(tr.listener_state.reshape(-1, tr.listener_state.shape[2]), cfg.n_codes, seed=cfg.seed,
+                                weights=state_weights(len(au_names), cfg.pose_weight))
     audio_mean = tr.audio.mean(axis=(0, 1)).astype(np.float32)
     audio_std = (tr.audio.std(axis=(0, 1)) + 1e-3).astype(np.float32)
     ttr = _tensors(tr, codebook, audio_mean, cfg.model)

@@ -1,0 +1,104 @@
+"""The shipped checkpoint: `holo-viewer react`, the demo function, pain following and the acceptance table."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from holo_viewer.cli import main
+from holo_viewer.flame.expressions import default_au_map, jaw_for_expression, pspi
+from holo_viewer.reaction.api import default_checkpoint_path, flame_params_from_states, load_default_bundle
+from holo_viewer.reaction.audio import write_wav
+from holo_viewer.reaction.data import SyntheticConfig, make_synthetic_split, synth_speaker
+
+pytestmark = pytest.mark.skipif(not default_checkpoint_path().is_file(),
+                                reason="assets/reaction_default.pt missing (train it with holo-viewer train-reaction)")
+
+FLAME_KEYS = {"expr", "jaw_pose", "rotation", "neck_pose", "eyes_pose", "translation", "shape"}
+
+
+@pytest.fixture(scope="module")
+def speaker_files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("speaker")
+    au = default_au_map()
+    cfg = SyntheticConfig(seconds=2.0)
+    sp = synth_speaker(np.random.default_rng(11), cfg, au.names, jaw_for_expression("mouth_open", 1.0))
+    write_wav(d / "s.wav", sp.waveform, 16000)
+    write_wav(d / "s8k.wav", sp.waveform[::2], 8000)
+    write_wav(d / "short.wav", sp.waveform[:16000], 16000)
+    fl = flame_params_from_states(sp.state, au)
+    np.savez(d / "s.npz", **fl)
+    np.savez(d / "past.npz", **flame_params_from_states(sp.state[:10] * 0.5, au))
+    bad = dict(fl)
+    bad["expr"] = fl["expr"].copy()
+    bad["expr"][3, 0] = np.nan
+    np.savez(d / "nan.npz", **bad)
+    return d
+
+
+def test_react_cli_writes_flame_params(speaker_files, tmp_path):
+    d = speaker_files
+    out = tmp_path / "out.npz"
+    rc = main(["react", "--audio", str(d / "s.wav"), "--speaker", str(d / "s.npz"), "--pain", "0.7",
+               "--listener-past", str(d / "past.npz"), "--out", str(out)])
+    assert rc == 0
+    z = np.load(out)
+    assert set(z.files) == FLAME_KEYS
+    au = default_au_map()
+    assert z["expr"].shape == (50, au.matrix.shape[1])
+    assert z["jaw_pose"].shape == z["rotation"].shape == (50, 3) and z["eyes_pose"].shape == (50, 6)
+    assert all(np.all(np.isfinite(z[k])) for k in z.files)
+    assert float(pspi(z["expr"].astype(np.float64), au).mean()) > 4.0  # pain 0.7 shows
+
+
+def test_react_cli_bad_inputs(speaker_files, tmp_path, capsys):
+    d = speaker_files
+    out = tmp_path / "o.npz"
+    assert main(["react", "--audio", str(d / "s8k.wav"), "--speaker", str(d / "s.npz"), "--out", str(out)]) == 1
+    assert "sample_rate: expected 16000 Hz, found 8000" in capsys.readouterr().err
+    assert main(["react", "--audio", str(d / "short.wav"), "--speaker", str(d / "s.npz"), "--out", str(out)]) == 1
+    assert "length mismatch" in capsys.readouterr().err
+    assert main(["react", "--audio", str(d / "s.wav"), "--speaker", str(d / "nan.npz"), "--out", str(out)]) == 1
+    assert "NaN" in capsys.readouterr().err
+    assert main(["react", "--audio", str(d / "s.wav"), "--speaker", str(d / "s.npz"), "--pain", "2",
+                 "--out", str(out)]) == 1
+    assert "pain" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_generate_demo_reaction_follows_pain():
+    from holo_viewer.reaction import generate_demo_reaction
+
+    lo = generate_demo_reaction(seconds=2.0, pain=0.0, seed=1)
+    hi = generate_demo_reaction(seconds=2.0, pain=1.0, seed=1)
+    assert set(hi) == FLAME_KEYS and hi["expr"].shape[0] == 50
+    again = generate_demo_reaction(seconds=2.0, pain=1.0, seed=1)
+    np.testing.assert_array_equal(again["expr"], hi["expr"])
+    au = default_au_map()
+    assert pspi(hi["expr"].astype(np.float64), au).mean() > pspi(lo["expr"].astype(np.float64), au).mean() + 5.0
+
+
+@pytest.mark.slow
+def test_acceptance_on_synthetic_test_split():
+    """Model beats Random, Mime, MeanFr on FRCorr and FRDist, FRDiv > 0; pain Spearman >= 0.9."""
+    from holo_viewer.reaction import metrics as M
+    from holo_viewer.reaction.baselines import all_baselines
+    from holo_viewer.reaction.evaluate import generate_reactions, pain_following
+    from holo_viewer.reaction.features import attributes_from_state
+
+    bundle = load_default_bundle()
+    cfg = bundle.train_config.data
+    test = make_synthetic_split("test", cfg)
+    train = make_synthetic_split("train", cfg)
+    states = generate_reactions(bundle, test, k_samples=10, temperature=1.0, top_k=20, seed=0)
+    rho, _ = pain_following(states, test.pain, default_au_map())
+    assert rho >= 0.9
+    ours = attributes_from_state(states, bundle.au_names)
+    base = all_baselines(test.listener_attr, test.speaker_attr, train.listener_attr, 10)
+    gt, nb = test.listener_attr, test.neighbour
+    fc = {n: M.frcorr(p, gt, nb) for n, p in [("Ours", ours)] + [(b, base[b]) for b in ("Random", "Mime", "MeanFr")]}
+    fd = {n: M.frdist(p, gt, nb) for n, p in [("Ours", ours)] + [(b, base[b]) for b in ("Random", "Mime", "MeanFr")]}
+    for b in ("Random", "Mime", "MeanFr"):
+        assert fc["Ours"] > fc[b], (b, fc)
+        assert fd["Ours"] < fd[b], (b, fd)
+    assert M.frdiv(ours) > 0
