@@ -226,7 +226,8 @@ class Pipeline:
         if stage == "gaussians":
             return ("mesh", "params"), id(self.avatar)
         if stage == "framing":
-            return (), (f.shape, v.framing_margin, id(self.model), id(self.avatar))
+            # trailing zero coefficients do not change the head: (0, 0) frames like ()
+            return (), (np.trim_zeros(f.shape, "b"), v.framing_margin, id(self.model), id(self.avatar))
         if stage == "cameras":
             return ("framing",), (v.viewer_distance, v.view_cone, v.viewer_angle, v.tile_scale,
                                   _calib_fingerprint(self.calibration))
@@ -346,7 +347,8 @@ class Pipeline:
         if f.pain > 0:
             expr += np.asarray(pain_expression(f.pain, self.au_map), dtype=np.float64)[:n_expr]
         shape = np.zeros(n_shape)
-        src = f.shape if f.shape.shape[0] or "shape" not in self.identity else self.identity["shape"].reshape(-1)
+        # an empty or all-zero shape means "the avatar's identity" (GaussianAvatars' flame_param shape)
+        src = f.shape if np.any(f.shape) or "shape" not in self.identity else self.identity["shape"].reshape(-1)
         shape[: min(n_shape, src.shape[0])] = src[:n_shape]
         out = {"shape": shape, "expr": expr, "jaw_pose": jaw, "rotation": f.rotation.copy(),
                 "neck_pose": f.neck_pose.copy(), "eyes_pose": f.eyes_pose.copy(),

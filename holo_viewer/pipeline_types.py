@@ -51,7 +51,8 @@ class FaceControls:
     expr : numpy.ndarray
         (n_expr,) or shorter base expression coefficients (zero-padded to the model's n_expr).
     shape : numpy.ndarray
-        (n_shape,) or shorter identity coefficients (zero-padded).
+        (n_shape,) or shorter identity coefficients (zero-padded); empty or all zero = the
+        avatar's own identity (``avatar.identity["shape"]``) when it has one.
     jaw_pose, rotation, neck_pose, translation : numpy.ndarray
         (3,) axis-angle (radians) / translation (metres).
     eyes_pose : numpy.ndarray
