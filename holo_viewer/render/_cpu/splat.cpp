@@ -203,6 +203,8 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
         n_live += b.row_live[y];
         for (int x = 0; x < tile; ++x) b.live[y * tile + x] = (y < ph && x < pw) ? -1 : 0;
     }
+    // bit y set while row y has a live pixel: splats whose rows are all finished are skipped whole
+    uint64_t row_mask = ph >= 64 ? ~uint64_t(0) : ((uint64_t(1) << ph) - 1);
     int64_t nbl = 0;
     const int64_t nt = int64_t(J.tiles_x) * J.tiles_y;
     const int64_t* off = J.off + int64_t(v) * (nt + 1);
@@ -232,6 +234,8 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
         const int x0 = std::max(bx[0], px0) - px0, x1 = std::min(bx[1], px0 + pw) - px0;
         const int y0 = std::max(bx[2], py0) - py0, y1 = std::min(bx[3], py0 + ph) - py0;
         if (x0 >= x1 || y0 >= y1) continue;
+        const int nr = y1 - y0;
+        if (((row_mask >> y0) & (nr >= 64 ? ~uint64_t(0) : ((uint64_t(1) << nr) - 1))) == 0) continue;
         const float u = r[0] - (float(px0) + 0.5f), vv = r[1] - (float(py0) + 0.5f);
         const __m256 ca = _mm256_set1_ps(-0.5f * r[2]);
         const float cb = r[3], cc = -0.5f * r[4];
@@ -263,7 +267,10 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
             const __m256 fin = _mm256_and_ps(m, _mm256_cmp_ps(test, vtmin, _CMP_LT_OQ));
             const __m256 ok = _mm256_andnot_ps(fin, m);
             _mm256_storeu_si256((__m256i*)&b.live[p], _mm256_castps_si256(_mm256_andnot_ps(fin, live)));
-            n_live -= __builtin_popcount(_mm256_movemask_ps(fin));
+            const int nf = __builtin_popcount(_mm256_movemask_ps(fin));
+            n_live -= nf;
+            const int rl = (b.row_live[y] -= nf);
+            row_mask &= ~(uint64_t(rl == 0) << y);
             const __m256 w = _mm256_and_ps(ok, _mm256_mul_ps(alpha, tt));
             _mm256_storeu_ps(&b.R[p], _mm256_fmadd_ps(w, cr, _mm256_loadu_ps(&b.R[p])));
             _mm256_storeu_ps(&b.G[p], _mm256_fmadd_ps(w, cg, _mm256_loadu_ps(&b.G[p])));
