@@ -16,7 +16,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--renderer", default="fast")
     parser.add_argument("--pain", type=float, default=0.0)
     parser.add_argument("--smile", type=float, default=0.0)
-    parser.add_argument("--window-size", type=int, nargs=2, default=(1600, 900), metavar=("W", "H"))
+    parser.add_argument("--window-size", type=int, nargs=2, default=(1400, 800), metavar=("W", "H"))
     parser.add_argument("--help-overlay", action="store_true", help="draw the key help in the image")
 
 

@@ -22,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out-dir", default="holo_viewer_out", help="folder for exports (keys k, n, x, i)")
     parser.add_argument("--max-glyphs", type=int, default=2500, help="Gaussians drawn as ellipsoids")
     parser.add_argument("--pain", type=float, default=0.0, help="initial pain intensity in [0, 1]")
-    parser.add_argument("--window-size", type=int, nargs=2, default=(1600, 900), metavar=("W", "H"))
+    parser.add_argument("--window-size", type=int, nargs=2, default=(1400, 800), metavar=("W", "H"))
 
 
 def run(args: argparse.Namespace) -> int:
