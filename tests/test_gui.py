@@ -324,3 +324,27 @@ def test_flame_params_sequence_adds_a_frame_slider(tmp_path):
         _fire_slider(viewer.sliders["frame"], T - 1)
         assert viewer.pipeline.face.expr[4] == pytest.approx(1.0)
         assert np.abs(np.array(viewer.mesh.points) - first).max() > 1e-4
+
+
+def test_event_loop_shows_the_thumbnail_from_the_worker(xvfb, tmp_path):
+    """show(): the real VTK event loop; a slider release starts the worker, the timer shows its quilt."""
+    from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
+
+    viewer = HoloViewer(_small_scene(), ViewerConfig(window_size=(640, 360), out_dir=str(tmp_path),
+                                                     thumbnail_scale=0.1))
+    iren = viewer.plotter.iren
+    state = {"tick": 0, "key_before": None, "shown": False}
+
+    def tick(*_):
+        state["tick"] += 1
+        if state["tick"] == 2:
+            state["key_before"] = viewer._thumb_key
+            _fire_slider(viewer.sliders["expr1"], -1.0)
+        if state["tick"] > 2 and viewer._thumb_key != state["key_before"] and viewer._thumb_pending_key is None:
+            state["shown"] = True
+        if state["shown"] or state["tick"] > 150:  # 150 x 200 ms
+            iren.interactor.TerminateApp()
+
+    iren.add_observer("TimerEvent", tick)
+    viewer.show()  # returns when the loop terminates; closes the window and the worker
+    assert state["shown"], f"thumbnail not shown after {state['tick']} timer ticks"

@@ -30,9 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fps", type=float, default=25.0,
                         help="frame rate of the reaction video (default 25; lowered when --time-budget needs it)")
     parser.add_argument("--time-budget", type=float, default=270.0,
-                        help="seconds the whole demo may take (default 270): when the quilt rate measured on "
-                             "the first quilt cannot fill the video at --fps in time, the video uses a lower "
-                             "frame rate (same length) and says so; 0 = no limit")
+                        help="seconds the whole demo may take (default 270): when the quilt time measured on "
+                             "the video's first frame cannot fill the video at --fps in time, the video uses a "
+                             "lower frame rate (same length) and says so; 0 = no limit")
     parser.add_argument("--video-scale", type=float, default=1.0,
                         help="tile size of the video relative to the 420x560 quilt tile (default 1)")
     parser.add_argument("--renderer", default="fast", help="splat renderer backend (default fast)")
