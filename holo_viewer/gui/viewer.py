@@ -582,6 +582,8 @@ class HoloViewer:
         base = pipe.face
         cams = scale_cameras(pipe.cameras(), cfg.sweep_scale)
         weights = np.sin(np.linspace(0.0, np.pi, max(2, cfg.sweep_frames)))
+        self._set_status(f"rendering a {len(weights)}-quilt sweep video (progress in the terminal)...")
+        self.plotter.render()
 
         try:
             pipe.au_map  # noqa: B018 - named expressions need the model's action-unit map
