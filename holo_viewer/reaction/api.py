@@ -124,7 +124,8 @@ def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_s
 
 
 def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 0, temperature: float = 1.0,
-                           top_k: int | None = 20, checkpoint: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
+                           top_k: int | None = 20, checkpoint: str | os.PathLike | None = None,
+                           warmup: float = 4.0) -> dict[str, np.ndarray]:
     """Listener FLAME parameters reacting to a synthesized speaker clip, with the shipped checkpoint.
 
     Parameters
@@ -137,6 +138,10 @@ def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 
         Seeds the synthetic speaker and the sampling.
     temperature, top_k : decoding (temperature 0 = argmax)
     checkpoint : path, optional (default ``assets/reaction_default.pt``)
+    warmup : float >= 0
+        Seconds of conversation streamed before the returned clip (the speaker talks and the
+        listener reacts from a neutral start; only the last ``seconds`` are returned), so the
+        clip shows a listener already engaged rather than the first quiet second.
 
     Returns
     -------
@@ -155,10 +160,12 @@ def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 
     if tuple(au_map.names) != tuple(bundle.au_names):
         raise ReactionError(f"checkpoint AU order {list(bundle.au_names)} differs from the default head's "
                             f"{list(au_map.names)}; retrain the reaction model")
+    warmup = check_finite_scalar(warmup, "warmup", low=0.0, high=60.0)
     T = max(1, int(round(seconds * FPS)))
-    cfg = SyntheticConfig(seconds=T / FPS)
+    W = int(round(warmup * FPS))
+    cfg = SyntheticConfig(seconds=(T + W) / FPS)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
     sp = synth_speaker(rng, cfg, au_map.names, np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64))
     states = react(bundle, sp.waveform, cfg.audio.sample_rate, sp.state, pain=pain, temperature=temperature,
                    top_k=top_k, seed=seed)
-    return flame_params_from_states(states, au_map)
+    return flame_params_from_states(states[W:], au_map)
