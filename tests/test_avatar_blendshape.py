@@ -61,22 +61,79 @@ def test_first_order_agreement(rigged, blend):
     assert errs[1] < errs[0] / 30 + 2e-7, errs
 
 
-def test_face_chain_rule_equals_full_jvp(rigged, blend):
-    exact = BlendshapeAvatar.from_rigged(rigged, include_jaw=True, exact_jvp=True)
+@pytest.fixture(scope="module")
+def exact(rigged) -> BlendshapeAvatar:
+    return BlendshapeAvatar.from_rigged(rigged, include_jaw=True, exact_jvp=True)
+
+
+def test_face_chain_rule_equals_full_jvp(exact, blend):
+    # the face-factorised B (B_k = A_i F_k) materialised per Gaussian equals the full per-Gaussian jvp
+    assert blend.representation == "faces" and exact.representation == "gaussians"
+    b0_exact, b_exact = exact.blend_shapes()
+    b0, b = blend.blend_shapes()
+    assert b.shape == (8, len(blend), 10)
     np.testing.assert_allclose(exact.base, blend.base, atol=1e-7)
-    np.testing.assert_allclose(exact._sparse.to_dense(8), blend._sparse.to_dense(8), rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(b0, b0_exact, atol=1e-7)
+    np.testing.assert_allclose(b, b_exact, rtol=1e-5, atol=1e-7)
 
 
-def test_sparse_kernel_equals_dense_product(blend):
+def _shuffled(rigged: RiggedAvatar, seed: int) -> RiggedAvatar:
+    """The same avatar with its Gaussians in a random order (binding not sorted by face)."""
+    order = np.random.default_rng(seed).permutation(rigged.n_gaussians)
+    loc = rigged.local
+    g = Gaussians(loc.means[order], loc.quats[order], loc.log_scales[order], loc.opacity_logits[order],
+                  loc.sh[order])
+    return RiggedAvatar(rigged.flame_model, g, binding=rigged.binding[order], identity=rigged.identity), order
+
+
+@pytest.mark.parametrize("which", ["faces", "faces_unsorted", "faces_dropped", "gaussians"])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_kernel_equals_dense_product(rigged, blend, exact, which, threads):
+    import numba
+
+    if which == "faces_unsorted":
+        shuffled, order = _shuffled(rigged, 11)
+        av = BlendshapeAvatar.from_rigged(shuffled, include_jaw=True)
+        assert av._blend.perm.size == len(av)
+        # the same Gaussians, in the shuffled order
+        np.testing.assert_allclose(av.blend_shapes()[1], blend.blend_shapes()[1][:, order], rtol=1e-5, atol=1e-7)
+    elif which == "faces_dropped":  # most (face, component) pairs dropped: faces without entries copy F_0
+        av = BlendshapeAvatar.from_rigged(rigged, include_jaw=True, drop_tol=2e-2)
+        assert 0 < av.nnz < blend.nnz / 2, (av.nnz, blend.nnz)
+        static = av._blend.static_gaussians()
+        assert 0 < static.sum() < len(av)  # both paths of the kernel (copy B_0, blend the face)
+    else:
+        av = blend if which == "faces" else exact
     coeffs = np.random.default_rng(3).normal(size=(3, 5)).astype(np.float32)
+    coeffs[1, [0, 3]] = 0.0  # some components zero (skipped by the kernel)
     jaw = np.random.default_rng(4).normal(scale=0.1, size=(3, 3)).astype(np.float32)
-    blend.backend = "auto"
-    a = blend.blend_tensors(coeffs, jaw)
-    blend.backend = "torch"
-    b = blend.blend_tensors(coeffs, jaw)
-    blend.backend = "auto"
-    for x, y in zip(a, b):
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        av.backend = "auto"
+        a = av.blend_tensors(coeffs, jaw)
+    finally:
+        numba.set_num_threads(before)
+    av.backend = "torch"
+    b = av.blend_tensors(coeffs, jaw)
+    av.backend = "auto"
+    # float64 reference: B_0 + sum_k psi_k B_k from the materialised blend shapes
+    b0, bk = av.blend_shapes()
+    c = np.concatenate([coeffs, jaw], axis=1).astype(np.float64)
+    ref = b0[None] + np.einsum("tk,knp->tnp", c, bk)
+    for x, y, sl in zip(a, b, (slice(0, 3), slice(3, 7), slice(7, 10))):
+        assert x.dtype == torch.float32 and x.is_contiguous()
         torch.testing.assert_close(x, y, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(x.numpy(), ref[..., sl], rtol=1e-5, atol=1e-6)
+
+
+def test_no_components_equals_rigged_rest(rigged):
+    av = BlendshapeAvatar.from_rigged(rigged, n_expr=0)
+    assert av.nnz == 0 and av.n_components == 0
+    r, b = rigged.pose(), av.pose(np.zeros(0))
+    np.testing.assert_allclose(b.means.numpy(), r.means.numpy(), atol=1e-6)
+    np.testing.assert_allclose(b.quats.numpy(), r.quats.numpy(), atol=1e-6)
+    np.testing.assert_allclose(b.log_scales.numpy(), r.log_scales.numpy(), atol=1e-5)
 
 
 def test_rigid_head_pose_exact(rigged, blend):
@@ -92,27 +149,51 @@ def test_rigid_head_pose_exact(rigged, blend):
     torch.testing.assert_close(err_posed, err_rest, atol=1e-5, rtol=0)
 
 
-def test_save_load_round_trip_and_errors(tmp_path, blend):
-    p = blend.save(tmp_path / "bs.npz")
+def _nan_at(a: np.ndarray, i: int) -> np.ndarray:
+    return np.where(np.arange(a.size).reshape(a.shape) == i, np.nan, a)
+
+
+@pytest.mark.parametrize("which", ["faces", "gaussians"])
+def test_save_load_round_trip_and_errors(tmp_path, blend, exact, which):
+    av = blend if which == "faces" else exact
+    p = av.save(tmp_path / "bs.npz")
     b2 = BlendshapeAvatar.load(p)
+    assert b2.representation == av.representation
     e = np.linspace(-1, 1, 5)
-    assert torch.equal(b2.pose(e, jaw_pose=[0.1, 0, 0]).means, blend.pose(e, jaw_pose=[0.1, 0, 0]).means)
+    assert torch.equal(b2.pose(e, jaw_pose=[0.1, 0, 0]).means, av.pose(e, jaw_pose=[0.1, 0, 0]).means)
     with np.load(p) as z:
         data = dict(z)
+    values, floats, ptr = ("fvals", "f0", "fptr") if which == "faces" else ("vals", "base", "ptr")
     bad = dict(data)
-    bad.pop("vals")
+    bad.pop(values)
     np.savez(tmp_path / "missing.npz", **bad)
-    with pytest.raises(AvatarError, match="missing.npz: missing keys \\['vals'\\]"):
+    with pytest.raises(AvatarError, match=f"missing.npz: missing keys \\['{values}'\\]"):
         BlendshapeAvatar.load(tmp_path / "missing.npz")
-    bad = dict(data, base=np.where(np.arange(data["base"].size).reshape(data["base"].shape) == 7, np.nan,
-                                    data["base"]))
+    bad = dict(data, **{floats: _nan_at(data[floats], 7)})
     np.savez(tmp_path / "nan.npz", **bad)
-    with pytest.raises(AvatarError, match="nan.npz: base: holds NaN/inf"):
+    with pytest.raises(AvatarError, match=f"nan.npz: {floats}: holds NaN/inf"):
         BlendshapeAvatar.load(tmp_path / "nan.npz")
-    bad = dict(data, ptr=data["ptr"][:-1])
+    bad = dict(data, **{ptr: data[ptr][:-1]})
     np.savez(tmp_path / "ptr.npz", **bad)
-    with pytest.raises(AvatarError, match="ptr.npz: ptr/comp/vals"):
+    with pytest.raises(AvatarError, match=f"ptr.npz: {'fptr' if which == 'faces' else 'ptr/comp/vals'}"):
         BlendshapeAvatar.load(tmp_path / "ptr.npz")
+    if which == "faces":
+        bad = dict(data, local=_nan_at(data["local"], 3))
+        np.savez(tmp_path / "nanlocal.npz", **bad)
+        with pytest.raises(AvatarError, match="nanlocal.npz: local: holds NaN/inf"):
+            BlendshapeAvatar.load(tmp_path / "nanlocal.npz")
+        bad = dict(data, perm=np.zeros(len(av), np.int64))
+        np.savez(tmp_path / "perm.npz", **bad)
+        with pytest.raises(AvatarError, match="perm.npz: perm: expected a permutation"):
+            BlendshapeAvatar.load(tmp_path / "perm.npz")
+        bad = dict(data, fcomp=np.full_like(data["fcomp"], 99))
+        np.savez(tmp_path / "comp.npz", **bad)
+        with pytest.raises(AvatarError, match="comp.npz: .*component indices outside"):
+            BlendshapeAvatar.load(tmp_path / "comp.npz")
+    bad = dict(data, format=np.array("holo_viewer.blendshape_avatar.v9"))
+    np.savez(tmp_path / "fmt.npz", **bad)
+    with pytest.raises(AvatarError, match="fmt.npz: format: expected"):
+        BlendshapeAvatar.load(tmp_path / "fmt.npz")
     (tmp_path / "trunc.npz").write_bytes(p.read_bytes()[:300])
     with pytest.raises(AvatarError, match="trunc.npz: cannot read"):
         BlendshapeAvatar.load(tmp_path / "trunc.npz")
