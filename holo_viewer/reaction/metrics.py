@@ -159,49 +159,69 @@ def _numba_dtw():
 
         @numba.njit(parallel=True, cache=True)
         def _tasks(PT, G, tn, tj, bounds, weights):  # pragma: no cover - compiled
-            # PT (N, T1, D, K): the K reactions of each speaker in the innermost (SIMD) axis.
+            # PT (N, T1, D, K): the K reactions of each speaker in the innermost axis.
             # Task q compares all K reactions of speaker tn[q] with ground truth tj[q]; the K
-            # recursions run in lockstep, so distance and min vectorise over K while the
-            # ground-truth row is a broadcast scalar that stays in cache.
+            # recursions run in lockstep (the min-recursion vectorises over K). Squared distances
+            # come from |a|^2 + |b|^2 - 2 a.b with the cross term as one BLAS product per frame
+            # and group; where that expansion cancels (near-identical frames) the direct sum is used.
             Q = tn.shape[0]
             T1 = PT.shape[1]
             K = PT.shape[3]
+            D = PT.shape[2]
             T2 = G.shape[1]
             ng = bounds.shape[0]
             out = np.zeros((Q, K))
             for q in numba.prange(Q):
                 a = PT[tn[q]]
                 b = G[tj[q]]
+                bgs = [np.ascontiguousarray(b[:, bounds[g, 0]:bounds[g, 1]]) for g in range(ng)]
                 prev = np.empty((ng, T2 + 1, K))
                 cur = np.empty((ng, T2 + 1, K))
-                d = np.empty(K)
+                d = np.empty((ng, K))
                 for g in range(ng):
                     for k in range(K):
                         prev[g, 0, k] = 0.0
                     for j in range(1, T2 + 1):
                         for k in range(K):
                             prev[g, j, k] = np.inf
+                # squared distances by expansion |a|^2 + |b|^2 - 2 a.b, the cross term as one small
+                # BLAS product per (frame i, group): (T2, d_g) @ (d_g, K)
+                bsq = np.zeros((ng, T2))
+                for g in range(ng):
+                    for j in range(T2):
+                        acc = 0.0
+                        for c in range(bounds[g, 0], bounds[g, 1]):
+                            acc += b[j, c] * b[j, c]
+                        bsq[g, j] = acc
+                asq = np.zeros(K)
                 for i in range(1, T1 + 1):
                     for g in range(ng):
                         s = bounds[g, 0]
                         e = bounds[g, 1]
+                        ai = np.ascontiguousarray(a[i - 1, s:e, :])
+                        cross = np.dot(bgs[g], ai)  # (T2, K)
+                        for k in range(K):
+                            acc = 0.0
+                            for c in range(e - s):
+                                acc += ai[c, k] * ai[c, k]
+                            asq[k] = acc
                         for k in range(K):
                             cur[g, 0, k] = np.inf
                         for j in range(1, T2 + 1):
                             for k in range(K):
-                                d[k] = 0.0
-                            for c in range(s, e):
-                                bv = b[j - 1, c]
-                                for k in range(K):
-                                    diff = a[i - 1, c, k] - bv
-                                    d[k] += diff * diff
-                            for k in range(K):
+                                dd = asq[k] + bsq[g, j - 1] - 2.0 * cross[j - 1, k]
+                                if dd < 1e-6 * (asq[k] + bsq[g, j - 1]):
+                                    # near-identical frames: the expansion cancels, use the direct sum
+                                    dd = 0.0
+                                    for c in range(e - s):
+                                        diff = ai[c, k] - b[j - 1, s + c]
+                                        dd += diff * diff
                                 mm = prev[g, j - 1, k]
                                 if prev[g, j, k] < mm:
                                     mm = prev[g, j, k]
                                 if cur[g, j - 1, k] < mm:
                                     mm = cur[g, j - 1, k]
-                                cur[g, j, k] = d[k] + mm
+                                cur[g, j, k] = dd + mm
                     prev, cur = cur, prev
                 for k in range(K):
                     total = 0.0
