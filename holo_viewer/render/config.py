@@ -88,7 +88,7 @@ class RenderConfig:
     near: float | None = None
     num_threads: int | None = None
     kernel: KernelName = "auto"
-    max_chunk_bytes: int = 256 * 2**20
+    max_chunk_bytes: int = 128 * 2**20
     clip_output: bool = True
 
     def __post_init__(self) -> None:

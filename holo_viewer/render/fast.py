@@ -173,7 +173,8 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
             total_entries += ids.size
             fk.fill_tiles(box, tile, tiles_x, off, base, ids)
             t5 = time.perf_counter()
-            out = np.empty((len(views), H, W, 3), dtype=np.float32)
+            contiguous = bool(np.all(np.diff(views) == 1))
+            out = images[views[0]:views[-1] + 1] if contiguous else np.empty((len(views), H, W, 3), np.float32)
             blends = np.zeros(len(views) * n_tiles, dtype=np.int64)
             if use_cpp:
                 path = cpp.composite(rec, box, off, base, ids, len(views), m, tile, tiles_x, tiles_y, W, H,
@@ -183,7 +184,8 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
                 fk.composite(rec, box, off, base, ids, tile, tiles_x, tiles_y, W, H,
                              float(config.alpha_threshold), float(config.alpha_cap), float(config.t_min),
                              bg, bool(config.clip_output), out, blends)
-            images[views] = out
+            if not contiguous:
+                images[views] = out
             total_blends += int(blends.sum())
             t6 = time.perf_counter()
             timings["project"] += t4 - t3
