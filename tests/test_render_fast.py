@@ -75,7 +75,8 @@ def test_fast_matches_reference_shell_backgrounds(kernel, bg):
 @pytest.mark.parametrize("kernel", KERNELS)
 @pytest.mark.parametrize("cfg", [
     dict(alpha_threshold=0.02), dict(radius_sigmas=2.0), dict(sh_degree=1), dict(shared_sh=True),
-    dict(cull_margin=0.05), dict(tile_size=8), dict(tile_size=32), dict(alpha_cap=0.9, t_min=1e-3),
+    dict(cull_margin=0.05), dict(tile_size=8), dict(tile_size=12), dict(tile_size=32),
+    dict(alpha_cap=0.9, t_min=1e-3),
     dict(dilation=0.0), dict(near=1.2), dict(clip_output=False),
 ])
 def test_fast_matches_reference_knobs(kernel, cfg):
