@@ -5,12 +5,12 @@ PY := $(VENV)/bin/python
 OUT ?= out
 PYTEST_ARGS ?=
 
-.PHONY: demo test setup bench clean help
+.PHONY: demo test setup bench bench-quick clean help
 
 help:
 	@echo "make demo   - set up .venv, then run the main job on the default avatar (writes $(OUT)/)"
 	@echo "make test   - set up .venv, then run the test suite"
-	@echo "make bench  - run the benchmarks under bench/ (writes bench/results/*.json)"
+	@echo "make bench  - run the benchmarks under bench/ (writes bench/results/*.json); bench-quick: < 3 min"
 
 setup:
 	@bash scripts/setup.sh
@@ -22,7 +22,17 @@ test: setup
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
 bench: setup
-	$(PY) bench/flame_speed.py --json bench/results/flame_speed.json
+	mkdir -p bench/results
+	$(PY) bench/flame_speed.py --threads 1 --json bench/results/flame_speed.json
+	$(PY) bench/deform_tradeoff.py --json bench/results/deform_tradeoff.json
+	$(PY) bench/render_tradeoff.py --json bench/results/render_tradeoff.json --plot bench/results/render_tradeoff.png
+	$(PY) bench/lenticular_speed.py --json bench/results/lenticular_speed.json
+	$(PY) bench/reaction_latency.py --json bench/results/reaction_latency.json
+	$(PY) bench/react_metrics_speed.py --json bench/results/react_metrics_speed.json
+
+bench-quick: setup
+	mkdir -p bench/results
+	$(PY) bench/render_tradeoff.py --quick --json bench/results/render_tradeoff_quick.json
 
 clean:
 	rm -rf $(OUT) .pytest_cache build *.egg-info
