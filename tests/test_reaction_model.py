@@ -143,3 +143,36 @@ def test_checkpoint_errors(tmp_path):
         load_checkpoint(tmp_path / "other.pt")
     with pytest.raises(ReactionError, match="unknown keys"):
         train_config_from_dict({"max_step": 3})
+
+
+def test_smooth_states_is_causal_streamable_and_removes_jumps():
+    from holo_viewer.reaction.api import smooth_states
+
+    rng = np.random.default_rng(3)
+    # piecewise constant like token output: a new value every 8 frames
+    x = np.repeat(rng.normal(size=(6, 4)), 8, axis=0)
+    y = smooth_states(x, 0.12, fps=25)
+    assert y.shape == x.shape
+    assert np.abs(np.diff(y, axis=0)).max() < 0.5 * np.abs(np.diff(x, axis=0)).max()
+    # causal: the first k outputs depend only on the first k inputs
+    x2 = x.copy()
+    x2[20:] += 5.0
+    assert np.array_equal(smooth_states(x2, 0.12)[:20], y[:20])
+    # streaming in two windows with the carried state equals one call
+    a = smooth_states(x[:13], 0.12)
+    b = smooth_states(x[13:], 0.12, initial=a[-1])
+    assert np.allclose(np.concatenate([a, b]), y, atol=1e-12)
+    # converges to a held value; zero time constant is the identity
+    held = smooth_states(np.repeat(x[:1] * 0 + 1.0, 60, axis=0), 0.12, initial=np.zeros(4))
+    assert abs(held[-1] - 1.0).max() < 1e-6
+    assert np.array_equal(smooth_states(x, 0.0), x)
+
+
+def test_demo_reaction_is_smooth():
+    from holo_viewer.reaction.api import generate_demo_reaction
+
+    raw = generate_demo_reaction(seconds=2.0, pain=0.6, seed=0, smoothing=0.0)["expr"]
+    smooth = generate_demo_reaction(seconds=2.0, pain=0.6, seed=0)["expr"]
+    assert raw.shape == smooth.shape
+    assert np.abs(np.diff(smooth, axis=0)).max() < np.abs(np.diff(raw, axis=0)).max()
+    assert len(np.unique(smooth.round(5), axis=0)) > len(np.unique(raw.round(5), axis=0))

@@ -20,13 +20,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--temperature", type=float, default=0.0, help="sampling temperature (0 = argmax, default)")
     parser.add_argument("--top-k", type=int, default=20, help="top-k sampling when temperature > 0")
     parser.add_argument("--seed", type=int, default=0, help="sampling seed")
+    parser.add_argument("--smoothing", type=float, default=None, metavar="SECONDS",
+                        help="time constant of the causal output smoothing (default 0.12 s; 0 = raw model tokens, "
+                             "piecewise constant per k-frame window)")
 
 
 def run(args: argparse.Namespace) -> int:
     """Generate and write OUT.npz; returns 0."""
     from ..fileio import save_npz
     from ..flame.expressions import default_au_map
-    from ..reaction.api import flame_params_from_states, load_default_bundle, load_speaker_npz, react
+    from ..reaction.api import (ANIMATION_SMOOTHING_S, flame_params_from_states, load_default_bundle,
+                                load_speaker_npz, react)
     from ..reaction.audio import read_wav
 
     bundle = load_default_bundle(args.checkpoint)
@@ -35,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
     past = load_speaker_npz(args.listener_past, au_map) if args.listener_past else None
     audio, sr = read_wav(args.audio)
     states = react(bundle, audio, sr, speaker, pain=args.pain, listener_past=past, temperature=args.temperature,
-                   top_k=args.top_k or None, seed=args.seed)
+                   top_k=args.top_k or None, seed=args.seed,
+                   smoothing=ANIMATION_SMOOTHING_S if args.smoothing is None else args.smoothing)
     params = flame_params_from_states(states, au_map)
     save_npz(args.out, **params)
     print(f"wrote {args.out}: {states.shape[0]} frames at 25 fps, keys {sorted(params)}")

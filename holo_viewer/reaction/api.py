@@ -28,7 +28,47 @@ from .model import generate
 from .train import ReactionBundle, load_checkpoint
 
 __all__ = ["default_checkpoint_path", "load_default_bundle", "load_speaker_npz", "react", "flame_params_from_states",
-           "generate_demo_reaction"]
+           "generate_demo_reaction", "smooth_states", "ANIMATION_SMOOTHING_S"]
+
+#: Default time constant (seconds) of the causal smoothing applied to animation output. The model
+#: decodes one codebook token per frame and consecutive frames of a k-frame window usually share
+#: a code, so raw output is piecewise constant with jumps at window edges; a one-pole filter with
+#: this time constant turns the jumps into ~0.3 s transitions (lag ~0.12 s, below the 0.2-1 s
+#: listener lags). Metrics (``evaluate``) always use the raw model output.
+ANIMATION_SMOOTHING_S = 0.12
+
+
+def smooth_states(states: np.ndarray, time_constant: float = ANIMATION_SMOOTHING_S, fps: float = FPS,
+                  initial: np.ndarray | None = None) -> np.ndarray:
+    """Causal one-pole (exponential) smoothing of per-frame face states.
+
+    ``y[t] = y[t-1] + a (x[t] - y[t-1])`` with ``a = 1 - exp(-1 / (fps * time_constant))`` and
+    ``y[-1] = initial`` (default ``x[0]``). Causal, so streaming window by window gives the same
+    result as one call when the last output row is passed on as ``initial``.
+
+    Parameters
+    ----------
+    states : numpy.ndarray, shape (T, S)
+    time_constant : float >= 0, seconds (0 returns a copy of ``states``)
+    fps : float > 0
+    initial : numpy.ndarray, shape (S,), optional
+
+    Returns
+    -------
+    numpy.ndarray, shape (T, S), same dtype as ``states``
+    """
+    x = np.asarray(check_array(states, "states", ("T", "S")))
+    tc = check_finite_scalar(time_constant, "time_constant", low=0.0)
+    fps = check_finite_scalar(fps, "fps", low=0.0, low_open=True)
+    if tc == 0.0 or x.shape[0] == 0:
+        return x.copy()
+    a = 1.0 - np.exp(-1.0 / (fps * tc))
+    y = np.empty_like(x)
+    prev = x[0] if initial is None else np.asarray(check_array(initial, "initial", (x.shape[1],)), dtype=x.dtype)
+    for t in range(x.shape[0]):
+        prev = prev + a * (x[t] - prev)
+        y[t] = prev
+    return y
 
 
 def default_checkpoint_path() -> Path:
@@ -92,7 +132,7 @@ def flame_params_from_states(states: np.ndarray, au_map, n_shape: int | None = N
 
 def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_state: np.ndarray,
           pain: float = 0.0, listener_past: np.ndarray | None = None, temperature: float = 0.0,
-          top_k: int | None = None, seed: int = 0) -> np.ndarray:
+          top_k: int | None = None, seed: int = 0, smoothing: float = 0.0) -> np.ndarray:
     """Listener face states (T, S) reacting to a speaker clip, streamed k frames at a time.
 
     Parameters
@@ -105,6 +145,9 @@ def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_s
     listener_past : numpy.ndarray, shape (P, S), optional
         Listener frames before the clip (the most recent ``listener_window`` are used).
     temperature, top_k, seed : decoding (temperature 0 = argmax)
+    smoothing : float >= 0
+        Time constant in seconds of :func:`smooth_states` applied to the output (0 = raw model
+        output, as the metrics use; animation callers pass :data:`ANIMATION_SMOOTHING_S`).
     """
     cfg = bundle.model.config
     S = cfg.state_dim
@@ -120,12 +163,13 @@ def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_s
                    torch.from_numpy(np.asarray(speaker_state, dtype=np.float32))[None],
                    torch.tensor([pain], dtype=torch.float32), listener_past=past, temperature=temperature,
                    top_k=top_k, seed=seed)
-    return out[0].numpy()
+    initial = None if past is None else past[0, -1].numpy()  # continue smoothly from the listener's past
+    return smooth_states(out[0].numpy(), smoothing, initial=initial)
 
 
 def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 0, temperature: float = 1.0,
                            top_k: int | None = 20, checkpoint: str | os.PathLike | None = None,
-                           warmup: float = 4.0) -> dict[str, np.ndarray]:
+                           warmup: float = 4.0, smoothing: float = ANIMATION_SMOOTHING_S) -> dict[str, np.ndarray]:
     """Listener FLAME parameters reacting to a synthesized speaker clip, with the shipped checkpoint.
 
     Parameters
@@ -142,6 +186,8 @@ def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 
         Seconds of conversation streamed before the returned clip (the speaker talks and the
         listener reacts from a neutral start; only the last ``seconds`` are returned), so the
         clip shows a listener already engaged rather than the first quiet second.
+    smoothing : float >= 0
+        Time constant (s) of the causal output smoothing (:func:`smooth_states`; 0 = raw tokens).
 
     Returns
     -------
@@ -167,5 +213,5 @@ def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
     sp = synth_speaker(rng, cfg, au_map.names, np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64))
     states = react(bundle, sp.waveform, cfg.audio.sample_rate, sp.state, pain=pain, temperature=temperature,
-                   top_k=top_k, seed=seed)
+                   top_k=top_k, seed=seed, smoothing=smoothing)
     return flame_params_from_states(states[W:], au_map)
