@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from ..validation import is_torch
 
 __all__ = ["C0", "C1", "C2", "C3", "sh_basis", "eval_sh", "sh_to_rgb"]
 
@@ -31,19 +32,28 @@ def sh_basis(degree: int, dirs: np.ndarray) -> np.ndarray:
     ----------
     degree : int
         0..3.
-    dirs : numpy.ndarray
-        (..., 3) unit directions (x, y, z) in world space.
+    dirs : numpy.ndarray or torch.Tensor
+        (..., 3) unit directions (x, y, z) in world space. A torch tensor gives a torch
+        result on its device (the torch backend uses this same function).
 
     Returns
     -------
-    numpy.ndarray
+    numpy.ndarray or torch.Tensor
         (..., (degree+1)^2) basis values, same dtype as ``dirs``.
     """
     if degree not in (0, 1, 2, 3):
         raise InputError(f"sh degree: expected 0..3, found {degree!r}")
-    d = np.asarray(dirs)
+    if is_torch(dirs):
+        import torch
+
+        d, stack = dirs, (lambda parts: torch.stack(parts, dim=-1))
+        full = torch.full_like
+    else:
+        d = np.asarray(dirs)
+        stack = (lambda parts: np.stack(parts, axis=-1))
+        full = np.full_like
     x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    out = [np.full(x.shape, C0, dtype=d.dtype)]
+    out = [full(x, C0)]
     if degree >= 1:
         out += [-C1 * y, C1 * z, -C1 * x]
     if degree >= 2:
@@ -53,7 +63,7 @@ def sh_basis(degree: int, dirs: np.ndarray) -> np.ndarray:
         out += [C3[0] * y * (3.0 * xx - yy), C3[1] * xy * z, C3[2] * y * (4.0 * zz - xx - yy),
                 C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy), C3[4] * x * (4.0 * zz - xx - yy),
                 C3[5] * z * (xx - yy), C3[6] * x * (xx - 3.0 * yy)]
-    return np.stack(out, axis=-1)
+    return stack(out)
 
 
 def eval_sh(degree: int, sh: np.ndarray, dirs: np.ndarray) -> np.ndarray:

@@ -42,7 +42,7 @@ from ..camera import Cameras
 from ..errors import RenderError
 from .config import RenderConfig, RenderResult
 from .projection import CLAMP_WIDEN
-from .sh import C0, C1, C2, C3
+from .sh import C0, sh_basis
 
 __all__ = ["render", "resolve_device", "sh_colors", "BACKEND_NAME"]
 
@@ -82,23 +82,6 @@ def resolve_device(gaussians: Any, device: Any = None) -> Any:
 
 
 # --------------------------------------------------------------------------- SH
-def _sh_basis(degree: int, d: Any) -> Any:
-    """Torch twin of :func:`holo_viewer.render.sh.sh_basis`: (..., 3) unit dirs -> (..., (d+1)^2)."""
-    torch = _torch()
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    out = [torch.full_like(x, C0)]
-    if degree >= 1:
-        out += [-C1 * y, C1 * z, -C1 * x]
-    if degree >= 2:
-        xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
-        out += [C2[0] * xy, C2[1] * yz, C2[2] * (2.0 * zz - xx - yy), C2[3] * xz, C2[4] * (xx - yy)]
-    if degree >= 3:
-        out += [C3[0] * y * (3.0 * xx - yy), C3[1] * xy * z, C3[2] * y * (4.0 * zz - xx - yy),
-                C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy), C3[4] * x * (4.0 * zz - xx - yy),
-                C3[5] * z * (xx - yy), C3[6] * x * (xx - 3.0 * yy)]
-    return torch.stack(out, dim=-1)
-
-
 def sh_colors(means: Any, sh: Any, degree: int, cam_pos: Any) -> Any:
     """(N, 3) colours ``max(SH(n(mean - cam_pos)) + 0.5, 0)`` of degree ``degree``.
 
@@ -119,7 +102,7 @@ def sh_colors(means: Any, sh: Any, degree: int, cam_pos: Any) -> Any:
         return torch.clamp_min(sh[:, 0] * C0 + 0.5, 0.0)
     d = means - cam_pos
     d = d / torch.linalg.norm(d, dim=-1, keepdim=True).clamp_min(1e-30)
-    basis = _sh_basis(degree, d)  # (N, k)
+    basis = sh_basis(degree, d)  # (N, k), the numpy reference's formula on torch tensors
     return torch.clamp_min(torch.einsum("nk,nkc->nc", basis, sh[:, :k]) + 0.5, 0.0)
 
 
