@@ -166,12 +166,12 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
                                     float(config.alpha_threshold), cull, rec, box)
             n_visible_mask[order[seen.astype(bool)]] = True
             t4 = time.perf_counter()
-            off = fk.count_tiles(box, tile, tiles_x, tiles_y)
+            off = fk.count_tiles(rec, box, tile, tiles_x, tiles_y)
             base = np.zeros(len(views), dtype=np.int64)
             base[1:] = np.cumsum(off[:-1, -1])
             ids = np.empty(int(off[:, -1].sum()), dtype=np.int32)
             total_entries += ids.size
-            fk.fill_tiles(box, tile, tiles_x, off, base, ids)
+            fk.fill_tiles(rec, box, tile, tiles_x, off, base, ids)
             t5 = time.perf_counter()
             contiguous = bool(np.all(np.diff(views) == 1))
             out = images[views[0]:views[-1] + 1] if contiguous else np.empty((len(views), H, W, 3), np.float32)

@@ -213,9 +213,51 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
     return seen
 
 
+@nb.njit(inline="always", cache=True)
+def _band_tiles(rec, v, k, tile, x0, x1, ya, yb):  # pragma: no cover - compiled
+    """Tile columns [t0, t1] of the tiles the alpha >= threshold ellipse of splat k reaches
+    between the pixel rows ya..yb (inclusive), clipped to its box columns [x0, x1); t0 > t1 if none.
+
+    The ellipse d^T conic d <= q has its right-most point at dy = -B hx / C (hx = its half
+    width); over a band of rows the right end of the chord is concave in dy, so its maximum is
+    at that dy clamped to the band (mirror for the left end). Widened by 0.05 px + 1e-3
+    relative, so every pixel the compositor can blend is kept.
+    """
+    u = float(rec[v, k, 0])
+    vv = float(rec[v, k, 1])
+    A = float(rec[v, k, 2])
+    B = float(rec[v, k, 3])
+    C = float(rec[v, k, 4])
+    q = float(rec[v, k, 9])
+    det = A * C - B * B
+    j0 = x0
+    j1 = x1 - 1
+    if det > 0.0 and A > 0.0 and C > 0.0 and q > 0.0:
+        hx = math.sqrt(q * C / det)
+        d0 = ya + 0.5 - vv
+        d1 = yb + 0.5 - vv
+        kk = B * hx / C
+        dr = min(max(-kk, d0), d1)
+        dl = min(max(kk, d0), d1)
+        e = B * B - A * C
+        sr = math.sqrt(max(dr * dr * e + A * q, 0.0))
+        sl = math.sqrt(max(dl * dl * e + A * q, 0.0))
+        xr = u + (-B * dr + sr * 1.001) / A + 0.05
+        xl = u + (-B * dl - sl * 1.001) / A - 0.05
+        j0 = max(j0, int(math.ceil(xl - 0.5)))
+        j1 = min(j1, int(math.floor(xr - 0.5)))
+    if j0 > j1:
+        return 1, 0
+    return j0 // tile, j1 // tile
+
+
 @nb.njit(parallel=True, cache=True)
-def count_tiles(box, tile, tiles_x, tiles_y):  # pragma: no cover - compiled
-    """(V, n_tiles + 1) int64 exclusive prefix sums of the number of splats per tile."""
+def count_tiles(rec, box, tile, tiles_x, tiles_y):  # pragma: no cover - compiled
+    """(V, n_tiles + 1) int64 exclusive prefix sums of the number of splats per tile.
+
+    A splat is listed in the tiles its alpha >= threshold ellipse reaches (per tile row, the
+    ellipse's x-extent over the rows of the band, :func:`_band_tiles`), not every tile of its box.
+    """
     nv, m = box.shape[0], box.shape[1]
     nt = tiles_x * tiles_y
     off = np.zeros((nv, nt + 1), dtype=np.int64)
@@ -226,7 +268,8 @@ def count_tiles(box, tile, tiles_x, tiles_y):  # pragma: no cover - compiled
             if x0 >= x1 or y0 >= y1:
                 continue
             for ty in range(y0 // tile, (y1 - 1) // tile + 1):
-                for tx in range(x0 // tile, (x1 - 1) // tile + 1):
+                t0, t1 = _band_tiles(rec, v, k, tile, x0, x1, max(y0, ty * tile), min(y1, ty * tile + tile) - 1)
+                for tx in range(t0, t1 + 1):
                     cnt[ty * tiles_x + tx] += 1
         s = 0
         for t in range(nt):
@@ -237,7 +280,7 @@ def count_tiles(box, tile, tiles_x, tiles_y):  # pragma: no cover - compiled
 
 
 @nb.njit(parallel=True, cache=True)
-def fill_tiles(box, tile, tiles_x, off, base, ids):  # pragma: no cover - compiled
+def fill_tiles(rec, box, tile, tiles_x, off, base, ids):  # pragma: no cover - compiled
     """Write splat indices per (view, tile) in depth order into ``ids`` at ``base[v] + off[v, t]``."""
     nv, m = box.shape[0], box.shape[1]
     nt = off.shape[1] - 1
@@ -249,7 +292,8 @@ def fill_tiles(box, tile, tiles_x, off, base, ids):  # pragma: no cover - compil
             if x0 >= x1 or y0 >= y1:
                 continue
             for ty in range(y0 // tile, (y1 - 1) // tile + 1):
-                for tx in range(x0 // tile, (x1 - 1) // tile + 1):
+                t0, t1 = _band_tiles(rec, v, k, tile, x0, x1, max(y0, ty * tile), min(y1, ty * tile + tile) - 1)
+                for tx in range(t0, t1 + 1):
                     t = ty * tiles_x + tx
                     ids[b + cur[t]] = k
                     cur[t] += 1

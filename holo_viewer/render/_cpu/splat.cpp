@@ -171,53 +171,69 @@ int64_t tile_scalar(const Job& J, int v, int t, TileBuf& b) {
 }
 
 #if HV_HAVE_AVX2_PATH
-// exp(x) for x in [EXP_LO, 0]: 2^(x log2 e) = 2^n * 2^f with n = round, f in [-0.5, 0.5];
-// 2^f by its degree-5 Taylor polynomial in f ln 2 (relative error < 3e-6); 2^n by adding n to
-// the exponent bits. 7 floating-point operations instead of the 13 of the squaring scheme.
-__attribute__((target("avx2,fma"))) inline __m256 fast_exp8(__m256 x) {
-    const __m256 t = _mm256_mul_ps(_mm256_max_ps(x, _mm256_set1_ps(EXP_LO)), _mm256_set1_ps(1.4426950408889634f));
+// Per-tile AVX2 compositor. Per splat: (1) the chord [lo, hi) of its alpha >= threshold ellipse
+// on each of its rows in the tile, 8 rows per vector (a sqrt per row), clipped to its box;
+// (2) the list of 8-pixel chunks that overlap a chord and still hold a live pixel (per-row
+// bitmask of live chunks); (3) one flat loop over that list. A finished pixel keeps its
+// transmittance with the sign flipped (T < 0 = done), so no separate live mask is loaded or
+// stored; pixels outside the image start finished. The alpha test is done on the exponent:
+// alpha >= thr  <=>  power >= log2(thr / opacity) (log2 e folded into the conic), so the
+// exp2 needs no range clamp (lanes that fail the test are masked out).
+constexpr float LOG2E = 1.4426950408889634f;
+
+__attribute__((target("avx2,fma"))) inline __m256 fast_exp2_8(__m256 t) {
+    // 2^t = 2^n 2^f, n = round(t), f in [-0.5, 0.5]; 2^f: degree-5 Taylor in f ln 2 (rel. err < 3e-6)
     const __m256 n = _mm256_round_ps(t, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-    const __m256 f = _mm256_mul_ps(_mm256_sub_ps(t, n), _mm256_set1_ps(0.6931471805599453f));
-    __m256 e = _mm256_fmadd_ps(f, _mm256_set1_ps(1.0f / 120.0f), _mm256_set1_ps(1.0f / 24.0f));
-    e = _mm256_fmadd_ps(e, f, _mm256_set1_ps(1.0f / 6.0f));
-    e = _mm256_fmadd_ps(e, f, _mm256_set1_ps(0.5f));
-    e = _mm256_fmadd_ps(e, f, _mm256_set1_ps(1.0f));
+    const __m256 f = _mm256_sub_ps(t, n);
+    __m256 e = _mm256_fmadd_ps(f, _mm256_set1_ps(1.3333558146428443e-3f), _mm256_set1_ps(9.618129107628477e-3f));
+    e = _mm256_fmadd_ps(e, f, _mm256_set1_ps(5.550410866482158e-2f));
+    e = _mm256_fmadd_ps(e, f, _mm256_set1_ps(0.2402265069591007f));
+    e = _mm256_fmadd_ps(e, f, _mm256_set1_ps(0.6931471805599453f));
     e = _mm256_fmadd_ps(e, f, _mm256_set1_ps(1.0f));
     const __m256i bits = _mm256_slli_epi32(_mm256_cvtps_epi32(n), 23);
     return _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(e), bits));
 }
 
-__attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t, TileBuf& b) {
-    const int tile = J.tile;  // multiple of 8 (checked by the caller)
+struct AvxScratch {
+    AlignedArray<float> lin, cst, lo, hi, dxc;  // per row: power terms, chord bounds in dx; per chunk column: dx
+    AlignedArray<int32_t> ilo, ihi;             // per row: chord [ilo, ihi) in tile columns
+    std::vector<uint32_t> row_chunks;           // per row: bit c set while chunk c has a live pixel
+    std::vector<int32_t> item_p, item_y;        // chunk list of the current splat
+    explicit AvxScratch(int tile)
+        : lin(tile + 8), cst(tile + 8), lo(tile + 8), hi(tile + 8), dxc(tile), ilo(tile + 8), ihi(tile + 8),
+          row_chunks(tile), item_p(tile * tile / 8), item_y(tile * tile / 8) {}
+};
+
+__attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t, TileBuf& b, AvxScratch& s) {
+    const int tile = J.tile;  // multiple of 8, <= 256 (checked by the caller)
     const int ty = t / J.tiles_x, tx = t % J.tiles_x;
     const int px0 = tx * tile, py0 = ty * tile;
     const int pw = std::min(tile, J.width - px0), ph = std::min(tile, J.height - py0);
-    const int chunks = tile / 8;
-    std::fill(b.T.begin(), b.T.end(), 1.0f);
+    int n_live = pw * ph;
+    for (int y = 0; y < tile; ++y) {
+        uint32_t bits = 0;
+        for (int x = 0; x < tile; ++x) {
+            const bool in = y < ph && x < pw;
+            b.T[y * tile + x] = in ? 1.0f : -1.0f;
+            if (in) bits |= 1u << (x >> 3);
+        }
+        s.row_chunks[y] = bits;
+    }
     std::fill(b.R.begin(), b.R.end(), 0.0f);
     std::fill(b.G.begin(), b.G.end(), 0.0f);
     std::fill(b.B.begin(), b.B.end(), 0.0f);
-    int n_live = 0;
-    for (int y = 0; y < tile; ++y) {
-        b.row_live[y] = y < ph ? pw : 0;
-        n_live += b.row_live[y];
-        for (int x = 0; x < tile; ++x) b.live[y * tile + x] = (y < ph && x < pw) ? -1 : 0;
-    }
-    // bit y set while row y has a live pixel: splats whose rows are all finished are skipped whole
-    uint64_t row_mask = ph >= 64 ? ~uint64_t(0) : ((uint64_t(1) << ph) - 1);
-    int64_t nbl = 0;
     const int64_t nt = int64_t(J.tiles_x) * J.tiles_y;
     const int64_t* off = J.off + int64_t(v) * (nt + 1);
     const int32_t* ids = J.ids + J.base[v];
     const __m256 lane = _mm256_setr_ps(0.f, 1.f, 2.f, 3.f, 4.f, 5.f, 6.f, 7.f);
-    const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
-    const __m256 vcap = _mm256_set1_ps(J.cap), vthr = _mm256_set1_ps(J.thr), vtmin = _mm256_set1_ps(J.tmin);
-    // Splat records are gathered GATHER at a time into a local buffer: independent loads overlap
-    // their cache misses (the records of one tile are scattered over the view's arrays).
+    const __m256 zero = _mm256_setzero_ps(), sign = _mm256_set1_ps(-0.0f);
+    const __m256 vcap = _mm256_set1_ps(J.cap), vtmin = _mm256_set1_ps(J.tmin);
+    __m256i count = _mm256_setzero_si256();
     constexpr int GATHER = 32;
     alignas(32) float gr[GATHER][REC];
     int32_t gb[GATHER][4];
     int n_g = 0, i_g = 0;
+    const int chunks = tile / 8;
     for (int64_t e = off[t]; e < off[t + 1] && n_live > 0; ++e) {
         if (i_g == n_g) {
             n_g = int(std::min<int64_t>(GATHER, off[t + 1] - e));
@@ -234,57 +250,97 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
         const int x0 = std::max(bx[0], px0) - px0, x1 = std::min(bx[1], px0 + pw) - px0;
         const int y0 = std::max(bx[2], py0) - py0, y1 = std::min(bx[3], py0 + ph) - py0;
         if (x0 >= x1 || y0 >= y1) continue;
-        const int nr = y1 - y0;
-        if (((row_mask >> y0) & (nr >= 64 ? ~uint64_t(0) : ((uint64_t(1) << nr) - 1))) == 0) continue;
         const float u = r[0] - (float(px0) + 0.5f), vv = r[1] - (float(py0) + 0.5f);
-        const __m256 ca = _mm256_set1_ps(-0.5f * r[2]);
-        const float cb = r[3], cc = -0.5f * r[4];
+        const float A = r[2], Bc = r[3], C = r[4], q = r[9];
+        // (1) chords, 8 rows at a time
+        {
+            const __m256 vA = _mm256_set1_ps(A), vq = _mm256_set1_ps(q);
+            const __m256 iA = _mm256_set1_ps(1.0f / A);
+            const __m256 kdd = _mm256_set1_ps(Bc * Bc - A * C), Aq = _mm256_mul_ps(vA, vq);
+            const __m256 negtol = _mm256_mul_ps(Aq, _mm256_set1_ps(-1e-4f));
+            const __m256 vu = _mm256_set1_ps(u), vvv = _mm256_set1_ps(vv), vB = _mm256_set1_ps(Bc);
+            const __m256 vx0 = _mm256_set1_ps(float(x0)), vx1 = _mm256_set1_ps(float(x1));
+            const __m256 klin = _mm256_set1_ps(-Bc * LOG2E), kcst = _mm256_set1_ps(-0.5f * C * LOG2E);
+            const __m256 half_pix = _mm256_set1_ps(0.5f);
+            for (int y = y0; y < y1; y += 8) {
+                const __m256 dy = _mm256_sub_ps(_mm256_add_ps(_mm256_set1_ps(float(y)), lane), vvv);
+                const __m256 D = _mm256_fmadd_ps(_mm256_mul_ps(dy, dy), kdd, Aq);
+                const __m256 keep = _mm256_cmp_ps(D, negtol, _CMP_GE_OQ);
+                const __m256 half = _mm256_add_ps(
+                    _mm256_mul_ps(_mm256_mul_ps(_mm256_sqrt_ps(_mm256_max_ps(D, zero)), iA), _mm256_set1_ps(1.0001f)),
+                    _mm256_set1_ps(1e-2f));
+                const __m256 xc = _mm256_fnmadd_ps(_mm256_mul_ps(vB, dy), iA, vu);
+                __m256 lo = _mm256_ceil_ps(_mm256_sub_ps(xc, half));
+                __m256 hi = _mm256_add_ps(_mm256_floor_ps(_mm256_add_ps(xc, half)), _mm256_set1_ps(1.0f));
+                lo = _mm256_max_ps(lo, vx0);
+                hi = _mm256_min_ps(hi, vx1);
+                hi = _mm256_blendv_ps(vx0, hi, keep);  // dropped rows: empty chord
+                _mm256_store_si256((__m256i*)&s.ilo[y - y0], _mm256_cvttps_epi32(lo));
+                _mm256_store_si256((__m256i*)&s.ihi[y - y0], _mm256_cvttps_epi32(hi));
+                _mm256_storeu_ps(&s.lo[y], _mm256_sub_ps(_mm256_sub_ps(lo, half_pix), vu));
+                _mm256_storeu_ps(&s.hi[y], _mm256_sub_ps(_mm256_sub_ps(hi, half_pix), vu));
+                _mm256_storeu_ps(&s.lin[y], _mm256_mul_ps(klin, dy));
+                _mm256_storeu_ps(&s.cst[y], _mm256_mul_ps(kcst, _mm256_mul_ps(dy, dy)));
+            }
+        }
+        // (2) live chunks overlapping the chords
+        int n_it = 0;
+        for (int y = y0; y < y1; ++y) {
+            const int lo = s.ilo[y - y0], hi = s.ihi[y - y0];
+            if (lo >= hi) continue;
+            const int c0 = lo >> 3, c1 = (hi - 1) >> 3;
+            uint64_t bits = ((uint64_t(2) << c1) - (uint64_t(1) << c0)) & s.row_chunks[y];
+            while (bits) {
+                const int c = __builtin_ctzll(bits);
+                bits &= bits - 1;
+                s.item_p[n_it] = y * tile + c * 8;
+                s.item_y[n_it] = y;
+                ++n_it;
+            }
+        }
+        if (n_it == 0) continue;
+        for (int c = 0; c < chunks; ++c)
+            _mm256_store_ps(&s.dxc[c * 8], _mm256_sub_ps(_mm256_add_ps(_mm256_set1_ps(float(c * 8)), lane),
+                                                          _mm256_set1_ps(u)));
+        // (3) blend
+        const __m256 ca = _mm256_set1_ps(-0.5f * A * LOG2E);
+        const __m256 pthr = _mm256_set1_ps(-0.5f * q * LOG2E);  // log2(thr / opacity)
         const __m256 op = _mm256_set1_ps(r[5]);
-        const __m256 fx0 = _mm256_set1_ps(float(x0)), fx1 = _mm256_set1_ps(float(x1));
         const __m256 cr = _mm256_set1_ps(r[6]), cg = _mm256_set1_ps(r[7]), cbl = _mm256_set1_ps(r[8]);
-        // One flat loop over the (row, 8-pixel chunk) pairs of the splat's box in this tile: its
-        // only data-dependent branch is the exit. Mispredicted branches (per-row chunk counts,
-        // skipped rows) flush the pipeline and expose the exp latency chain; masked lanes are cheaper.
-        const int c0 = x0 >> 3, nc = ((x1 - 1) >> 3) - c0 + 1;
-        const int n_it = (y1 - y0) * nc;
-        int y = y0, c = c0;
-        for (int it = 0; it < n_it; ++it) {
-            const float dy = float(y) - vv;
-            const __m256 lin = _mm256_set1_ps(-cb * dy), cst = _mm256_set1_ps(cc * dy * dy);
-            const int p = y * tile + c * 8;
-            const __m256 live = _mm256_castsi256_ps(_mm256_loadu_si256((const __m256i*)&b.live[p]));
-            if (_mm256_movemask_ps(live) == 0) { ++c; const int wrap0 = c == c0 + nc; c = wrap0 ? c0 : c; y += wrap0; continue; }
-            const __m256 xf = _mm256_add_ps(_mm256_set1_ps(float(c * 8)), lane);
-            const __m256 dx = _mm256_sub_ps(xf, _mm256_set1_ps(u));
-            const __m256 power = _mm256_fmadd_ps(_mm256_fmadd_ps(ca, dx, lin), dx, cst);
-            const __m256 alpha = _mm256_min_ps(vcap, _mm256_mul_ps(op, fast_exp8(power)));
-            __m256 m = _mm256_and_ps(live, _mm256_cmp_ps(power, zero, _CMP_LE_OQ));
-            m = _mm256_and_ps(m, _mm256_cmp_ps(alpha, vthr, _CMP_GE_OQ));
-            m = _mm256_and_ps(m, _mm256_cmp_ps(xf, fx0, _CMP_GE_OQ));
-            m = _mm256_and_ps(m, _mm256_cmp_ps(xf, fx1, _CMP_LT_OQ));
-            const __m256 tt = _mm256_loadu_ps(&b.T[p]);
-            const __m256 test = _mm256_mul_ps(tt, _mm256_sub_ps(one, alpha));
+        for (int i = 0; i < n_it; ++i) {
+            const int p = s.item_p[i], y = s.item_y[i];
+            const __m256 tt = _mm256_load_ps(&b.T[p]);
+            const __m256 dx = _mm256_load_ps(&s.dxc[p - y * tile]);
+            const __m256 power = _mm256_fmadd_ps(_mm256_fmadd_ps(ca, dx, _mm256_broadcast_ss(&s.lin[y])), dx,
+                                                 _mm256_broadcast_ss(&s.cst[y]));
+            __m256 m = _mm256_and_ps(_mm256_cmp_ps(power, pthr, _CMP_GE_OQ), _mm256_cmp_ps(tt, zero, _CMP_GT_OQ));
+            m = _mm256_and_ps(m, _mm256_and_ps(_mm256_cmp_ps(dx, _mm256_broadcast_ss(&s.lo[y]), _CMP_GT_OQ),
+                                               _mm256_cmp_ps(dx, _mm256_broadcast_ss(&s.hi[y]), _CMP_LT_OQ)));
+            const __m256 alpha = _mm256_min_ps(vcap, _mm256_mul_ps(op, fast_exp2_8(power)));
+            const __m256 test = _mm256_fnmadd_ps(tt, alpha, tt);
             const __m256 fin = _mm256_and_ps(m, _mm256_cmp_ps(test, vtmin, _CMP_LT_OQ));
             const __m256 ok = _mm256_andnot_ps(fin, m);
-            _mm256_storeu_si256((__m256i*)&b.live[p], _mm256_castps_si256(_mm256_andnot_ps(fin, live)));
-            const int nf = __builtin_popcount(_mm256_movemask_ps(fin));
-            n_live -= nf;
-            const int rl = (b.row_live[y] -= nf);
-            row_mask &= ~(uint64_t(rl == 0) << y);
             const __m256 w = _mm256_and_ps(ok, _mm256_mul_ps(alpha, tt));
-            _mm256_storeu_ps(&b.R[p], _mm256_fmadd_ps(w, cr, _mm256_loadu_ps(&b.R[p])));
-            _mm256_storeu_ps(&b.G[p], _mm256_fmadd_ps(w, cg, _mm256_loadu_ps(&b.G[p])));
-            _mm256_storeu_ps(&b.B[p], _mm256_fmadd_ps(w, cbl, _mm256_loadu_ps(&b.B[p])));
-            _mm256_storeu_ps(&b.T[p], _mm256_blendv_ps(tt, test, ok));
-            nbl += __builtin_popcount(_mm256_movemask_ps(ok));
-            // advance (branch-free: conditional moves)
-            ++c;
-            const int wrap = c == c0 + nc;
-            c = wrap ? c0 : c;
-            y += wrap;
+            _mm256_store_ps(&b.R[p], _mm256_fmadd_ps(w, cr, _mm256_load_ps(&b.R[p])));
+            _mm256_store_ps(&b.G[p], _mm256_fmadd_ps(w, cg, _mm256_load_ps(&b.G[p])));
+            _mm256_store_ps(&b.B[p], _mm256_fmadd_ps(w, cbl, _mm256_load_ps(&b.B[p])));
+            const __m256 tn = _mm256_xor_ps(_mm256_blendv_ps(tt, test, ok), _mm256_and_ps(fin, sign));
+            _mm256_store_ps(&b.T[p], tn);
+            count = _mm256_sub_epi32(count, _mm256_castps_si256(ok));
+            const int fm = _mm256_movemask_ps(fin);
+            if (fm) {
+                n_live -= __builtin_popcount(fm);
+                if (_mm256_movemask_ps(_mm256_cmp_ps(tn, zero, _CMP_GT_OQ)) == 0)
+                    s.row_chunks[y] &= ~(1u << ((p - y * tile) >> 3));
+            }
         }
     }
+    for (int p = 0; p < tile * tile; ++p) b.T[p] = std::fabs(b.T[p]);
     write_tile(J, v, px0, py0, pw, ph, b);
+    alignas(32) int32_t cnt[8];
+    _mm256_store_si256((__m256i*)cnt, count);
+    int64_t nbl = 0;
+    for (int j = 0; j < 8; ++j) nbl += cnt[j];
     return nbl;
 }
 
@@ -302,13 +358,16 @@ void run_jobs(const Job& J, int n_threads, bool simd) {
     std::atomic<int64_t> next{0};
     auto worker = [&]() {
         TileBuf b(J.tile);
+#if HV_HAVE_AVX2_PATH
+        AvxScratch s(simd ? J.tile : 8);
+#endif
         for (;;) {
             const int64_t job = next.fetch_add(1);
             if (job >= n_jobs) break;
             const int v = int(job / nt), t = int(job % nt);
             int64_t nbl;
 #if HV_HAVE_AVX2_PATH
-            nbl = simd ? tile_avx2(J, v, t, b) : tile_scalar(J, v, t, b);
+            nbl = simd ? tile_avx2(J, v, t, b, s) : tile_scalar(J, v, t, b);
 #else
             (void)simd;
             nbl = tile_scalar(J, v, t, b);
@@ -366,7 +425,7 @@ PyObject* composite(PyObject*, PyObject* args) {
         }
         if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.composite: tile lists exceed ids");
         // mode: 0 = auto (AVX2 when the CPU has it), 1 = scalar, 2 = require AVX2
-        const bool simd = mode != 1 && (tile % 8 == 0) && cpu_has_avx2();
+        const bool simd = mode != 1 && (tile % 8 == 0) && tile <= 256 && cpu_has_avx2();
         if (ok && mode == 2 && !simd) {
             PyErr_SetString(PyExc_RuntimeError, "_splat_cpp.composite: AVX2 path unavailable (CPU or tile size)");
             ok = false;
