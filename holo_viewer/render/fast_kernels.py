@@ -214,34 +214,25 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
 
 
 @nb.njit(inline="always", cache=True)
-def _band_tiles(rec, v, k, tile, x0, x1, ya, yb):  # pragma: no cover - compiled
-    """Tile columns [t0, t1] of the tiles the alpha >= threshold ellipse of splat k reaches
+def _band_tiles(u, vv, A, B, e, Aq, kk, tile, x0, x1, ya, yb):  # pragma: no cover - compiled
+    """Tile columns [t0, t1] of the tiles the alpha >= threshold ellipse of a splat reaches
     between the pixel rows ya..yb (inclusive), clipped to its box columns [x0, x1); t0 > t1 if none.
 
-    The ellipse d^T conic d <= q has its right-most point at dy = -B hx / C (hx = its half
-    width); over a band of rows the right end of the chord is concave in dy, so its maximum is
-    at that dy clamped to the band (mirror for the left end). Widened by 0.05 px + 1e-3
-    relative, so every pixel the compositor can blend is kept.
+    The ellipse d^T conic d <= q (conic A, B, C) has its right-most point at dy = -kk,
+    kk = B hx / C (hx = its half width); over a band of rows the right end of the chord is
+    concave in dy, so its maximum is at that dy clamped to the band (mirror for the left end).
+    e = B^2 - A C, Aq = A q. Widened by 0.05 px + 1e-3 relative, so every pixel the compositor
+    can blend is kept. A <= 0 (degenerate): the whole box row.
     """
-    u = float(rec[v, k, 0])
-    vv = float(rec[v, k, 1])
-    A = float(rec[v, k, 2])
-    B = float(rec[v, k, 3])
-    C = float(rec[v, k, 4])
-    q = float(rec[v, k, 9])
-    det = A * C - B * B
     j0 = x0
     j1 = x1 - 1
-    if det > 0.0 and A > 0.0 and C > 0.0 and q > 0.0:
-        hx = math.sqrt(q * C / det)
+    if A > 0.0:
         d0 = ya + 0.5 - vv
         d1 = yb + 0.5 - vv
-        kk = B * hx / C
         dr = min(max(-kk, d0), d1)
         dl = min(max(kk, d0), d1)
-        e = B * B - A * C
-        sr = math.sqrt(max(dr * dr * e + A * q, 0.0))
-        sl = math.sqrt(max(dl * dl * e + A * q, 0.0))
+        sr = math.sqrt(max(dr * dr * e + Aq, 0.0))
+        sl = math.sqrt(max(dl * dl * e + Aq, 0.0))
         xr = u + (-B * dr + sr * 1.001) / A + 0.05
         xl = u + (-B * dl - sl * 1.001) / A - 0.05
         j0 = max(j0, int(math.ceil(xl - 0.5)))
@@ -249,6 +240,22 @@ def _band_tiles(rec, v, k, tile, x0, x1, ya, yb):  # pragma: no cover - compiled
     if j0 > j1:
         return 1, 0
     return j0 // tile, j1 // tile
+
+
+@nb.njit(inline="always", cache=True)
+def _splat_conic(rec, v, k):  # pragma: no cover - compiled
+    """(u, v, A, B, e, Aq, kk) of splat k in view v for :func:`_band_tiles` (A = 0: degenerate)."""
+    u = float(rec[v, k, 0])
+    vv = float(rec[v, k, 1])
+    A = float(rec[v, k, 2])
+    B = float(rec[v, k, 3])
+    C = float(rec[v, k, 4])
+    q = float(rec[v, k, 9])
+    det = A * C - B * B
+    if not (det > 0.0 and A > 0.0 and C > 0.0 and q > 0.0):
+        return u, vv, 0.0, B, 0.0, 0.0, 0.0
+    hx = math.sqrt(q * C / det)
+    return u, vv, A, B, B * B - A * C, A * q, B * hx / C
 
 
 @nb.njit(parallel=True, cache=True)
@@ -267,8 +274,15 @@ def count_tiles(rec, box, tile, tiles_x, tiles_y):  # pragma: no cover - compile
             x0, x1, y0, y1 = box[v, k, 0], box[v, k, 1], box[v, k, 2], box[v, k, 3]
             if x0 >= x1 or y0 >= y1:
                 continue
+            tx0, tx1 = x0 // tile, (x1 - 1) // tile
+            if tx0 == tx1:  # one tile column: nothing to trim
+                for ty in range(y0 // tile, (y1 - 1) // tile + 1):
+                    cnt[ty * tiles_x + tx0] += 1
+                continue
+            u, vv, A, B, e, Aq, kk = _splat_conic(rec, v, k)
             for ty in range(y0 // tile, (y1 - 1) // tile + 1):
-                t0, t1 = _band_tiles(rec, v, k, tile, x0, x1, max(y0, ty * tile), min(y1, ty * tile + tile) - 1)
+                t0, t1 = _band_tiles(u, vv, A, B, e, Aq, kk, tile, x0, x1, max(y0, ty * tile),
+                                     min(y1, ty * tile + tile) - 1)
                 for tx in range(t0, t1 + 1):
                     cnt[ty * tiles_x + tx] += 1
         s = 0
@@ -291,8 +305,17 @@ def fill_tiles(rec, box, tile, tiles_x, off, base, ids):  # pragma: no cover - c
             x0, x1, y0, y1 = box[v, k, 0], box[v, k, 1], box[v, k, 2], box[v, k, 3]
             if x0 >= x1 or y0 >= y1:
                 continue
+            tx0, tx1 = x0 // tile, (x1 - 1) // tile
+            if tx0 == tx1:  # one tile column: nothing to trim
+                for ty in range(y0 // tile, (y1 - 1) // tile + 1):
+                    t = ty * tiles_x + tx0
+                    ids[b + cur[t]] = k
+                    cur[t] += 1
+                continue
+            u, vv, A, B, e, Aq, kk = _splat_conic(rec, v, k)
             for ty in range(y0 // tile, (y1 - 1) // tile + 1):
-                t0, t1 = _band_tiles(rec, v, k, tile, x0, x1, max(y0, ty * tile), min(y1, ty * tile + tile) - 1)
+                t0, t1 = _band_tiles(u, vv, A, B, e, Aq, kk, tile, x0, x1, max(y0, ty * tile),
+                                     min(y1, ty * tile + tile) - 1)
                 for tx in range(t0, t1 + 1):
                     t = ty * tiles_x + tx
                     ids[b + cur[t]] = k
