@@ -196,12 +196,12 @@ __attribute__((target("avx2,fma"))) inline __m256 fast_exp2_8(__m256 t) {
 
 struct AvxScratch {
     AlignedArray<float> lin, cst, lo, hi, dxc;  // per row: power terms, chord bounds in dx; per chunk column: dx
-    AlignedArray<int32_t> ilo, ihi;             // per row: chord [ilo, ihi) in tile columns
-    std::vector<uint32_t> row_chunks;           // per row: bit c set while chunk c has a live pixel
+    AlignedArray<uint32_t> row_chunks;          // per row: bit c set while chunk c has a live pixel
+    AlignedArray<uint32_t> row_bits;            // per row of the current splat: live chunks overlapping its chord
     std::vector<int32_t> item_p, item_y;        // chunk list of the current splat
     explicit AvxScratch(int tile)
-        : lin(tile + 8), cst(tile + 8), lo(tile + 8), hi(tile + 8), dxc(tile), ilo(tile + 8), ihi(tile + 8),
-          row_chunks(tile), item_p(tile * tile / 8), item_y(tile * tile / 8) {}
+        : lin(tile + 8), cst(tile + 8), lo(tile + 8), hi(tile + 8), dxc(tile),
+          row_chunks(tile + 8), row_bits(tile + 8), item_p(tile * tile / 8 + 8), item_y(tile * tile / 8 + 8) {}
 };
 
 __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t, TileBuf& b, AvxScratch& s) {
@@ -275,8 +275,16 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
                 lo = _mm256_max_ps(lo, vx0);
                 hi = _mm256_min_ps(hi, vx1);
                 hi = _mm256_blendv_ps(vx0, hi, keep);  // dropped rows: empty chord
-                _mm256_store_si256((__m256i*)&s.ilo[y - y0], _mm256_cvttps_epi32(lo));
-                _mm256_store_si256((__m256i*)&s.ihi[y - y0], _mm256_cvttps_epi32(hi));
+                // chunks c0..c1 of the chord as a bitmask (mod 2^32 the c1 = 31 case comes out right),
+                // restricted to the row's live chunks; empty chords give 0
+                const __m256i ilo = _mm256_cvttps_epi32(lo), ihi = _mm256_cvttps_epi32(hi);
+                const __m256i c0 = _mm256_srai_epi32(ilo, 3);
+                const __m256i c1 = _mm256_srai_epi32(_mm256_sub_epi32(ihi, _mm256_set1_epi32(1)), 3);
+                __m256i bits = _mm256_sub_epi32(_mm256_sllv_epi32(_mm256_set1_epi32(2), c1),
+                                                _mm256_sllv_epi32(_mm256_set1_epi32(1), c0));
+                bits = _mm256_and_si256(bits, _mm256_cmpgt_epi32(ihi, ilo));
+                bits = _mm256_and_si256(bits, _mm256_loadu_si256((const __m256i*)&s.row_chunks[y]));
+                _mm256_store_si256((__m256i*)&s.row_bits[y - y0], bits);
                 _mm256_storeu_ps(&s.lo[y], _mm256_sub_ps(_mm256_sub_ps(lo, half_pix), vu));
                 _mm256_storeu_ps(&s.hi[y], _mm256_sub_ps(_mm256_sub_ps(hi, half_pix), vu));
                 _mm256_storeu_ps(&s.lin[y], _mm256_mul_ps(klin, dy));
@@ -285,17 +293,18 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
         }
         // (2) live chunks overlapping the chords
         int n_it = 0;
-        for (int y = y0; y < y1; ++y) {
-            const int lo = s.ilo[y - y0], hi = s.ihi[y - y0];
-            if (lo >= hi) continue;
-            const int c0 = lo >> 3, c1 = (hi - 1) >> 3;
-            uint64_t bits = ((uint64_t(2) << c1) - (uint64_t(1) << c0)) & s.row_chunks[y];
-            while (bits) {
-                const int c = __builtin_ctzll(bits);
-                bits &= bits - 1;
-                s.item_p[n_it] = y * tile + c * 8;
-                s.item_y[n_it] = y;
-                ++n_it;
+        // branch-free compaction: every chunk is written, the count advances by its bit
+        {
+            int32_t* __restrict ip = s.item_p.data();
+            int32_t* __restrict iy = s.item_y.data();
+            const uint32_t* __restrict rb = s.row_bits.ptr;
+            for (int y = y0; y < y1; ++y) {
+                const uint32_t bits = rb[y - y0];
+                for (int c = 0; c < chunks; ++c) {
+                    ip[n_it] = y * tile + c * 8;
+                    iy[n_it] = y;
+                    n_it += (bits >> c) & 1u;
+                }
             }
         }
         if (n_it == 0) continue;
@@ -307,31 +316,45 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
         const __m256 pthr = _mm256_set1_ps(-0.5f * q * LOG2E);  // log2(thr / opacity)
         const __m256 op = _mm256_set1_ps(r[5]);
         const __m256 cr = _mm256_set1_ps(r[6]), cg = _mm256_set1_ps(r[7]), cbl = _mm256_set1_ps(r[8]);
+        // raw restrict pointers: stores to the accumulators would otherwise force reloads of
+        // every array pointer in the loop
+        float* __restrict Tp = b.T.ptr;
+        float* __restrict Rp = b.R.ptr;
+        float* __restrict Gp = b.G.ptr;
+        float* __restrict Bp = b.B.ptr;
+        const float* __restrict lin = s.lin.ptr;
+        const float* __restrict cst = s.cst.ptr;
+        const float* __restrict lo = s.lo.ptr;
+        const float* __restrict hi = s.hi.ptr;
+        const float* __restrict dxc = s.dxc.ptr;
+        const int32_t* __restrict ip = s.item_p.data();
+        const int32_t* __restrict iy = s.item_y.data();
+        uint32_t* __restrict rowc = s.row_chunks.ptr;
         for (int i = 0; i < n_it; ++i) {
-            const int p = s.item_p[i], y = s.item_y[i];
-            const __m256 tt = _mm256_load_ps(&b.T[p]);
-            const __m256 dx = _mm256_load_ps(&s.dxc[p - y * tile]);
-            const __m256 power = _mm256_fmadd_ps(_mm256_fmadd_ps(ca, dx, _mm256_broadcast_ss(&s.lin[y])), dx,
-                                                 _mm256_broadcast_ss(&s.cst[y]));
+            const int p = ip[i], y = iy[i];
+            const __m256 tt = _mm256_load_ps(&Tp[p]);
+            const __m256 dx = _mm256_load_ps(&dxc[p - y * tile]);
+            const __m256 power = _mm256_fmadd_ps(_mm256_fmadd_ps(ca, dx, _mm256_broadcast_ss(&lin[y])), dx,
+                                                 _mm256_broadcast_ss(&cst[y]));
             __m256 m = _mm256_and_ps(_mm256_cmp_ps(power, pthr, _CMP_GE_OQ), _mm256_cmp_ps(tt, zero, _CMP_GT_OQ));
-            m = _mm256_and_ps(m, _mm256_and_ps(_mm256_cmp_ps(dx, _mm256_broadcast_ss(&s.lo[y]), _CMP_GT_OQ),
-                                               _mm256_cmp_ps(dx, _mm256_broadcast_ss(&s.hi[y]), _CMP_LT_OQ)));
+            m = _mm256_and_ps(m, _mm256_and_ps(_mm256_cmp_ps(dx, _mm256_broadcast_ss(&lo[y]), _CMP_GT_OQ),
+                                               _mm256_cmp_ps(dx, _mm256_broadcast_ss(&hi[y]), _CMP_LT_OQ)));
             const __m256 alpha = _mm256_min_ps(vcap, _mm256_mul_ps(op, fast_exp2_8(power)));
             const __m256 test = _mm256_fnmadd_ps(tt, alpha, tt);
             const __m256 fin = _mm256_and_ps(m, _mm256_cmp_ps(test, vtmin, _CMP_LT_OQ));
             const __m256 ok = _mm256_andnot_ps(fin, m);
             const __m256 w = _mm256_and_ps(ok, _mm256_mul_ps(alpha, tt));
-            _mm256_store_ps(&b.R[p], _mm256_fmadd_ps(w, cr, _mm256_load_ps(&b.R[p])));
-            _mm256_store_ps(&b.G[p], _mm256_fmadd_ps(w, cg, _mm256_load_ps(&b.G[p])));
-            _mm256_store_ps(&b.B[p], _mm256_fmadd_ps(w, cbl, _mm256_load_ps(&b.B[p])));
+            _mm256_store_ps(&Rp[p], _mm256_fmadd_ps(w, cr, _mm256_load_ps(&Rp[p])));
+            _mm256_store_ps(&Gp[p], _mm256_fmadd_ps(w, cg, _mm256_load_ps(&Gp[p])));
+            _mm256_store_ps(&Bp[p], _mm256_fmadd_ps(w, cbl, _mm256_load_ps(&Bp[p])));
             const __m256 tn = _mm256_xor_ps(_mm256_blendv_ps(tt, test, ok), _mm256_and_ps(fin, sign));
-            _mm256_store_ps(&b.T[p], tn);
+            _mm256_store_ps(&Tp[p], tn);
             count = _mm256_sub_epi32(count, _mm256_castps_si256(ok));
             const int fm = _mm256_movemask_ps(fin);
             if (fm) {
                 n_live -= __builtin_popcount(fm);
                 if (_mm256_movemask_ps(_mm256_cmp_ps(tn, zero, _CMP_GT_OQ)) == 0)
-                    s.row_chunks[y] &= ~(1u << ((p - y * tile) >> 3));
+                    rowc[y] &= ~(1u << ((p - y * tile) >> 3));
             }
         }
     }
