@@ -10,10 +10,12 @@ a quilt of V views that share one orientation (DESIGN.md "Multi-view cameras"):
 3. **project** (per chunk of views): 2D centre, conic, SH colour per view (or shared),
    pixel box = radius box intersected with the ellipse where alpha >= threshold and the image;
    splats whose box is empty in every view are the ones culled by the union of the frusta;
-4. **bin**: per (view, 16x16 tile) lists of splat indices in depth order (count, prefix, fill);
-5. **composite**: tiles x views in parallel, front to back with early termination, float32,
-   branch-free rows with a polynomial exp; kernel = C++ AVX2 (``_splat_cpp``) when built,
-   else numba.
+4. **bin**: per (view, 16x16 tile) lists of splat indices in depth order (count, prefix, fill),
+   only into the tiles the splat's alpha >= threshold ellipse reaches (per tile row, the
+   ellipse's x-extent over the band of rows);
+5. **composite**: tiles x views in parallel, front to back with early termination, float32;
+   kernel = C++ AVX2 (``_splat_cpp``: per splat and tile row the chord of the ellipse, only the
+   8-pixel chunks that overlap it and still have a live pixel) when built, else numba.
 
 Memory is bounded by ``config.max_chunk_bytes``: views are processed in chunks so the per-view
 splat records and tile lists never exceed it (nothing is N x pixels).

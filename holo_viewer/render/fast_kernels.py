@@ -10,7 +10,8 @@ Layout shared with the C++ kernel (``_cpu/splat.cpp``):
   the reference's radius box intersected with the ellipse where alpha >= threshold and with
   the image (empty: x0 >= x1).
 * ``tile_off`` (V, n_tiles + 1) int64 and ``tile_ids`` (total,) int32: per (view, tile) the
-  indices into ``rec`` of the splats touching the tile, front to back.
+  indices into ``rec`` of the splats whose box AND alpha >= threshold ellipse reach the tile
+  (conservatively, see :func:`_band_tiles`), front to back.
 """
 
 from __future__ import annotations
