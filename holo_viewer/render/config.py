@@ -50,9 +50,9 @@ class RenderConfig:
     tile_size : int
         Square tile edge in pixels for binning (fast backends; 16 measured best).
     cull_margin : float or None
-        Frustum culling by centre: a splat whose projected centre lies outside the image
-        extended on every side by ``cull_margin`` times the image width (x) / height (y) in
-        every view is dropped even if its footprint would reach into the image (Inria uses
+        Frustum culling by centre, per view: a splat whose projected centre lies outside the
+        image extended on every side by ``cull_margin`` times the image width (x) / height (y)
+        is dropped from that view even if its footprint would reach into the image (Inria uses
         the equivalent of 0.15). None (default) = exact: only the footprint box is tested,
         nothing visible is ever culled. Smaller is faster on scenes larger than the frame.
     alpha_cap : float
