@@ -40,7 +40,24 @@ __all__ = ["render", "cpp_available", "kernel_names"]
 #: C++ kernel mode: 0 = AVX2 when the CPU has it, 1 = scalar (tests set this), 2 = require AVX2
 _CPP_MODE = 0
 
-_BYTES_PER_SPLAT_VIEW = 4 * 10 + 4 * 4 + 4 * 4  # rec + box + ~4 tile entries
+_BYTES_PER_SPLAT_VIEW = 4 * 16 + 4 * 4  # packed record (rec + box, 64 bytes) + ~4 tile entries
+
+
+def _records(nv: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Packed splat records: (rec (nv, m, REC_STRIDE) float32, box (nv, m, 4) int32 view of it).
+
+    One 64-byte record per (view, splat), 64-byte aligned: floats 0..9 are ``rec``
+    (fast_kernels.REC fields), words 10..13 the int32 pixel box, so the compositor reads
+    everything it needs about a splat from one cache line.
+    """
+    from . import fast_kernels as fk
+
+    n = nv * m * fk.REC_STRIDE
+    raw = np.empty(n + 16, dtype=np.float32)
+    start = (-raw.ctypes.data % 64) // 4
+    rec = raw[start:start + n].reshape(nv, m, fk.REC_STRIDE)
+    box = rec.view(np.int32)[:, :, fk.BOX_AT:fk.BOX_AT + 4]
+    return rec, box
 
 
 def _cpp():  # noqa: ANN202
@@ -161,8 +178,7 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
             cams[:, 7:10] = positions[views]
             for j, vi in enumerate(views):
                 cams[j, 10:14] = clamp_limits(cameras.fx[vi], cameras.fy[vi], cameras.cx[vi], cameras.cy[vi], W, H)
-            rec = np.empty((len(views), m, fk.REC), dtype=np.float32)
-            box = np.empty((len(views), m, 4), dtype=np.int32)
+            rec, box = _records(len(views), m)
             seen = fk.project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, bool(config.shared_sh),
                                     cams, W, H, near, float(config.dilation), float(config.radius_sigmas),
                                     float(config.alpha_threshold), cull, rec, box)
@@ -179,7 +195,7 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
             out = images[views[0]:views[-1] + 1] if contiguous else np.empty((len(views), H, W, 3), np.float32)
             blends = np.zeros(len(views) * n_tiles, dtype=np.int64)
             if use_cpp:
-                path = cpp.composite(rec, box, off, base, ids, len(views), m, tile, tiles_x, tiles_y, W, H,
+                path = cpp.composite(rec, off, base, ids, len(views), m, tile, tiles_x, tiles_y, W, H,
                                      float(config.alpha_threshold), float(config.alpha_cap), float(config.t_min),
                                      bg, bool(config.clip_output), out, blends, threads, _CPP_MODE)
             else:

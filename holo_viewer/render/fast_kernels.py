@@ -3,12 +3,14 @@
 All kernels are ``cache=True`` (the first compile takes seconds; later processes load it).
 Layout shared with the C++ kernel (``_cpu/splat.cpp``):
 
-* ``rec`` (V, M, REC) float32 per view and visible splat in depth order:
-  u, v (pixels), conic A, B, C, opacity, r, g, b, q = 2 ln(opacity / alpha_threshold)
-  (the splat has alpha >= threshold where d^T conic d <= q).
-* ``box`` (V, M, 4) int32: pixel columns [x0, x1) and rows [y0, y1) the splat may touch:
-  the reference's radius box intersected with the ellipse where alpha >= threshold and with
-  the image (empty: x0 >= x1).
+* ``rec`` (V, M, REC_STRIDE) float32 per view and visible splat in depth order, fields 0..9
+  (``REC``): u, v (pixels), conic A, B, C, opacity, r, g, b, q = 2 ln(opacity / alpha_threshold)
+  (the splat has alpha >= threshold where d^T conic d <= q); words 10..13 hold ``box``.
+* ``box`` (V, M, 4) int32, a view of ``rec`` words ``BOX_AT..BOX_AT + 3`` (fast.py
+  ``_records``: one 64-byte record per splat and view): pixel columns [x0, x1) and rows
+  [y0, y1) the splat may touch: the reference's radius box intersected with the ellipse where
+  alpha >= threshold and with the image (empty: x0 >= x1). The kernels also accept separate
+  arrays.
 * ``tile_off`` (V, n_tiles + 1) int64 and ``tile_ids`` (total,) int32: per (view, tile) the
   indices into ``rec`` of the splats whose box AND alpha >= threshold ellipse reach the tile
   (conservatively, see :func:`_band_tiles`), front to back.
@@ -21,9 +23,12 @@ import math
 import numba as nb
 import numpy as np
 
-__all__ = ["REC", "prep_3d", "project_views", "count_tiles", "fill_tiles", "composite"]
+__all__ = ["REC", "REC_STRIDE", "BOX_AT", "prep_3d", "project_views", "count_tiles", "fill_tiles", "composite"]
 
 REC = 10
+#: floats per packed record (64 bytes) and word offset of the int32 box in it (C++: same)
+REC_STRIDE = 16
+BOX_AT = 10
 #: exp(x) for x below this is treated as exp(EXP_LO) (~2.8e-6; alpha_threshold >= 1e-5)
 EXP_LO = -12.8
 

@@ -28,12 +28,14 @@
 
 namespace {
 
-constexpr int REC = 10;            // u, v, conic A, B, C, opacity, r, g, b, q = 2 ln(opacity/threshold)
+// One 64-byte record per (view, splat): floats u, v, conic A, B, C, opacity, r, g, b,
+// q = 2 ln(opacity/threshold), then the int32 pixel box x0, x1, y0, y1 (fast_kernels.py REC_STRIDE, BOX_AT).
+constexpr int REC = 16;            // floats per record
+constexpr int BOX_AT = 10;         // word offset of the box in the record
 constexpr float EXP_LO = -12.8f;   // exp(x < EXP_LO) treated as exp(EXP_LO); alpha_threshold >= 1e-5
 
 struct Job {
-    const float* rec;
-    const int32_t* box;
+    const float* rec;               // (nv, m, REC) records, box in words BOX_AT..BOX_AT+3
     const int64_t* off;
     const int64_t* base;
     const int32_t* ids;
@@ -97,7 +99,8 @@ void write_tile(const Job& J, int v, int px0, int py0, int pw, int ph, const Til
 // Tile-local box of splat k (in view v) intersected with the tile; false when empty.
 inline bool tile_box(const Job& J, int v, int k, int px0, int py0, int pw, int ph,
                      int& x0, int& x1, int& y0, int& y1) {
-    const int32_t* bx = J.box + (int64_t(v) * J.m + k) * 4;
+    int32_t bx[4];
+    std::memcpy(bx, J.rec + (int64_t(v) * J.m + k) * REC + BOX_AT, sizeof(bx));
     x0 = std::max(bx[0], px0) - px0;
     x1 = std::min(bx[1], px0 + pw) - px0;
     y0 = std::max(bx[2], py0) - py0;
@@ -230,8 +233,7 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
     const __m256 vcap = _mm256_set1_ps(J.cap), vtmin = _mm256_set1_ps(J.tmin);
     __m256i count = _mm256_setzero_si256();
     constexpr int GATHER = 32;
-    alignas(32) float gr[GATHER][REC];
-    int32_t gb[GATHER][4];
+    alignas(64) float gr[GATHER][REC];
     int n_g = 0, i_g = 0;
     const int chunks = tile / 8;
     for (int64_t e = off[t]; e < off[t + 1] && n_live > 0; ++e) {
@@ -240,12 +242,12 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
             for (int j = 0; j < n_g; ++j) {
                 const int64_t kj = int64_t(v) * J.m + ids[e + j];
                 std::memcpy(gr[j], J.rec + kj * REC, sizeof(float) * REC);
-                std::memcpy(gb[j], J.box + kj * 4, sizeof(int32_t) * 4);
             }
             i_g = 0;
         }
         const float* r = gr[i_g];
-        const int32_t* bx = gb[i_g];
+        int32_t bx[4];
+        std::memcpy(bx, r + BOX_AT, sizeof(bx));
         ++i_g;
         const int x0 = std::max(bx[0], px0) - px0, x1 = std::min(bx[1], px0 + pw) - px0;
         const int y0 = std::max(bx[2], py0) - py0, y1 = std::min(bx[3], py0 + ph) - py0;
@@ -415,10 +417,10 @@ bool need(Py_buffer& b, Py_ssize_t n_bytes, const char* name) {
 }
 
 PyObject* composite(PyObject*, PyObject* args) {
-    Py_buffer rec{}, box{}, off{}, base{}, ids{}, bg{}, out{}, blends{};
+    Py_buffer rec{}, off{}, base{}, ids{}, bg{}, out{}, blends{};
     int nv, m, tile, tiles_x, tiles_y, width, height, clip, n_threads, mode;
     double thr, cap, tmin;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*iiiiiiidddy*pw*w*ii", &rec, &box, &off, &base, &ids, &nv, &m, &tile,
+    if (!PyArg_ParseTuple(args, "y*y*y*y*iiiiiiidddy*pw*w*ii", &rec, &off, &base, &ids, &nv, &m, &tile,
                           &tiles_x, &tiles_y, &width, &height, &thr, &cap, &tmin, &bg, &clip, &out, &blends,
                           &n_threads, &mode))
         return nullptr;
@@ -427,13 +429,13 @@ PyObject* composite(PyObject*, PyObject* args) {
     bool ok = nv > 0 && m >= 0 && tile > 0 && tiles_x > 0 && tiles_y > 0 && width > 0 && height > 0 &&
               int64_t(tiles_x) * tile >= width && int64_t(tiles_y) * tile >= height;
     if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.composite: inconsistent sizes");
-    ok = ok && need(rec, Py_ssize_t(nv) * m * REC * 4, "rec") && need(box, Py_ssize_t(nv) * m * 16, "box") &&
+    ok = ok && need(rec, Py_ssize_t(nv) * m * REC * 4, "rec") &&
          need(off, Py_ssize_t(nv) * (nt + 1) * 8, "off") && need(base, Py_ssize_t(nv) * 8, "base") &&
          need(bg, 12, "bg") && need(out, Py_ssize_t(nv) * height * width * 12, "out") &&
          need(blends, Py_ssize_t(nv) * nt * 8, "blends");
     if (ok) {
         Job J{};
-        J.rec = (const float*)rec.buf; J.box = (const int32_t*)box.buf; J.off = (const int64_t*)off.buf;
+        J.rec = (const float*)rec.buf; J.off = (const int64_t*)off.buf;
         J.base = (const int64_t*)base.buf; J.ids = (const int32_t*)ids.buf;
         J.nv = nv; J.m = m; J.tile = tile; J.tiles_x = tiles_x; J.tiles_y = tiles_y;
         J.width = width; J.height = height;
@@ -460,7 +462,7 @@ PyObject* composite(PyObject*, PyObject* args) {
             result = PyUnicode_FromString(simd ? "avx2" : "scalar");
         }
     }
-    PyBuffer_Release(&rec); PyBuffer_Release(&box); PyBuffer_Release(&off); PyBuffer_Release(&base);
+    PyBuffer_Release(&rec); PyBuffer_Release(&off); PyBuffer_Release(&base);
     PyBuffer_Release(&ids); PyBuffer_Release(&bg); PyBuffer_Release(&out); PyBuffer_Release(&blends);
     return result;
 }
@@ -469,7 +471,7 @@ PyObject* has_avx2(PyObject*, PyObject*) { return PyBool_FromLong(cpu_has_avx2()
 
 PyMethodDef methods[] = {
     {"composite", composite, METH_VARARGS,
-     "composite(rec, box, off, base, ids, nv, m, tile, tiles_x, tiles_y, width, height, alpha_threshold, "
+     "composite(rec, off, base, ids, nv, m, tile, tiles_x, tiles_y, width, height, alpha_threshold, "
      "alpha_cap, t_min, bg, clip, out, blends, n_threads, mode) -> 'avx2' | 'scalar'\n\n"
      "Blend per-(view, tile) splat lists front to back into out (V, H, W, 3) float32. mode: 0 auto, "
      "1 scalar, 2 require AVX2."},
