@@ -184,12 +184,18 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
                                     float(config.alpha_threshold), cull, rec, box)
             n_visible_mask[order[seen.astype(bool)]] = True
             t4 = time.perf_counter()
-            off = fk.count_tiles(rec, box, tile, tiles_x, tiles_y)
-            base = np.zeros(len(views), dtype=np.int64)
-            base[1:] = np.cumsum(off[:-1, -1])
-            ids = np.empty(int(off[:, -1].sum()), dtype=np.int32)
+            if use_cpp:  # same lists, one ellipse evaluation per (splat, tile row), threads over views
+                off = np.empty((len(views), n_tiles + 1), dtype=np.int64)
+                base = np.empty(len(views), dtype=np.int64)
+                ids = np.frombuffer(cpp.bin_tiles(rec, len(views), m, tile, tiles_x, tiles_y, off, base, threads),
+                                    dtype=np.int32)
+            else:
+                off = fk.count_tiles(rec, box, tile, tiles_x, tiles_y)
+                base = np.zeros(len(views), dtype=np.int64)
+                base[1:] = np.cumsum(off[:-1, -1])
+                ids = np.empty(int(off[:, -1].sum()), dtype=np.int32)
+                fk.fill_tiles(rec, box, tile, tiles_x, off, base, ids)
             total_entries += ids.size
-            fk.fill_tiles(rec, box, tile, tiles_x, off, base, ids)
             t5 = time.perf_counter()
             contiguous = bool(np.all(np.diff(views) == 1))
             out = images[views[0]:views[-1] + 1] if contiguous else np.empty((len(views), H, W, 3), np.float32)

@@ -467,6 +467,150 @@ PyObject* composite(PyObject*, PyObject* args) {
     return result;
 }
 
+// ---- binning: per (view, tile) lists of splat indices in depth order -------------------------
+// Same rule as fast_kernels.count_tiles / fill_tiles (float64, identical lists): a splat is listed
+// in the tiles its alpha >= threshold ellipse reaches, per tile row the ellipse's x-extent over
+// the band of rows (_band_tiles), widened by 0.05 px + 1e-3 relative. One evaluation per
+// (splat, tile row): the count pass keeps the tile-column ranges, the fill pass replays them.
+struct BinJob {
+    const float* rec;
+    int nv, m, tile, tiles_x, tiles_y;
+    int64_t* off;
+    std::atomic<bool>* bad;         // set when a box lies outside the tile grid
+};
+
+struct Conic { double u, vv, A, B, e, Aq, kk; };
+
+inline Conic splat_conic(const float* r) {
+    const double u = r[0], vv = r[1], A = r[2], B = r[3], C = r[4], q = r[9];
+    const double det = A * C - B * B;
+    if (!(det > 0.0 && A > 0.0 && C > 0.0 && q > 0.0)) return {u, vv, 0.0, B, 0.0, 0.0, 0.0};
+    const double hx = std::sqrt(q * C / det);
+    return {u, vv, A, B, B * B - A * C, A * q, B * hx / C};
+}
+
+// tile columns [t0, t1] of the band of pixel rows ya..yb (inclusive), clipped to box columns [x0, x1)
+inline void band_tiles(const Conic& c, int tile, int x0, int x1, int ya, int yb, int& t0, int& t1) {
+    int j0 = x0, j1 = x1 - 1;
+    if (c.A > 0.0) {
+        const double d0 = ya + 0.5 - c.vv, d1 = yb + 0.5 - c.vv;
+        const double dr = std::min(std::max(-c.kk, d0), d1);
+        const double dl = std::min(std::max(c.kk, d0), d1);
+        const double sr = std::sqrt(std::max(dr * dr * c.e + c.Aq, 0.0));
+        const double sl = std::sqrt(std::max(dl * dl * c.e + c.Aq, 0.0));
+        const double xr = c.u + (-c.B * dr + sr * 1.001) / c.A + 0.05;
+        const double xl = c.u + (-c.B * dl - sl * 1.001) / c.A - 0.05;
+        const double cl = std::ceil(xl - 0.5), fr = std::floor(xr - 0.5);
+        if (cl > double(j0)) j0 = cl > double(j1) ? j1 + 1 : int(cl);
+        if (fr < double(j1)) j1 = fr < double(j0) ? j0 - 1 : int(fr);
+    }
+    if (j0 > j1) { t0 = 1; t1 = 0; return; }
+    t0 = j0 / tile; t1 = j1 / tile;
+}
+
+// Calls f(k, t) for every (splat, tile) entry of view v in depth order; spans caches the
+// band ranges (record = true: compute and append; false: replay).
+template <typename F>
+void for_entries(const BinJob& B, int v, std::vector<int32_t>& spans, bool record, F&& f) {
+    const int tile = B.tile;
+    size_t sp = 0;
+    for (int k = 0; k < B.m; ++k) {
+        const float* r = B.rec + (int64_t(v) * B.m + k) * REC;
+        int32_t bx[4];
+        std::memcpy(bx, r + BOX_AT, sizeof(bx));
+        const int x0 = bx[0], x1 = bx[1], y0 = bx[2], y1 = bx[3];
+        if (x0 >= x1 || y0 >= y1) continue;
+        if (record && (x0 < 0 || y0 < 0 || int64_t(x1) > int64_t(B.tiles_x) * tile ||
+                       int64_t(y1) > int64_t(B.tiles_y) * tile)) {
+            B.bad->store(true);
+            return;
+        }
+        const int tx0 = x0 / tile, tx1 = (x1 - 1) / tile;
+        const int ty0 = y0 / tile, ty1 = (y1 - 1) / tile;
+        if (tx0 == tx1) {  // one tile column: nothing to trim
+            for (int ty = ty0; ty <= ty1; ++ty) f(k, ty * B.tiles_x + tx0);
+            continue;
+        }
+        if (record) {
+            const Conic c = splat_conic(r);
+            for (int ty = ty0; ty <= ty1; ++ty) {
+                int t0, t1;
+                band_tiles(c, tile, x0, x1, std::max(y0, ty * tile), std::min(y1, ty * tile + tile) - 1, t0, t1);
+                spans.push_back(t0);
+                spans.push_back(t1);
+                for (int tx = t0; tx <= t1; ++tx) f(k, ty * B.tiles_x + tx);
+            }
+        } else {
+            for (int ty = ty0; ty <= ty1; ++ty) {
+                const int t0 = spans[sp], t1 = spans[sp + 1];
+                sp += 2;
+                for (int tx = t0; tx <= t1; ++tx) f(k, ty * B.tiles_x + tx);
+            }
+        }
+    }
+}
+
+template <typename F>
+void parallel_views(int nv, int n_threads, F&& f) {
+    std::atomic<int> next{0};
+    auto worker = [&]() {
+        for (int v; (v = next.fetch_add(1)) < nv;) f(v);
+    };
+    n_threads = std::max(1, std::min(n_threads, nv));
+    std::vector<std::thread> pool;
+    for (int i = 1; i < n_threads; ++i) pool.emplace_back(worker);
+    worker();
+    for (auto& th : pool) th.join();
+}
+
+PyObject* bin_tiles(PyObject*, PyObject* args) {
+    Py_buffer rec{}, off{}, base{};
+    int nv, m, tile, tiles_x, tiles_y, n_threads;
+    if (!PyArg_ParseTuple(args, "y*iiiiiw*w*i", &rec, &nv, &m, &tile, &tiles_x, &tiles_y, &off, &base, &n_threads))
+        return nullptr;
+    PyObject* result = nullptr;
+    const int64_t nt = int64_t(tiles_x) * tiles_y;
+    bool ok = nv > 0 && m >= 0 && tile > 0 && tiles_x > 0 && tiles_y > 0;
+    if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.bin_tiles: inconsistent sizes");
+    ok = ok && need(rec, Py_ssize_t(nv) * m * REC * 4, "rec") && need(off, Py_ssize_t(nv) * (nt + 1) * 8, "off") &&
+         need(base, Py_ssize_t(nv) * 8, "base");
+    if (ok) {
+        std::atomic<bool> bad{false};
+        BinJob B{(const float*)rec.buf, nv, m, tile, tiles_x, tiles_y, (int64_t*)off.buf, &bad};
+        int64_t* basep = (int64_t*)base.buf;
+        std::vector<std::vector<int32_t>> spans(nv);
+        Py_BEGIN_ALLOW_THREADS
+        parallel_views(nv, n_threads, [&](int v) {
+            int64_t* o = B.off + int64_t(v) * (nt + 1);
+            std::fill(o, o + nt + 1, 0);
+            spans[v].reserve(size_t(m) * 4);
+            for_entries(B, v, spans[v], true, [&](int, int t) { ++o[t + 1]; });
+            for (int64_t t = 0; t < nt; ++t) o[t + 1] += o[t];
+        });
+        Py_END_ALLOW_THREADS
+        if (bad.load()) PyErr_SetString(PyExc_ValueError, "_splat_cpp.bin_tiles: a splat box lies outside the tile grid");
+        else {
+            int64_t total = 0;
+            for (int v = 0; v < nv; ++v) { basep[v] = total; total += B.off[int64_t(v) * (nt + 1) + nt]; }
+            result = PyByteArray_FromStringAndSize(nullptr, Py_ssize_t(total) * 4);
+            if (result) {
+                int32_t* ids = (int32_t*)PyByteArray_AS_STRING(result);
+                Py_BEGIN_ALLOW_THREADS
+                parallel_views(nv, n_threads, [&](int v) {
+                    const int64_t* o = B.off + int64_t(v) * (nt + 1);
+                    std::vector<int64_t> cur(o, o + nt);
+                    int32_t* out = ids + basep[v];
+                    for_entries(B, v, spans[v], false, [&](int k, int t) { out[cur[t]++] = k; });
+                    std::vector<int32_t>().swap(spans[v]);
+                });
+                Py_END_ALLOW_THREADS
+            }
+        }
+    }
+    PyBuffer_Release(&rec); PyBuffer_Release(&off); PyBuffer_Release(&base);
+    return result;
+}
+
 PyObject* has_avx2(PyObject*, PyObject*) { return PyBool_FromLong(cpu_has_avx2()); }
 
 PyMethodDef methods[] = {
@@ -475,6 +619,10 @@ PyMethodDef methods[] = {
      "alpha_cap, t_min, bg, clip, out, blends, n_threads, mode) -> 'avx2' | 'scalar'\n\n"
      "Blend per-(view, tile) splat lists front to back into out (V, H, W, 3) float32. mode: 0 auto, "
      "1 scalar, 2 require AVX2."},
+    {"bin_tiles", bin_tiles, METH_VARARGS,
+     "bin_tiles(rec, nv, m, tile, tiles_x, tiles_y, off, base, n_threads) -> bytearray of int32 ids\n\n"
+     "Per (view, tile) splat lists in depth order (fast_kernels.count_tiles + fill_tiles in one call): "
+     "writes off (nv, n_tiles + 1) int64 prefix sums and base (nv,) int64 view offsets into ids."},
     {"has_avx2", has_avx2, METH_NOARGS, "True when the CPU runs the AVX2+FMA path."},
     {nullptr, nullptr, 0, nullptr}};
 
