@@ -1,8 +1,8 @@
 // Tile compositor of holo_viewer's fast splat renderer (see holo_viewer/render/fast.py).
 //
-// One function, composite(), blends the per-view splat records prepared by the numba
-// preprocessing (fast_kernels.py: rec, box, tile lists) into the images, front to back per
-// tile with early termination. Work items are (view, tile) pairs handed to std::threads
+// bin_tiles() builds the per (view, tile) splat lists from the packed per-view records written
+// by the numba projection (fast_kernels.py: rec with the box inside); composite() blends the
+// records into the images, front to back per tile with early termination. Work items are (view, tile) pairs handed to std::threads
 // from an atomic counter. Two code paths, chosen at run time:
 //   * AVX2 + FMA (x86-64 with GCC/Clang): 8 pixels per register, branch-free blending,
 //     finished rows skipped, polynomial exp;
