@@ -9,14 +9,16 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
+import zipfile
+import zlib
 from pathlib import Path
 from typing import IO, Iterator
 
 import numpy as np
 
-from .errors import ExportError
+from .errors import ExportError, HoloViewerError
 
-__all__ = ["atomic_write", "atomic_path", "save_image", "load_image", "save_npz"]
+__all__ = ["atomic_write", "atomic_path", "save_image", "load_image", "save_npz", "read_npz", "read_npy"]
 
 
 def _target_mode(target: Path) -> int:
@@ -117,3 +119,46 @@ def save_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
     with atomic_write(target) as fh:
         np.savez(fh, **arrays)
     return target
+
+
+@contextlib.contextmanager
+def _reading(path: Path, error: type[HoloViewerError], what: str) -> Iterator[None]:
+    """Map every way numpy can fail to read a file to ``error`` naming the file."""
+    try:
+        yield
+    except FileNotFoundError:
+        raise error(f"{path}: {what} not found") from None
+    except IsADirectoryError:
+        raise error(f"{path}: expected {what}, found a directory") from None
+    except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, KeyError) as exc:
+        # a corrupt or truncated zip raises BadZipFile (not an OSError) at open and
+        # zlib.error/EOFError when a member is read: all mean "not a readable file"
+        raise error(f"{path}: cannot read {what} ({exc})") from None
+
+
+def read_npz(path: str | os.PathLike, error: type[HoloViewerError] = HoloViewerError,
+             what: str = "file") -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` file, read eagerly (no pickles).
+
+    Raises
+    ------
+    error
+        ``"{path}: cannot read {what} (...)"`` for a missing, truncated or corrupt file.
+    """
+    with _reading(Path(path), error, what):
+        z = np.load(path, allow_pickle=False)
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise ValueError("expected an .npz archive, found a single .npy array")
+        with z:
+            return {k: z[k] for k in z.files}
+
+
+def read_npy(path: str | os.PathLike, error: type[HoloViewerError] = HoloViewerError,
+             what: str = "file") -> np.ndarray:
+    """The array of an ``.npy`` file (no pickles); errors as :func:`read_npz`."""
+    with _reading(Path(path), error, what):
+        arr = np.load(path, allow_pickle=False)
+        if not isinstance(arr, np.ndarray):
+            arr.close()
+            raise ValueError("expected a single .npy array, found an .npz archive")
+        return arr

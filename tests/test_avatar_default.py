@@ -105,6 +105,10 @@ def test_disk_cache_round_trip(tmp_path, monkeypatch):
     assert len(files) == 1
     again, binding2, _ = gen(3000, 1, 5, True)  # read back from the file
     assert np.array_equal(again.means, local.means) and np.array_equal(binding2, binding)
+    raw = files[0].read_bytes()
     files[0].write_bytes(b"garbage")  # a corrupt cache file is regenerated, not trusted
     third, _, _ = gen(3000, 1, 5, True)
     assert np.array_equal(third.sh, local.sh)
+    files[0].write_bytes(raw[: len(raw) // 2])  # a truncated zip (an interrupted copy) too
+    fourth, _, _ = gen(3000, 1, 5, True)
+    assert np.array_equal(fourth.means, local.means)

@@ -105,3 +105,31 @@ def test_save_image_round_trip_and_nan_refused(tmp_path):
     with pytest.raises(ExportError, match="not a readable image"):
         (tmp_path / "c.png").write_bytes(b"not a png")
         load_image(tmp_path / "c.png")
+
+
+def test_read_npz_and_npy_errors_name_the_file(tmp_path):
+    from holo_viewer.errors import ReactionError
+    from holo_viewer.fileio import read_npy, read_npz
+
+    good = tmp_path / "good.npz"
+    np.savez(good, a=np.arange(3))
+    assert np.array_equal(read_npz(good)["a"], np.arange(3))
+    raw = good.read_bytes()
+    cases = {"trunc.npz": raw[: len(raw) // 2], "magic.npz": b"PK\x03\x04garbage", "text.npz": b"hello"}
+    for name, data in cases.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(ReactionError, match=rf"{name}: cannot read speaker data"):
+            read_npz(tmp_path / name, ReactionError, "speaker data")
+    with pytest.raises(ReactionError, match="missing.npz: speaker data not found"):
+        read_npz(tmp_path / "missing.npz", ReactionError, "speaker data")
+    with pytest.raises(ReactionError, match="found a directory"):
+        read_npz(tmp_path, ReactionError, "speaker data")
+    np.save(tmp_path / "x.npy", np.eye(2))
+    assert np.array_equal(read_npy(tmp_path / "x.npy"), np.eye(2))
+    with pytest.raises(HoloViewerError, match="single .npy array"):
+        read_npz(tmp_path / "x.npy")
+    with pytest.raises(HoloViewerError, match="found an .npz archive"):
+        read_npy(good)
+    (tmp_path / "cut.npy").write_bytes((tmp_path / "x.npy").read_bytes()[:-8])
+    with pytest.raises(HoloViewerError, match="cut.npy: cannot read"):
+        read_npy(tmp_path / "cut.npy")

@@ -102,3 +102,15 @@ def test_acceptance_on_synthetic_test_split():
         assert fc["Ours"] > fc[b], (b, fc)
         assert fd["Ours"] < fd[b], (b, fd)
     assert M.frdiv(ours) > 0
+
+
+def test_corrupt_speaker_file_is_a_clear_error(tmp_path):
+    from holo_viewer.errors import ReactionError
+    from holo_viewer.flame.expressions import default_au_map
+    from holo_viewer.reaction.api import load_speaker_npz
+
+    np.savez(tmp_path / "s.npz", expr=np.zeros((5, 24)), jaw_pose=np.zeros((5, 3)), rotation=np.zeros((5, 3)))
+    raw = (tmp_path / "s.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(ReactionError, match="cut.npz: cannot read speaker FLAME parameters"):
+        load_speaker_npz(tmp_path / "cut.npz", default_au_map())

@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import copy
 import os
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -57,7 +56,7 @@ import numpy as np
 import torch
 
 from ..errors import AvatarError, InputError
-from ..fileio import save_npz
+from ..fileio import read_npz, save_npz
 from ..geometry import quat_multiply, quat_multiply_np
 from .gaussians import Gaussians
 from .rigged import RiggedAvatar
@@ -478,11 +477,7 @@ class BlendshapeAvatar:
     def load(cls, path: str | os.PathLike) -> "BlendshapeAvatar":
         """Read :meth:`save` output (v2, or v1 per-Gaussian files); raises AvatarError naming the file and key."""
         path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise AvatarError(f"{path}: cannot read blend-shape avatar ({exc})") from None
+        data = read_npz(path, AvatarError, "blend-shape avatar")
         fmt = str(data["format"]) if "format" in data else None
         if fmt is not None and fmt not in (_FORMAT, _FORMAT_V1):
             raise AvatarError(f"{path}: format: expected {_FORMAT!r} (or {_FORMAT_V1!r}), found {fmt!r}")

@@ -41,8 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import AvatarError, InputError
-from ..fileio import save_npz
+from ..errors import AvatarError, HoloViewerError, InputError
+from ..fileio import read_npz, save_npz
 from .binding import world_to_local_np
 from .gaussians import SH_C0, Gaussians
 
@@ -295,12 +295,12 @@ def _cached_local(n_gaussians: int, sh_degree: int, seed: int, use_disk_cache: b
     names = tuple(str(s) for s in model.metadata["region_names"]) + ("teeth",)
     if use_disk_cache and path.exists():
         try:
-            with np.load(path, allow_pickle=False) as z:
-                local = Gaussians(z["means"], z["quats"], z["log_scales"], z["opacity_logits"], z["sh"],
-                                  extra={"region": z["region"]})
-                return local, z["binding"].astype(np.int64), names
-        except (OSError, ValueError, KeyError):
-            pass  # corrupt cache: regenerate and overwrite
+            z = read_npz(path, AvatarError, "default avatar cache")
+            local = Gaussians(z["means"], z["quats"], z["log_scales"], z["opacity_logits"], z["sh"],
+                              extra={"region": z["region"]})
+            return local, z["binding"].astype(np.int64), names
+        except (HoloViewerError, KeyError):
+            pass  # unreadable, truncated or stale cache: regenerate and overwrite
     local, binding = generate_default_gaussians(model, n_gaussians, sh_degree, seed)
     if use_disk_cache:
         try:

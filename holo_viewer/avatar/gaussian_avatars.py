@@ -12,7 +12,6 @@ and optionally ``dynamic_offset`` (T, V, 3). Its FLAME mesh has teeth (5143 vert
 from __future__ import annotations
 
 import os
-import zipfile
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Iterator
@@ -20,7 +19,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..errors import AvatarError, InputError
-from ..fileio import save_npz
+from ..fileio import read_npz, save_npz
 from .ply import load_ply, read_ply_header
 from .rigged import RiggedAvatar
 
@@ -108,11 +107,7 @@ def load_flame_params(path: str | os.PathLike, n_vertices: int | tuple[int, ...]
         the message names the file and the key.
     """
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise AvatarError(f"{path}: cannot read FLAME parameters ({exc})") from None
+    data = read_npz(path, AvatarError, "FLAME parameters")
     if "expr" not in data:
         raise AvatarError(f"{path}: missing key 'expr'; expected keys shape, expr, rotation, neck_pose, jaw_pose, "
                           f"translation, eyes_pose (+ static_offset, dynamic_offset), found {sorted(data)}")

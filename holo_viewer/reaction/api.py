@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError, ReactionError
+from ..fileio import read_npz
 from ..validation import check_array, check_finite_scalar
 from .audio import AudioConfig, log_mel
 from .features import FPS, flame_from_state, state_from_flame
@@ -102,21 +103,17 @@ def load_speaker_npz(path: str | os.PathLike, au_map) -> np.ndarray:
     p = Path(path)
     if not p.is_file():
         raise ReactionError(f"{p}: speaker file not found")
+    z = read_npz(p, ReactionError, "speaker FLAME parameters")
+    missing = [k for k in ("expr", "jaw_pose", "rotation") if k not in z]
+    if missing:
+        raise ReactionError(f"{p}: missing keys {missing}; expected expr (T, n_expr), jaw_pose (T, 3), "
+                            f"rotation (T, 3); found {sorted(z)}")
+    if "fps" in z and float(z["fps"]) != FPS:
+        raise ReactionError(f"{p}: fps: expected {FPS}, found {float(z['fps'])}")
     try:
-        z = np.load(p, allow_pickle=False)
-    except (ValueError, OSError) as exc:
-        raise ReactionError(f"{p}: not a readable .npz file ({exc})") from exc
-    with z:
-        missing = [k for k in ("expr", "jaw_pose", "rotation") if k not in z.files]
-        if missing:
-            raise ReactionError(f"{p}: missing keys {missing}; expected expr (T, n_expr), jaw_pose (T, 3), "
-                                f"rotation (T, 3); found {sorted(z.files)}")
-        if "fps" in z.files and float(z["fps"]) != FPS:
-            raise ReactionError(f"{p}: fps: expected {FPS}, found {float(z['fps'])}")
-        try:
-            return state_from_flame(z["expr"], z["jaw_pose"], z["rotation"], au_map)
-        except InputError as exc:
-            raise InputError(f"{p}: {exc}") from exc
+        return state_from_flame(z["expr"], z["jaw_pose"], z["rotation"], au_map)
+    except InputError as exc:
+        raise InputError(f"{p}: {exc}") from exc
 
 
 def flame_params_from_states(states: np.ndarray, au_map, n_shape: int | None = None) -> dict[str, np.ndarray]:

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ReactionError
+from ..fileio import read_npy
 from .features import ATTRIBUTE_DIM
 
 __all__ = ["ReactSplitData", "read_attribute_csv", "read_pairs", "load_react_split"]
@@ -92,7 +93,7 @@ def read_pairs(root: str | os.PathLike, split: str) -> list[tuple[str, str]]:
 def _load_3dmm(path: Path, frames: int) -> np.ndarray:
     if not path.is_file():
         raise ReactionError(f"{path}: 3DMM file not found")
-    x = np.load(path, allow_pickle=False)
+    x = read_npy(path, ReactionError, "3DMM coefficients")
     x = np.asarray(x, dtype=np.float32).reshape(x.shape[0], -1)
     if x.shape[0] < frames:
         raise ReactionError(f"{path}: expected at least {frames} frames, found {x.shape[0]}")
@@ -144,7 +145,7 @@ def load_react_split(root: str | os.PathLike, split: str, frames: int = 750, mir
     nb_path = root / f"neighbour_emotion_{split}.npy"
     nb = None
     if nb_path.is_file():
-        nb = np.load(nb_path, allow_pickle=False)
+        nb = read_npy(nb_path, ReactionError, "neighbour matrix")
         if nb.shape != (len(pairs), len(pairs)):
             raise ReactionError(f"{nb_path}: expected shape ({len(pairs)}, {len(pairs)}) for {len(pairs)} clips"
                                 f"{' (mirrored)' if mirrored else ''}, found {nb.shape}")
