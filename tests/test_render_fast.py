@@ -25,7 +25,13 @@ from holo_viewer.render import fast  # noqa: E402
 
 PSNR_MIN, MAX_ERR = 50.0, 0.01
 
+#: "cpp" = the path chosen at run time; the suffixed ones force a C++ path where the CPU has it
 KERNELS = ["numba"] + (["cpp", "cpp-scalar"] if fast.cpp_available() else [])
+if fast.cpp_available() and fast._cpp().has_avx2():
+    KERNELS.append("cpp-avx2")
+if fast.cpp_available() and fast._cpp().has_avx512():
+    KERNELS.append("cpp-avx512")
+_MODES = {"cpp-scalar": 1, "cpp-avx2": 2, "cpp-avx512": 3}
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -34,7 +40,10 @@ def psnr(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def run_fast(g, cams, kernel: str, **cfg):
-    mode = 1 if kernel == "cpp-scalar" else 0
+    mode = _MODES.get(kernel, 0)
+    tile = cfg.get("tile_size", 16)
+    if (kernel == "cpp-avx512" and tile != 16) or (kernel == "cpp-avx2" and tile % 8):
+        mode = 0  # tile sizes a SIMD path does not take: the run-time choice
     old = fast._CPP_MODE
     fast._CPP_MODE = mode
     try:
@@ -156,3 +165,15 @@ def test_cpp_binning_equals_numba(tile):
     box[1, 7] = (0, W + tile + 1, 0, 5)  # outside the tile grid: a clear error, no out-of-bounds write
     with pytest.raises(ValueError, match="outside the tile grid"):
         fast._cpp().bin_tiles(rec, nv, m, tile, tx, ty, off2, base2, 2)
+
+
+@pytest.mark.skipif(not fast.cpp_available(), reason="C++ extension not built")
+def test_cpp_forced_simd_path_for_other_tile_size_is_an_error():
+    cams = quilt_cameras(2, 32, 24, use_display=False)
+    old = fast._CPP_MODE
+    fast._CPP_MODE = 3  # AVX-512 takes 16x16 tiles only
+    try:
+        with pytest.raises(RuntimeError, match="AVX-512 path unavailable"):
+            render_views(random_scene(20), cams, "fast", RenderConfig(kernel="cpp", tile_size=8))
+    finally:
+        fast._CPP_MODE = old
