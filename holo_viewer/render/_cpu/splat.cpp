@@ -16,6 +16,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -635,44 +636,69 @@ inline void band_tiles(const Conic& c, int tile, int x0, int x1, int ya, int yb,
     t0 = j0 / tile; t1 = j1 / tile;
 }
 
+// Calls f(k, t) for every tile t that splat k of view v reaches, and appends its band ranges
+// to spans (the replay below gives the same entries without the ellipse evaluations).
+template <typename F>
+inline void entries_of(const BinJob& B, int v, int k, std::vector<int32_t>& spans, bool, F&& f) {
+    const int tile = B.tile;
+    const float* r = B.rec + (int64_t(v) * B.m + k) * REC;
+    int32_t bx[4];
+    std::memcpy(bx, r + BOX_AT, sizeof(bx));
+    const int x0 = bx[0], x1 = bx[1], y0 = bx[2], y1 = bx[3];
+    if (x0 >= x1 || y0 >= y1) return;
+    if (x0 < 0 || y0 < 0 || int64_t(x1) > int64_t(B.tiles_x) * tile || int64_t(y1) > int64_t(B.tiles_y) * tile) {
+        B.bad->store(true);
+        return;
+    }
+    const int tx0 = x0 / tile, tx1 = (x1 - 1) / tile;
+    const int ty0 = y0 / tile, ty1 = (y1 - 1) / tile;
+    if (tx0 == tx1) {  // one tile column: nothing to trim
+        for (int ty = ty0; ty <= ty1; ++ty) f(k, ty * B.tiles_x + tx0);
+        return;
+    }
+    const Conic c = splat_conic(r);
+    for (int ty = ty0; ty <= ty1; ++ty) {
+        int t0, t1;
+        band_tiles(c, tile, x0, x1, std::max(y0, ty * tile), std::min(y1, ty * tile + tile) - 1, t0, t1);
+        spans.push_back(t0);
+        spans.push_back(t1);
+        for (int tx = t0; tx <= t1; ++tx) f(k, ty * B.tiles_x + tx);
+    }
+}
+
+// Replays entries_of for splat k from spans[sp...]; returns the next position in spans.
+template <typename F>
+inline size_t replay_entries(const BinJob& B, int v, int k, const std::vector<int32_t>& spans, size_t sp, F&& f) {
+    const int tile = B.tile;
+    int32_t bx[4];
+    std::memcpy(bx, B.rec + (int64_t(v) * B.m + k) * REC + BOX_AT, sizeof(bx));
+    const int x0 = bx[0], x1 = bx[1], y0 = bx[2], y1 = bx[3];
+    if (x0 >= x1 || y0 >= y1) return sp;
+    const int tx0 = x0 / tile, tx1 = (x1 - 1) / tile;
+    const int ty0 = y0 / tile, ty1 = (y1 - 1) / tile;
+    if (tx0 == tx1) {
+        for (int ty = ty0; ty <= ty1; ++ty) f(k, ty * B.tiles_x + tx0);
+        return sp;
+    }
+    for (int ty = ty0; ty <= ty1; ++ty) {
+        const int t0 = spans[sp], t1 = spans[sp + 1];
+        sp += 2;
+        for (int tx = t0; tx <= t1; ++tx) f(k, ty * B.tiles_x + tx);
+    }
+    return sp;
+}
+
 // Calls f(k, t) for every (splat, tile) entry of view v in depth order; spans caches the
 // band ranges (record = true: compute and append; false: replay).
 template <typename F>
 void for_entries(const BinJob& B, int v, std::vector<int32_t>& spans, bool record, F&& f) {
-    const int tile = B.tile;
     size_t sp = 0;
     for (int k = 0; k < B.m; ++k) {
-        const float* r = B.rec + (int64_t(v) * B.m + k) * REC;
-        int32_t bx[4];
-        std::memcpy(bx, r + BOX_AT, sizeof(bx));
-        const int x0 = bx[0], x1 = bx[1], y0 = bx[2], y1 = bx[3];
-        if (x0 >= x1 || y0 >= y1) continue;
-        if (record && (x0 < 0 || y0 < 0 || int64_t(x1) > int64_t(B.tiles_x) * tile ||
-                       int64_t(y1) > int64_t(B.tiles_y) * tile)) {
-            B.bad->store(true);
-            return;
-        }
-        const int tx0 = x0 / tile, tx1 = (x1 - 1) / tile;
-        const int ty0 = y0 / tile, ty1 = (y1 - 1) / tile;
-        if (tx0 == tx1) {  // one tile column: nothing to trim
-            for (int ty = ty0; ty <= ty1; ++ty) f(k, ty * B.tiles_x + tx0);
-            continue;
-        }
         if (record) {
-            const Conic c = splat_conic(r);
-            for (int ty = ty0; ty <= ty1; ++ty) {
-                int t0, t1;
-                band_tiles(c, tile, x0, x1, std::max(y0, ty * tile), std::min(y1, ty * tile + tile) - 1, t0, t1);
-                spans.push_back(t0);
-                spans.push_back(t1);
-                for (int tx = t0; tx <= t1; ++tx) f(k, ty * B.tiles_x + tx);
-            }
+            entries_of(B, v, k, spans, true, f);
+            if (B.bad->load(std::memory_order_relaxed)) return;
         } else {
-            for (int ty = ty0; ty <= ty1; ++ty) {
-                const int t0 = spans[sp], t1 = spans[sp + 1];
-                sp += 2;
-                for (int tx = t0; tx <= t1; ++tx) f(k, ty * B.tiles_x + tx);
-            }
+            sp = replay_entries(B, v, k, spans, sp, f);
         }
     }
 }
@@ -738,6 +764,216 @@ PyObject* bin_tiles(PyObject*, PyObject* args) {
     return result;
 }
 
+// ---- fused projection + binning (one pass per view; fast.py uses it with the C++ kernels) -----
+// Same forward pass as fast_kernels.project_views (float64, same formulas and order of
+// operations) followed by the same tile lists as bin_tiles, but the record of a splat is
+// binned right after it is written, while it is in cache, instead of in a second sweep over
+// every view's 6 MB of records. Inputs are in depth order. Work units are (view, segment of
+// the splat range): with fewer views than threads the splats of a view are split between
+// threads, and the tile lists stay in depth order because segment s's entries of a tile go
+// before segment s+1's.
+constexpr double SH_C0 = 0.28209479177387814, SH_C1 = 0.4886025119029199;
+constexpr double SH_C2[5] = {1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
+                             0.5462742152960396};
+constexpr double SH_C3[7] = {-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
+                             -0.4570457994644658, 1.445305721320277, -0.5900435899266435};
+
+inline void sh_basis(int degree, double x, double y, double z, double* b) {
+    b[0] = SH_C0;
+    if (degree >= 1) { b[1] = -SH_C1 * y; b[2] = SH_C1 * z; b[3] = -SH_C1 * x; }
+    if (degree >= 2) {
+        const double xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
+        b[4] = SH_C2[0] * xy; b[5] = SH_C2[1] * yz; b[6] = SH_C2[2] * (2.0 * zz - xx - yy);
+        b[7] = SH_C2[3] * xz; b[8] = SH_C2[4] * (xx - yy);
+        if (degree >= 3) {
+            b[9] = SH_C3[0] * y * (3.0 * xx - yy); b[10] = SH_C3[1] * xy * z;
+            b[11] = SH_C3[2] * y * (4.0 * zz - xx - yy); b[12] = SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy);
+            b[13] = SH_C3[4] * x * (4.0 * zz - xx - yy); b[14] = SH_C3[5] * z * (xx - yy);
+            b[15] = SH_C3[6] * x * (xx - 3.0 * yy);
+        }
+    }
+}
+
+struct ProjJob {
+    const double *pc, *cov, *means, *op, *q, *cams;
+    const float* sh;            // (m, nk, 3), or shared colours (m, 3) when use_shared
+    int m, nv, width, height, degree, use_shared, tile, tiles_x, tiles_y;
+    double near, dilation, radius_sigmas, alpha_threshold, cull_margin;
+    float* rec;                 // (nv, m, REC)
+    uint8_t* seen;              // (m,)
+};
+
+// Project splat k into view v: writes its record (box empty when it is not drawn); true if drawn.
+inline bool project_one(const ProjJob& P, int v, int k) {
+    const double* cam = P.cams + int64_t(v) * 14;
+    float* r = P.rec + (int64_t(v) * P.m + k) * REC;
+    int32_t box[4] = {0, 0, 0, 0};
+    std::memcpy(r + BOX_AT, box, sizeof(box));
+    const double op = P.op[k];
+    if (op < P.alpha_threshold) return false;
+    const double q = P.q[k];
+    const double* cv = P.cov + int64_t(k) * 6;
+    const double sxx = cv[0], sxy = cv[1], sxz = cv[2], syy = cv[3], syz = cv[4], szz = cv[5];
+    const double fx = cam[0], fy = cam[1], cx = cam[2], cy = cam[3];
+    const double tx = P.pc[k * 3 + 0] + cam[4], ty = P.pc[k * 3 + 1] + cam[5], tz = P.pc[k * 3 + 2] + cam[6];
+    if (!(tz > P.near)) return false;
+    const double itz = 1.0 / tz;
+    const double u = fx * tx * itz + cx, vv = fy * ty * itz + cy;
+    if (P.cull_margin >= 0.0 && (u < -P.cull_margin * P.width || u > (1.0 + P.cull_margin) * P.width ||
+                                 vv < -P.cull_margin * P.height || vv > (1.0 + P.cull_margin) * P.height))
+        return false;
+    const double txc = std::min(std::max(tx * itz, cam[10]), cam[11]) * tz;
+    const double tyc = std::min(std::max(ty * itz, cam[12]), cam[13]) * tz;
+    const double j00 = fx * itz, j02 = -fx * txc * itz * itz, j11 = fy * itz, j12 = -fy * tyc * itz * itz;
+    const double r0x = j00 * sxx + j02 * sxz, r0y = j00 * sxy + j02 * syz, r0z = j00 * sxz + j02 * szz;
+    const double r1y = j11 * syy + j12 * syz, r1z = j11 * syz + j12 * szz;
+    const double sa = r0x * j00 + r0z * j02, b = r0y * j11 + r0z * j12, sc = r1y * j11 + r1z * j12;
+    const double d = P.dilation, a = sa + d, c = sc + d;
+    const double det = std::max(sa * sc - b * b, 0.0) + d * (sa + sc) + d * d;
+    if (!(det > 0.0)) return false;
+    const double mid = 0.5 * (a + c);
+    const double lam = mid + std::sqrt(std::max(mid * mid - det, 0.0));
+    const double rad = std::ceil(P.radius_sigmas * std::sqrt(std::max(lam, 0.0)));
+    const double hx = std::min(rad, std::sqrt(q * a) * 1.0001 + 1e-3);
+    const double hy = std::min(rad, std::sqrt(q * c) * 1.0001 + 1e-3);
+    const double fx0 = std::ceil(u - hx - 0.5), fx1 = std::floor(u + hx - 0.5) + 1.0;
+    const double fy0 = std::ceil(vv - hy - 0.5), fy1 = std::floor(vv + hy - 0.5) + 1.0;
+    const double W = P.width, H = P.height;
+    box[0] = int32_t(std::min(std::max(fx0, 0.0), W));
+    box[1] = int32_t(std::min(std::max(fx1, 0.0), W));
+    box[2] = int32_t(std::min(std::max(fy0, 0.0), H));
+    box[3] = int32_t(std::min(std::max(fy1, 0.0), H));
+    if (box[0] >= box[1] || box[2] >= box[3]) return false;
+    std::memcpy(r + BOX_AT, box, sizeof(box));
+    const double idet = 1.0 / det;
+    r[0] = float(u); r[1] = float(vv);
+    r[2] = float(c * idet); r[3] = float(-b * idet); r[4] = float(a * idet);
+    r[5] = float(op);
+    if (P.use_shared) {
+        for (int ch = 0; ch < 3; ++ch) r[6 + ch] = P.sh[int64_t(k) * 3 + ch];
+    } else {
+        double dx = P.means[k * 3 + 0] - cam[7], dy = P.means[k * 3 + 1] - cam[8], dz = P.means[k * 3 + 2] - cam[9];
+        const double nrm = std::sqrt(dx * dx + dy * dy + dz * dz);
+        if (nrm > 0.0) {
+            const double inv = 1.0 / nrm;
+            dx *= inv; dy *= inv; dz *= inv;
+        }
+        double basis[16];
+        sh_basis(P.degree, dx, dy, dz, basis);
+        const int nk = (P.degree + 1) * (P.degree + 1);
+        const float* shk = P.sh + int64_t(k) * nk * 3;
+        for (int ch = 0; ch < 3; ++ch) {
+            double acc = 0.0;
+            for (int j = 0; j < nk; ++j) acc += basis[j] * double(shk[j * 3 + ch]);
+            r[6 + ch] = float(std::max(acc + 0.5, 0.0));
+        }
+    }
+    r[9] = float(q);
+    return true;
+}
+
+PyObject* project_bin(PyObject*, PyObject* args) {
+    Py_buffer pc{}, cov{}, means{}, op{}, q{}, sh{}, cams{}, rec{}, off{}, base{}, seen{}, ids{};
+    ProjJob P{};
+    int n_threads;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*iiiiiiiiidddddw*w*w*w*w*i", &pc, &cov, &means, &op, &q, &sh, &cams,
+                          &P.m, &P.nv, &P.width, &P.height, &P.degree, &P.use_shared, &P.tile, &P.tiles_x,
+                          &P.tiles_y, &P.near, &P.dilation, &P.radius_sigmas, &P.alpha_threshold, &P.cull_margin,
+                          &rec, &off, &base, &seen, &ids, &n_threads))
+        return nullptr;
+    PyObject* result = nullptr;
+    const int64_t nt = int64_t(P.tiles_x) * P.tiles_y;
+    const int nk = P.use_shared ? 1 : (P.degree + 1) * (P.degree + 1);
+    bool ok = P.nv > 0 && P.m >= 0 && P.tile > 0 && P.tiles_x > 0 && P.tiles_y > 0 && P.width > 0 &&
+              P.height > 0 && int64_t(P.tiles_x) * P.tile >= P.width && int64_t(P.tiles_y) * P.tile >= P.height &&
+              P.degree >= 0 && P.degree <= 3;
+    if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.project_bin: inconsistent sizes");
+    const Py_ssize_t m = P.m;
+    ok = ok && need(pc, m * 24, "pc") && need(cov, m * 48, "cov") && need(means, m * 24, "means") &&
+         need(op, m * 8, "opacity") && need(q, m * 8, "q") && need(sh, m * nk * 12, "sh") &&
+         need(cams, Py_ssize_t(P.nv) * 14 * 8, "cams") && need(rec, Py_ssize_t(P.nv) * m * REC * 4, "rec") &&
+         need(off, Py_ssize_t(P.nv) * (nt + 1) * 8, "off") && need(base, Py_ssize_t(P.nv) * 8, "base") &&
+         need(seen, m, "seen");
+    if (ok) {
+        P.pc = (const double*)pc.buf; P.cov = (const double*)cov.buf; P.means = (const double*)means.buf;
+        P.op = (const double*)op.buf; P.q = (const double*)q.buf; P.cams = (const double*)cams.buf;
+        P.sh = (const float*)sh.buf; P.rec = (float*)rec.buf; P.seen = (uint8_t*)seen.buf;
+        std::memset(P.seen, 0, size_t(m));
+        n_threads = std::max(1, n_threads);
+        // segments per view: enough units to keep every thread busy
+        const int segs = std::max(1, std::min<int>((n_threads + P.nv - 1) / P.nv, std::max(1, P.m / 4096)));
+        const int n_units = P.nv * segs;
+        std::vector<std::vector<int64_t>> counts(n_units);   // per unit: entries per tile
+        std::vector<std::vector<int32_t>> spans(n_units);
+        std::atomic<bool> bad{false};
+        BinJob B{P.rec, P.nv, P.m, P.tile, P.tiles_x, P.tiles_y, nullptr, &bad};
+        auto seg_range = [&](int s, int& k0, int& k1) {
+            k0 = int(int64_t(P.m) * s / segs);
+            k1 = int(int64_t(P.m) * (s + 1) / segs);
+        };
+        Py_BEGIN_ALLOW_THREADS
+        parallel_views(n_units, n_threads, [&](int unit) {
+            const int v = unit / segs;
+            int k0, k1;
+            seg_range(unit % segs, k0, k1);
+            std::vector<int64_t>& cnt = counts[unit];
+            cnt.assign(size_t(nt), 0);
+            spans[unit].reserve(size_t(k1 - k0) * 4);
+            for (int k = k0; k < k1; ++k) {
+                if (!project_one(P, v, k)) continue;
+                __atomic_store_n(P.seen + k, uint8_t(1), __ATOMIC_RELAXED);
+                entries_of(B, v, k, spans[unit], true, [&](int, int t) { ++cnt[t]; });
+            }
+        });
+        Py_END_ALLOW_THREADS
+        int64_t* offp = (int64_t*)off.buf;
+        int64_t* basep = (int64_t*)base.buf;
+        int64_t total = 0;
+        std::vector<int64_t> cursor(size_t(n_units) * nt);
+        for (int v = 0; v < P.nv; ++v) {
+            basep[v] = total;
+            int64_t* o = offp + int64_t(v) * (nt + 1);
+            int64_t run = 0;
+            for (int64_t t = 0; t < nt; ++t) {
+                o[t] = run;
+                for (int s = 0; s < segs; ++s) {
+                    cursor[size_t(v * segs + s) * nt + t] = run;
+                    run += counts[v * segs + s][t];
+                }
+            }
+            o[nt] = run;
+            total += run;
+        }
+        if (bad.load()) {
+            PyErr_SetString(PyExc_ValueError, "_splat_cpp.project_bin: a splat box lies outside the tile grid");
+        } else if (total * 4 > ids.len) {
+            result = Py_BuildValue("Ld", (long long)total, 0.0);  // caller grows ids and calls again
+        } else {
+            const auto t_fill = std::chrono::steady_clock::now();
+            int32_t* idsp = (int32_t*)ids.buf;
+            Py_BEGIN_ALLOW_THREADS
+            parallel_views(n_units, n_threads, [&](int unit) {
+                const int v = unit / segs;
+                int k0, k1;
+                seg_range(unit % segs, k0, k1);
+                int64_t* cur = cursor.data() + size_t(unit) * nt;
+                int32_t* out = idsp + basep[v];
+                size_t sp = 0;
+                for (int k = k0; k < k1; ++k)
+                    sp = replay_entries(B, v, k, spans[unit], sp, [&](int kk, int t) { out[cur[t]++] = kk; });
+                std::vector<int32_t>().swap(spans[unit]);
+            });
+            Py_END_ALLOW_THREADS
+            const double fill_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_fill).count();
+            result = Py_BuildValue("Ld", (long long)total, fill_s);
+        }
+    }
+    PyBuffer_Release(&pc); PyBuffer_Release(&cov); PyBuffer_Release(&means); PyBuffer_Release(&op);
+    PyBuffer_Release(&q); PyBuffer_Release(&sh); PyBuffer_Release(&cams); PyBuffer_Release(&rec);
+    PyBuffer_Release(&off); PyBuffer_Release(&base); PyBuffer_Release(&seen); PyBuffer_Release(&ids);
+    return result;
+}
+
 PyObject* has_avx2(PyObject*, PyObject*) { return PyBool_FromLong(cpu_has_avx2()); }
 PyObject* has_avx512(PyObject*, PyObject*) { return PyBool_FromLong(cpu_has_avx512()); }
 
@@ -751,6 +987,13 @@ PyMethodDef methods[] = {
      "bin_tiles(rec, nv, m, tile, tiles_x, tiles_y, off, base, n_threads) -> bytearray of int32 ids\n\n"
      "Per (view, tile) splat lists in depth order (fast_kernels.count_tiles + fill_tiles in one call): "
      "writes off (nv, n_tiles + 1) int64 prefix sums and base (nv,) int64 view offsets into ids."},
+    {"project_bin", project_bin, METH_VARARGS,
+     "project_bin(pc, cov, means, opacity, q, sh, cams, m, nv, width, height, degree, use_shared, tile, "
+     "tiles_x, tiles_y, near, dilation, radius_sigmas, alpha_threshold, cull_margin, rec, off, base, seen, ids, "
+     "n_threads) -> (total entries, seconds spent filling the lists)\n\n"
+     "fast_kernels.project_views followed by bin_tiles in one pass per view (inputs in depth order, float64; "
+     "sh float32). Writes rec, off, base, seen and, when ids holds them, the tile lists; returns the number "
+     "of entries (larger than ids' capacity: nothing written to ids, grow it and call again)."},
     {"has_avx2", has_avx2, METH_NOARGS, "True when the CPU runs the AVX2+FMA path."},
     {"has_avx512", has_avx512, METH_NOARGS, "True when the CPU runs the AVX-512 path (16x16 tiles)."},
     {nullptr, nullptr, 0, nullptr}};
