@@ -219,7 +219,7 @@ def test_cpp_project_bin_equals_numba(degree, shared, cull, threads):
     rec2, box2 = fast._records(3, m)
     off2, base2, seen2 = np.empty_like(off), np.empty_like(base), np.empty(m, np.uint8)
     ins = fast._sorted_inputs(order, pc, cov, means, opacity, shared_rgb if shared else sh, thr)
-    args = (*ins, cams, m, 3, W, H, degree, int(shared), tile, tx, ty, near, 0.3, 3.0, thr, cull, rec2, off2, base2,
+    args = (*ins, cams, m, ins[3].size, 3, W, H, degree, int(shared), tile, tx, ty, near, 0.3, 3.0, thr, cull, rec2, off2, base2,
             seen2)
     small = np.empty(10, dtype=np.int32)
     total, _ = fast._cpp().project_bin(*args, small, threads)

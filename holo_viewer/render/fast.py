@@ -146,13 +146,24 @@ def _sorted_inputs(order: np.ndarray, pc: np.ndarray, cov: np.ndarray, means: np
                    colours: np.ndarray, alpha_threshold: float) -> tuple[np.ndarray, ...]:
     """Depth-ordered inputs of ``_splat_cpp.project_bin``: pc, cov, means, opacity, q, colours.
 
-    colours: (N, nk, 3) SH coefficients, or (N, 3) shared colours. q = 2 ln(opacity / threshold).
+    Structure of arrays (one row per component) with a row length ``mp`` = m rounded up to a
+    multiple of 8 (the kernel projects 8 splats at a time; the padding has opacity 0, so it is
+    never drawn). colours: (N, nk, 3) SH coefficients (rows j * 3 + channel), or (N, 3) shared
+    colours. q = 2 ln(opacity / threshold).
     """
-    op_sorted = opacity[order]
+    m = order.size
+    mp = -(-m // 8) * 8
+
+    def soa(a: np.ndarray, dtype: type) -> np.ndarray:
+        a = a[order].reshape(m, -1)
+        out = np.zeros((a.shape[1], mp), dtype=dtype)
+        out[:, :m] = a.T
+        return out
+
+    op = soa(opacity, np.float64)[0]
     with np.errstate(divide="ignore"):
-        q_sorted = 2.0 * (np.log(op_sorted) - math.log(alpha_threshold))
-    return (np.ascontiguousarray(pc[order]), np.ascontiguousarray(cov[order]), np.ascontiguousarray(means[order]),
-            op_sorted, q_sorted, np.ascontiguousarray(colours[order], dtype=np.float32))
+        q = 2.0 * (np.log(np.maximum(op, 1e-300)) - math.log(alpha_threshold))
+    return soa(pc, np.float64), soa(cov, np.float64), soa(means, np.float64), op, q, soa(colours, np.float32)
 
 
 def _threads(config: RenderConfig) -> int:
@@ -254,10 +265,11 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
                 seen = np.empty(m, dtype=np.uint8)
                 while True:
                     ids_buf = workspace.ids()
-                    total, fill_s = cpp.project_bin(*sorted_in, cams, m, len(views), W, H, degree, int(config.shared_sh),
-                                            tile, tiles_x, tiles_y, near, float(config.dilation),
-                                            float(config.radius_sigmas), float(config.alpha_threshold), cull,
-                                            rec, off, base, seen, ids_buf, threads)
+                    total, fill_s = cpp.project_bin(*sorted_in, cams, m, sorted_in[3].size, len(views), W, H,
+                                                    degree, int(config.shared_sh), tile, tiles_x, tiles_y, near,
+                                                    float(config.dilation), float(config.radius_sigmas),
+                                                    float(config.alpha_threshold), cull, rec, off, base, seen,
+                                                    ids_buf, threads)
                     if total <= ids_buf.size:
                         break
                     workspace.grow_ids(total)

@@ -239,8 +239,9 @@ def _band_tiles(u, vv, A, B, e, Aq, kk, tile, x0, x1, ya, yb):  # pragma: no cov
         dl = min(max(kk, d0), d1)
         sr = math.sqrt(max(dr * dr * e + Aq, 0.0))
         sl = math.sqrt(max(dl * dl * e + Aq, 0.0))
-        xr = u + (-B * dr + sr * 1.001) / A + 0.05
-        xl = u + (-B * dl - sl * 1.001) / A - 0.05
+        iA = 1.0 / A  # as the C++ binning, which computes it once per splat
+        xr = u + (-B * dr + sr * 1.001) * iA + 0.05
+        xl = u + (-B * dl - sl * 1.001) * iA - 0.05
         j0 = max(j0, int(math.ceil(xl - 0.5)))
         j1 = min(j1, int(math.floor(xr - 0.5)))
     if j0 > j1:
