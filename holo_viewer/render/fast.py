@@ -155,7 +155,7 @@ def _sorted_inputs(order: np.ndarray, pc: np.ndarray, cov: np.ndarray, means: np
     mp = -(-m // 8) * 8
 
     def soa(a: np.ndarray, dtype: type) -> np.ndarray:
-        a = a[order].reshape(m, -1)
+        a = a.reshape(len(a), -1)[order]
         out = np.zeros((a.shape[1], mp), dtype=dtype)
         out[:, :m] = a.T
         return out
