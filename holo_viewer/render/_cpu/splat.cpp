@@ -399,6 +399,37 @@ HV_TARGET_AVX512 inline __m512 fast_exp2_16(__m512 t) {
     return _mm512_scalef_ps(e, n);
 }
 
+// write_tile for a full-width 16-pixel tile row set: colour = R + T * bg (clipped), the three
+// channels interleaved with two permutes per 16 output floats (same arithmetic as write_tile).
+HV_TARGET_AVX512 void write_tile16(const Job& J, int v, int px0, int py0, int ph, const TileBuf& b) {
+    alignas(64) int32_t i1[3][16], i2[3][16];
+    for (int k = 0; k < 3; ++k)
+        for (int j = 0; j < 16; ++j) {
+            const int q = j + 16 * k, px = q / 3, ch = q % 3;
+            i1[k][j] = ch == 0 ? px : ch == 1 ? 16 + px : 0;
+            i2[k][j] = ch == 2 ? 16 + px : j;
+        }
+    const __m512 zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.0f);
+    const __m512 bg0 = _mm512_set1_ps(J.bg[0]), bg1 = _mm512_set1_ps(J.bg[1]), bg2 = _mm512_set1_ps(J.bg[2]);
+    for (int y = 0; y < ph; ++y) {
+        const int p = y * 16;
+        const __m512 T = _mm512_load_ps(b.T.ptr + p);
+        __m512 R = _mm512_add_ps(_mm512_load_ps(b.R.ptr + p), _mm512_mul_ps(T, bg0));
+        __m512 G = _mm512_add_ps(_mm512_load_ps(b.G.ptr + p), _mm512_mul_ps(T, bg1));
+        __m512 B = _mm512_add_ps(_mm512_load_ps(b.B.ptr + p), _mm512_mul_ps(T, bg2));
+        if (J.clip) {  // min(max(x, 0), 1) with std::min/max's operand order (exact for -0)
+            R = _mm512_min_ps(one, _mm512_max_ps(zero, R));
+            G = _mm512_min_ps(one, _mm512_max_ps(zero, G));
+            B = _mm512_min_ps(one, _mm512_max_ps(zero, B));
+        }
+        float* o = J.out + ((int64_t(v) * J.height + (py0 + y)) * J.width + px0) * 3;
+        for (int k = 0; k < 3; ++k) {
+            const __m512 rg = _mm512_permutex2var_ps(R, _mm512_load_si512(i1[k]), G);
+            _mm512_storeu_ps(o + 16 * k, _mm512_permutex2var_ps(rg, _mm512_load_si512(i2[k]), B));
+        }
+    }
+}
+
 HV_TARGET_AVX512 int64_t tile_avx512(const Job& J, int v, int t, TileBuf& b) {
     constexpr int tile = 16;  // checked by the caller
     const int ty = t / J.tiles_x, tx = t % J.tiles_x;
@@ -474,7 +505,8 @@ HV_TARGET_AVX512 int64_t tile_avx512(const Job& J, int v, int t, TileBuf& b) {
             n_live -= __builtin_popcount(fin);
         }
     }
-    write_tile(J, v, px0, py0, pw, ph, b);
+    if (pw == tile) write_tile16(J, v, px0, py0, ph, b);
+    else write_tile(J, v, px0, py0, pw, ph, b);
     return nbl;
 }
 
