@@ -13,9 +13,14 @@ a quilt of V views that share one orientation (DESIGN.md "Multi-view cameras"):
 4. **bin**: per (view, 16x16 tile) lists of splat indices in depth order (count, prefix, fill),
    only into the tiles the splat's alpha >= threshold ellipse reaches (per tile row, the
    ellipse's x-extent over the band of rows);
-5. **composite**: tiles x views in parallel, front to back with early termination, float32;
-   kernel = C++ AVX2 (``_splat_cpp``: per splat and tile row the chord of the ellipse, only the
-   8-pixel chunks that overlap it and still have a live pixel) when built, else numba.
+5. **composite**: tiles x views in parallel, front to back with early termination, float32.
+
+With the C++ extension (``_splat_cpp``, the default when built) steps 3 and 4 are one pass per
+view (``project_bin``: 8 splats at a time as vectorised loops, each record binned while in
+cache; timed as "project", filling the lists as "bin") and the compositor is AVX-512 for
+16x16 tiles (one register per tile row), else AVX2 (chords, 8-pixel chunks), else scalar,
+chosen at run time. Without it every step runs in numba (``fast_kernels``); both give the
+same records and lists (tested bit for bit).
 
 Memory is bounded by ``config.max_chunk_bytes``: views are processed in chunks so the per-view
 splat records and tile lists never exceed it (nothing is N x pixels).
@@ -38,7 +43,8 @@ from .projection import clamp_limits
 
 __all__ = ["render", "cpp_available", "kernel_names"]
 
-#: C++ kernel mode: 0 = AVX2 when the CPU has it, 1 = scalar (tests set this), 2 = require AVX2
+#: C++ compositor path: 0 = the best the CPU runs (AVX-512 for 16x16 tiles, else AVX2, else scalar),
+#: 1 = scalar, 2 = require AVX2, 3 = require AVX-512 (tests and the benchmark set this)
 _CPP_MODE = 0
 
 _BYTES_PER_SPLAT_VIEW = 4 * 16 + 4 * 4  # packed record (rec + box, 64 bytes) + ~4 tile entries

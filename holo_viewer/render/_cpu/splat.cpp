@@ -23,6 +23,12 @@
 #include <thread>
 #include <vector>
 
+#if defined(__GNUC__) || defined(__clang__)
+#define HV_ALWAYS_INLINE __attribute__((always_inline))
+#else
+#define HV_ALWAYS_INLINE
+#endif
+
 #if (defined(__x86_64__) || defined(_M_X64)) && (defined(__GNUC__) || defined(__clang__))
 #include <immintrin.h>
 #define HV_HAVE_AVX2_PATH 1
@@ -874,7 +880,7 @@ struct Block {
 };
 
 template <int DEG, bool SHARED>
-__attribute__((always_inline)) inline void project_block(const ProjJob& P, const double* cam, int k, Block& o) {
+HV_ALWAYS_INLINE inline void project_block(const ProjJob& P, const double* cam, int k, Block& o) {
     const int64_t mp = P.mp;
     const double fx = cam[0], fy = cam[1], cx = cam[2], cy = cam[3];
     const double W = P.width, H = P.height, d = P.dilation, thr = P.alpha_threshold, near = P.near;
@@ -965,7 +971,7 @@ __attribute__((always_inline)) inline void project_block(const ProjJob& P, const
 // band_tiles for the first two tile rows of 8 projected splats, as one vectorisable loop over
 // the lanes (same expressions as splat_conic + band_tiles on the record's float32 values, so
 // the ranges are identical). Power-of-two tiles only (shift); out: pre[l] = (j0, j1) x 2 rows.
-__attribute__((always_inline)) inline void band_block(const Block& o, const double* qa, int shift,
+HV_ALWAYS_INLINE inline void band_block(const Block& o, const double* qa, int shift,
                                                       int32_t (*pre)[4]) {
     const int tile = 1 << shift;
     alignas(64) double pj[4][LANES];
@@ -981,7 +987,7 @@ __attribute__((always_inline)) inline void band_block(const Block& o, const doub
         const int x0 = o.box[0][l], x1 = o.box[1][l], y0 = o.box[2][l], y1 = o.box[3][l];
         const int ty0 = y0 >> shift;
         // the two tile rows written out (a loop inside the lane loop blocks vectorisation)
-        auto row = [&](int j, double& out0, double& out1) __attribute__((always_inline)) {
+        auto row = [&](int j, double& out0, double& out1) HV_ALWAYS_INLINE {
             const int ya = std::max(y0, (ty0 + j) << shift), yb = std::min(y1, ((ty0 + j) << shift) + tile) - 1;
             const double d0 = ya + 0.5 - vv, d1 = yb + 0.5 - vv;
             const double dr = std::min(std::max(-kk, d0), d1);
@@ -1010,7 +1016,7 @@ __attribute__((always_inline)) inline void band_block(const Block& o, const doub
 // One work unit of project_bin: splats [k0, k1) of view v, projected 8 at a time, each drawn
 // one binned at once (counts per tile, band ranges to spans). Compiled once per instruction set.
 template <int DEG, bool SHARED>
-__attribute__((always_inline)) inline void project_count(const ProjJob& P, const BinJob& B, int v, int k0, int k1,
+HV_ALWAYS_INLINE inline void project_count(const ProjJob& P, const BinJob& B, int v, int k0, int k1,
                                                          int64_t* cnt, std::vector<int32_t>& spans) {
     const double* cam = P.cams + int64_t(v) * 14;
     Block o;
@@ -1030,7 +1036,7 @@ __attribute__((always_inline)) inline void project_count(const ProjJob& P, const
             r[5] = float(P.op[k + l]);
             r[6] = float(o.col[0][l]); r[7] = float(o.col[1][l]); r[8] = float(o.col[2][l]);
             r[9] = float(P.q[k + l]);
-            __atomic_store_n(P.seen + k + l, uint8_t(1), __ATOMIC_RELAXED);
+            reinterpret_cast<std::atomic<uint8_t>*>(P.seen + k + l)->store(1, std::memory_order_relaxed);
             entries_of(B, v, k + l, spans, banded ? pre[l] : nullptr, [&](int, int t) { ++cnt[t]; });
         }
     }
