@@ -7,8 +7,9 @@
 // run time:
 //   * AVX-512 (16x16 tiles): one 16-lane register per tile row, exact ellipse test on the
 //     exponent, per-row live masks, records prefetched ahead;
-//   * AVX2 + FMA (x86-64 with GCC/Clang): 8 pixels per register, branch-free blending,
-//     finished rows skipped, polynomial exp;
+//   * AVX2 + FMA (x86-64 with GCC/Clang): 16x16 tiles as the AVX-512 path in two 8-lane halves
+//     per row; other tile sizes (multiples of 8): chords and 8-pixel chunks, branch-free
+//     blending, finished rows skipped, polynomial exp;
 //   * portable scalar: the same arithmetic one pixel at a time.
 // Plain CPython API + buffer protocol: no build dependency beyond a C++17 compiler.
 #define PY_SSIZE_T_CLEAN
@@ -216,6 +217,105 @@ struct AvxScratch {
         : lin(tile + 8), cst(tile + 8), lo(tile + 8), hi(tile + 8), dxc(tile),
           row_chunks(tile + 8), row_bits(tile + 8), item_p(tile * tile / 8 + 8), item_y(tile * tile / 8 + 8) {}
 };
+
+// Per-tile AVX2 compositor for 16x16 tiles: the AVX-512 path's row design with each 16-pixel
+// tile row in two 8-lane halves and vector masks in place of mask registers (CPUs without
+// AVX-512). exp2 lanes that fail the alpha test may hold garbage (the exponent is not clamped);
+// every use is masked bitwise, never multiplied in.
+__attribute__((target("avx2,fma,popcnt"))) int64_t tile_avx2_rows(const Job& J, int v, int t, TileBuf& b) {
+    constexpr int tile = 16;  // checked by the caller
+    const int ty = t / J.tiles_x, tx = t % J.tiles_x;
+    const int px0 = tx * tile, py0 = ty * tile;
+    const int pw = std::min(tile, J.width - px0), ph = std::min(tile, J.height - py0);
+    alignas(64) uint16_t rowlive[tile];
+    const uint16_t full = uint16_t((1u << pw) - 1u);
+    for (int y = 0; y < tile; ++y) rowlive[y] = y < ph ? full : 0;
+    int n_live = pw * ph;
+    float* __restrict Tp = b.T.ptr;
+    float* __restrict Rp = b.R.ptr;
+    float* __restrict Gp = b.G.ptr;
+    float* __restrict Bp = b.B.ptr;
+    for (int p = 0; p < tile * tile; p += 8) {
+        _mm256_store_ps(Tp + p, _mm256_set1_ps(1.0f));
+        _mm256_store_ps(Rp + p, _mm256_setzero_ps());
+        _mm256_store_ps(Gp + p, _mm256_setzero_ps());
+        _mm256_store_ps(Bp + p, _mm256_setzero_ps());
+    }
+    const int64_t nt = int64_t(J.tiles_x) * J.tiles_y;
+    const int64_t* off = J.off + int64_t(v) * (nt + 1);
+    const int32_t* ids = J.ids + J.base[v];
+    const float* recv = J.rec + int64_t(v) * J.m * REC;
+    const __m256 lane = _mm256_setr_ps(0.f, 1.f, 2.f, 3.f, 4.f, 5.f, 6.f, 7.f);
+    const __m256i bit0 = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    const __m256i bit1 = _mm256_slli_epi32(bit0, 8);
+    const __m256 vcap = _mm256_set1_ps(J.cap), vtmin = _mm256_set1_ps(J.tmin);
+    const float l2thr = std::log2(J.thr);
+    const __m256 vthr = _mm256_set1_ps(l2thr);
+    __m256i count = _mm256_setzero_si256();
+    const int64_t e_end = off[t + 1];
+    for (int64_t e = off[t]; e < e_end && n_live > 0; ++e) {
+        _mm_prefetch(reinterpret_cast<const char*>(recv + int64_t(ids[std::min(e + 16, e_end - 1)]) * REC),
+                     _MM_HINT_T0);
+        const float* r = recv + int64_t(ids[e]) * REC;
+        int32_t bx[4];
+        std::memcpy(bx, r + BOX_AT, sizeof(bx));
+        const int x0 = std::max(bx[0], px0) - px0, x1 = std::min(bx[1], px0 + pw) - px0;
+        const int y0 = std::max(bx[2], py0) - py0, y1 = std::min(bx[3], py0 + ph) - py0;
+        if (x0 >= x1 || y0 >= y1) continue;
+        const uint32_t xm = ((1u << x1) - 1u) & ~((1u << x0) - 1u);
+        const float u = r[0] - (float(px0) + 0.5f), vv = r[1] - (float(py0) + 0.5f);
+        const float lop = r[9] * (0.5f * LOG2E) + l2thr;  // log2 opacity
+        const __m256 ca = _mm256_set1_ps(-0.5f * r[2] * LOG2E), cb = _mm256_set1_ps(-r[3] * LOG2E);
+        const __m256 dx0 = _mm256_sub_ps(lane, _mm256_set1_ps(u));
+        const __m256 dx1 = _mm256_add_ps(dx0, _mm256_set1_ps(8.0f));
+        const __m256 p00 = _mm256_fmadd_ps(_mm256_mul_ps(ca, dx0), dx0, _mm256_set1_ps(lop));
+        const __m256 p01 = _mm256_fmadd_ps(_mm256_mul_ps(ca, dx1), dx1, _mm256_set1_ps(lop));
+        const __m256 pb0 = _mm256_mul_ps(cb, dx0), pb1 = _mm256_mul_ps(cb, dx1);
+        const float kc = -0.5f * r[4] * LOG2E;
+        const __m256 cr = _mm256_set1_ps(r[6]), cg = _mm256_set1_ps(r[7]), cbl = _mm256_set1_ps(r[8]);
+        for (int y = y0; y < y1; ++y) {
+            const uint32_t live = rowlive[y] & xm;
+            if (!live) continue;
+            const float dy = float(y) - vv;
+            const __m256 vdy = _mm256_set1_ps(dy), vc = _mm256_set1_ps(kc * dy * dy);
+            const __m256i vlive = _mm256_set1_epi32(int(live));
+            uint32_t fin16 = 0;
+            // two 8-pixel halves of the row
+            for (int h = 0; h < 2; ++h) {
+                const __m256 p0 = h ? p01 : p00, pb = h ? pb1 : pb0;
+                const __m256i bits = h ? bit1 : bit0;
+                const __m256 lm = _mm256_castsi256_ps(
+                    _mm256_cmpeq_epi32(_mm256_and_si256(vlive, bits), bits));
+                const __m256 power = _mm256_add_ps(_mm256_fmadd_ps(pb, vdy, p0), vc);
+                const __m256 m = _mm256_and_ps(lm, _mm256_cmp_ps(power, vthr, _CMP_GE_OQ));
+                const __m256 alpha = _mm256_min_ps(vcap, fast_exp2_8(power));
+                float* Ty = Tp + y * tile + 8 * h;
+                const __m256 T = _mm256_load_ps(Ty);
+                const __m256 test = _mm256_fnmadd_ps(T, alpha, T);
+                const __m256 fin = _mm256_and_ps(m, _mm256_cmp_ps(test, vtmin, _CMP_LT_OQ));
+                const __m256 ok = _mm256_andnot_ps(fin, m);
+                const __m256 w = _mm256_and_ps(ok, _mm256_mul_ps(alpha, T));
+                float* Ry = Rp + y * tile + 8 * h;
+                float* Gy = Gp + y * tile + 8 * h;
+                float* By = Bp + y * tile + 8 * h;
+                _mm256_store_ps(Ry, _mm256_fmadd_ps(w, cr, _mm256_load_ps(Ry)));
+                _mm256_store_ps(Gy, _mm256_fmadd_ps(w, cg, _mm256_load_ps(Gy)));
+                _mm256_store_ps(By, _mm256_fmadd_ps(w, cbl, _mm256_load_ps(By)));
+                _mm256_store_ps(Ty, _mm256_blendv_ps(T, test, ok));
+                count = _mm256_sub_epi32(count, _mm256_castps_si256(ok));
+                fin16 |= uint32_t(_mm256_movemask_ps(fin)) << (8 * h);
+            }
+            rowlive[y] &= uint16_t(~fin16);
+            n_live -= __builtin_popcount(fin16);
+        }
+    }
+    write_tile(J, v, px0, py0, pw, ph, b);
+    alignas(32) int32_t cnt[8];
+    _mm256_store_si256(reinterpret_cast<__m256i*>(cnt), count);
+    int64_t nbl = 0;
+    for (int j = 0; j < 8; ++j) nbl += cnt[j];
+    return nbl;
+}
 
 __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t, TileBuf& b, AvxScratch& s) {
     const int tile = J.tile;  // multiple of 8, <= 256 (checked by the caller)
@@ -550,7 +650,8 @@ void run_jobs(const Job& J, int n_threads, Path path) {
             int64_t nbl;
 #if HV_HAVE_AVX2_PATH
             nbl = path == Path::avx512 ? tile_avx512(J, v, t, b)
-                  : path == Path::avx2 ? tile_avx2(J, v, t, b, s) : tile_scalar(J, v, t, b);
+                  : path == Path::avx2 ? (J.tile == 16 ? tile_avx2_rows(J, v, t, b) : tile_avx2(J, v, t, b, s))
+                                       : tile_scalar(J, v, t, b);
 #else
             (void)path;
             nbl = tile_scalar(J, v, t, b);
