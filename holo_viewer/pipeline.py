@@ -545,7 +545,11 @@ def to_uint8(images: np.ndarray) -> np.ndarray:
     a = np.asarray(images)
     if a.dtype == np.uint8:
         return a
-    return np.clip(np.rint(a * 255.0), 0, 255).astype(np.uint8)
+    dtype = np.result_type(a.dtype, np.float32)  # float32 stays float32, float64 stays float64
+    x = np.multiply(a, dtype.type(255.0), dtype=dtype)  # one temporary, updated in place
+    np.rint(x, out=x)
+    np.clip(x, 0, 255, out=x)
+    return x.astype(np.uint8)
 
 
 def deform_avatar(avatar: Any, vertices: np.ndarray, params: Mapping[str, np.ndarray]) -> Any:

@@ -288,3 +288,15 @@ def test_pain_and_smile_move_the_face(head_pipeline):
     assert pspi(params["expr"], au) > 8.0
     moved = np.linalg.norm(p.mesh() - neutral, axis=1)
     assert moved.max() > 1e-3  # millimetres of motion somewhere on the face
+
+
+def test_to_uint8_rounds_and_clips_like_the_plain_formula():
+    from holo_viewer.pipeline import to_uint8
+
+    rng = np.random.default_rng(0)
+    for dtype in (np.float32, np.float64):
+        a = (rng.random((3, 5, 7, 3)) * 1.4 - 0.2).astype(dtype)
+        a.flat[:4] = np.array([0.5, 1.5, 2.5, 254.5]) / 255  # ties round to even
+        np.testing.assert_array_equal(to_uint8(a), np.clip(np.rint(a * 255.0), 0, 255).astype(np.uint8))
+    u = np.arange(6, dtype=np.uint8)
+    assert to_uint8(u) is u

@@ -246,3 +246,14 @@ def test_fast_renders_from_two_threads_at_once():
             got = list(pool.map(lambda s: render_views(s, cams, "fast").images, scenes))
             for a, b in zip(got, expected):
                 np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.skipif(not fast.cpp_available(), reason="C++ extension not built")
+def test_release_buffers_then_render_again():
+    cams = quilt_cameras(3, 64, 48, use_display=False)
+    g = random_scene(500, degree=1, seed=4)
+    a = render_views(g, cams, "fast").images
+    assert fast._SHARED_WORKSPACE._rec.size > 0
+    fast.release_buffers()
+    assert fast._SHARED_WORKSPACE._rec.size == 0 and fast._SHARED_WORKSPACE._ids.size == 0
+    np.testing.assert_array_equal(render_views(g, cams, "fast").images, a)
