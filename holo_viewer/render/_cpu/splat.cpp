@@ -218,33 +218,79 @@ struct AvxScratch {
           row_chunks(tile + 8), row_bits(tile + 8), item_p(tile * tile / 8 + 8), item_y(tile * tile / 8 + 8) {}
 };
 
+// Shared by the two 16x16 row compositors (AVX2 and AVX-512): the tile's geometry, per-row live
+// masks and accumulators, and the next splat of its list with its box clipped to the tile.
+constexpr int PREFETCH = 16;  // records are prefetched this many list entries ahead
+
+struct Row16Tile {
+    int px0, py0, pw, ph, n_live;
+    const int32_t* ids;
+    const float* recv;
+    int64_t e_end;
+    alignas(64) uint16_t rowlive[16];
+};
+
+inline int64_t row16_begin(const Job& J, int v, int t, TileBuf& b, Row16Tile& S) {
+    constexpr int tile = 16;
+    const int ty = t / J.tiles_x, tx = t % J.tiles_x;
+    S.px0 = tx * tile;
+    S.py0 = ty * tile;
+    S.pw = std::min(tile, J.width - S.px0);
+    S.ph = std::min(tile, J.height - S.py0);
+    const uint16_t full = uint16_t((1u << S.pw) - 1u);
+    for (int y = 0; y < tile; ++y) S.rowlive[y] = y < S.ph ? full : 0;
+    S.n_live = S.pw * S.ph;
+    std::fill(b.T.begin(), b.T.end(), 1.0f);
+    std::fill(b.R.begin(), b.R.end(), 0.0f);
+    std::fill(b.G.begin(), b.G.end(), 0.0f);
+    std::fill(b.B.begin(), b.B.end(), 0.0f);
+    const int64_t nt = int64_t(J.tiles_x) * J.tiles_y;
+    const int64_t* off = J.off + int64_t(v) * (nt + 1);
+    S.ids = J.ids + J.base[v];
+    S.recv = J.rec + int64_t(v) * J.m * REC;
+    S.e_end = off[t + 1];
+    return off[t];
+}
+
+struct Row16Splat {
+    const float* r;          // the record
+    int y0, y1;              // tile rows [y0, y1)
+    uint32_t xm;             // tile columns of its box, one bit each
+    float u, vv, lop;        // centre relative to the tile's first pixel centre; log2 opacity
+};
+
+// Entry e of the tile's list; false when its box misses the tile.
+HV_ALWAYS_INLINE inline bool row16_splat(const Row16Tile& S, int64_t e, float l2thr, Row16Splat& o) {
+    _mm_prefetch(reinterpret_cast<const char*>(S.recv + int64_t(S.ids[std::min(e + PREFETCH, S.e_end - 1)]) * REC),
+                 _MM_HINT_T0);
+    const float* r = S.recv + int64_t(S.ids[e]) * REC;
+    int32_t bx[4];
+    std::memcpy(bx, r + BOX_AT, sizeof(bx));
+    const int x0 = std::max(bx[0], S.px0) - S.px0, x1 = std::min(bx[1], S.px0 + S.pw) - S.px0;
+    o.y0 = std::max(bx[2], S.py0) - S.py0;
+    o.y1 = std::min(bx[3], S.py0 + S.ph) - S.py0;
+    if (x0 >= x1 || o.y0 >= o.y1) return false;
+    o.r = r;
+    o.xm = ((1u << x1) - 1u) & ~((1u << x0) - 1u);
+    o.u = r[0] - (float(S.px0) + 0.5f);
+    o.vv = r[1] - (float(S.py0) + 0.5f);
+    o.lop = r[9] * (0.5f * LOG2E) + l2thr;  // log2 opacity from q = 2 ln(opacity / threshold)
+    return true;
+}
+
 // Per-tile AVX2 compositor for 16x16 tiles: the AVX-512 path's row design with each 16-pixel
 // tile row in two 8-lane halves and vector masks in place of mask registers (CPUs without
 // AVX-512). exp2 lanes that fail the alpha test may hold garbage (the exponent is not clamped);
 // every use is masked bitwise, never multiplied in.
 __attribute__((target("avx2,fma,popcnt"))) int64_t tile_avx2_rows(const Job& J, int v, int t, TileBuf& b) {
     constexpr int tile = 16;  // checked by the caller
-    const int ty = t / J.tiles_x, tx = t % J.tiles_x;
-    const int px0 = tx * tile, py0 = ty * tile;
-    const int pw = std::min(tile, J.width - px0), ph = std::min(tile, J.height - py0);
-    alignas(64) uint16_t rowlive[tile];
-    const uint16_t full = uint16_t((1u << pw) - 1u);
-    for (int y = 0; y < tile; ++y) rowlive[y] = y < ph ? full : 0;
-    int n_live = pw * ph;
+    Row16Tile S;
+    const int64_t e_begin = row16_begin(J, v, t, b, S);
+    uint16_t* rowlive = S.rowlive;
     float* __restrict Tp = b.T.ptr;
     float* __restrict Rp = b.R.ptr;
     float* __restrict Gp = b.G.ptr;
     float* __restrict Bp = b.B.ptr;
-    for (int p = 0; p < tile * tile; p += 8) {
-        _mm256_store_ps(Tp + p, _mm256_set1_ps(1.0f));
-        _mm256_store_ps(Rp + p, _mm256_setzero_ps());
-        _mm256_store_ps(Gp + p, _mm256_setzero_ps());
-        _mm256_store_ps(Bp + p, _mm256_setzero_ps());
-    }
-    const int64_t nt = int64_t(J.tiles_x) * J.tiles_y;
-    const int64_t* off = J.off + int64_t(v) * (nt + 1);
-    const int32_t* ids = J.ids + J.base[v];
-    const float* recv = J.rec + int64_t(v) * J.m * REC;
     const __m256 lane = _mm256_setr_ps(0.f, 1.f, 2.f, 3.f, 4.f, 5.f, 6.f, 7.f);
     const __m256i bit0 = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
     const __m256i bit1 = _mm256_slli_epi32(bit0, 8);
@@ -252,19 +298,13 @@ __attribute__((target("avx2,fma,popcnt"))) int64_t tile_avx2_rows(const Job& J, 
     const float l2thr = std::log2(J.thr);
     const __m256 vthr = _mm256_set1_ps(l2thr);
     __m256i count = _mm256_setzero_si256();
-    const int64_t e_end = off[t + 1];
-    for (int64_t e = off[t]; e < e_end && n_live > 0; ++e) {
-        _mm_prefetch(reinterpret_cast<const char*>(recv + int64_t(ids[std::min(e + 16, e_end - 1)]) * REC),
-                     _MM_HINT_T0);
-        const float* r = recv + int64_t(ids[e]) * REC;
-        int32_t bx[4];
-        std::memcpy(bx, r + BOX_AT, sizeof(bx));
-        const int x0 = std::max(bx[0], px0) - px0, x1 = std::min(bx[1], px0 + pw) - px0;
-        const int y0 = std::max(bx[2], py0) - py0, y1 = std::min(bx[3], py0 + ph) - py0;
-        if (x0 >= x1 || y0 >= y1) continue;
-        const uint32_t xm = ((1u << x1) - 1u) & ~((1u << x0) - 1u);
-        const float u = r[0] - (float(px0) + 0.5f), vv = r[1] - (float(py0) + 0.5f);
-        const float lop = r[9] * (0.5f * LOG2E) + l2thr;  // log2 opacity
+    Row16Splat sp;
+    for (int64_t e = e_begin; e < S.e_end && S.n_live > 0; ++e) {
+        if (!row16_splat(S, e, l2thr, sp)) continue;
+        const float* r = sp.r;
+        const int y0 = sp.y0, y1 = sp.y1;
+        const uint32_t xm = sp.xm;
+        const float u = sp.u, vv = sp.vv, lop = sp.lop;
         const __m256 ca = _mm256_set1_ps(-0.5f * r[2] * LOG2E), cb = _mm256_set1_ps(-r[3] * LOG2E);
         const __m256 dx0 = _mm256_sub_ps(lane, _mm256_set1_ps(u));
         const __m256 dx1 = _mm256_add_ps(dx0, _mm256_set1_ps(8.0f));
@@ -306,10 +346,10 @@ __attribute__((target("avx2,fma,popcnt"))) int64_t tile_avx2_rows(const Job& J, 
                 fin16 |= uint32_t(_mm256_movemask_ps(fin)) << (8 * h);
             }
             rowlive[y] &= uint16_t(~fin16);
-            n_live -= __builtin_popcount(fin16);
+            S.n_live -= __builtin_popcount(fin16);
         }
     }
-    write_tile(J, v, px0, py0, pw, ph, b);
+    write_tile(J, v, S.px0, S.py0, S.pw, S.ph, b);
     alignas(32) int32_t cnt[8];
     _mm256_store_si256(reinterpret_cast<__m256i*>(cnt), count);
     int64_t nbl = 0;
@@ -491,7 +531,6 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
 // GCC 12's avx512fintrin.h warns about its own _mm512_undefined_ps (a false positive)
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 #define HV_TARGET_AVX512 __attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,avx2,fma,popcnt")))
-constexpr int PREFETCH = 16;
 
 HV_TARGET_AVX512 inline __m512 fast_exp2_16(__m512 t) {
     // same polynomial as fast_exp2_8; scalef applies 2^n
@@ -538,46 +577,26 @@ HV_TARGET_AVX512 void write_tile16(const Job& J, int v, int px0, int py0, int ph
 
 HV_TARGET_AVX512 int64_t tile_avx512(const Job& J, int v, int t, TileBuf& b) {
     constexpr int tile = 16;  // checked by the caller
-    const int ty = t / J.tiles_x, tx = t % J.tiles_x;
-    const int px0 = tx * tile, py0 = ty * tile;
-    const int pw = std::min(tile, J.width - px0), ph = std::min(tile, J.height - py0);
-    alignas(64) uint16_t rowlive[tile];
-    const uint16_t full = uint16_t((1u << pw) - 1u);
-    for (int y = 0; y < tile; ++y) rowlive[y] = y < ph ? full : 0;
-    int n_live = pw * ph;
+    Row16Tile S;
+    const int64_t e_begin = row16_begin(J, v, t, b, S);
+    uint16_t* rowlive = S.rowlive;
     float* __restrict Tp = b.T.ptr;
     float* __restrict Rp = b.R.ptr;
     float* __restrict Gp = b.G.ptr;
     float* __restrict Bp = b.B.ptr;
-    for (int y = 0; y < tile; ++y) {
-        _mm512_store_ps(Tp + y * tile, _mm512_set1_ps(1.0f));
-        _mm512_store_ps(Rp + y * tile, _mm512_setzero_ps());
-        _mm512_store_ps(Gp + y * tile, _mm512_setzero_ps());
-        _mm512_store_ps(Bp + y * tile, _mm512_setzero_ps());
-    }
-    const int64_t nt = int64_t(J.tiles_x) * J.tiles_y;
-    const int64_t* off = J.off + int64_t(v) * (nt + 1);
-    const int32_t* ids = J.ids + J.base[v];
-    const float* recv = J.rec + int64_t(v) * J.m * REC;
     const __m512 lane = _mm512_setr_ps(0.f, 1.f, 2.f, 3.f, 4.f, 5.f, 6.f, 7.f, 8.f, 9.f, 10.f, 11.f, 12.f, 13.f,
                                        14.f, 15.f);
     const __m512 vcap = _mm512_set1_ps(J.cap), vtmin = _mm512_set1_ps(J.tmin);
     const float l2thr = std::log2(J.thr);
     const __m512 vthr = _mm512_set1_ps(l2thr);
     int64_t nbl = 0;
-    const int64_t e_end = off[t + 1];
-    for (int64_t e = off[t]; e < e_end && n_live > 0; ++e) {
-        _mm_prefetch(reinterpret_cast<const char*>(recv + int64_t(ids[std::min(e + PREFETCH, e_end - 1)]) * REC),
-                     _MM_HINT_T0);
-        const float* r = recv + int64_t(ids[e]) * REC;
-        int32_t bx[4];
-        std::memcpy(bx, r + BOX_AT, sizeof(bx));
-        const int x0 = std::max(bx[0], px0) - px0, x1 = std::min(bx[1], px0 + pw) - px0;
-        const int y0 = std::max(bx[2], py0) - py0, y1 = std::min(bx[3], py0 + ph) - py0;
-        if (x0 >= x1 || y0 >= y1) continue;
-        const uint16_t xm = uint16_t(((1u << x1) - 1u) & ~((1u << x0) - 1u));
-        const float u = r[0] - (float(px0) + 0.5f), vv = r[1] - (float(py0) + 0.5f);
-        const float lop = r[9] * (0.5f * LOG2E) + l2thr;  // log2 opacity
+    Row16Splat sp;
+    for (int64_t e = e_begin; e < S.e_end && S.n_live > 0; ++e) {
+        if (!row16_splat(S, e, l2thr, sp)) continue;
+        const float* r = sp.r;
+        const int y0 = sp.y0, y1 = sp.y1;
+        const uint16_t xm = uint16_t(sp.xm);
+        const float u = sp.u, vv = sp.vv, lop = sp.lop;
         const __m512 dx = _mm512_sub_ps(lane, _mm512_set1_ps(u));
         const __m512 p0 = _mm512_fmadd_ps(_mm512_mul_ps(_mm512_set1_ps(-0.5f * r[2] * LOG2E), dx), dx,
                                           _mm512_set1_ps(lop));
@@ -608,11 +627,11 @@ HV_TARGET_AVX512 int64_t tile_avx512(const Job& J, int v, int t, TileBuf& b) {
             nbl += __builtin_popcount(ok);
             // branch-free: a branch on fin mispredicted often enough to cost 15% (measured)
             rowlive[y] &= uint16_t(~fin);
-            n_live -= __builtin_popcount(fin);
+            S.n_live -= __builtin_popcount(fin);
         }
     }
-    if (pw == tile) write_tile16(J, v, px0, py0, ph, b);
-    else write_tile(J, v, px0, py0, pw, ph, b);
+    if (S.pw == tile) write_tile16(J, v, S.px0, S.py0, S.ph, b);
+    else write_tile(J, v, S.px0, S.py0, S.pw, S.ph, b);
     return nbl;
 }
 
@@ -833,7 +852,6 @@ inline void entries_of(const BinJob& B, int v, int k, std::vector<int32_t>& span
 // Replays entries_of for splat k from spans[sp...]; returns the next position in spans.
 template <typename F>
 inline size_t replay_entries(const BinJob& B, int v, int k, const std::vector<int32_t>& spans, size_t sp, F&& f) {
-    const int tile = B.tile;
     int32_t bx[4];
     std::memcpy(bx, B.rec + (int64_t(v) * B.m + k) * REC + BOX_AT, sizeof(bx));
     const int x0 = bx[0], x1 = bx[1], y0 = bx[2], y1 = bx[3];
