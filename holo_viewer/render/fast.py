@@ -95,6 +95,9 @@ class _Workspace:
     def grow_ids(self, n: int) -> None:
         self._ids = np.empty(int(n * 1.25) + 1024, dtype=np.int32)
 
+    def nbytes(self) -> int:
+        return int(self._rec.nbytes + self._ids.nbytes)
+
     def release(self) -> None:
         """Drop the buffers (memory goes back to the system)."""
         self._rec = np.empty(0, dtype=np.float32)
@@ -102,6 +105,9 @@ class _Workspace:
 
 
 _SHARED_WORKSPACE = _Workspace()
+
+#: buffers larger than this are dropped after the render instead of kept for the next one
+_KEEP_AT_MOST = 512 * 2**20
 
 
 def release_buffers() -> None:
@@ -204,6 +210,8 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
         return _render(gaussians, cameras, config or RenderConfig(), _SHARED_WORKSPACE if shared else _Workspace())
     finally:
         if shared:
+            if _SHARED_WORKSPACE.nbytes() > _KEEP_AT_MOST:  # a huge scene: do not hold its buffers
+                _SHARED_WORKSPACE.release()
             _SHARED_WORKSPACE.lock.release()
 
 
