@@ -59,12 +59,18 @@ def _records(nv: int, m: int) -> tuple[np.ndarray, np.ndarray]:
     """
     from . import fast_kernels as fk
 
+    rec = _aligned_records(np.empty(nv * m * fk.REC_STRIDE + 16, dtype=np.float32), nv, m)
+    return rec, rec.view(np.int32)[:, :, fk.BOX_AT:fk.BOX_AT + 4]
+
+
+def _aligned_records(raw: np.ndarray, nv: int, m: int) -> np.ndarray:
+    """(nv, m, REC_STRIDE) float32 view of ``raw`` (>= nv m REC_STRIDE + 16 floats) starting on
+    a 64-byte boundary, so each record is one cache line."""
+    from . import fast_kernels as fk
+
     n = nv * m * fk.REC_STRIDE
-    raw = np.empty(n + 16, dtype=np.float32)
     start = (-raw.ctypes.data % 64) // 4
-    rec = raw[start:start + n].reshape(nv, m, fk.REC_STRIDE)
-    box = rec.view(np.int32)[:, :, fk.BOX_AT:fk.BOX_AT + 4]
-    return rec, box
+    return raw[start:start + n].reshape(nv, m, fk.REC_STRIDE)
 
 
 class _Workspace:
@@ -83,11 +89,10 @@ class _Workspace:
     def records(self, nv: int, m: int) -> np.ndarray:
         from . import fast_kernels as fk
 
-        n = nv * m * fk.REC_STRIDE
-        if self._rec.size < n + 16:
-            self._rec = np.empty(n + 16, dtype=np.float32)
-        start = (-self._rec.ctypes.data % 64) // 4
-        return self._rec[start:start + n].reshape(nv, m, fk.REC_STRIDE)
+        n = nv * m * fk.REC_STRIDE + 16
+        if self._rec.size < n:
+            self._rec = np.empty(n, dtype=np.float32)
+        return _aligned_records(self._rec, nv, m)
 
     def ids(self) -> np.ndarray:
         return self._ids
