@@ -185,8 +185,7 @@ def _sorted_inputs(order: np.ndarray, pc: np.ndarray, cov: np.ndarray, means: np
         return out
 
     op = soa(opacity, np.float64)[0]
-    with np.errstate(divide="ignore"):
-        q = 2.0 * (np.log(np.maximum(op, 1e-300)) - math.log(alpha_threshold))
+    q = 2.0 * (np.log(np.maximum(op, 1e-300)) - math.log(alpha_threshold))  # padding: op = 0, never drawn
     return soa(pc, np.float64), soa(cov, np.float64), soa(means, np.float64), op, q, soa(colours, np.float32)
 
 

@@ -1,10 +1,11 @@
-// Tile compositor of holo_viewer's fast splat renderer (see holo_viewer/render/fast.py).
+// Projection, binning and tile compositor of holo_viewer's fast splat renderer (see
+// holo_viewer/render/fast.py).
 //
-// bin_tiles() builds the per (view, tile) splat lists from the packed per-view records written
-// by the numba projection (fast_kernels.py: rec with the box inside); composite() blends the
-// records into the images, front to back per tile with early termination. Work items are
-// (view, tile) pairs handed to std::threads from an atomic counter. Three code paths, chosen at
-// run time:
+// project_bin() projects the depth-ordered splats into every view, writing one packed 64-byte
+// record per (view, splat) (layout of fast_kernels.py: rec with the box inside), and builds the
+// per (view, tile) splat lists; composite() blends the records into the images, front to back
+// per tile with early termination. Work items are (view, tile) pairs handed to std::threads
+// from an atomic counter. The compositor's code paths, chosen at run time:
 //   * AVX-512 (16x16 tiles): one 16-lane register per tile row, exact ellipse test on the
 //     exponent, per-row live masks, records prefetched ahead;
 //   * AVX2 + FMA (x86-64 with GCC/Clang): 16x16 tiles as the AVX-512 path in two 8-lane halves
@@ -785,7 +786,6 @@ struct TileDiv {
 struct BinJob {
     const float* rec;
     int nv, m, tile, tiles_x, tiles_y;
-    int64_t* off;
     std::atomic<bool>* bad;         // set when a box lies outside the tile grid
     TileDiv div{16};
 };
@@ -882,21 +882,6 @@ inline size_t replay_entries(const BinJob& B, int v, int k, const std::vector<in
     return sp;
 }
 
-// Calls f(k, t) for every (splat, tile) entry of view v in depth order; spans caches the
-// band ranges (record = true: compute and append; false: replay).
-template <typename F>
-void for_entries(const BinJob& B, int v, std::vector<int32_t>& spans, bool record, F&& f) {
-    size_t sp = 0;
-    for (int k = 0; k < B.m; ++k) {
-        if (record) {
-            entries_of(B, v, k, spans, nullptr, f);
-            if (B.bad->load(std::memory_order_relaxed)) return;
-        } else {
-            sp = replay_entries(B, v, k, spans, sp, f);
-        }
-    }
-}
-
 template <typename F>
 void parallel_views(int nv, int n_threads, F&& f) {
     std::atomic<int> next{0};
@@ -910,59 +895,11 @@ void parallel_views(int nv, int n_threads, F&& f) {
     for (auto& th : pool) th.join();
 }
 
-PyObject* bin_tiles(PyObject*, PyObject* args) {
-    Py_buffer rec{}, off{}, base{};
-    int nv, m, tile, tiles_x, tiles_y, n_threads;
-    if (!PyArg_ParseTuple(args, "y*iiiiiw*w*i", &rec, &nv, &m, &tile, &tiles_x, &tiles_y, &off, &base, &n_threads))
-        return nullptr;
-    PyObject* result = nullptr;
-    const int64_t nt = int64_t(tiles_x) * tiles_y;
-    bool ok = nv > 0 && m >= 0 && tile > 0 && tiles_x > 0 && tiles_y > 0;
-    if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.bin_tiles: inconsistent sizes");
-    ok = ok && need(rec, Py_ssize_t(nv) * m * REC * 4, "rec") && need(off, Py_ssize_t(nv) * (nt + 1) * 8, "off") &&
-         need(base, Py_ssize_t(nv) * 8, "base");
-    if (ok) {
-        std::atomic<bool> bad{false};
-        BinJob B{(const float*)rec.buf, nv, m, tile, tiles_x, tiles_y, (int64_t*)off.buf, &bad, TileDiv(tile)};
-        int64_t* basep = (int64_t*)base.buf;
-        std::vector<std::vector<int32_t>> spans(nv);
-        Py_BEGIN_ALLOW_THREADS
-        parallel_views(nv, n_threads, [&](int v) {
-            int64_t* o = B.off + int64_t(v) * (nt + 1);
-            std::fill(o, o + nt + 1, 0);
-            spans[v].reserve(size_t(m) * 4);
-            for_entries(B, v, spans[v], true, [&](int, int t) { ++o[t + 1]; });
-            for (int64_t t = 0; t < nt; ++t) o[t + 1] += o[t];
-        });
-        Py_END_ALLOW_THREADS
-        if (bad.load()) PyErr_SetString(PyExc_ValueError, "_splat_cpp.bin_tiles: a splat box lies outside the tile grid");
-        else {
-            int64_t total = 0;
-            for (int v = 0; v < nv; ++v) { basep[v] = total; total += B.off[int64_t(v) * (nt + 1) + nt]; }
-            result = PyByteArray_FromStringAndSize(nullptr, Py_ssize_t(total) * 4);
-            if (result) {
-                int32_t* ids = (int32_t*)PyByteArray_AS_STRING(result);
-                Py_BEGIN_ALLOW_THREADS
-                parallel_views(nv, n_threads, [&](int v) {
-                    const int64_t* o = B.off + int64_t(v) * (nt + 1);
-                    std::vector<int64_t> cur(o, o + nt);
-                    int32_t* out = ids + basep[v];
-                    for_entries(B, v, spans[v], false, [&](int k, int t) { out[cur[t]++] = k; });
-                    std::vector<int32_t>().swap(spans[v]);
-                });
-                Py_END_ALLOW_THREADS
-            }
-        }
-    }
-    PyBuffer_Release(&rec); PyBuffer_Release(&off); PyBuffer_Release(&base);
-    return result;
-}
-
 // ---- fused projection + binning (one pass per view; fast.py uses it with the C++ kernels) -----
 // Same forward pass as fast_kernels.project_views (float64, same formulas and order of
-// operations) followed by the same tile lists as bin_tiles, but the record of a splat is
-// binned right after it is written, while it is in cache, instead of in a second sweep over
-// every view's 6 MB of records. Inputs are in depth order. Work units are (view, segment of
+// operations) followed by the same tile lists as fast_kernels.count_tiles + fill_tiles, each
+// record binned right after it is written, while it is in cache, instead of in a second sweep
+// over every view's 6 MB of records. Inputs are in depth order. Work units are (view, segment of
 // the splat range): with fewer views than threads the splats of a view are split between
 // threads, and the tile lists stay in depth order because segment s's entries of a tile go
 // before segment s+1's.
@@ -1245,7 +1182,7 @@ PyObject* project_bin(PyObject*, PyObject* args) {
         std::vector<std::vector<int32_t>> spans(n_units);
         const CountFn count_fn = count_function(P.degree, P.use_shared != 0);
         std::atomic<bool> bad{false};
-        BinJob B{P.rec, P.nv, P.m, P.tile, P.tiles_x, P.tiles_y, nullptr, &bad, TileDiv(P.tile)};
+        BinJob B{P.rec, P.nv, P.m, P.tile, P.tiles_x, P.tiles_y, &bad, TileDiv(P.tile)};
         auto seg_range = [&](int s, int& k0, int& k1) {  // multiples of LANES (blocks read k..k+7)
             k0 = int(int64_t(P.m) * s / segs) & ~(LANES - 1);
             k1 = s + 1 == segs ? P.m : int(int64_t(P.m) * (s + 1) / segs) & ~(LANES - 1);
@@ -1318,17 +1255,14 @@ PyMethodDef methods[] = {
      "alpha_cap, t_min, bg, clip, out, blends, n_threads, mode) -> 'avx512' | 'avx2' | 'scalar'\n\n"
      "Blend per-(view, tile) splat lists front to back into out (V, H, W, 3) float32. mode: 0 auto, "
      "1 scalar, 2 require AVX2, 3 require AVX-512 (16x16 tiles)."},
-    {"bin_tiles", bin_tiles, METH_VARARGS,
-     "bin_tiles(rec, nv, m, tile, tiles_x, tiles_y, off, base, n_threads) -> bytearray of int32 ids\n\n"
-     "Per (view, tile) splat lists in depth order (fast_kernels.count_tiles + fill_tiles in one call): "
-     "writes off (nv, n_tiles + 1) int64 prefix sums and base (nv,) int64 view offsets into ids."},
     {"project_bin", project_bin, METH_VARARGS,
      "project_bin(pc, cov, means, opacity, q, sh, cams, m, mp, nv, width, height, degree, use_shared, tile, "
      "tiles_x, tiles_y, near, dilation, radius_sigmas, alpha_threshold, cull_margin, rec, off, base, seen, ids, "
      "n_threads) -> (total entries, seconds spent filling the lists)\n\n"
-     "fast_kernels.project_views followed by bin_tiles in one pass per view (inputs in depth order, "
-     "float64 structure of arrays with row stride mp, a multiple of 8 >= m, padding opacity 0; sh float32). Writes rec, off, base, seen and, when ids holds them, the tile lists; returns the number "
-     "of entries (larger than ids' capacity: nothing written to ids, grow it and call again)."},
+     "fast_kernels.project_views, count_tiles and fill_tiles in one pass per view (inputs in depth "
+     "order, float64 structure of arrays with row stride mp, a multiple of 8 >= m, padding opacity 0; "
+     "sh float32). Writes rec, off, base, seen and, when ids holds them, the tile lists; returns the "
+     "number of entries (larger than ids' capacity: nothing written to ids, grow it and call again)."},
     {"has_avx2", has_avx2, METH_NOARGS, "True when the CPU runs the AVX2+FMA path."},
     {"has_avx512", has_avx512, METH_NOARGS, "True when the CPU runs the AVX-512 path (16x16 tiles)."},
     {nullptr, nullptr, 0, nullptr}};
