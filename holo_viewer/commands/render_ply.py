@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'OpenCV)}')
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory for view_000.png, ...")
     parser.add_argument("--backend", default="fast", choices=BACKEND_CHOICES,
-                        help="renderer (default: fast; auto = torch on CUDA when available, else fast)")
+                        help="renderer (default: fast; auto = gsplat on CUDA when it runs, else fast)")
     parser.add_argument("--background", default="0,0,0", metavar="R,G,B",
                         help="background colour, three numbers in [0, 1] (default 0,0,0)")
     parser.add_argument("--sh-degree", type=int, default=None, choices=(0, 1, 2, 3),

@@ -26,7 +26,7 @@ from ..camera import Cameras
 from ..errors import RenderError
 from .config import RenderConfig, RenderResult
 
-__all__ = ["render", "is_available", "BACKEND_NAME"]
+__all__ = ["render", "is_available", "check_config", "BACKEND_NAME"]
 
 BACKEND_NAME = "gsplat"
 
@@ -61,7 +61,8 @@ def is_available() -> bool:
     return True
 
 
-def _check_config(config: RenderConfig) -> None:
+def check_config(config: RenderConfig) -> None:
+    """RenderError when ``config`` changes a constant compiled into gsplat's kernels."""
     fixed = {"alpha_threshold": 1.0 / 255.0, "alpha_cap": 0.99, "t_min": 1e-4, "radius_sigmas": 3.0}
     for name, value in fixed.items():
         if abs(getattr(config, name) - value) > 1e-12:
@@ -94,7 +95,7 @@ def render(gaussians: Any, cameras: Cameras, config: RenderConfig | None = None)
     t_start = time.perf_counter()
     config = config or RenderConfig()
     torch, gsplat = _import()
-    _check_config(config)
+    check_config(config)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     dev = torch.device("cuda") if not gaussians.is_torch or gaussians.device.type != "cuda" else gaussians.device
