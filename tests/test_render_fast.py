@@ -222,4 +222,32 @@ def test_release_buffers_then_render_again():
     assert fast._SHARED_WORKSPACE._rec.size > 0
     fast.release_buffers()
     assert fast._SHARED_WORKSPACE._rec.size == 0 and fast._SHARED_WORKSPACE._ids.size == 0
+    assert fast._OUTPUTS.nbytes() == 0
     np.testing.assert_array_equal(render_views(g, cams, "fast").images, a)
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_output_memory_is_recycled_only_when_nothing_refers_to_it(kernel):
+    """A dropped result's memory serves the next render of that size; a result (or any view of
+    it) still held is never written again."""
+    cams = quilt_cameras(3, 64, 48, use_display=False)
+    g1, g2 = random_scene(800, degree=1, seed=5), random_scene(800, degree=1, seed=6)
+    fast.release_buffers()
+    want1 = run_fast(g1, cams, kernel).images.copy()
+    want2 = run_fast(g2, cams, kernel).images.copy()
+    assert not np.array_equal(want1, want2)
+    first = run_fast(g1, cams, kernel).images
+    ptr = first.ctypes.data
+    view = first[1, 10:20]  # a view keeps the memory of `first` alive
+    del first
+    second = run_fast(g2, cams, kernel).images
+    assert second.ctypes.data != ptr
+    np.testing.assert_array_equal(view, want1[1, 10:20])
+    np.testing.assert_array_equal(second, want2)
+    held = fast._OUTPUTS.nbytes()
+    del view  # now nothing refers to the first result's memory: the next render reuses it
+    assert fast._OUTPUTS.nbytes() == held + want1.nbytes
+    third = run_fast(g1, cams, kernel).images
+    assert third.ctypes.data == ptr
+    np.testing.assert_array_equal(third, want1)
+    np.testing.assert_array_equal(second, want2)
