@@ -55,6 +55,7 @@ def timed(g, cams, backend: str, config: RenderConfig, repeats: int):
     """Best-of-``repeats`` render: (result of the best run, wall seconds, CPU seconds)."""
     best = None
     for _ in range(repeats):
+        r = None  # hold at most the best result, as a streaming caller holds its last frame
         c0, t0 = time.process_time(), time.perf_counter()
         r = render_views(g, cams, backend, config)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
