@@ -131,9 +131,10 @@ class _Lease:
                                     "data": (mem.ctypes.data, False)}
 
     def __del__(self) -> None:
-        pool = self._pool
-        if pool is not None:
-            pool._give_back(self._mem)
+        try:
+            self._pool._give_back(self._mem)
+        except Exception:  # noqa: BLE001 - interpreter shutdown: module globals may be gone
+            pass
 
 
 class _OutputPool:
