@@ -41,23 +41,8 @@ def _load(name: str):  # noqa: ANN202
         raise RenderError(f"backend {name!r}: cannot import holo_viewer.render.{BACKENDS[name]} ({exc})") from exc
 
 
-def _cuda_available() -> bool:
-    import sys
-
-    torch = sys.modules.get("torch")
-    if torch is None:
-        try:
-            import torch  # noqa: F401
-        except ImportError:
-            return False
-        torch = sys.modules["torch"]
-    return bool(torch.cuda.is_available())
-
-
 def _auto_backend(config: RenderConfig) -> str:
-    """gsplat where it runs and honours ``config``, else fast (see :func:`render_views`)."""
-    if not _cuda_available():
-        return "fast"
+    """gsplat where it runs (CUDA, gsplat importable) and honours ``config``, else fast."""
     from . import gsplat_backend
 
     try:
@@ -111,8 +96,9 @@ def render_views(gaussians: Gaussians, cameras: Cameras, backend: BackendName = 
         V cameras of one image size (OpenCV conventions, see :mod:`holo_viewer.camera`).
     backend : {"fast", "reference", "vtk", "torch", "gsplat", "auto"}
         "auto" = gsplat when it imports, CUDA works and the config is one gsplat honours,
-        else fast. (On an H100 gsplat renders the avatar quilt in 0.18 s, the fast CPU
-        backend in 0.45-0.6 s, the pure-torch backend on CUDA in 6 s: bench/render_gpu.py.)
+        else fast. (On an H100 machine gsplat renders the avatar quilt in 0.18 s, the fast CPU
+        backend in 0.42-0.45 s on its 16 cores, the pure-torch backend on CUDA in 6 s:
+        bench/render_gpu.py.)
     config : RenderConfig, optional
         Knobs (defaults: DESIGN.md's forward pass).
 

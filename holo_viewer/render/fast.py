@@ -169,11 +169,10 @@ class _OutputPool:
 
     def _give_back(self, mem: np.ndarray) -> None:
         with self._lock:
-            if self.keep <= 0 or mem.nbytes > _KEEP_AT_MOST:
-                return
             self._free.append(mem)
-            while len(self._free) > self.keep or sum(m.nbytes for m in self._free) > _KEEP_AT_MOST:
-                self._free.pop(0)
+            while self._free and (len(self._free) > self.keep or
+                                  sum(m.nbytes for m in self._free) > _KEEP_AT_MOST):
+                self._free.pop(0)  # the oldest first
 
     def nbytes(self) -> int:
         with self._lock:
