@@ -219,10 +219,11 @@ def test_release_buffers_then_render_again():
     cams = quilt_cameras(3, 64, 48, use_display=False)
     g = random_scene(500, degree=1, seed=4)
     a = render_views(g, cams, "fast").images
-    assert fast._SHARED_WORKSPACE._rec.size > 0
+    cpp = fast._cpp()
+    assert fast._SHARED_WORKSPACE._rec.size > 0 and cpp.scratch_bytes() > 0
     fast.release_buffers()
     assert fast._SHARED_WORKSPACE._rec.size == 0 and fast._SHARED_WORKSPACE._ids.size == 0
-    assert fast._OUTPUTS.nbytes() == 0
+    assert fast._OUTPUTS.nbytes() == 0 and cpp.scratch_bytes() == 0
     np.testing.assert_array_equal(render_views(g, cams, "fast").images, a)
 
 

@@ -188,11 +188,15 @@ _OUTPUTS = _OutputPool()
 
 def release_buffers() -> None:
     """Free the record and tile-list buffers the C++ path keeps between renders (~130 MB after a
-    48-view quilt of 100k splats) and the recycled output images (up to two quilts, 135 MB each,
-    of renders whose images were dropped); the next render allocates them again."""
+    48-view quilt of 100k splats, plus ~25 MB of binning scratch inside the extension) and the
+    recycled output images (up to two quilts, 135 MB each, of renders whose images were
+    dropped); the next render allocates them again."""
     with _SHARED_WORKSPACE.lock:
         _SHARED_WORKSPACE.release()
     _OUTPUTS.release()
+    cpp = _cpp()
+    if cpp is not None:
+        cpp.release_scratch()
 
 
 def _cpp():  # noqa: ANN202
