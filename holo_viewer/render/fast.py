@@ -47,7 +47,10 @@ __all__ = ["render", "cpp_available", "kernel_names", "release_buffers"]
 #: 1 = scalar, 2 = require AVX2, 3 = require AVX-512 (tests and the benchmark set this)
 _CPP_MODE = 0
 
-_BYTES_PER_SPLAT_VIEW = 4 * 16 + 4 * 4  # packed record (rec + box, 64 bytes) + ~4 tile entries
+#: memory per (view, splat) the chunking budgets for: the packed record (64 bytes), ~4 tile-list
+#: entries (4 bytes each) and, in the C++ path, the same entries as (splat, tile) pairs while
+#: the lists are built (8 bytes each)
+_BYTES_PER_SPLAT_VIEW = 64 + 4 * 4 + 4 * 8
 
 
 def _records(nv: int, m: int) -> tuple[np.ndarray, np.ndarray]:
