@@ -180,3 +180,21 @@ def test_one_million_gaussians_bounded_memory(kernel):
     assert res["finite"] and res["visible"] > 500_000 and res["mean"] > 0
     assert growth < 1.5 * 2**30, f"peak RSS grew by {growth / 2**20:.0f} MiB"
     assert growth < n_times_pixels_bytes / 100
+
+
+def test_validation_names_bad_rows_and_accepts_huge_finite_values():
+    """The quick finite-sum check never decides alone: a sum that overflows (huge but finite
+    values) or a NaN gets the per-Gaussian check, which names the rows."""
+    g = random_scene(10)
+    sh = np.array(g.sh, dtype=np.float64)
+    sh[:, 0, 0] = 1e308  # finite; their sum overflows to inf
+    g.replace(sh=sh).validate()
+    sh[[1, 7], 0, 1] = np.nan
+    with pytest.raises(InputError, match=r"sh: .*2 Gaussians \(indices \[1, 7\]\)"):
+        g.replace(sh=sh).validate()
+    q = np.array(g.quats, dtype=np.float32)
+    q[5] = 1e-13  # |q| = 2e-13 < 1e-12
+    with pytest.raises(InputError, match=r"quats: .*indices \[5\]"):
+        g.replace(quats=q).validate()
+    q[5] = 1e-11
+    g.replace(quats=q).validate()
