@@ -255,13 +255,16 @@ def _sorted_inputs(order: np.ndarray, pc: np.ndarray, cov: np.ndarray, means: np
     never drawn). colours: (N, nk, 3) SH coefficients (rows j * 3 + channel), or (N, 3) shared
     colours. q = 2 ln(opacity / threshold).
     """
+    from . import fast_kernels as fk
+
     m = order.size
     mp = -(-m // 8) * 8
 
     def soa(a: np.ndarray, dtype: type) -> np.ndarray:
-        a = a.reshape(len(a), -1)[order]
-        out = np.zeros((a.shape[1], mp), dtype=dtype)
-        out[:, :m] = a.T
+        a = np.ascontiguousarray(a.reshape(len(a), -1), dtype=dtype)
+        out = np.empty((a.shape[1], mp), dtype=dtype)
+        out[:, m:] = 0
+        fk.gather_soa(a, order, out)
         return out
 
     op = soa(opacity, np.float64)[0]
@@ -351,13 +354,13 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
         idx = np.flatnonzero(front)
         t1 = time.perf_counter()
         order = idx[np.argsort(pc[idx, 2], kind="stable")].astype(np.int64)
-        t2 = time.perf_counter()
-        timings["preprocess"] += t1 - t0
-        timings["sort"] += t2 - t1
         m = order.size
         if use_cpp:  # depth-ordered copies: the C++ pass reads every input sequentially
             sorted_in = _sorted_inputs(order, pc, cov, means, opacity, shared_rgb if config.shared_sh else sh,
                                        float(config.alpha_threshold))
+        t2 = time.perf_counter()
+        timings["preprocess"] += t1 - t0
+        timings["sort"] += t2 - t1  # the depth sort and the depth-ordered copies
         chunk = max(1, min(len(group), int(config.max_chunk_bytes // max(1, m * _BYTES_PER_SPLAT_VIEW))))
         for c0 in range(0, len(group), chunk):
             views = group[c0:c0 + chunk]
