@@ -362,6 +362,8 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
         timings["preprocess"] += t1 - t0
         timings["sort"] += t2 - t1  # the depth sort and the depth-ordered copies
         chunk = max(1, min(len(group), int(config.max_chunk_bytes // max(1, m * _BYTES_PER_SPLAT_VIEW))))
+        if threads <= chunk < len(group):  # whole views per thread: the projection's work units are views
+            chunk -= chunk % threads
         for c0 in range(0, len(group), chunk):
             views = group[c0:c0 + chunk]
             t3 = time.perf_counter()
