@@ -1180,7 +1180,10 @@ PyObject* project_bin(PyObject*, PyObject* args) {
         std::memset(P.seen, 0, size_t(m));
         n_threads = std::max(1, n_threads);
         // segments per view: enough units to keep every thread busy
-        const int segs = std::max(1, std::min<int>((n_threads + P.nv - 1) / P.nv, std::max(1, P.m / 4096)));
+        // segments of the splat range: work units of the count pass (each projects its splats
+        // into every view, a block at a time, so the block's inputs are read from memory once
+        // for all the views instead of once per view), enough to keep every thread busy
+        const int segs = std::max(1, std::min<int>(2 * n_threads, std::max(1, P.m / 4096)));
         const int n_units = P.nv * segs;
         std::unique_lock<std::mutex> cached(bin_scratch_mutex, std::try_to_lock);
         BinScratch own;
@@ -1197,15 +1200,21 @@ PyObject* project_bin(PyObject*, PyObject* args) {
             k1 = s + 1 == segs ? P.m : int(int64_t(P.m) * (s + 1) / segs) & ~(LANES - 1);
         };
         Py_BEGIN_ALLOW_THREADS
-        parallel_views(n_units, n_threads, [&](int unit) {
-            const int v = unit / segs;
+        parallel_views(segs, n_threads, [&](int s) {
             int k0, k1;
-            seg_range(unit % segs, k0, k1);
-            std::vector<int64_t>& cnt = counts[unit];
-            cnt.assign(size_t(nt), 0);
-            entries[unit].clear();
-            entries[unit].reserve(size_t(k1 - k0) * 5);
-            count_fn(P, B, v, k0, k1, cnt.data(), entries[unit]);
+            seg_range(s, k0, k1);
+            for (int v = 0; v < P.nv; ++v) {
+                const int unit = v * segs + s;
+                counts[unit].assign(size_t(nt), 0);
+                entries[unit].clear();
+                entries[unit].reserve(size_t(k1 - k0) * 5);
+            }
+            constexpr int BLOCK = 8 * LANES;  // splats per view in turn
+            for (int kb = k0; kb < k1; kb += BLOCK)
+                for (int v = 0; v < P.nv; ++v) {
+                    const int unit = v * segs + s;
+                    count_fn(P, B, v, kb, std::min(k1, kb + BLOCK), counts[unit].data(), entries[unit]);
+                }
         });
         Py_END_ALLOW_THREADS
         int64_t* offp = (int64_t*)off.buf;
