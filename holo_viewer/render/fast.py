@@ -79,7 +79,7 @@ def _aligned_records(raw: np.ndarray, nv: int, m: int) -> np.ndarray:
 class _Workspace:
     """Record and tile-list buffers kept between renders of the C++ path.
 
-    A quilt needs ~100 MB of records and ~25 MB of tile lists per chunk of views; allocating
+    A quilt needs ~64 MB of records and ~20 MB of tile lists per chunk of views; allocating
     them per call made the kernel zero fresh pages (~10% of a quilt's time). A render that finds
     the workspace in use by another thread allocates its own buffers instead.
     """
@@ -190,8 +190,8 @@ _OUTPUTS = _OutputPool()
 
 
 def release_buffers() -> None:
-    """Free the record and tile-list buffers the C++ path keeps between renders (~130 MB after a
-    48-view quilt of 100k splats, plus ~25 MB of binning scratch inside the extension) and the
+    """Free the record and tile-list buffers the C++ path keeps between renders (~84 MB after a
+    48-view quilt of 100k splats, plus ~41 MB of binning scratch inside the extension) and the
     recycled output images (up to two quilts, 135 MB each, of renders whose images were
     dropped); the next render allocates them again."""
     with _SHARED_WORKSPACE.lock:

@@ -1303,7 +1303,7 @@ PyMethodDef methods[] = {
      "sh float32). Writes rec, off, base, seen and, when ids holds them, the tile lists; returns the "
      "number of entries (larger than ids' capacity: nothing written to ids, grow it and call again)."},
     {"release_scratch", release_scratch, METH_NOARGS,
-     "Free the tile counts and band ranges project_bin keeps between calls."},
+     "Free the tile counts and (splat, tile) entries project_bin keeps between calls."},
     {"scratch_bytes", scratch_bytes, METH_NOARGS, "Bytes project_bin's kept scratch holds."},
     {"has_avx2", has_avx2, METH_NOARGS, "True when the CPU runs the AVX2+FMA path."},
     {"has_avx512", has_avx512, METH_NOARGS, "True when the CPU runs the AVX-512 path (16x16 tiles)."},
