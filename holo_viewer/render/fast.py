@@ -15,9 +15,10 @@ a quilt of V views that share one orientation (DESIGN.md "Multi-view cameras"):
    ellipse's x-extent over the band of rows);
 5. **composite**: tiles x views in parallel, front to back with early termination, float32.
 
-With the C++ extension (``_splat_cpp``, the default when built) steps 3 and 4 are one pass per
-view (``project_bin``: 8 splats at a time as vectorised loops, each record binned while in
-cache; timed as "project", filling the lists as "bin") and the compositor is AVX-512 for
+With the C++ extension (``_splat_cpp``, the default when built) steps 3 and 4 are one pass over
+the splats per chunk of views (``project_bin``: 8 splats at a time as vectorised loops, a block
+of them into every view in turn, each record binned while in cache; timed as "project", filling
+the lists as "bin") and the compositor is AVX-512 for
 16x16 tiles (one register per tile row), else AVX2 (chords, 8-pixel chunks), else scalar,
 chosen at run time. Without it every step runs in numba (``fast_kernels``); both give the
 same records and lists (tested bit for bit).

@@ -871,14 +871,14 @@ void parallel_views(int nv, int n_threads, F&& f) {
     for (auto& th : pool) th.join();
 }
 
-// ---- fused projection + binning (one pass per view; fast.py uses it with the C++ kernels) -----
+// ---- fused projection + binning (fast.py uses it with the C++ kernels) ------------------------
 // Same forward pass as fast_kernels.project_views (float64, same formulas and order of
 // operations) followed by the same tile lists as fast_kernels.count_tiles + fill_tiles, each
 // record binned right after it is written, while it is in cache, instead of in a second sweep
-// over every view's 6 MB of records. Inputs are in depth order. Work units are (view, segment of
-// the splat range): with fewer views than threads the splats of a view are split between
-// threads, and the tile lists stay in depth order because segment s's entries of a tile go
-// before segment s+1's.
+// over every view's 6 MB of records. Inputs are in depth order. Work units are segments of the
+// splat range, each projecting blocks of its splats into every view in turn (one read of the
+// inputs per call); every (view, segment) keeps its own counts and entries, and the tile lists
+// stay in depth order because segment s's entries of a tile go before segment s+1's.
 constexpr double SH_C0 = 0.28209479177387814, SH_C1 = 0.4886025119029199;
 constexpr double SH_C2[5] = {1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
                              0.5462742152960396};
@@ -1298,7 +1298,7 @@ PyMethodDef methods[] = {
      "project_bin(pc, cov, means, opacity, q, sh, cams, m, mp, nv, width, height, degree, use_shared, tile, "
      "tiles_x, tiles_y, near, dilation, radius_sigmas, alpha_threshold, cull_margin, rec, off, base, seen, ids, "
      "n_threads) -> (total entries, seconds spent filling the lists)\n\n"
-     "fast_kernels.project_views, count_tiles and fill_tiles in one pass per view (inputs in depth "
+     "fast_kernels.project_views, count_tiles and fill_tiles in one pass over the splats (inputs in depth "
      "order, float64 structure of arrays with row stride mp, a multiple of 8 >= m, padding opacity 0; "
      "sh float32). Writes rec, off, base, seen and, when ids holds them, the tile lists; returns the "
      "number of entries (larger than ids' capacity: nothing written to ids, grow it and call again)."},
