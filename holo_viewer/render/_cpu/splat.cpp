@@ -1057,8 +1057,8 @@ HV_ALWAYS_INLINE inline void band_block(const Block& o, const double* qa, int sh
 }
 
 // The (splat, tile) entries of one work unit in depth order, k in the low and t in the high 32
-// bits: the fill scatters them in one flat loop (it replayed the band ranges splat by splat
-// before, which mispredicted as much as the count does; 2.7x slower, measured).
+// bits: the fill scatters them in one flat loop (replaying the band ranges splat by splat, as
+// it did before, was 2.7x slower, measured).
 using Entries = std::vector<uint64_t>;
 
 // One work unit of project_bin: splats [k0, k1) of view v, projected 8 at a time, each drawn
@@ -1132,8 +1132,8 @@ CountFn count_function(int degree, bool shared) {
     return pick_degree<SelGeneric>(degree, shared);
 }
 
-// project_bin's per-unit tile counts and (splat, tile) entries (~50 MB for 16 views of 100k
-// splats), kept between calls: fresh memory for them was page-faulted thousands of times per
+// project_bin's per-unit tile counts and (splat, tile) entries (~41 MB for the avatar quilt's
+// chunks of 10 views of 100k splats), kept between calls: fresh memory for them was page-faulted thousands of times per
 // call, ~20 % of the count pass (measured). A call that finds the cache in use by another
 // thread uses its own.
 struct BinScratch {
@@ -1179,7 +1179,6 @@ PyObject* project_bin(PyObject*, PyObject* args) {
         P.sh = (const float*)sh.buf; P.rec = (float*)rec.buf; P.seen = (uint8_t*)seen.buf;
         std::memset(P.seen, 0, size_t(m));
         n_threads = std::max(1, n_threads);
-        // segments per view: enough units to keep every thread busy
         // segments of the splat range: work units of the count pass (each projects its splats
         // into every view, a block at a time, so the block's inputs are read from memory once
         // for all the views instead of once per view), enough to keep every thread busy
