@@ -80,7 +80,7 @@ def _aligned_records(raw: np.ndarray, nv: int, m: int) -> np.ndarray:
 class _Workspace:
     """Record and tile-list buffers kept between renders of the C++ path.
 
-    A quilt needs ~64 MB of records and ~20 MB of tile lists per chunk of views; allocating
+    A quilt needs ~70 MB of records and ~20 MB of tile lists per chunk of views; allocating
     them per call made the kernel zero fresh pages (~10% of a quilt's time). A render that finds
     the workspace in use by another thread allocates its own buffers instead.
     """
@@ -191,8 +191,8 @@ _OUTPUTS = _OutputPool()
 
 
 def release_buffers() -> None:
-    """Free the record and tile-list buffers the C++ path keeps between renders (~84 MB after a
-    48-view quilt of 100k splats, plus ~41 MB of binning scratch inside the extension) and the
+    """Free the record and tile-list buffers the C++ path keeps between renders (~92 MB after a
+    48-view quilt of 100k splats, plus ~45 MB of binning scratch inside the extension) and the
     recycled output images (up to two quilts, 135 MB each, of renders whose images were
     dropped); the next render allocates them again."""
     with _SHARED_WORKSPACE.lock:
@@ -363,8 +363,6 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
         timings["preprocess"] += t1 - t0
         timings["sort"] += t2 - t1  # the depth sort and the depth-ordered copies
         chunk = max(1, min(len(group), int(config.max_chunk_bytes // max(1, m * _BYTES_PER_SPLAT_VIEW))))
-        if threads <= chunk < len(group):  # whole views per thread: the projection's work units are views
-            chunk -= chunk % threads
         for c0 in range(0, len(group), chunk):
             views = group[c0:c0 + chunk]
             t3 = time.perf_counter()
