@@ -783,10 +783,10 @@ struct TileDiv {
 // Same rule as fast_kernels.count_tiles / fill_tiles (float64, identical lists): a splat is listed
 // in the tiles its alpha >= threshold ellipse reaches, per tile row the ellipse's x-extent over
 // the band of rows (_band_tiles), widened by 0.05 px + 1e-3 relative. One evaluation per
-// (splat, tile row): the count pass keeps the tile-column ranges, the fill pass replays them.
+// (splat, tile row), in the count pass, which records each (splat, tile) entry for the fill.
 struct BinJob {
     const float* rec;
-    int nv, m, tile, tiles_x, tiles_y;
+    int m, tile, tiles_x, tiles_y;
     std::atomic<bool>* bad;         // set when a box lies outside the tile grid
     TileDiv div{16};
 };
@@ -858,13 +858,14 @@ inline void entries_of(const BinJob& B, int v, int k, const int32_t* pre, F&& f)
     }
 }
 
+// f(i) for i in [0, n), handed to n_threads threads (the caller's included) from a counter.
 template <typename F>
-void parallel_views(int nv, int n_threads, F&& f) {
+void parallel_for(int n, int n_threads, F&& f) {
     std::atomic<int> next{0};
     auto worker = [&]() {
-        for (int v; (v = next.fetch_add(1)) < nv;) f(v);
+        for (int i; (i = next.fetch_add(1)) < n;) f(i);
     };
-    n_threads = std::max(1, std::min(n_threads, nv));
+    n_threads = std::max(1, std::min(n_threads, n));
     std::vector<std::thread> pool;
     for (int i = 1; i < n_threads; ++i) pool.emplace_back(worker);
     worker();
@@ -1193,13 +1194,13 @@ PyObject* project_bin(PyObject*, PyObject* args) {
         if (entries.size() < size_t(n_units)) entries.resize(size_t(n_units));
         const CountFn count_fn = count_function(P.degree, P.use_shared != 0);
         std::atomic<bool> bad{false};
-        BinJob B{P.rec, P.nv, P.m, P.tile, P.tiles_x, P.tiles_y, &bad, TileDiv(P.tile)};
+        BinJob B{P.rec, P.m, P.tile, P.tiles_x, P.tiles_y, &bad, TileDiv(P.tile)};
         auto seg_range = [&](int s, int& k0, int& k1) {  // multiples of LANES (blocks read k..k+7)
             k0 = int(int64_t(P.m) * s / segs) & ~(LANES - 1);
             k1 = s + 1 == segs ? P.m : int(int64_t(P.m) * (s + 1) / segs) & ~(LANES - 1);
         };
         Py_BEGIN_ALLOW_THREADS
-        parallel_views(segs, n_threads, [&](int s) {
+        parallel_for(segs, n_threads, [&](int s) {
             int k0, k1;
             seg_range(s, k0, k1);
             for (int v = 0; v < P.nv; ++v) {
@@ -1243,7 +1244,7 @@ PyObject* project_bin(PyObject*, PyObject* args) {
             const auto t_fill = std::chrono::steady_clock::now();
             int32_t* idsp = (int32_t*)ids.buf;
             Py_BEGIN_ALLOW_THREADS
-            parallel_views(n_units, n_threads, [&](int unit) {  // one flat loop: no branch per splat
+            parallel_for(n_units, n_threads, [&](int unit) {  // one flat loop: no branch per splat
                 int64_t* cur = cursor.data() + size_t(unit) * nt;
                 int32_t* out = idsp + basep[unit / segs];
                 const uint64_t* e = entries[unit].data();
