@@ -34,6 +34,7 @@ import numpy as np
 from .errors import InputError
 from .pipeline_types import (FLAME_KEYS, STAGES, FaceControls, FrameResult, StageTimings, StreamReport,
                              ViewSettings, apply_frame, flame_sequence_frames)
+from .display.quilt import to_uint8  # re-exported: float views -> uint8
 from .validation import check_array, check_finite_scalar
 
 __all__ = [
@@ -410,7 +411,7 @@ class Pipeline:
         from .display.quilt import tile_quilt
 
         cols, rows = quilt_layout(self.calibration)
-        return tile_quilt(to_uint8(views), cols, rows)
+        return tile_quilt(views, cols, rows, as_uint8=True)
 
     def _compute_native(self, quilt: np.ndarray) -> np.ndarray:
         from .display.lenticular import Interleaver
@@ -538,18 +539,6 @@ def _calib_fingerprint(calib: Any) -> str:
 def quilt_layout(calib: Any) -> tuple[int, int]:
     """(cols, rows) of the calibration's quilt."""
     return int(calib.cols), int(calib.rows)
-
-
-def to_uint8(images: np.ndarray) -> np.ndarray:
-    """Float images in [0, 1] -> uint8 (rounded, clipped); uint8 passes through."""
-    a = np.asarray(images)
-    if a.dtype == np.uint8:
-        return a
-    dtype = np.result_type(a.dtype, np.float32)  # float32 stays float32, float64 stays float64
-    x = np.multiply(a, dtype.type(255.0), dtype=dtype)  # one temporary, updated in place
-    np.rint(x, out=x)
-    np.clip(x, 0, 255, out=x)
-    return x.astype(np.uint8)
 
 
 def deform_avatar(avatar: Any, vertices: np.ndarray, params: Mapping[str, np.ndarray]) -> Any:

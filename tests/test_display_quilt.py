@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from holo_viewer.display.export import load_quilt, save_native_png, save_quilt_png, write_quilt_video
-from holo_viewer.display.quilt import parse_quilt_filename, quilt_filename, split_quilt, tile_quilt
+from holo_viewer.display.quilt import parse_quilt_filename, quilt_filename, split_quilt, tile_quilt, to_uint8
 from holo_viewer.errors import ExportError, InputError
 
 
@@ -28,6 +28,33 @@ def test_non_multiple_quilt_reads_from_bottom_left():
     padded = np.concatenate([np.full((1, 9, 1), 99, np.uint8), q], axis=0)  # extra top row
     padded = np.concatenate([padded, np.full((9, 2, 1), 99, np.uint8)], axis=1)  # extra right columns
     assert np.array_equal(split_quilt(padded, 3, 2), views)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("n", [6, 4])
+def test_uint8_quilt_converts_tile_by_tile_like_converting_first(dtype, n):
+    rng = np.random.default_rng(n)
+    views = (rng.random((n, 7, 5, 3)) * 1.2 - 0.1).astype(dtype)  # values outside [0, 1] clip
+    views[0, 0, 0] = [0.5 / 255, 1.5 / 255, 2.5 / 255]  # halves round to even
+    q = tile_quilt(views, 3, 2, as_uint8=True)
+    assert q.dtype == np.uint8
+    expected = tile_quilt(np.clip(np.rint(views * 255.0), 0, 255).astype(np.uint8), 3, 2)
+    assert np.array_equal(q, expected)
+    assert np.array_equal(q[-7:, :5][0, 0], [0, 2, 2])
+    assert not q[:7, 5 * (n - 3):].any()  # unused tiles are zero
+    u8 = expected[-7:, :5][None].repeat(2, axis=0)  # uint8 views pass through unchanged
+    assert np.array_equal(split_quilt(tile_quilt(u8, 2, 1, as_uint8=True), 2, 1), u8)
+
+
+def test_to_uint8_writes_into_a_strided_tile():
+    img = np.linspace(-0.5, 1.5, 4 * 3 * 3).reshape(4, 3, 3)
+    out = np.full((6, 8, 3), 7, np.uint8)
+    res = to_uint8(img, out=out[1:5, 2:5])
+    assert res.base is out
+    assert np.array_equal(out[1:5, 2:5], np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8))
+    assert (out[0] == 7).all() and (out[:, :2] == 7).all()
+    with pytest.raises(InputError, match="out: expected shape"):
+        to_uint8(img, out=out)
 
 
 def test_names():

@@ -23,11 +23,10 @@ __all__ = ["ThumbnailWorker", "render_thumbnail"]
 def render_thumbnail(gaussians: Any, cameras: Any, backend: str, config: Any, cols: int, rows: int) -> Any:
     """Render ``cameras`` and tile them into a uint8 quilt (runs in the worker)."""
     from ..display.quilt import tile_quilt
-    from ..pipeline import to_uint8
     from ..render.api import render_views
 
     res = render_views(gaussians, cameras, backend=backend, config=config)
-    return tile_quilt(to_uint8(res.images), cols, rows)
+    return tile_quilt(res.images, cols, rows, as_uint8=True)
 
 
 class ThumbnailWorker:
