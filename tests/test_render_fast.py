@@ -224,8 +224,40 @@ def test_release_buffers_then_render_again():
     assert fast._SHARED_WORKSPACE._rec.size > 0 and cpp.scratch_bytes() > 0
     fast.release_buffers()
     assert fast._SHARED_WORKSPACE._rec.size == 0 and fast._SHARED_WORKSPACE._ids.size == 0
+    assert fast._SHARED_WORKSPACE.depth_hints == {}
     assert fast._OUTPUTS.nbytes() == 0 and cpp.scratch_bytes() == 0
     np.testing.assert_array_equal(render_views(g, cams, "fast").images, a)
+
+
+def test_depth_order_is_the_stable_sort_whatever_the_hint():
+    rng = np.random.default_rng(3)
+    z = np.round(rng.normal(1.0, 0.2, 5000), 2)  # many equal depths
+    z[:50] = -0.0
+    z[50:100] = 0.0  # -0 and +0 are equal depths too
+    keep = rng.random(z.size) > 0.2
+    want = np.flatnonzero(keep)[np.argsort(z[keep], kind="stable")]
+    order, full = fast.depth_order(z, keep)
+    np.testing.assert_array_equal(order, want)
+    moved = z + rng.normal(0.0, 1e-3, z.size) * (rng.random(z.size) < 0.1)
+    want_moved = np.flatnonzero(keep)[np.argsort(moved[keep], kind="stable")]
+    for hint in (full, rng.permutation(z.size), full[::-1].copy(), np.arange(7)):
+        np.testing.assert_array_equal(fast.depth_order(z, keep, hint)[0], want)
+        got, nxt = fast.depth_order(moved, keep, hint)
+        np.testing.assert_array_equal(got, want_moved)
+        np.testing.assert_array_equal(np.sort(nxt), np.arange(z.size))
+
+
+def test_render_after_another_frame_equals_a_fresh_render():
+    """The last depth order is kept as the next render's sort hint; the images do not depend on it."""
+    cams = quilt_cameras(3, 64, 48, use_display=False)
+    g0 = random_scene(3000, degree=1, seed=8)
+    g1 = random_scene(3000, degree=1, seed=9)  # same size, other depths
+    fast.release_buffers()
+    assert fast._SHARED_WORKSPACE.depth_hints == {}
+    want = render_views(g1, cams, "fast").images.copy()
+    render_views(g0, cams, "fast")
+    assert len(fast._SHARED_WORKSPACE.depth_hints) == 1
+    np.testing.assert_array_equal(render_views(g1, cams, "fast").images, want)
 
 
 @pytest.mark.skipif(not fast.cpp_available(), reason="C++ extension not built")

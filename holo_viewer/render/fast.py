@@ -6,7 +6,8 @@ a quilt of V views that share one orientation (DESIGN.md "Multi-view cameras"):
 1. **preprocess** (once per orientation group): camera-frame centres and covariances
    ``W R S S^T R^T W^T`` (float64), culling of splats behind the near plane of every view;
 2. **sort**: one stable depth sort serves every view of the group (view depth differs
-   between the views only by a constant, so the order is the same);
+   between the views only by a constant, so the order is the same), started from the previous
+   render's order (``depth_order``: an animation's next frame is nearly sorted, ~1 ms);
 3. **project** (per chunk of views): 2D centre, conic, SH colour per view (or shared),
    pixel box = radius box intersected with the ellipse where alpha >= threshold and the image;
    splats whose box is empty in every view are the ones culled by the union of the frusta;
@@ -88,6 +89,7 @@ class _Workspace:
     def __init__(self) -> None:
         self._rec = np.empty(0, dtype=np.float32)
         self._ids = np.empty(0, dtype=np.int32)
+        self.depth_hints: dict[int, np.ndarray] = {}  # per camera group: the last full depth order
         self.lock = threading.Lock()
 
     def records(self, nv: int, m: int) -> np.ndarray:
@@ -111,6 +113,7 @@ class _Workspace:
         """Drop the buffers (memory goes back to the system)."""
         self._rec = np.empty(0, dtype=np.float32)
         self._ids = np.empty(0, dtype=np.int32)
+        self.depth_hints = {}
 
 
 _SHARED_WORKSPACE = _Workspace()
@@ -234,6 +237,45 @@ def _groups(cameras: Cameras) -> list[np.ndarray]:
     return groups
 
 
+def depth_order(z: np.ndarray, keep: np.ndarray, hint: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the kept splats by increasing depth, ties by index (a stable sort).
+
+    Parameters
+    ----------
+    z : numpy.ndarray
+        (N,) finite view depths.
+    keep : numpy.ndarray
+        (N,) bool: which splats to order.
+    hint : numpy.ndarray or None
+        The full order this function returned for the previous frame (any permutation of
+        ``range(N)`` is correct). Consecutive frames move little, so ``z[hint]`` is nearly sorted
+        and numpy's stable sort (timsort) runs through it in ~1 ms instead of ~7 ms for 100k
+        splats. The result does not depend on the hint: runs of equal depths are put back in
+        index order afterwards.
+
+    Returns
+    -------
+    order : numpy.ndarray
+        (keep.sum(),) int64 indices.
+    full : numpy.ndarray
+        (N,) the order of all splats: the next frame's hint.
+    """
+    if hint is None or hint.shape != z.shape:
+        full = np.argsort(z, kind="stable").astype(np.int64, copy=False)
+    else:
+        full = hint[np.argsort(z[hint], kind="stable")]
+        zs = z[full]
+        eq = zs[1:] == zs[:-1]
+        if eq.any():  # equal depths in hint order: sort each run by index
+            in_run = np.zeros(z.size, dtype=bool)
+            in_run[1:] |= eq
+            in_run[:-1] |= eq
+            run = np.cumsum(np.concatenate(([True], ~eq)))[in_run]
+            tied = full[in_run]
+            full[in_run] = tied[np.lexsort((tied, run))]
+    return full[keep[full]], full
+
+
 def _view_params(cameras: Cameras, views: np.ndarray) -> np.ndarray:
     """(len(views), 14) float64 per-view parameters of the projection kernels (project_views docs)."""
     W, H = cameras.width, cameras.height
@@ -346,15 +388,14 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
     n_visible_mask = np.zeros(len(g), dtype=bool)
     timings["preprocess"] += time.perf_counter() - t_start
 
-    for group in _groups(cameras):
+    for gi, group in enumerate(_groups(cameras)):
         t0 = time.perf_counter()
         Wrot = np.ascontiguousarray(cameras.R[group[0]])
         pc, cov = fk.prep_3d(means, quats, log_scales, Wrot)
         tvec = cameras.t[group]
         front = (pc[:, 2] + tvec[:, 2].max()) > near
-        idx = np.flatnonzero(front)
         t1 = time.perf_counter()
-        order = idx[np.argsort(pc[idx, 2], kind="stable")].astype(np.int64)
+        order, workspace.depth_hints[gi] = depth_order(pc[:, 2], front, workspace.depth_hints.get(gi))
         m = order.size
         if use_cpp:  # depth-ordered copies: the C++ pass reads every input sequentially
             sorted_in = _sorted_inputs(order, pc, cov, means, opacity, shared_rgb if config.shared_sh else sh,
