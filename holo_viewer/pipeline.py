@@ -34,12 +34,11 @@ import numpy as np
 from .errors import InputError
 from .pipeline_types import (FLAME_KEYS, STAGES, FaceControls, FrameResult, StageTimings, StreamReport,
                              ViewSettings, apply_frame, flame_sequence_frames)
-from .display.quilt import to_uint8  # re-exported: float views -> uint8
 from .validation import check_array, check_finite_scalar
 
 __all__ = [
     "STAGES", "FaceControls", "ViewSettings", "StageTimings", "FrameResult", "StreamReport",
-    "Pipeline", "frame_head", "flame_sequence_frames", "apply_frame", "FLAME_KEYS", "to_uint8",
+    "Pipeline", "frame_head", "flame_sequence_frames", "apply_frame", "FLAME_KEYS",
 ]
 
 # =============================================================================== framing

@@ -291,7 +291,7 @@ def test_pain_and_smile_move_the_face(head_pipeline):
 
 
 def test_to_uint8_rounds_and_clips_like_the_plain_formula():
-    from holo_viewer.pipeline import to_uint8
+    from holo_viewer.display.quilt import to_uint8
 
     rng = np.random.default_rng(0)
     for dtype in (np.float32, np.float64):

@@ -33,8 +33,9 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..display.quilt import to_uint8
 from ..errors import HoloViewerError, InputError
-from ..pipeline import FaceControls, Pipeline, apply_frame, to_uint8
+from ..pipeline import FaceControls, Pipeline, apply_frame
 from .scene import (focal_plane_polydata, vertex_normals, frusta_polydata, glyph_polydata, image_plane, mesh_polydata,
                     subsample_indices, view_colors)
 

@@ -1134,9 +1134,9 @@ CountFn count_function(int degree, bool shared) {
 }
 
 // project_bin's per-unit tile counts and (splat, tile) entries (~45 MB for the avatar quilt's
-// chunks of 11 views of 100k splats), kept between calls: fresh memory for them was page-faulted thousands of times per
-// call, ~20 % of the count pass (measured). A call that finds the cache in use by another
-// thread uses its own.
+// chunks of 11 views of 100k splats), kept between calls: fresh memory for them was
+// page-faulted thousands of times per call, ~20 % of the count pass (measured). A call that
+// finds the cache in use by another thread uses its own.
 struct BinScratch {
     std::vector<std::vector<int64_t>> counts;
     std::vector<Entries> entries;
