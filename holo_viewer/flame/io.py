@@ -7,8 +7,10 @@ Two formats hold the same keys (DESIGN.md section 4):
   with ``encoding='latin1'`` and a restricted :class:`pickle.Unpickler` that maps
   every ``chumpy.*`` class to a stub capturing the pickled state (a ``Ch`` pickles
   its ``__dict__``, whose ``'x'`` entry is the ndarray); chumpy is never imported.
-  Only numpy, scipy.sparse and a few builtins may be referenced; anything else is
-  refused, so a pickle cannot run arbitrary code through this loader.
+  Only an exact allow-list of (module, name) pairs resolves (numpy's array
+  reconstructors and dtype, the scipy.sparse csc/csr/coo classes, a few builtin
+  types); every other reference is refused before anything is imported, so a
+  pickle cannot run code, open files or import modules through this loader.
 * Our ``.npz`` (no pickled objects) with the same keys plus extra metadata keys.
 
 Required keys and sizes (V vertices, J = 5 joints, K blend shapes, F faces)::
@@ -21,7 +23,9 @@ Every other key is passed through as metadata.
 
 from __future__ import annotations
 
-import importlib
+import builtins
+import collections
+import copyreg
 import os
 import pickle
 import zipfile
@@ -90,13 +94,79 @@ def _plain_array(value: Any, key: str, source: str) -> np.ndarray:
     return np.asarray(value)
 
 
-_SAFE_BUILTINS = {"object", "set", "frozenset", "list", "dict", "tuple", "slice", "complex", "bytearray",
-                  "int", "float", "str", "bytes", "bool", "range"}
-_NUMPY_FUNCS = {"_reconstruct", "scalar", "_frombuffer"}
+def _numpy_core() -> Any:
+    """numpy's core package (``numpy._core`` in numpy 2, ``numpy.core`` in 1.x); already imported."""
+    core = getattr(np, "_core", None)
+    return core if core is not None else np.core
+
+
+def _latin1_encode(text: Any, encoding: str = "latin1", errors: str = "strict") -> bytes:
+    """``_codecs.encode`` as protocol 0-2 pickles use it for ``bytes``: latin-1 only.
+
+    Any other codec is refused: a codec lookup imports ``encodings.<name>`` modules.
+    """
+    if not isinstance(text, str) or encoding.lower().replace("_", "-") not in ("latin1", "latin-1", "iso-8859-1"):
+        raise pickle.UnpicklingError(f"_codecs.encode with {encoding!r}: a FLAME pickle encodes bytes as latin1")
+    return text.encode("latin1", errors)
+
+
+_NUMPY_CORE = {  # name -> resolver (the object lives in numpy's core, already imported with numpy)
+    "_reconstruct": lambda: _numpy_core().multiarray._reconstruct,
+    "scalar": lambda: _numpy_core().multiarray.scalar,
+    "_frombuffer": lambda: _numpy_core().numeric._frombuffer,
+}
+_SPARSE_CLASSES = {"csc": ("csc_matrix", "csc_array"), "csr": ("csr_matrix", "csr_array"),
+                   "coo": ("coo_matrix", "coo_array")}
+_BUILTINS = ("object", "set", "frozenset", "list", "dict", "tuple", "int", "float", "complex", "bool", "str",
+             "bytes", "bytearray", "slice")
+
+
+def _sparse_class(name: str) -> Any:
+    import scipy.sparse  # the only module this loader may import (a listed pair asks for it)
+
+    return getattr(scipy.sparse, name)
+
+
+def _allowed_globals() -> dict[tuple[str, str], Any]:
+    """The exact (module, name) pairs a FLAME 2020/2023 pickle may reference -> resolver.
+
+    Written by Python 2 or 3, numpy 1.x or 2.x, scipy old (``scipy.sparse.csc``) or new
+    (``scipy.sparse._csc``), pickle protocols 0 to 5. Nothing else resolves.
+    """
+    table: dict[tuple[str, str], Any] = {}
+    for core in ("numpy.core", "numpy._core"):
+        table[(f"{core}.multiarray", "_reconstruct")] = _NUMPY_CORE["_reconstruct"]
+        table[(f"{core}.multiarray", "scalar")] = _NUMPY_CORE["scalar"]
+        table[(f"{core}.numeric", "_frombuffer")] = _NUMPY_CORE["_frombuffer"]
+    table[("numpy", "ndarray")] = lambda: np.ndarray
+    table[("numpy", "dtype")] = lambda: np.dtype
+    for fmt, names in _SPARSE_CLASSES.items():
+        for name in names:
+            for module in ("scipy.sparse", f"scipy.sparse.{fmt}", f"scipy.sparse._{fmt}"):
+                table[(module, name)] = lambda name=name: _sparse_class(name)
+    for module in ("builtins", "__builtin__"):
+        for name in _BUILTINS:
+            table[(module, name)] = lambda name=name: getattr(builtins, name)
+    for module in ("copyreg", "copy_reg"):
+        table[(module, "_reconstructor")] = lambda: copyreg._reconstructor
+    table[("_codecs", "encode")] = lambda: _latin1_encode
+    table[("collections", "OrderedDict")] = lambda: collections.OrderedDict
+    return table
+
+
+_ALLOWED = _allowed_globals()
 
 
 class _FlameUnpickler(pickle.Unpickler):
-    """Unpickler mapping ``chumpy.*`` to :class:`ChumpyStub`, allowing only data classes."""
+    """Unpickler resolving only an exact allow-list of (module, name) pairs.
+
+    ``chumpy.*`` classes become :class:`ChumpyStub` subclasses; every other pair must be
+    in ``_ALLOWED`` (numpy's array and scalar reconstructors and ``dtype``, the
+    scipy.sparse csc/csr/coo classes, ``copyreg._reconstructor``, latin-1 ``_codecs.encode``,
+    ``OrderedDict`` and a few builtin types). The pair is checked before anything is
+    imported, so a pickle can neither run code, open files, nor import a module with
+    side effects.
+    """
 
     def __init__(self, fh: Any, source: str) -> None:
         super().__init__(fh, encoding="latin1")
@@ -104,31 +174,19 @@ class _FlameUnpickler(pickle.Unpickler):
 
     def find_class(self, module: str, name: str) -> Any:
         if module == "chumpy" or module.startswith("chumpy."):
+            if not name.isidentifier():
+                raise FlameError(f"{self._source}: the pickle references a chumpy class named {name!r}; refusing "
+                                 f"to load it")
             return type(name, (ChumpyStub,), {"chumpy_name": f"{module}.{name}"})
-        if module in ("builtins", "__builtin__") and name in _SAFE_BUILTINS:
-            return super().find_class("builtins", name)
-        if module in ("copy_reg", "copyreg") and name == "_reconstructor":
-            return super().find_class("copyreg", name)
-        if module == "_codecs" and name == "encode":
-            return super().find_class(module, name)
-        if module == "collections" and name == "OrderedDict":
-            return super().find_class(module, name)
-        if module == "numpy" or module.startswith("numpy."):
-            for mod in (module.replace("numpy.core", "numpy._core", 1), module, "numpy"):
-                try:
-                    obj = getattr(importlib.import_module(mod), name)
-                except (ImportError, AttributeError):
-                    continue
-                if isinstance(obj, type) or name in _NUMPY_FUNCS:
-                    return obj
-        if module.startswith("scipy.sparse"):
-            import scipy.sparse
+        resolve = _ALLOWED.get((module, name))
+        if resolve is None:
+            raise FlameError(f"{self._source}: the pickle references {module}.{name}; a FLAME model file holds "
+                             f"only numpy arrays, scipy sparse matrices and chumpy arrays, refusing to load it")
+        return resolve()
 
-            obj = getattr(scipy.sparse, name, None)
-            if isinstance(obj, type):
-                return obj
-        raise FlameError(f"{self._source}: the pickle references {module}.{name}; a FLAME model file holds "
-                         f"only numpy arrays, scipy sparse matrices and chumpy arrays, refusing to load it")
+    def persistent_load(self, pid: Any) -> Any:
+        raise FlameError(f"{self._source}: the pickle uses persistent ids; a FLAME model file has none, "
+                         f"refusing to load it")
 
 
 def _load_pkl(path: Path) -> dict[str, Any]:

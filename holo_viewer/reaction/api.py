@@ -94,7 +94,7 @@ def load_default_bundle(path: str | os.PathLike | None = None) -> ReactionBundle
 def _default_n_shape() -> int:
     from ..flame.default_head import default_head_path
 
-    with np.load(default_head_path()) as z:
+    with np.load(default_head_path(), allow_pickle=False) as z:
         return int(z["n_shape"]) if "n_shape" in z.files else 0
 
 
