@@ -37,17 +37,14 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     from holo_viewer.errors import HoloViewerError
-    from holo_viewer.gui.loading import load_scene
-    from holo_viewer.pipeline import STAGES, StreamReport, flame_sequence_frames
+    from holo_viewer.pipeline import STAGES, StreamReport, load_scene, reaction_frames
 
     try:
         scene = load_scene(args.avatar, args.flame_model, args.flame_params)
         pipe = scene.pipeline
         pipe.set_view(tile_scale=args.tile_scale)
         if args.reaction:
-            from holo_viewer.reaction.api import generate_demo_reaction
-
-            frames = flame_sequence_frames(generate_demo_reaction(seconds=args.seconds, pain=args.pain))
+            frames, _ = reaction_frames(seconds=args.seconds, pain=args.pain)
         else:
             frames = scene.frames or []
         report = StreamReport(n_frames=0, budget=0.0, policy=args.policy)

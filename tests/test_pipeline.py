@@ -300,3 +300,79 @@ def test_to_uint8_rounds_and_clips_like_the_plain_formula():
         np.testing.assert_array_equal(to_uint8(a), np.clip(np.rint(a * 255.0), 0, 255).astype(np.uint8))
     u = np.arange(6, dtype=np.uint8)
     assert to_uint8(u) is u
+
+
+# ------------------------------------------------------------------ one chain: avatars, render_quilt, reactions
+
+
+def test_render_quilt_is_the_pipelines_quilt(small_pipeline):
+    from holo_viewer.pipeline import quilt_layout, render_quilt
+
+    p = small_pipeline
+    quilt = render_quilt(p.gaussians(), p.cameras(), *quilt_layout(p.calibration), backend=p.backend)
+    assert quilt.dtype == np.uint8
+    np.testing.assert_array_equal(quilt, p.quilt())
+
+
+def test_the_thumbnail_worker_renders_with_render_quilt(small_pipeline):
+    from holo_viewer.gui.thumbnail_worker import render_thumbnail
+
+    p = small_pipeline
+    q = render_thumbnail(p.gaussians(), p.cameras(), p.backend, None, p.calibration.cols, p.calibration.rows)
+    np.testing.assert_array_equal(q, p.quilt())
+
+
+def test_blendshape_avatar_drives_the_pipeline(small_model):
+    """The seed paper's blend shapes behind the same protocol: exact at psi = 0, close for small psi."""
+    from holo_viewer.avatar import BlendshapeAvatar
+
+    rigged = _small_avatar(small_model)
+    blend = BlendshapeAvatar.from_rigged(rigged)
+    pr = Pipeline(model=small_model, avatar=rigged, view=ViewSettings(tile_scale=0.1))
+    pb = Pipeline(model=small_model, avatar=blend, view=ViewSettings(tile_scale=0.1))
+    assert pb.avatar is blend and len(pb.avatar) == len(rigged)
+    for expr in ([0.0], [0.3, -0.2]):
+        pr.set_face(expr=expr)
+        pb.set_face(expr=expr)
+        gr, gb = pr.gaussians().numpy(), pb.gaussians().numpy()
+        err = np.abs(gr.means - gb.means).max()
+        scale = np.abs(gr.means).max()
+        assert err < (1e-5 if expr == [0.0] else 2e-2) * scale, (expr, err)
+    pb.set_face(expr=[0.3, -0.2], rotation=[0.0, 0.2, 0.0])
+    pr.set_face(expr=[0.3, -0.2], rotation=[0.0, 0.2, 0.0])
+    assert np.abs(pr.gaussians().numpy().means - pb.gaussians().numpy().means).max() < 2e-2 * scale
+    assert pb.quilt().shape == pr.quilt().shape
+    pb.set_face(FaceControls(neck_pose=[0.1, 0.0, 0.0]))
+    with pytest.raises(InputError, match="neck_pose: a blend-shape avatar has no neck joint"):
+        pb.gaussians()
+
+
+def test_pipeline_rejects_an_object_that_is_no_avatar(small_model):
+    with pytest.raises(InputError, match="avatar: expected a RiggedAvatar, BlendshapeAvatar"):
+        Pipeline(model=small_model, avatar=object())
+
+
+@pytest.mark.slow
+def test_face_state_renderer_matches_the_direct_chain():
+    """The FRRea renderer (pipeline.FaceStateRenderer) gives the images of the chain it replaced in
+    reaction/frrea.py: FLAME batch LBS -> rigged avatar -> render_views from the frontal camera."""
+    import torch
+
+    from holo_viewer.pipeline import FaceStateRenderer
+    from holo_viewer.reaction.features import flame_from_state
+    from holo_viewer.render.api import render_views
+
+    r = FaceStateRenderer(size=24, n_gaussians=3000)
+    rng = np.random.default_rng(3)
+    states = np.zeros((3, r.state_dim))
+    states[:, : r.state_dim - 6] = rng.random((3, r.state_dim - 6))
+    states[:, -3:] = rng.normal(0, 0.2, (3, 3))
+    imgs = r(states)
+    fl = flame_from_state(states, r.au_map)
+    model, avatar = r.pipeline.model, r.pipeline.avatar
+    with torch.no_grad():
+        out = model(expr=torch.from_numpy(fl["expr"]), jaw_pose=torch.from_numpy(fl["jaw_pose"]),
+                    rotation=torch.from_numpy(fl["rotation"]))
+    ref = np.stack([render_views(avatar.deform(v), r.cameras, backend="fast").images[0] for v in out.vertices])
+    assert imgs.shape == (3, 24, 24, 3)
+    np.testing.assert_allclose(imgs, ref, rtol=0, atol=1e-6)  # measured: identical

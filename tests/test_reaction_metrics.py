@@ -171,10 +171,11 @@ def test_bad_inputs_raise_clear_errors():
 
 @pytest.mark.slow
 def test_frrea_renders_frames_and_separates_sets():
-    from holo_viewer.reaction.frrea import FrameRenderer, frrea
+    from holo_viewer.pipeline import FaceStateRenderer
+    from holo_viewer.reaction.frrea import frrea
 
-    r = FrameRenderer(size=32, n_gaussians=5000)
-    S = r.au_map.matrix.shape[0] + 6
+    r = FaceStateRenderer(size=32, n_gaussians=5000)
+    S = r.state_dim
     rng = np.random.default_rng(0)
     calm = np.zeros((6, S))
     calm[:, :S - 6] = 0.05 * rng.random((6, S - 6))

@@ -52,16 +52,13 @@ def format_timing_table(rows: list[tuple[str, float, str]]) -> str:
 def _reaction_frames(seconds: float, pain: float, seed: int) -> tuple[list[dict], float]:
     """Listener FLAME frames (and their rate) from the reaction model for a synthesized speaker clip."""
     from ..errors import ReactionError
-    from ..pipeline import flame_sequence_frames
+    from ..pipeline import reaction_frames
 
     try:
-        from ..reaction.api import generate_demo_reaction
+        return reaction_frames(seconds=seconds, pain=pain, seed=seed)
     except ImportError as exc:
-        raise ReactionError("demo: holo_viewer.reaction.api.generate_demo_reaction is not available; the "
-                            f"reaction video needs the listener-reaction model ({exc})") from exc
-    params = generate_demo_reaction(seconds=seconds, pain=pain, seed=seed)
-    src_fps = float(params.get("fps", 25.0)) if isinstance(params, dict) else 25.0
-    return flame_sequence_frames(params, source="reaction model output"), src_fps
+        raise ReactionError("demo: the reaction video needs the listener-reaction model "
+                            f"(holo_viewer.reaction), which cannot be imported ({exc})") from exc
 
 
 def _resample(frames: list[dict], src_fps: float, fps: float) -> list[dict]:
@@ -83,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from ..display.quilt import quilt_filename
     from ..errors import InputError
     from ..fileio import atomic_write, save_image
-    from ..pipeline import FaceControls, Pipeline, StageTimings, apply_frame
+    from ..pipeline import STAGES, FaceControls, Pipeline, StageTimings, apply_frame, render_images
 
     for name in ("smile", "pain"):
         v = getattr(args, name)
@@ -147,10 +144,8 @@ def run(args: argparse.Namespace) -> int:
     pipe.compute("quilt")  # frame 0 of every rate; the stream below finds it cached
     probe = time.perf_counter() - t0
     if probe > 1.0:  # may still include one-time compilation (fresh numba cache): time a second, warm render
-        from ..render.api import render_views
-
         t0 = time.perf_counter()
-        render_views(pipe.gaussians(), pipe.cameras(), backend=pipe.backend, config=pipe.render_config)
+        render_images(pipe.gaussians(), pipe.cameras(), backend=pipe.backend, config=pipe.render_config)
         probe = min(probe, time.perf_counter() - t0)
     per_frame = 1.2 * probe + 0.3  # + H.264 encoding of one 3360x3360 frame
     if args.time_budget > 0:
@@ -184,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
     per = report.stage_seconds
     n = max(1, len(report.rendered))
     stage_rows = []
-    for s in ("params", "mesh", "gaussians", "framing", "cameras", "views", "quilt", "native"):
+    for s in STAGES:
         a, b = getattr(first, s), getattr(per, s)
         stage_rows.append((s, a or 0.0, "" if b is None else f"video: {b / n * 1e3:.1f} ms/frame"))
     print("pipeline stages (first full quilt + native; video mean per frame):")

@@ -39,8 +39,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"generating the synthetic test split (seed {data_cfg.seed}) ...")
     test = make_synthetic_split("test", data_cfg)
     train = make_synthetic_split("train", data_cfg)
+    render = None
+    if args.frrea_frames > 0:
+        from ..pipeline import FaceStateRenderer
+
+        render = FaceStateRenderer()  # 48x48 frontal renders of the default avatar (20k Gaussians)
     result = evaluate(bundle, test, train, k_samples=args.samples, temperature=args.temperature,
-                      top_k=args.top_k or None, seed=args.seed, frrea_frames=args.frrea_frames)
+                      top_k=args.top_k or None, seed=args.seed, frrea_frames=args.frrea_frames, render=render)
     print(format_table(result))
     if args.json:
         with atomic_write(args.json, "w") as fh:

@@ -28,20 +28,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Generate and write OUT.npz; returns 0."""
     from ..fileio import save_npz
-    from ..flame.expressions import default_au_map
-    from ..reaction.api import (ANIMATION_SMOOTHING_S, flame_params_from_states, load_default_bundle,
-                                load_speaker_npz, react)
-    from ..reaction.audio import read_wav
+    from ..pipeline import react_to_speaker
 
-    bundle = load_default_bundle(args.checkpoint)
-    au_map = default_au_map()
-    speaker = load_speaker_npz(args.speaker, au_map)
-    past = load_speaker_npz(args.listener_past, au_map) if args.listener_past else None
-    audio, sr = read_wav(args.audio)
-    states = react(bundle, audio, sr, speaker, pain=args.pain, listener_past=past, temperature=args.temperature,
-                   top_k=args.top_k or None, seed=args.seed,
-                   smoothing=ANIMATION_SMOOTHING_S if args.smoothing is None else args.smoothing)
-    params = flame_params_from_states(states, au_map)
+    params, n_frames = react_to_speaker(args.audio, args.speaker, pain=args.pain, listener_past_path=args.listener_past,
+                                        checkpoint=args.checkpoint, temperature=args.temperature, top_k=args.top_k,
+                                        seed=args.seed, smoothing=args.smoothing)
     save_npz(args.out, **params)
-    print(f"wrote {args.out}: {states.shape[0]} frames at 25 fps, keys {sorted(params)}")
+    print(f"wrote {args.out}: {n_frames} frames at 25 fps, keys {sorted(params)}")
     return 0

@@ -35,7 +35,7 @@ def osmesa_window() -> Iterator[None]:
 def offscreen_viewer(scene: Any, window_size: tuple[int, int] = (1600, 900), **config: Any) -> Iterator[Any]:
     """A :class:`~holo_viewer.gui.viewer.HoloViewer` rendering offscreen with OSMesa; closed on exit.
 
-    ``scene`` is a :class:`~holo_viewer.gui.loading.Scene` or a Pipeline.
+    ``scene`` is a :class:`~holo_viewer.pipeline.scene.Scene` or a Pipeline.
     """
     from .viewer import HoloViewer, ViewerConfig
 

@@ -21,12 +21,10 @@ __all__ = ["ThumbnailWorker", "render_thumbnail"]
 
 
 def render_thumbnail(gaussians: Any, cameras: Any, backend: str, config: Any, cols: int, rows: int) -> Any:
-    """Render ``cameras`` and tile them into a uint8 quilt (runs in the worker)."""
-    from ..display.quilt import tile_quilt
-    from ..render.api import render_views
+    """(rows*h, cols*w, 3) uint8 quilt of ``cameras`` (runs in the worker): :func:`holo_viewer.pipeline.render_quilt`."""
+    from ..pipeline.rendering import render_quilt
 
-    res = render_views(gaussians, cameras, backend=backend, config=config)
-    return tile_quilt(res.images, cols, rows, as_uint8=True)
+    return render_quilt(gaussians, cameras, cols, rows, backend=backend, config=config)
 
 
 class ThumbnailWorker:

@@ -100,12 +100,19 @@ class EvalResult:
 
 def evaluate(bundle: ReactionBundle, test: ReactionSplit, train: ReactionSplit, k_samples: int = 10,
              temperature: float = 1.0, top_k: int | None = 20, seed: int = 0, frrea_frames: int = 0,
-             log=print) -> EvalResult:
+             log=print, render=None) -> EvalResult:
     """Model and baselines on one split; the model's K reactions are streamed from the speaker only.
 
     ``train`` gives the MeanFr / MeanSeq baselines. ``frrea_frames > 0`` renders that many random
-    frames per method (and of the ground truth) for FRRea (:mod:`holo_viewer.reaction.frrea`).
+    frames per method (and of the ground truth) for FRRea (:mod:`holo_viewer.reaction.frrea`) with
+    ``render`` (face states (B, S) -> images (B, H, W, 3); e.g. ``holo_viewer.pipeline.FaceStateRenderer()``),
+    which the caller must then pass.
     """
+    if frrea_frames > 0 and render is None:
+        from ..errors import InputError
+
+        raise InputError("render: FRRea (frrea_frames > 0) needs a face-state renderer, e.g. "
+                         "holo_viewer.pipeline.FaceStateRenderer(); found None")
     from ..flame.expressions import default_au_map
 
     t0 = time.time()
@@ -123,14 +130,13 @@ def evaluate(bundle: ReactionBundle, test: ReactionSplit, train: ReactionSplit, 
         from dataclasses import replace as _replace
 
         from .baselines import state_baselines
-        from .frrea import FrameRenderer, frrea
+        from .frrea import frrea
 
-        renderer = FrameRenderer()
         st = {"Ours": states, **state_baselines(test.listener_state, test.speaker_state, train.listener_state,
                                                 len(bundle.au_names), k_samples, seed)}
         for name in order:
             t1 = time.time()
-            v = frrea(test.listener_state, st[name], renderer, n_frames=frrea_frames, seed=seed)
+            v = frrea(test.listener_state, st[name], render, n_frames=frrea_frames, seed=seed)
             metrics[name] = _replace(metrics[name], frrea=v)
             log(f"  {name}: FRRea in {time.time() - t1:.1f} s")
     rho, _ = pain_following(states, test.pain, default_au_map())

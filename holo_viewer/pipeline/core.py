@@ -1,11 +1,12 @@
-"""The one place that chains the stages (DESIGN.md section 2), with caching and timings.
+"""The one place that chains the stages (docs/design.md section 2), with caching and timings.
 
 ::
 
     FaceControls ─► params ─► mesh ─► gaussians ─┐
                   shape ─► framing ─► cameras ───┴─► views ─► quilt ─► native
 
-Each stage's result is cached with a *key*: a fingerprint of the settings the stage
+The stages, what each consumes and reads, and the module that does its work are listed once,
+in :data:`~holo_viewer.pipeline.stages.STAGE_TABLE`. Each stage's result is cached with a *key*: a fingerprint of the settings the stage
 reads plus the versions of the stages it consumes. Asking for a stage recomputes
 only the stages whose key changed, so changing pain re-runs
 ``params -> mesh -> gaussians -> views -> quilt -> native`` but keeps the cameras,
@@ -17,7 +18,9 @@ keeps the mesh and Gaussians. Every recomputation is appended to
 frame budget and reports the frames it dropped and held when it cannot keep up.
 
 The stage bodies call the stage modules (``flame``, ``avatar``, ``display``,
-``render``); this module holds no math of its own beyond the framing of the head.
+``render`` through :mod:`.rendering`); this module holds no math of its own beyond the framing
+of the head. The avatar is anything :func:`~holo_viewer.pipeline.avatars.as_pipeline_avatar`
+accepts: rigged (GaussianAvatars binding), blend-shape (seed paper) or a static 3DGS scene.
 """
 
 from __future__ import annotations
@@ -27,19 +30,28 @@ import hashlib
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Iterator, Literal, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Literal, Mapping
 
 import numpy as np
 
-from .errors import InputError
-from .pipeline_types import (FLAME_KEYS, STAGES, FaceControls, FrameResult, StageTimings, StreamReport,
-                             ViewSettings, apply_frame, flame_sequence_frames)
-from .validation import check_array, check_finite_scalar
+from ..errors import InputError
+from ..validation import check_array, check_finite_scalar
+from .avatars import PipelineAvatar, as_pipeline_avatar
+from .rendering import render_images, tile_views
+from .settings import FaceControls, FrameResult, StreamReport, ViewSettings, apply_frame
+from .stages import STAGE_TABLE, STAGES, Stage, StageTimings
 
-__all__ = [
-    "STAGES", "FaceControls", "ViewSettings", "StageTimings", "FrameResult", "StreamReport",
-    "Pipeline", "frame_head", "flame_sequence_frames", "apply_frame", "FLAME_KEYS",
-]
+if TYPE_CHECKING:  # pragma: no cover
+    from ..avatar.gaussians import Gaussians
+    from ..camera import Cameras
+    from ..display.calibration import DisplayCalibration
+    from ..flame.expressions import AUMap
+    from ..flame.model import FlameModel
+    from ..render.config import RenderConfig
+
+__all__ = ["Pipeline", "frame_head", "default_calibration", "quilt_layout"]
+
+_STAGE = {s.name: s for s in STAGE_TABLE}
 
 # =============================================================================== framing
 
@@ -129,9 +141,10 @@ class Pipeline:
     ----------
     model : FlameModel or None
         The FLAME model; None = the avatar's ``flame_model`` (or the embedded default head).
-    avatar : object or None
-        A rigged Gaussian avatar bound to ``model``'s triangles (``avatar.deform(vertices)``
-        gives world :class:`~holo_viewer.avatar.Gaussians`); None = the default avatar.
+    avatar : RiggedAvatar, BlendshapeAvatar, StaticAvatar, PipelineAvatar, None or False
+        A rigged avatar bound to ``model``'s triangles, a blend-shape avatar built on ``model``
+        (:class:`~holo_viewer.avatar.BlendshapeAvatar`), static world Gaussians, or any
+        :class:`~holo_viewer.pipeline.avatars.PipelineAvatar`; None = the default avatar.
         ``False`` disables the Gaussian stages (mesh-only use, e.g. the GUI without splats).
     calibration : DisplayCalibration or None
         Looking Glass calibration; None = the Portrait calibration shipped in ``assets/``.
@@ -144,27 +157,30 @@ class Pipeline:
         Action-unit map for named expressions and pain; None = ``au_map_for(model)``.
     """
 
-    def __init__(self, model: Any = None, avatar: Any = None, calibration: Any = None, *,
-                 face: FaceControls | None = None, view: ViewSettings | None = None,
-                 backend: str = "fast", render_config: Any = None, au_map: Any = None) -> None:
+    def __init__(self, model: "FlameModel | None" = None, avatar: Any = None,
+                 calibration: "DisplayCalibration | None" = None, *, face: FaceControls | None = None,
+                 view: ViewSettings | None = None, backend: str = "fast",
+                 render_config: "RenderConfig | None" = None, au_map: "AUMap | None" = None) -> None:
         if avatar is None:
-            from .avatar import default_avatar
+            from ..avatar.default_avatar import default_avatar  # the submodule shares the name
 
             avatar = default_avatar()  # bound to the default head with teeth
             if model is not None and model is not avatar.flame_model:
                 raise InputError("model: the default avatar is bound to the default head (with teeth); pass "
                                  "avatar=False for a mesh-only pipeline or an avatar bound to your model")
+        stage_avatar = as_pipeline_avatar(avatar, model) if avatar is not False else None
+        if model is None and stage_avatar is not None:
+            model = stage_avatar.flame_model
         if model is None:
-            model = getattr(avatar, "flame_model", None) if avatar is not False else None
-        if model is None:
-            from .flame.default_head import load_default_model
+            from ..flame.default_head import load_default_model
 
             model = load_default_model()
         self.model = model
+        #: the avatar as given (None for a mesh-only pipeline)
         self.avatar = avatar if avatar is not False else None
+        self._avatar: PipelineAvatar | None = stage_avatar
         #: per-subject FLAME parameters of the avatar (``shape``, ``static_offset``)
-        self.identity = {k: np.asarray(v.detach().cpu() if hasattr(v, "detach") else v, dtype=np.float64)
-                         for k, v in (getattr(self.avatar, "identity", None) or {}).items()}
+        self.identity: dict[str, np.ndarray] = dict(stage_avatar.identity) if stage_avatar is not None else {}
         if calibration is None:
             calibration = default_calibration()
         self.calibration = calibration
@@ -185,14 +201,15 @@ class Pipeline:
 
     # ---------------------------------------------------------------- settings
     @property
-    def au_map(self) -> Any:
+    def au_map(self) -> "AUMap":
+        """Action-unit map of the model (named expressions, pain)."""
         if self._au_map is None:
-            from .flame.expressions import au_map_for
+            from ..flame.expressions import au_map_for
 
             self._au_map = au_map_for(self.model)
         return self._au_map
 
-    def set_au_map(self, au_map: Any) -> None:
+    def set_au_map(self, au_map: "AUMap") -> None:
         """Use another action-unit map (``flame.expressions.AUMap``) for named expressions and pain."""
         self._au_map = au_map
         self._au_map_version += 1
@@ -206,43 +223,45 @@ class Pipeline:
         base = view or self.view
         self.view = dataclasses.replace(base, **changes) if changes else base
 
-    def set_render(self, backend: str | None = None, config: Any = None) -> None:
+    def set_render(self, backend: str | None = None, config: "RenderConfig | None" = None) -> None:
+        """Change the renderer backend and/or its configuration."""
         if backend is not None:
             self.backend = backend
         if config is not None:
             self.render_config = config
 
-    def set_calibration(self, calibration: Any) -> None:
+    def set_calibration(self, calibration: "DisplayCalibration") -> None:
+        """Use another display calibration (cameras and native image follow)."""
         self.calibration = calibration
 
     # ---------------------------------------------------------------- cache core
-    def _inputs(self, stage: str) -> tuple[tuple[str, ...], Any]:
-        """Upstream stages and the settings fingerprinted for ``stage``."""
-        f, v = self.face, self.view
-        if stage == "params":
-            return (), (f, id(self.model), self._au_map_version)
-        if stage == "mesh":
-            return ("params",), id(self.model)
-        if stage == "gaussians":
-            return ("mesh", "params"), id(self.avatar)
-        if stage == "framing":
-            # trailing zero coefficients do not change the head: (0, 0) frames like ()
-            return (), (np.trim_zeros(f.shape, "b"), v.framing_margin, id(self.model), id(self.avatar))
-        if stage == "cameras":
-            return ("framing",), (v.viewer_distance, v.view_cone, v.viewer_angle, v.tile_scale,
-                                  _calib_fingerprint(self.calibration))
-        if stage == "views":
-            return ("gaussians", "cameras"), (self.backend, self.render_config)
-        if stage == "quilt":
-            return ("views",), None
-        if stage == "native":
-            return ("quilt",), (v.blend, _calib_fingerprint(self.calibration))
-        raise InputError(f"stage: expected one of {STAGES}, found {stage!r}")
+    def _read(self, path: str) -> Any:
+        """The value of one ``reads`` entry of the stage table, as fingerprinted."""
+        if path in ("model", "avatar"):
+            return id(getattr(self, path))
+        if path == "au_map":
+            return self._au_map_version
+        if path == "calibration":
+            return _calib_fingerprint(self.calibration)
+        if path == "calibration.layout":
+            return quilt_layout(self.calibration)
+        if path == "face.shape":  # trailing zero coefficients do not change the head: (0, 0) frames like ()
+            return np.trim_zeros(self.face.shape, "b")
+        obj: Any = self
+        for part in path.split("."):
+            obj = getattr(obj, part)
+        return obj
+
+    def _stage(self, stage: str) -> Stage:
+        try:
+            return _STAGE[stage]
+        except KeyError:
+            raise InputError(f"stage: expected one of {STAGES}, found {stage!r}") from None
 
     def _get(self, stage: str, timings: StageTimings) -> _Entry:
-        deps, settings = self._inputs(stage)
-        dep_entries = [self._get(d, timings) for d in deps]
-        key = _fingerprint((settings, [e.version for e in dep_entries]))
+        row = self._stage(stage)
+        dep_entries = [self._get(d, timings) for d in row.deps]
+        key = _fingerprint(([self._read(r) for r in row.reads], [e.version for e in dep_entries]))
         cached = self._cache.get(stage)
         if cached is not None and cached.key == key:
             return cached
@@ -287,41 +306,45 @@ class Pipeline:
 
     # ---------------------------------------------------------------- conveniences
     def flame_params(self) -> dict[str, np.ndarray]:
+        """FLAME parameters of the current face (``shape``, ``expr``, ``jaw_pose``, ...)."""
         return self.get("params")
 
     def mesh(self) -> np.ndarray:
         """(V, 3) posed vertices (float64, metres)."""
         return self.get("mesh")
 
-    def gaussians(self) -> Any:
+    def gaussians(self) -> "Gaussians":
+        """World Gaussians of the current face."""
         return self.get("gaussians")
 
-    def cameras(self) -> Any:
+    def cameras(self) -> "Cameras":
+        """The quilt's cameras, view 0 leftmost."""
         return self.get("cameras")
 
     def views(self) -> np.ndarray:
+        """(n_views, H, W, 3) float32 views."""
         return self.get("views")
 
     def quilt(self) -> np.ndarray:
+        """(rows*H, cols*W, 3) uint8 quilt."""
         return self.get("quilt")
 
     def native(self) -> np.ndarray:
+        """(screenH, screenW, 3) uint8 native image."""
         return self.get("native")
 
-    def render_view(self, index: int, cameras: Any = None) -> np.ndarray:
+    def render_view(self, index: int, cameras: "Cameras | None" = None) -> np.ndarray:
         """Render one view (H, W, 3) of the current Gaussians without touching the quilt cache.
 
         Used for the GUI preview: 1/48 of the quilt's work. ``cameras`` overrides the
         pipeline's cameras (e.g. a different tile size).
         """
-        from .render.api import render_views
-
         (g, cams), timings = self.compute("gaussians", "cameras") if cameras is None else \
             ((self.get("gaussians"), cameras), self._timings)
         if not 0 <= index < len(cams):
             raise InputError(f"view index: expected 0..{len(cams) - 1}, found {index}")
         t0 = time.perf_counter()
-        img = render_views(g, cams[int(index)], backend=self.backend, config=self.render_config).images[0]
+        img = render_images(g, cams[int(index)], backend=self.backend, config=self.render_config)[0]
         timings.views = (timings.views or 0.0) + time.perf_counter() - t0
         return img
 
@@ -339,7 +362,7 @@ class Pipeline:
         expr[: f.expr.shape[0]] = f.expr
         jaw = f.jaw_pose.copy()
         if f.named or f.pain > 0:
-            from .flame.expressions import jaw_for_expression, named_expression, pain_expression
+            from ..flame.expressions import jaw_for_expression, named_expression, pain_expression
         for name, w in f.named:
             if w > 0:
                 expr += np.asarray(named_expression(name, w, self.au_map), dtype=np.float64)[:n_expr]
@@ -378,10 +401,10 @@ class Pipeline:
     def _compute_mesh(self, params: Mapping[str, np.ndarray]) -> np.ndarray:
         return self._flame_vertices(params)
 
-    def _compute_gaussians(self, vertices: np.ndarray, params: Mapping[str, np.ndarray]) -> Any:
-        if self.avatar is None:
+    def _compute_gaussians(self, vertices: np.ndarray, params: Mapping[str, np.ndarray]) -> "Gaussians":
+        if self._avatar is None:
             raise InputError("gaussians: this pipeline has no avatar (avatar=False)")
-        return deform_avatar(self.avatar, vertices, params)
+        return self._avatar.gaussians(vertices, params)
 
     def _compute_framing(self) -> tuple[np.ndarray, float]:
         neutral = {"shape": self._compute_params()["shape"]}
@@ -389,8 +412,8 @@ class Pipeline:
             neutral["static_offset"] = self.identity["static_offset"].reshape(-1, 3)
         return frame_head(self._flame_vertices(neutral), self.view.framing_margin)
 
-    def _compute_cameras(self, framing: tuple[np.ndarray, float]) -> Any:
-        from .display.cameras import make_quilt_cameras
+    def _compute_cameras(self, framing: tuple[np.ndarray, float]) -> "Cameras":
+        from ..display.cameras import make_quilt_cameras
 
         centre, half = framing
         v, cal = self.view, self.calibration
@@ -401,19 +424,14 @@ class Pipeline:
                                   viewer_angle_deg=v.viewer_angle, viewer_distance=v.viewer_distance,
                                   tile_width=tw, tile_height=th, near=0.01, far=10.0)
 
-    def _compute_views(self, gaussians: Any, cameras: Any) -> np.ndarray:
-        from .render.api import render_views
-
-        return render_views(gaussians, cameras, backend=self.backend, config=self.render_config).images
+    def _compute_views(self, gaussians: "Gaussians", cameras: "Cameras") -> np.ndarray:
+        return render_images(gaussians, cameras, backend=self.backend, config=self.render_config)
 
     def _compute_quilt(self, views: np.ndarray) -> np.ndarray:
-        from .display.quilt import tile_quilt
-
-        cols, rows = quilt_layout(self.calibration)
-        return tile_quilt(views, cols, rows, as_uint8=True)
+        return tile_views(views, *quilt_layout(self.calibration))
 
     def _compute_native(self, quilt: np.ndarray) -> np.ndarray:
-        from .display.lenticular import Interleaver
+        from ..display.lenticular import Interleaver
 
         cols, rows = quilt_layout(self.calibration)
         key = _fingerprint((_calib_fingerprint(self.calibration), quilt.shape, cols, rows, self.view.blend))
@@ -522,9 +540,9 @@ class Pipeline:
 # =============================================================================== helpers
 
 
-def default_calibration() -> Any:
+def default_calibration() -> "DisplayCalibration":
     """The fixture-style Looking Glass Portrait calibration shipped in ``assets/``."""
-    from .display.calibration import DisplayCalibration
+    from ..display.calibration import DisplayCalibration
 
     return DisplayCalibration.load(None)
 
@@ -535,11 +553,6 @@ def _calib_fingerprint(calib: Any) -> str:
     return f"id{id(calib)}"
 
 
-def quilt_layout(calib: Any) -> tuple[int, int]:
+def quilt_layout(calib: "DisplayCalibration") -> tuple[int, int]:
     """(cols, rows) of the calibration's quilt."""
     return int(calib.cols), int(calib.rows)
-
-
-def deform_avatar(avatar: Any, vertices: np.ndarray, params: Mapping[str, np.ndarray]) -> Any:
-    """World Gaussians of ``avatar`` for posed ``vertices`` (V, 3) (FLAME ``params`` for blend shapes)."""
-    return avatar.deform(vertices)

@@ -1,5 +1,5 @@
 """Settings and results of the pipeline (pure data, no stage code): what drives the face
-(:class:`FaceControls`), how the cameras look (:class:`ViewSettings`), per-stage timings, and the
+(:class:`FaceControls`), how the cameras look (:class:`ViewSettings`), one streamed frame and the
 streaming report; plus FLAME sequence helpers. Re-exported by :mod:`holo_viewer.pipeline`.
 """
 
@@ -11,14 +11,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .errors import InputError
-from .validation import check_array, check_finite_scalar
+from ..errors import InputError
+from ..validation import check_array, check_finite_scalar
+from .stages import StageTimings
 
-__all__ = ["STAGES", "FLAME_KEYS", "FaceControls", "ViewSettings", "StageTimings", "FrameResult", "StreamReport",
-           "apply_frame", "flame_sequence_frames"]
-
-#: stage names in data-flow order
-STAGES: tuple[str, ...] = ("params", "mesh", "gaussians", "framing", "cameras", "views", "quilt", "native")
+__all__ = ["FLAME_KEYS", "FaceControls", "ViewSettings", "FrameResult", "StreamReport", "apply_frame",
+           "flame_sequence_frames"]
 
 #: FLAME parameter keys of GaussianAvatars' flame_param.npz, with their per-frame widths
 FLAME_KEYS: dict[str, int | None] = {"expr": None, "rotation": 3, "neck_pose": 3, "jaw_pose": 3,
@@ -159,39 +157,6 @@ class ViewSettings:
 
 
 # =============================================================================== results
-
-
-@dataclass
-class StageTimings:
-    """Seconds spent in each stage by one request; None = served from the cache."""
-
-    params: float | None = None
-    mesh: float | None = None
-    gaussians: float | None = None
-    framing: float | None = None
-    cameras: float | None = None
-    views: float | None = None
-    quilt: float | None = None
-    native: float | None = None
-
-    @property
-    def total(self) -> float:
-        """Sum of the stages that ran (seconds)."""
-        return float(sum(v for v in dataclasses.astuple(self) if v is not None))
-
-    def recomputed(self) -> list[str]:
-        """Names of the stages that ran."""
-        return [s for s in STAGES if getattr(self, s) is not None]
-
-    def add(self, other: "StageTimings") -> None:
-        """Accumulate ``other`` into self (stages that ran in either)."""
-        for s in STAGES:
-            a, b = getattr(self, s), getattr(other, s)
-            if b is not None:
-                setattr(self, s, (a or 0.0) + b)
-
-    def as_dict(self) -> dict[str, float | None]:
-        return dataclasses.asdict(self)
 
 
 @dataclass

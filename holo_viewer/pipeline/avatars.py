@@ -1,0 +1,160 @@
+"""The avatar behind the pipeline's ``gaussians`` stage: one small protocol, three kinds of avatar.
+
+* a rigged avatar (:class:`~holo_viewer.avatar.RiggedAvatar`, GaussianAvatars binding): Gaussians
+  follow the posed FLAME mesh, exactly;
+* a blend-shape avatar (:class:`~holo_viewer.avatar.BlendshapeAvatar`, the seed paper's
+  ``B* = B_0 + sum_k psi_k B_k``): Gaussians are a linear function of the expression (and jaw)
+  coefficients, plus the exact global rotation and translation; fast and approximate;
+* a static 3DGS scene (:class:`StaticAvatar`): world Gaussians that do not move.
+
+:func:`as_pipeline_avatar` wraps any of them in the :class:`PipelineAvatar` protocol, which is
+all the pipeline uses.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, Mapping, Protocol, runtime_checkable
+
+import numpy as np
+
+from ..errors import InputError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..avatar.gaussians import Gaussians
+    from ..flame.model import FlameModel
+
+__all__ = ["PipelineAvatar", "RiggedStage", "BlendshapeStage", "StaticAvatar", "as_pipeline_avatar"]
+
+
+@runtime_checkable
+class PipelineAvatar(Protocol):
+    """What the pipeline needs from an avatar.
+
+    Attributes
+    ----------
+    flame_model : FlameModel or None
+        The FLAME model the avatar was built on (None: any model; the pipeline uses its own).
+    identity : mapping of str to numpy.ndarray
+        Per-subject FLAME parameters (``shape`` (n_shape,), ``static_offset`` (V, 3)); may be empty.
+    """
+
+    flame_model: "FlameModel | None"
+    identity: Mapping[str, np.ndarray]
+
+    def __len__(self) -> int:
+        """Number of Gaussians."""
+        ...
+
+    def gaussians(self, vertices: np.ndarray, params: Mapping[str, np.ndarray]) -> "Gaussians":
+        """World Gaussians for one frame.
+
+        Parameters
+        ----------
+        vertices : numpy.ndarray
+            (V, 3) posed FLAME vertices in metres (the pipeline's ``mesh`` stage).
+        params : mapping of str to numpy.ndarray
+            The frame's FLAME parameters (the ``params`` stage): ``expr`` (n_expr,), ``jaw_pose``,
+            ``rotation``, ``neck_pose``, ``translation`` (3,), ``eyes_pose`` (6,), ``shape``.
+        """
+        ...
+
+
+def _identity_of(avatar: Any) -> dict[str, np.ndarray]:
+    ident = getattr(avatar, "identity", None) or {}
+    return {k: np.asarray(v.detach().cpu() if hasattr(v, "detach") else v, dtype=np.float64)
+            for k, v in ident.items()}
+
+
+class RiggedStage:
+    """A rigged avatar (Gaussians bound to the mesh's triangles) as a :class:`PipelineAvatar`."""
+
+    def __init__(self, avatar: Any) -> None:
+        self.avatar = avatar
+        self.flame_model = getattr(avatar, "flame_model", None)
+        self.identity = _identity_of(avatar)
+
+    def __len__(self) -> int:
+        return len(self.avatar)
+
+    def gaussians(self, vertices: np.ndarray, params: Mapping[str, np.ndarray]) -> "Gaussians":
+        return self.avatar.deform(vertices)
+
+
+class BlendshapeStage:
+    """A blend-shape avatar as a :class:`PipelineAvatar`.
+
+    Uses ``expr`` (its first ``n_expr`` coefficients), ``jaw_pose`` (only for avatars built with
+    jaw components) and the exact global ``rotation`` / ``translation``. The mesh is not used.
+    Parameters the blend shapes cannot represent (neck and eye poses, expression components
+    beyond the avatar's, a jaw pose without jaw components) raise :class:`InputError` rather
+    than being dropped silently.
+    """
+
+    def __init__(self, avatar: Any, flame_model: Any = None) -> None:
+        self.avatar = avatar
+        self.flame_model = flame_model
+        self.identity: dict[str, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self.avatar)
+
+    def gaussians(self, vertices: np.ndarray, params: Mapping[str, np.ndarray]) -> "Gaussians":
+        av = self.avatar
+        expr = np.asarray(params.get("expr", np.zeros(0)), dtype=np.float64).reshape(-1)
+        if np.any(expr[av.n_expr:] != 0):
+            raise InputError(f"expr: this blend-shape avatar has {av.n_expr} expression components; found non-zero "
+                             f"coefficients beyond them (indices {np.flatnonzero(expr[av.n_expr:])[:5] + av.n_expr})")
+        for key in ("neck_pose", "eyes_pose"):
+            if np.any(np.asarray(params.get(key, 0.0)) != 0):
+                raise InputError(f"{key}: a blend-shape avatar has no {key.split('_')[0]} joint; expected zeros, "
+                                 f"found {np.asarray(params[key]).tolist()}")
+        jaw = np.asarray(params.get("jaw_pose", np.zeros(3)), dtype=np.float64)
+        return av.pose(expr[: av.n_expr], jaw_pose=jaw if av.has_jaw else (None if not np.any(jaw) else jaw),
+                       rotation=params.get("rotation"), translation=params.get("translation"))
+
+
+class StaticAvatar:
+    """World-space Gaussians that do not follow the mesh (a plain 3DGS PLY)."""
+
+    def __init__(self, gaussians: "Gaussians") -> None:
+        self.gaussians_ = gaussians
+        self.flame_model = None
+        self.identity: dict[str, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self.gaussians_)
+
+    def gaussians(self, vertices: np.ndarray, params: Mapping[str, np.ndarray]) -> "Gaussians":
+        return self.gaussians_
+
+    def deform(self, vertices: Any, **_: Any) -> "Gaussians":
+        """The Gaussians, unchanged (the rigged avatars' method name)."""
+        return self.gaussians_
+
+
+def as_pipeline_avatar(avatar: Any, flame_model: Any = None) -> PipelineAvatar:
+    """Wrap ``avatar`` in the :class:`PipelineAvatar` protocol.
+
+    Parameters
+    ----------
+    avatar : RiggedAvatar, BlendshapeAvatar, StaticAvatar or PipelineAvatar
+    flame_model : FlameModel, optional
+        The model a blend-shape avatar was built on (it does not keep one).
+
+    Raises
+    ------
+    InputError
+        For an object that is none of these.
+    """
+    from ..avatar.blendshape import BlendshapeAvatar
+
+    if isinstance(avatar, BlendshapeAvatar):
+        return BlendshapeStage(avatar, flame_model)
+    if isinstance(avatar, (RiggedStage, BlendshapeStage, StaticAvatar)):
+        return avatar
+    if callable(getattr(avatar, "deform", None)):
+        return RiggedStage(avatar)
+    if isinstance(avatar, PipelineAvatar):
+        return avatar
+    raise InputError(f"avatar: expected a RiggedAvatar, BlendshapeAvatar, StaticAvatar or an object with "
+                     f"gaussians(vertices, params), found {type(avatar).__name__}")

@@ -1,0 +1,176 @@
+"""The layering of docs/design.md section 2, checked on the imports (module level and lazy ones).
+
+::
+
+    entry      cli, __main__                      -> commands (lazily), base
+    front      commands/, gui/, apps/             -> pipeline, stage packages, base (apps: never gui/)
+    pipeline   pipeline/                          -> stage packages, base
+    stages     flame/ avatar/ render/ display/ reaction/  -> base (+ the few edges in STAGE_EDGES)
+    base       errors validation fileio geometry camera testing
+
+No import runs back up the layers, and only ``pipeline/`` chains the stages: no other module
+imports both a face stage (``reaction``, ``flame``, the avatar rigs) and the renderer, or both
+the reaction model and the face (benchmarks and tests measure stages one by one and are exempt).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PKG = ROOT / "holo_viewer"
+
+BASE = {"errors", "validation", "fileio", "geometry", "camera", "testing", "__init__"}
+STAGE_PKGS = {"flame", "avatar", "render", "display", "reaction"}
+#: stage -> stages it may import: the rigged avatar is bound to FLAME triangles, the reaction model
+#: speaks FLAME expressions (AU map), and the renderer reads the Gaussians container
+STAGE_EDGES = {"avatar": {"flame"}, "reaction": {"flame"}, "render": {"avatar"}, "flame": set(), "display": set()}
+#: avatar modules that are plain data / I/O of Gaussians, not the avatar stage (the renderer's input type)
+AVATAR_DATA = {"holo_viewer.avatar.gaussians", "holo_viewer.avatar.ply"}
+AVATAR_DATA_NAMES = {"Gaussians", "SH_C0", "sh_degree_from_count", "load_ply", "save_ply"}
+
+
+def _modname(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _imports(path: Path, mod: str | None = None) -> set[tuple[str, str]]:
+    """(module, name) pairs of every holo_viewer import in ``path``, lazy ones included."""
+    mod = mod or _modname(path)
+    pkg = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+    out: set[tuple[str, str]] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg.split(".")[: len(pkg.split(".")) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target == "holo_viewer" or target.startswith("holo_viewer."):
+                for alias in node.names:
+                    out.add((target, alias.name))
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.startswith("holo_viewer"):
+                    out.add((alias.name, ""))
+    return out
+
+
+def _area(module: str, name: str = "") -> str:
+    """Top-level area of a holo_viewer module: 'flame', 'pipeline', 'cli', 'errors', ..."""
+    parts = module.split(".")
+    if parts[0] != "holo_viewer":
+        return parts[0]
+    if len(parts) == 1 and not name:  # holo_viewer/__init__.py itself
+        return "__init__"
+    if len(parts) == 1:  # ``from holo_viewer import X``: X is a subpackage or an __init__ name
+        return name if (PKG / name).is_dir() or (PKG / f"{name}.py").exists() else "__init__"
+    return parts[1]
+
+
+def _layer(area: str) -> str:
+    if area in BASE:
+        return "base"
+    if area in STAGE_PKGS:
+        return "stages"
+    if area == "pipeline":
+        return "pipeline"
+    if area in ("gui", "commands", "apps"):
+        return "front"
+    if area in ("cli", "__main__"):
+        return "entry"
+    raise AssertionError(f"module area {area!r} is in no layer: add it to tests/test_architecture.py and "
+                         "docs/design.md section 2")
+
+
+ORDER = {"base": 0, "stages": 1, "pipeline": 2, "front": 3, "entry": 4}
+
+
+def _sources() -> list[Path]:
+    return sorted(PKG.rglob("*.py")) + sorted((ROOT / "apps").glob("*.py"))
+
+
+def _is_face(module: str, name: str) -> bool:
+    area = _area(module, name)
+    if area in ("flame", "reaction"):
+        return True
+    if area == "avatar":
+        return module not in AVATAR_DATA and not (module == "holo_viewer.avatar" and name in AVATAR_DATA_NAMES)
+    return False
+
+
+GRAPH = {_modname(p): _imports(p) for p in _sources()}
+
+
+def test_every_module_is_in_a_layer():
+    for mod in GRAPH:
+        _layer("apps" if mod.startswith("apps") else _area(mod))
+
+
+@pytest.mark.parametrize("mod", sorted(GRAPH))
+def test_no_import_runs_back_up_the_layers(mod):
+    src_area = "apps" if mod.startswith("apps") else _area(mod)
+    src = _layer(src_area)
+    for target, name in sorted(GRAPH[mod]):
+        area = _area(target, name)
+        if area == src_area:
+            continue
+        dst = _layer(area)
+        if src == "entry":
+            assert area in BASE | {"commands", "cli"}, f"{mod} imports {target} (the CLI dispatches to commands/)"
+            continue
+        assert ORDER[dst] <= ORDER[src], f"{mod} ({src}) imports {target} ({dst}): an import back up the layers"
+        if src == "stages" and dst == "stages":
+            assert area in STAGE_EDGES[src_area], (
+                f"{mod} imports {target}: stage package {src_area} may import only {sorted(STAGE_EDGES[src_area])} "
+                "of the other stages; chain stages in holo_viewer/pipeline/")
+        if src == "front" and dst == "front":
+            assert not (src_area == "apps" and area == "gui"), f"{mod} imports {target}: apps/ are headless, no gui/"
+            assert not (src_area == "gui" and area == "commands"), f"{mod} imports {target}: gui/ uses no commands/"
+
+
+def _chain_violations(mod: str, imports: set[tuple[str, str]]) -> list[str]:
+    """Why ``mod`` (outside the pipeline and the stage packages) chains stages; empty if it does not."""
+    face = sorted(t for t, n in imports if _is_face(t, n))
+    render = sorted(t for t, n in imports if _area(t, n) == "render")
+    reaction = sorted(t for t, n in imports if _area(t, n) == "reaction")
+    face_not_reaction = sorted(t for t, n in imports if _is_face(t, n) and _area(t, n) != "reaction")
+    out = []
+    if face and render:
+        out.append(f"{mod} imports a face stage {face} and the renderer {render}: ask holo_viewer.pipeline "
+                   "(Pipeline, render_quilt) instead")
+    if reaction and face_not_reaction:
+        out.append(f"{mod} imports the reaction model {reaction} and the face {face_not_reaction}: use "
+                   "holo_viewer.pipeline.reactions")
+    return out
+
+
+@pytest.mark.parametrize("mod", sorted(m for m in GRAPH if not m.startswith("holo_viewer.pipeline")))
+def test_only_the_pipeline_chains_the_stages(mod):
+    src_area = "apps" if mod.startswith("apps") else _area(mod)
+    if src_area in STAGE_PKGS:
+        return  # stage packages are held to STAGE_EDGES above
+    assert _chain_violations(mod, GRAPH[mod]) == []
+
+
+def test_the_checker_sees_lazy_imports_and_catches_a_chain(tmp_path):
+    """The rule above can fail: a command with lazy renderer + FLAME (or reaction + avatar) imports is caught."""
+    bad = tmp_path / "bad.py"
+    bad.write_text("def f():\n    from ..render.api import render_views\n    from ..flame.model import FlameModel\n")
+    assert len(_chain_violations("holo_viewer.commands.bad", _imports(bad, "holo_viewer.commands.bad"))) == 1
+    bad.write_text("import holo_viewer.reaction.api\nfrom holo_viewer.avatar import default_avatar\n")
+    assert len(_chain_violations("apps.bad", _imports(bad, "apps.bad"))) == 1
+    bad.write_text("from holo_viewer.avatar import Gaussians\nfrom holo_viewer.render import api\n")
+    assert _chain_violations("apps.bad", _imports(bad, "apps.bad")) == []  # the renderer's input type is data
+
+
+def test_pipeline_is_the_module_that_chains():
+    """The pipeline itself does import every stage (the checks above are not vacuous)."""
+    areas = {_area(t, n) for m, imp in GRAPH.items() if m.startswith("holo_viewer.pipeline") for t, n in imp}
+    assert {"flame", "avatar", "render", "display", "reaction"} <= areas
