@@ -10,6 +10,7 @@ Ray is an optional dependency (the ``cluster`` extra): :func:`make_executor` fal
 
 from __future__ import annotations
 
+import itertools
 import os
 from typing import Any, Callable, Iterable, Iterator, Protocol
 
@@ -77,31 +78,45 @@ class RayExecutor:
 
     def __init__(self, address: str | None = None, workers: int | None = None, threads: int = 1,
                  max_retries: int = 3) -> None:
-        import ray
+        import ray  # fails here, not at the first task, when Ray is missing
 
         if workers is not None and workers < 1 or threads < 1:
             raise InputError(f"--workers/--threads-per-worker: expected positive integers, found {workers}, "
                              f"{threads}")
         self._ray = ray
         self._owns = False
-        if not ray.is_initialized():
-            kw: dict[str, Any] = {"log_to_driver": False, "logging_level": "WARNING"}
-            if address is None:
-                cpus = (workers or max(1, (os.cpu_count() or 1) // threads)) * threads
-                kw.update(num_cpus=cpus, include_dashboard=False)
-            ray.init(address=address, **kw)
-            self._owns = True
+        self._remote: Any = None
         self.address = address
         self.threads = int(threads)
-        cpus = int(ray.cluster_resources().get("CPU", 1))
-        self.workers = int(workers or max(1, cpus // self.threads))
+        self.workers = int(workers) if workers else 0  # 0 = from the cluster's CPUs, once connected
+        self._requested_workers = workers
         self.max_retries = int(max_retries)
+
+    def _connect(self) -> None:
+        """Start or join Ray (on first use: a run with nothing to render never starts it)."""
+        if self._remote is not None:
+            return
+        ray = self._ray
+        if not ray.is_initialized():
+            kw: dict[str, Any] = {"log_to_driver": False, "logging_level": "WARNING"}
+            if self.address is None:
+                cpus = (self._requested_workers or max(1, (os.cpu_count() or 1) // self.threads)) * self.threads
+                kw.update(num_cpus=cpus, include_dashboard=False)
+            ray.init(address=self.address, **kw)
+            self._owns = True
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        self.workers = int(self._requested_workers or max(1, cpus // self.threads))
         self._remote = ray.remote(num_cpus=self.threads, max_retries=self.max_retries,
                                   retry_exceptions=False)(render_chunk)
 
     def run(self, tasks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
         ray = self._ray
         it = iter(tasks)
+        first = next(it, None)
+        if first is None:
+            return
+        self._connect()
+        it = itertools.chain([first], it)
         pending: dict[Any, ChunkTask] = {}
         limit = 2 * self.workers  # a short queue keeps workers busy without holding every result
 
@@ -129,10 +144,13 @@ class RayExecutor:
 
     def describe(self) -> dict[str, Any]:
         ray = self._ray
-        res = ray.cluster_resources()
-        return {"executor": self.name, "ray": ray.__version__, "address": self.address or "local",
-                "workers": self.workers, "threads_per_worker": self.threads, "cluster_cpus": res.get("CPU"),
-                "nodes": len([n for n in ray.nodes() if n.get("Alive")]), "max_retries": self.max_retries}
+        out = {"executor": self.name, "ray": ray.__version__, "address": self.address or "local",
+               "workers": self.workers or None, "threads_per_worker": self.threads, "max_retries": self.max_retries,
+               "started": self._remote is not None}
+        if self._remote is not None and ray.is_initialized():
+            out.update(cluster_cpus=ray.cluster_resources().get("CPU"),
+                       nodes=len([n for n in ray.nodes() if n.get("Alive")]))
+        return out
 
     def close(self) -> None:
         if self._owns:

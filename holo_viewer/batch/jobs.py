@@ -61,6 +61,7 @@ class ChunkTask:
     outputs: tuple[str, ...]
     fps: float
     crf: int
+    native_crf: int = 0
     threads: int | None = None
 
     @property
@@ -184,5 +185,5 @@ def chunk_tasks(job: ResolvedJob, chunk_frames: int, threads: int | None,
     s = job.spec
     return [ChunkTask(job=job.hash, index=i, n_chunks=len(ranges), start=a, frames=tuple(job.frames[a:b]),
                       scene=job.scene, named=job.named, pain=job.pain, tile_scale=s.tile_scale, outputs=s.outputs,
-                      fps=job.fps, crf=s.crf, threads=threads)
+                      fps=job.fps, crf=s.crf, native_crf=s.native_crf, threads=threads)
             for i, (a, b) in enumerate(ranges) if i not in skip]

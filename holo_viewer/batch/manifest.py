@@ -19,7 +19,8 @@ A row names
 * the **display**: ``calibration`` (a ``visual.json`` or a preset name; default the shipped
   Portrait), ``tile_scale`` (quilt tile size relative to the calibration's), ``renderer``;
 * the **outputs**: ``outputs``, a list of ``quilt_mp4``, ``native_mp4``, ``quilt_png``,
-  ``native_png`` (CSV: ``quilt_mp4;native_png``; default ``quilt_mp4``) and ``crf`` of the quilt video;
+  ``native_png`` (CSV: ``quilt_mp4;native_png``; default ``quilt_mp4``), ``crf`` of the quilt video
+  (default 18) and ``native_crf`` of the native video (default 0 = lossless RGB);
 * optionally an ``id`` (a label for the summary; it does not change the job's hash).
 
 Relative paths are relative to the manifest's folder. Unknown fields are errors (a typo must not
@@ -103,6 +104,7 @@ class JobSpec:
     fps: float = 25.0
     outputs: tuple[str, ...] = ("quilt_mp4",)
     crf: int = 18
+    native_crf: int = 0
 
     @property
     def label(self) -> str:
@@ -280,6 +282,7 @@ def _parse_row(row: dict[str, Any], line: int, base: Path, from_csv: bool) -> Jo
     kw["fps"] = r.float("fps", 25.0, 0.1, 240.0)
     kw["outputs"] = r.outputs("outputs")
     kw["crf"] = r.int("crf", 18, 0, 51)
+    kw["native_crf"] = r.int("native_crf", 0, 0, 51)
     return JobSpec(**kw)
 
 

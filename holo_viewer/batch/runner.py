@@ -120,6 +120,7 @@ class _Job:
         self.t0: float | None = None
         self.render_seconds = 0.0
         self.workers: set[str] = set()
+        self.plan: dict[str, int] = {}
 
 
 def run_batch(manifest: str | os.PathLike, out: str | os.PathLike, executor: Executor, *,
@@ -211,6 +212,9 @@ def run_batch(manifest: str | os.PathLike, out: str | os.PathLike, executor: Exe
                 if first.status == "failed":
                     rec.status, rec.error = "failed", f"same job as line {first.line}, which failed"
         summary.seconds = time.perf_counter() - t_start
+        summary.executor = executor.describe()
+        if work_root.is_dir() and not any(work_root.iterdir()):
+            work_root.rmdir()
         with atomic_write(root / "summary.json", "w") as fh:
             json.dump(summary.as_dict(), fh, indent=2)
     return summary
@@ -251,10 +255,8 @@ def _prepare(spec: JobSpec, root: Path, work_root: Path, digests: FileDigests, c
     plan_file = work / "plan.json"
     if plan_file.is_file() and json.loads(plan_file.read_text()) != plan:
         shutil.rmtree(work)  # chunks of another split: start the job over
-    if not plan_file.is_file():
-        with atomic_write(plan_file, "w") as fh:
-            json.dump(plan, fh)
     job = _Job(resolved, rec, work, chunk_frames)
+    job.plan = plan
     for i in range(n_chunks):
         marker = work / f"chunk_{i:05d}.json"
         if marker.is_file():
@@ -290,6 +292,9 @@ def _range(j: _Job, index: int) -> str:
 def _store_chunk(j: _Job, res: ChunkResult) -> None:
     """Write a chunk's segments and PNGs atomically, then its done marker."""
     a, b = j.ranges[res.index]
+    if not (j.work / "plan.json").is_file():  # the split the chunk files belong to
+        with atomic_write(j.work / "plan.json", "w") as fh:
+            json.dump(j.plan, fh)
     if res.n_frames != b - a:
         raise HoloViewerError(f"chunk {res.index}: expected {b - a} frames, the worker returned {res.n_frames}")
     for kind, data in res.segments.items():

@@ -21,9 +21,11 @@ Two kinds of stream:
 
 * quilt video: libx264, yuv420p, ``crf`` (default 18), like ``display.export.write_quilt_video``
   (odd sizes get an edge row on top / column on the right, so bottom-left tiles keep their place);
-* native video: **lossless** RGB H.264 (libx264rgb, ``-crf 0``, High 4:4:4). Each subpixel of a
-  lenticular native image belongs to another view: chroma subsampling or lossy coding would
-  blend views (the reason native stills are PNG, never JPEG).
+* native video: RGB H.264 (libx264rgb, High 4:4:4), **lossless** by default (``native_crf`` 0).
+  Each subpixel of a lenticular native image belongs to another view: chroma subsampling would
+  blend views (the reason native stills are PNG, never JPEG). Lossless costs ~2 MB per
+  1536x2048 frame; a row's ``native_crf`` > 0 trades exactness for size, still without
+  subsampling.
 """
 
 from __future__ import annotations
@@ -71,16 +73,17 @@ class SegmentEncoder:
     ----------
     fps : float
         Frame rate written into the segment's timestamps.
-    lossless : bool
-        True: libx264rgb ``-crf 0`` (bit-exact RGB, for native images); False: libx264 yuv420p.
+    rgb : bool
+        True: libx264rgb, RGB without chroma subsampling (native images; ``crf=0`` is bit-exact);
+        False: libx264 yuv420p (quilts, what players and Looking Glass tools expect).
     crf : int
-        Quality of the lossy stream (0..51, lower is better).
+        Quality (0..51, lower is better; 0 with ``rgb`` is lossless).
     preset : str
         x264 speed preset.
     """
 
-    def __init__(self, fps: float, *, lossless: bool = False, crf: int = 18, preset: str = "veryfast") -> None:
-        self.fps, self.lossless, self.crf, self.preset = float(fps), bool(lossless), int(crf), preset
+    def __init__(self, fps: float, *, rgb: bool = False, crf: int = 18, preset: str = "veryfast") -> None:
+        self.fps, self.rgb, self.crf, self.preset = float(fps), bool(rgb), int(crf), preset
         self.n_frames = 0
         self._shape: tuple[int, ...] | None = None
         self._proc: subprocess.Popen | None = None
@@ -89,8 +92,8 @@ class SegmentEncoder:
         self._threads: list[threading.Thread] = []
 
     def _start(self, h: int, w: int) -> None:
-        codec = (["-c:v", "libx264rgb", "-crf", "0", "-preset", self.preset, "-pix_fmt", "rgb24"]
-                 if self.lossless else
+        codec = (["-c:v", "libx264rgb", "-crf", str(self.crf), "-preset", self.preset, "-pix_fmt", "rgb24"]
+                 if self.rgb else
                  ["-c:v", "libx264", "-crf", str(self.crf), "-preset", self.preset, "-pix_fmt", "yuv420p"])
         cmd = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
                "-s", f"{w}x{h}", "-r", f"{self.fps:.6g}", "-i", "pipe:0", *codec, "-f", "mpegts", "pipe:1"]
@@ -104,7 +107,7 @@ class SegmentEncoder:
     def write(self, frame: np.ndarray) -> None:
         """Append one (H, W, 3) uint8 frame (all frames the same size)."""
         f = _check(frame, self.n_frames)
-        if not self.lossless:
+        if not self.rgb:
             f = pad_even(f)
         if self._proc is None:
             self._shape = f.shape
@@ -154,7 +157,7 @@ class SegmentEncoder:
         self.close()
 
 
-def encode_segment(frames: Iterable[np.ndarray], fps: float, *, lossless: bool = False, crf: int = 18,
+def encode_segment(frames: Iterable[np.ndarray], fps: float, *, rgb: bool = False, crf: int = 18,
                    preset: str = "veryfast") -> tuple[bytes, int]:
     """Encode frames into an in-memory H.264 MPEG-TS segment (see :class:`SegmentEncoder`).
 
@@ -168,7 +171,7 @@ def encode_segment(frames: Iterable[np.ndarray], fps: float, *, lossless: bool =
     ExportError
         No frames, frames of different sizes or types, or ffmpeg failed (its message is included).
     """
-    with SegmentEncoder(fps, lossless=lossless, crf=crf, preset=preset) as enc:
+    with SegmentEncoder(fps, rgb=rgb, crf=crf, preset=preset) as enc:
         for f in frames:
             enc.write(f)
         return enc.finish(), enc.n_frames

@@ -99,7 +99,7 @@ def render_chunk(task: ChunkTask) -> ChunkResult:
         if "quilt_mp4" in want:
             encoders["quilt_mp4"] = SegmentEncoder(task.fps, crf=task.crf)
         if "native_mp4" in want:
-            encoders["native_mp4"] = SegmentEncoder(task.fps, lossless=True)
+            encoders["native_mp4"] = SegmentEncoder(task.fps, rgb=True, crf=task.native_crf)
         pngs: dict[str, list[bytes]] = {k: [] for k in ("quilt_png", "native_png") if k in want}
         try:
             for quilt, native in render_frames(pipe, task.frames, task.named, task.pain,
