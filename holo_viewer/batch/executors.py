@@ -118,7 +118,7 @@ class RayExecutor:
         self._connect()
         it = itertools.chain([first], it)
         pending: dict[Any, ChunkTask] = {}
-        limit = 2 * self.workers  # a short queue keeps workers busy without holding every result
+        limit = self.workers  # exactly N chunks at a time, also on a bigger cluster
 
         def submit() -> None:
             while len(pending) < limit:

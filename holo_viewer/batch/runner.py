@@ -81,6 +81,8 @@ class BatchSummary:
     jobs: list[JobRecord]
     seconds: float = 0.0
     frames_rendered: int = 0
+    #: seconds this process spent writing chunks and joining videos (the driver's share of the work)
+    driver_seconds: float = 0.0
 
     def counts(self) -> dict[str, int]:
         out: dict[str, int] = {}
@@ -94,7 +96,8 @@ class BatchSummary:
 
     def as_dict(self) -> dict[str, Any]:
         return {"manifest": self.manifest, "out": self.out, "executor": self.executor, "seconds": self.seconds,
-                "frames_rendered": self.frames_rendered, "counts": self.counts(),
+                "frames_rendered": self.frames_rendered, "driver_seconds": self.driver_seconds,
+                "counts": self.counts(),
                 "jobs": [asdict(j) for j in self.jobs]}
 
 
@@ -191,6 +194,7 @@ def run_batch(manifest: str | os.PathLike, out: str | os.PathLike, executor: Exe
                 _fail(j, f"{j.resolved.spec.label}: chunk {res.index} (frames {_range(j, res.index)}): "
                          f"{res.error}", failed, log)
             else:
+                t_io = time.perf_counter()
                 try:
                     _store_chunk(j, res)
                     summary.frames_rendered += res.n_frames
@@ -198,6 +202,7 @@ def run_batch(manifest: str | os.PathLike, out: str | os.PathLike, executor: Exe
                         _finish(j, root, log)
                 except HoloViewerError as exc:
                     _fail(j, f"{j.resolved.spec.label}: {exc}", failed, log)
+                summary.driver_seconds += time.perf_counter() - t_io
             if bar is not None:
                 bar.update(res.n_frames if res.error is None else 0)
                 n_done = sum(1 for x in todo if x.record.status == "done")
