@@ -94,9 +94,9 @@ def main() -> None:
         wall = time.perf_counter() - t
         assert all(j.status == "done" for j in s.jobs), [j.error for j in s.jobs]
         render = sum(j.render_seconds or 0.0 for j in s.jobs)
-        row = dict(config=name, wall_s=wall, jobs_per_s=len(s.jobs) / wall, frames_per_s=s.frames_rendered / wall,
-                   render_s_per_frame=render / s.frames_rendered, driver_s_per_frame=s.driver_seconds / s.frames_rendered,
-                   frames=s.frames_rendered, **extra)
+        n = s.frames_rendered
+        row = dict(config=name, wall_s=wall, jobs_per_s=len(s.jobs) / wall, frames_per_s=n / wall,
+                   render_s_per_frame=render / n, driver_s_per_frame=s.driver_seconds / n, frames=n, **extra)
         rows.append(row)
         shutil.rmtree(out, ignore_errors=True)
         return row
