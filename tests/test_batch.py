@@ -117,6 +117,17 @@ def test_job_hash_follows_content_not_names(tmp_path):
     assert len(h[0]) == 32 and int(h[0], 16) >= 0
 
 
+def test_the_hash_reads_the_shipped_assets_the_stages_load():
+    from holo_viewer.batch.manifest import SHIPPED_ASSETS, assets_dir
+    from holo_viewer.display.calibration import default_calibration_path
+    from holo_viewer.flame.default_head import default_head_path
+    from holo_viewer.reaction.api import default_checkpoint_path
+
+    paths = {"default_head": default_head_path(), "reaction_checkpoint": default_checkpoint_path(),
+             "calibration": default_calibration_path()}
+    assert {k: assets_dir() / v for k, v in SHIPPED_ASSETS.items()} == {k: Path(v) for k, v in paths.items()}
+
+
 def test_plan_chunks_covers_the_clip_evenly():
     for n in (1, 2, 24, 25, 26, 51, 750):
         for c in (1, 7, 25, 1000):

@@ -133,25 +133,18 @@ def resolve_job(spec: JobSpec, job_hash: str) -> ResolvedJob:
                              f"(the sequence's frames), found start={spec.start}, stop={spec.stop}")
         frames = frames[spec.start:stop]
     elif spec.driver == "reaction":
-        from ..flame.expressions import default_au_map
-        from ..reaction.api import (ANIMATION_SMOOTHING_S, flame_params_from_states, load_default_bundle,
-                                    load_speaker_npz, react)
-        from ..reaction.audio import read_wav
+        from ..pipeline.reactions import react_to_speaker
 
-        au_map = default_au_map()
-        speaker = load_speaker_npz(spec.speaker_params, au_map)
-        audio, sr = read_wav(spec.speaker_audio)
-        states = react(load_default_bundle(), audio, sr, speaker, pain=spec.pain, seed=spec.seed,
-                       temperature=spec.temperature or 0.0, top_k=20, smoothing=ANIMATION_SMOOTHING_S)
-        frames = flame_sequence_frames(flame_params_from_states(states, au_map), source=spec.speaker_params)
+        params, _ = react_to_speaker(spec.speaker_audio, spec.speaker_params, pain=spec.pain, seed=spec.seed,
+                                     temperature=spec.temperature or 0.0)
+        frames = flame_sequence_frames(params, source=spec.speaker_params)
         pain, fps = 0.0, 25.0  # the model's expressions carry the requested pain
     elif spec.driver == "synthetic_reaction":
-        from ..reaction.api import generate_demo_reaction
+        from ..pipeline.reactions import reaction_frames
 
         kw = {} if spec.temperature is None else {"temperature": spec.temperature}
-        params = generate_demo_reaction(seconds=spec.seconds, pain=spec.pain, seed=spec.seed, **kw)
-        frames = flame_sequence_frames(params, source="synthetic reaction")
-        pain, fps = 0.0, 25.0
+        frames, fps = reaction_frames(seconds=spec.seconds, pain=spec.pain, seed=spec.seed, **kw)
+        pain = 0.0
     else:
         frames = [{} for _ in range(spec.frames)]
     if spec.scenario != "constant":

@@ -48,7 +48,7 @@ from typing import Any, Callable
 from ..errors import ManifestError
 
 __all__ = ["JobSpec", "RowError", "read_manifest", "job_hash", "FORMAT_VERSION", "OUTPUT_KINDS", "SCENARIOS",
-           "EXPRESSIONS", "FileDigests"]
+           "EXPRESSIONS", "FileDigests", "SHIPPED_ASSETS", "assets_dir"]
 
 #: bump when the meaning of a job's fields or the output layout changes (invalidates finished jobs)
 FORMAT_VERSION = 1
@@ -397,22 +397,27 @@ class FileDigests:
         return self._cache[key]
 
 
-def _shipped_inputs(spec: JobSpec) -> dict[str, str]:
+#: the shipped inputs a job reads implicitly, all in the repository's ``assets/`` folder (README); the
+#: stage modules resolve the same paths (``tests/test_batch.py`` checks that they agree)
+SHIPPED_ASSETS = {"default_head": "default_head.npz", "reaction_checkpoint": "reaction_default.pt",
+                  "calibration": "lkg_portrait_visual.json"}
+
+
+def assets_dir() -> Path:
+    """The repository's ``assets/`` folder (default head, reaction checkpoint, Portrait calibration)."""
+    return Path(__file__).resolve().parents[2] / "assets"
+
+
+def _shipped_inputs(spec: JobSpec) -> dict[str, Path]:
     """The shipped assets a job reads implicitly (their contents go into the hash)."""
-    out = {}
+    names = []
     if spec.avatar == "default":
-        from ..flame.default_head import default_head_path
-
-        out["default_head"] = str(default_head_path())
+        names.append("default_head")
     if spec.driver in ("reaction", "synthetic_reaction"):
-        from ..reaction.api import default_checkpoint_path
-
-        out["reaction_checkpoint"] = str(default_checkpoint_path())
+        names.append("reaction_checkpoint")
     if spec.calibration is None:
-        from ..display.calibration import default_calibration_path
-
-        out["calibration"] = str(default_calibration_path())
-    return out
+        names.append("calibration")
+    return {k: assets_dir() / SHIPPED_ASSETS[k] for k in names}
 
 
 def job_hash(spec: JobSpec, digests: FileDigests | None = None) -> str:
@@ -427,6 +432,6 @@ def job_hash(spec: JobSpec, digests: FileDigests | None = None) -> str:
             continue
         value = getattr(spec, f.name)
         record[f.name] = {"sha256": digests(value)} if f.name in files else value
-    record["shipped"] = {k: digests(v) for k, v in _shipped_inputs(spec).items()}
+    record["shipped"] = {k: digests(v) if v.is_file() else "missing" for k, v in _shipped_inputs(spec).items()}
     blob = json.dumps(record, sort_keys=True, separators=(",", ":")).encode()
     return hashlib.blake2b(blob, digest_size=16).hexdigest()

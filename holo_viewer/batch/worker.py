@@ -35,7 +35,7 @@ def load_scene_pipeline(scene: SceneSpec) -> Any:
     """The :class:`~holo_viewer.pipeline.Pipeline` of ``scene``, loaded once per process (LRU of 2)."""
     pipe = _SCENES.get(scene)
     if pipe is None:
-        from ..gui.loading import load_scene
+        from ..pipeline import load_scene
 
         # avatar_params is the PLY avatar's own flame_param.npz (its identity); its frames are not used
         pipe = load_scene(scene.avatar, scene.flame_model, scene.avatar_params, scene.calibration,
