@@ -102,7 +102,14 @@ class RayExecutor:
             if self.address is None:
                 cpus = (self._requested_workers or max(1, (os.cpu_count() or 1) // self.threads)) * self.threads
                 kw.update(num_cpus=cpus, include_dashboard=False)
-            ray.init(address=self.address, **kw)
+            try:
+                ray.init(address=self.address, **kw)
+            except (ConnectionError, ValueError, RuntimeError, TimeoutError) as exc:
+                where = f"--address {self.address}" if self.address else "a local Ray"
+                raise InputError(f"{where}: cannot start or join Ray ({type(exc).__name__}: {exc}); for a cluster "
+                                 "check `ray status` on its head node, and for ray://HOST:10001 with token "
+                                 "authentication set RAY_AUTH_MODE=token and the cluster's token (docs/batch.md)"
+                                 ) from exc
             self._owns = True
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self.workers = int(self._requested_workers or max(1, cpus // self.threads))
