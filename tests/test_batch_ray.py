@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import threading
 import time
 from pathlib import Path
@@ -105,7 +106,8 @@ def test_a_worker_killed_mid_chunk_is_retried_and_nothing_is_partial(local_ray, 
     job = s.jobs[0]
     assert job.status == "done", job.error
     assert job.frames == 12 and s.frames_rendered == 12
-    assert f"{os.uname().nodename}:{killed}" not in job.workers or len(job.workers) > 1
+    # the killed worker was in its first chunk of this job: its chunk was re-run by another worker
+    assert f"{socket.gethostname()}:{killed}" not in job.workers and job.workers
     frames = list(read_video_frames(out / job.outputs["quilt_mp4"]))
     assert len(frames) == 12
     assert len(list((out / job.hash / "frames").glob("quilt_*.png"))) == 12
