@@ -292,3 +292,44 @@ def test_the_example_manifest_is_three_short_default_avatar_clips():
     assert len(jobs) == 3 and not any(isinstance(j, RowError) for j in jobs)
     assert all(j.avatar == "default" for j in jobs)
     assert len({job_hash(j) for j in jobs}) == 3
+
+
+def test_a_speaker_driver_runs_the_reaction_model_once_in_the_driver(tmp_path):
+    from holo_viewer.flame.expressions import default_au_map, jaw_for_expression
+    from holo_viewer.reaction.api import flame_params_from_states
+    from holo_viewer.reaction.audio import write_wav
+    from holo_viewer.reaction.data import SyntheticConfig, synth_speaker
+
+    au = default_au_map()
+    sp = synth_speaker(np.random.default_rng(5), SyntheticConfig(seconds=0.4), au.names,
+                       jaw_for_expression("mouth_open", 1.0))
+    write_wav(tmp_path / "s.wav", sp.waveform, 16000)
+    np.savez(tmp_path / "s.npz", **flame_params_from_states(sp.state, au))
+    m = write_jsonl(tmp_path / "m.jsonl", [
+        {"id": "r", "speaker_audio": "s.wav", "speaker_params": "s.npz", "pain": 0.8, "seed": 3},
+        {"id": "r-pain0", "speaker_audio": "s.wav", "speaker_params": "s.npz", "pain": 0.0, "seed": 3}])
+    a, b = read_manifest(m)
+    assert a.driver == "reaction" and job_hash(a) != job_hash(b)
+    ja, jb = resolve_job(a, "x"), resolve_job(b, "y")
+    assert ja.n_frames == sp.state.shape[0] == 10 and ja.fps == 25.0
+    assert ja.pain == 0.0  # the model's expressions carry the requested pain; none is added on top
+    assert set(ja.frames[0]) >= {"expr", "jaw_pose", "rotation"}
+    assert not np.allclose(np.stack([f["expr"] for f in ja.frames]), np.stack([f["expr"] for f in jb.frames]))
+    (tmp_path / "s.npz").write_bytes(b"not an npz")
+    with pytest.raises(Exception, match="s.npz"):
+        resolve_job(read_manifest(m)[0], "x")
+
+
+def test_a_ply_avatar_row_renders_like_the_default_avatar(tmp_path):
+    from holo_viewer.avatar import default_avatar
+
+    default_avatar().save_ply(tmp_path / "avatar.ply")  # a GaussianAvatars PLY of the default head
+    m = write_jsonl(tmp_path / "m.jsonl", [
+        {"id": "ply", "avatar": "avatar.ply", "frames": 1, "pain": 0.4, "tile_scale": TINY, "outputs": ["quilt_png"]},
+        {"id": "default", "frames": 1, "pain": 0.4, "tile_scale": TINY, "outputs": ["quilt_png"]}])
+    s = run_batch(m, tmp_path / "out", InProcessExecutor(), progress=False)
+    assert [j.status for j in s.jobs] == ["done", "done"] and s.jobs[0].hash != s.jobs[1].hash
+    from holo_viewer.fileio import load_image
+
+    a, b = (load_image(tmp_path / "out" / (j.outputs["quilt_png"] % 0)) for j in s.jobs)
+    assert np.array_equal(a, b)
