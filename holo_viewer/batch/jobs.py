@@ -18,7 +18,8 @@ import numpy as np
 from ..errors import InputError
 from .manifest import SCENARIOS, JobSpec
 
-__all__ = ["SceneSpec", "ChunkTask", "ChunkResult", "ResolvedJob", "resolve_job", "plan_chunks", "chunk_tasks",
+__all__ = ["SceneSpec", "ChunkTask", "ChunkResult", "ResolvedJob", "plan_job", "load_frames", "resolve_job",
+           "plan_chunks", "chunk_tasks",
            "VIDEO_KINDS", "PNG_KINDS"]
 
 VIDEO_KINDS = ("quilt_mp4", "native_mp4")
@@ -86,21 +87,23 @@ class ChunkResult:
 
 @dataclass
 class ResolvedJob:
-    """A job ready to split: its frames, base face and quilt layout (for output names)."""
+    """A job ready to split: its length, frame rate, base face and quilt layout (for output names).
+
+    ``frames`` (the per-frame FLAME parameters) is filled by :func:`load_frames` just before the
+    job's chunks are sent, and may be dropped afterwards: a batch of 1,000 long clips never holds
+    all its sequences (or runs all its reactions) up front.
+    """
 
     spec: JobSpec
     hash: str
-    frames: list[dict[str, Any]]
+    n_frames: int
     named: tuple[tuple[str, float], ...]
     pain: float
     fps: float
     cols: int
     rows: int
     aspect: float
-
-    @property
-    def n_frames(self) -> int:
-        return len(self.frames)
+    frames: list[dict[str, Any]] | None = None
 
     @property
     def scene(self) -> SceneSpec:
@@ -108,8 +111,8 @@ class ResolvedJob:
         return SceneSpec(s.avatar, s.flame_model, s.avatar_params, s.calibration, s.renderer)
 
 
-def resolve_job(spec: JobSpec, job_hash: str) -> ResolvedJob:
-    """Read or generate the job's face sequence and check its calibration.
+def plan_job(spec: JobSpec, job_hash: str) -> ResolvedJob:
+    """The job's length, frame rate and layout, cheaply (no reaction model run, no frames kept).
 
     Raises
     ------
@@ -117,44 +120,84 @@ def resolve_job(spec: JobSpec, job_hash: str) -> ResolvedJob:
         InputError, ReactionError, CalibrationError, ... naming the file and what is wrong.
     """
     from ..display.calibration import DisplayCalibration
-    from ..pipeline import flame_sequence_frames
+    from ..fileio import read_npz
 
     cal = DisplayCalibration.load(spec.calibration)
     named, pain, fps = spec.expressions, spec.pain, spec.fps
     if spec.driver == "flame_params":
-        from ..fileio import read_npz
+        n = len(_sequence(spec))
+    elif spec.driver == "reaction":
+        z = read_npz(spec.speaker_params, InputError, "speaker FLAME parameters")
+        if "expr" not in z or np.ndim(z["expr"]) != 2:
+            raise InputError(f"{spec.speaker_params}: expr: expected an array (T, n_expr), found "
+                             f"{np.shape(z['expr']) if 'expr' in z else 'no such key'}")
+        n = int(np.shape(z["expr"])[0])
+        pain, fps = 0.0, 25.0  # the model's expressions carry the requested pain
+    elif spec.driver == "synthetic_reaction":
+        n = max(1, int(round(spec.seconds * 25.0)))
+        pain, fps = 0.0, 25.0
+    else:
+        n = spec.frames
+    if n < 1:
+        raise InputError(f"{spec.label}: expected at least one frame from the driver, found none")
+    return ResolvedJob(spec=spec, hash=job_hash, n_frames=n, named=named, pain=pain, fps=fps,
+                       cols=int(cal.cols), rows=int(cal.rows), aspect=float(cal.aspect))
 
-        params = read_npz(spec.flame_params, InputError, "FLAME parameters")
-        seq = {k: v for k, v in params.items() if k not in ("static_offset", "fps")}
-        frames = flame_sequence_frames(seq, source=spec.flame_params)
-        stop = len(frames) if spec.stop is None else spec.stop
-        if stop > len(frames) or spec.start >= stop:
-            raise InputError(f"{spec.flame_params}: start/stop: expected 0 <= start < stop <= {len(frames)} "
-                             f"(the sequence's frames), found start={spec.start}, stop={spec.stop}")
-        frames = frames[spec.start:stop]
+
+def _sequence(spec: JobSpec) -> list[dict[str, Any]]:
+    from ..fileio import read_npz
+    from ..pipeline import flame_sequence_frames
+
+    params = read_npz(spec.flame_params, InputError, "FLAME parameters")
+    seq = {k: v for k, v in params.items() if k not in ("static_offset", "fps")}
+    frames = flame_sequence_frames(seq, source=spec.flame_params)
+    stop = len(frames) if spec.stop is None else spec.stop
+    if stop > len(frames) or spec.start >= stop:
+        raise InputError(f"{spec.flame_params}: start/stop: expected 0 <= start < stop <= {len(frames)} "
+                         f"(the sequence's frames), found start={spec.start}, stop={spec.stop}")
+    return frames[spec.start:stop]
+
+
+def load_frames(job: ResolvedJob) -> list[dict[str, Any]]:
+    """Read or generate the job's per-frame FLAME parameters (runs the reaction model once).
+
+    Raises
+    ------
+    HoloViewerError
+        A bad driver file, or a driver that gives another number of frames than planned.
+    """
+    from ..pipeline import flame_sequence_frames
+
+    spec = job.spec
+    if spec.driver == "flame_params":
+        frames = _sequence(spec)
     elif spec.driver == "reaction":
         from ..pipeline.reactions import react_to_speaker
 
         params, _ = react_to_speaker(spec.speaker_audio, spec.speaker_params, pain=spec.pain, seed=spec.seed,
                                      temperature=spec.temperature or 0.0)
         frames = flame_sequence_frames(params, source=spec.speaker_params)
-        pain, fps = 0.0, 25.0  # the model's expressions carry the requested pain
     elif spec.driver == "synthetic_reaction":
         from ..pipeline.reactions import reaction_frames
 
         kw = {} if spec.temperature is None else {"temperature": spec.temperature}
-        frames, fps = reaction_frames(seconds=spec.seconds, pain=spec.pain, seed=spec.seed, **kw)
-        pain = 0.0
+        frames, _ = reaction_frames(seconds=spec.seconds, pain=spec.pain, seed=spec.seed, **kw)
     else:
         frames = [{} for _ in range(spec.frames)]
+    if len(frames) != job.n_frames:
+        raise InputError(f"{spec.label}: the driver gave {len(frames)} frames, expected {job.n_frames}")
     if spec.scenario != "constant":
         profile = SCENARIOS[spec.scenario]
         n = len(frames)
         frames = [dict(f, pain=np.float64(spec.pain * profile(k / max(1, n - 1)))) for k, f in enumerate(frames)]
-    if not frames:
-        raise InputError(f"{spec.label}: the driver gave no frames")
-    return ResolvedJob(spec=spec, hash=job_hash, frames=frames, named=named, pain=pain, fps=fps,
-                       cols=int(cal.cols), rows=int(cal.rows), aspect=float(cal.aspect))
+    return frames
+
+
+def resolve_job(spec: JobSpec, job_hash: str) -> ResolvedJob:
+    """:func:`plan_job` with the frames loaded (:func:`load_frames`)."""
+    job = plan_job(spec, job_hash)
+    job.frames = load_frames(job)
+    return job
 
 
 def plan_chunks(n_frames: int, chunk_frames: int) -> list[tuple[int, int]]:
@@ -173,7 +216,9 @@ def plan_chunks(n_frames: int, chunk_frames: int) -> list[tuple[int, int]]:
 
 def chunk_tasks(job: ResolvedJob, chunk_frames: int, threads: int | None,
                 skip: set[int] | frozenset[int] = frozenset()) -> list[ChunkTask]:
-    """The job's chunk tasks, leaving out the chunk indices in ``skip`` (already done)."""
+    """The job's chunk tasks (its frames loaded), leaving out the chunk indices in ``skip`` (done)."""
+    if job.frames is None:
+        raise InputError(f"{job.spec.label}: frames not loaded (load_frames)")
     ranges = plan_chunks(job.n_frames, chunk_frames)
     s = job.spec
     return [ChunkTask(job=job.hash, index=i, n_chunks=len(ranges), start=a, frames=tuple(job.frames[a:b]),

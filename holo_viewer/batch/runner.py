@@ -35,7 +35,8 @@ from typing import Any, Callable, Iterator
 from ..errors import HoloViewerError
 from ..fileio import atomic_write
 from .executors import Executor
-from .jobs import PNG_KINDS, VIDEO_KINDS, ChunkResult, ChunkTask, ResolvedJob, chunk_tasks, plan_chunks, resolve_job
+from .jobs import (PNG_KINDS, VIDEO_KINDS, ChunkResult, ChunkTask, ResolvedJob, chunk_tasks, load_frames,
+                   plan_chunks, plan_job)
 from .manifest import FileDigests, JobSpec, RowError, job_hash, read_manifest
 from .video import join_segments
 
@@ -83,6 +84,8 @@ class BatchSummary:
     frames_rendered: int = 0
     #: seconds this process spent writing chunks and joining videos (the driver's share of the work)
     driver_seconds: float = 0.0
+    #: jobs finished by this run (for the progress bar)
+    jobs_done: int = 0
 
     def counts(self) -> dict[str, int]:
         out: dict[str, int] = {}
@@ -184,8 +187,11 @@ def run_batch(manifest: str | os.PathLike, out: str | os.PathLike, executor: Exe
     try:
         for j in todo:  # jobs whose chunks were all done by an earlier, interrupted run
             if len(j.done) == j.n_chunks:
-                _finish(j, root, log)
-        tasks = _tasks(todo, chunk_frames, executor, failed)
+                try:
+                    _finish(j, root, summary)
+                except HoloViewerError as exc:
+                    _fail(j, f"{j.resolved.spec.label}: {exc}", failed, log)
+        tasks = _tasks(todo, chunk_frames, executor, failed, log)
         for res in executor.run(tasks):
             j = jobs[res.job]
             if j.record.status == "failed":
@@ -199,14 +205,13 @@ def run_batch(manifest: str | os.PathLike, out: str | os.PathLike, executor: Exe
                     _store_chunk(j, res)
                     summary.frames_rendered += res.n_frames
                     if len(j.done) == j.n_chunks:
-                        _finish(j, root, log)
+                        _finish(j, root, summary)
                 except HoloViewerError as exc:
                     _fail(j, f"{j.resolved.spec.label}: {exc}", failed, log)
                 summary.driver_seconds += time.perf_counter() - t_io
             if bar is not None:
                 bar.update(res.n_frames if res.error is None else 0)
-                n_done = sum(1 for x in todo if x.record.status == "done")
-                bar.set_postfix_str(f"jobs {n_done}/{len(todo)} done, {len(failed)} failed")
+                bar.set_postfix_str(f"jobs {summary.jobs_done}/{len(todo)} done, {len(failed)} failed")
     finally:
         if bar is not None:
             bar.close()
@@ -250,7 +255,7 @@ def _prepare(spec: JobSpec, root: Path, work_root: Path, digests: FileDigests, c
         rec.outputs = {k: f"{h}/{v}" for k, v in info.get("outputs", {}).items()}
         return rec
     try:
-        resolved = resolve_job(spec, h)
+        resolved = plan_job(spec, h)  # the frames are loaded when the job's chunks are sent
     except HoloViewerError as exc:
         rec.status, rec.error = "failed", f"{spec.label}: {exc}"
         return rec
@@ -273,14 +278,25 @@ def _prepare(spec: JobSpec, root: Path, work_root: Path, digests: FileDigests, c
     return rec
 
 
-def _tasks(todo: list[_Job], chunk_frames: int, executor: Executor, failed: set[str]) -> Iterator[ChunkTask]:
+def _tasks(todo: list[_Job], chunk_frames: int, executor: Executor, failed: set[str],
+           log: Callable[[str], None]) -> Iterator[ChunkTask]:
+    """The chunks still to render, job after job; a job's frames are loaded just before its chunks."""
     threads = getattr(executor, "threads", None)
     for j in todo:
-        for task in chunk_tasks(j.resolved, chunk_frames, threads, skip=j.done):
+        if len(j.done) == j.n_chunks or j.record.status == "failed":
+            continue
+        j.t0 = time.perf_counter()
+        try:
+            j.resolved.frames = load_frames(j.resolved)
+            tasks = chunk_tasks(j.resolved, chunk_frames, threads, skip=j.done)
+        except HoloViewerError as exc:
+            _fail(j, f"{j.resolved.spec.label}: {exc}", failed, log)
+            continue
+        finally:
+            j.resolved.frames = None  # the tasks hold their own slices until they are sent
+        for task in tasks:
             if task.job in failed:
                 break
-            if j.t0 is None:
-                j.t0 = time.perf_counter()
             yield task
 
 
@@ -317,7 +333,7 @@ def _store_chunk(j: _Job, res: ChunkResult) -> None:
     j.workers.add(f"{res.host}:{res.pid}")
 
 
-def _finish(j: _Job, root: Path, log: Callable[[str], None]) -> None:
+def _finish(j: _Job, root: Path, summary: BatchSummary) -> None:
     """Join the job's segments, write job.json, move the folder into place, drop the chunks."""
     r, rec = j.resolved, j.record
     stage = j.work / "out"
@@ -342,6 +358,7 @@ def _finish(j: _Job, root: Path, log: Callable[[str], None]) -> None:
         os.replace(stage, final)  # one rename: the job folder appears complete or not at all
     shutil.rmtree(j.work, ignore_errors=True)
     rec.status, rec.seconds, rec.render_seconds = "done", seconds, j.render_seconds
+    summary.jobs_done += 1
     rec.outputs = {k: f"{r.hash}/{v}" for k, v in names.items()}
     rec.workers = sorted(j.workers)
 
