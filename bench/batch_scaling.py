@@ -7,6 +7,7 @@ each frame a different pain level, quilt mp4 output) three or more ways into fre
 * ``in-process``: the baseline (no Ray), one renderer thread;
 * ``ray w=1``: one Ray worker, one thread (the baseline plus Ray's overhead);
 * ``ray w=2``: two Ray workers, one thread each (this machine has 2 cores);
+* ``ray w=1 t=2``: one Ray worker with two renderer threads (``--threads-per-worker 2``);
 
 and measures Ray's overhead alone: the round trip of an empty task (sequential: latency; 200 at
 once: throughput), and of a task returning 1 MB (a chunk's segment is ~0.1-2 MB).
@@ -82,7 +83,7 @@ def main() -> None:
 
     # warm the caches (default avatar file cache, numba kernels) outside the timed runs
     warm = tmp / "warm.jsonl"
-    warm.write_text(json.dumps({"frames": 1, "tile_scale": 0.05}) + "\n")
+    warm.write_text(json.dumps({"frames": 1, "tile_scale": args.tile_scale}) + "\n")
     run_batch(warm, tmp / "warm", InProcessExecutor(1), progress=False)
 
     rows = []
@@ -117,6 +118,7 @@ def main() -> None:
     # again with warm workers (Ray keeps them, with their loaded scene): what a long batch sees
     timed("ray w=1", RayExecutor(workers=1, threads=1))
     timed("ray w=2", RayExecutor(workers=2, threads=1))
+    timed("ray w=1 t=2", RayExecutor(workers=1, threads=2))  # the same 2 cores as threads of one worker
     ray.shutdown()
     shutil.rmtree(tmp, ignore_errors=True)
 
