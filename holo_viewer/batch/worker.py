@@ -4,7 +4,7 @@
 scene (avatar, calibration, renderer) between calls, so a worker process loads the default avatar
 once for all the chunks it renders. It never writes files: it returns MPEG-TS segments and PNG
 bytes (:class:`~holo_viewer.batch.jobs.ChunkResult`), so a worker killed mid-chunk leaves nothing
-behind, and a node needs no shared file system. An error in a chunk (bad input the driver could
+behind, and the outputs need no file system shared with the nodes. An error in a chunk (bad input the driver could
 not see, e.g. a PLY that does not match its FLAME model) is returned, not raised: the job fails
 alone and Ray does not retry a deterministic error.
 """
@@ -17,7 +17,7 @@ import socket
 import time
 import traceback
 from collections import OrderedDict
-from typing import Any, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Iterator, Sequence
 
 import numpy as np
 
@@ -25,13 +25,16 @@ from ..errors import HoloViewerError
 from .jobs import ChunkResult, ChunkTask, SceneSpec
 from .video import SegmentEncoder
 
+if TYPE_CHECKING:  # pragma: no cover
+    from ..pipeline import Pipeline
+
 __all__ = ["render_chunk", "render_frames", "load_scene_pipeline"]
 
-_SCENES: "OrderedDict[SceneSpec, Any]" = OrderedDict()
+_SCENES: "OrderedDict[SceneSpec, Pipeline]" = OrderedDict()
 _MAX_SCENES = 2
 
 
-def load_scene_pipeline(scene: SceneSpec) -> Any:
+def load_scene_pipeline(scene: SceneSpec) -> "Pipeline":
     """The :class:`~holo_viewer.pipeline.Pipeline` of ``scene``, loaded once per process (LRU of 2)."""
     pipe = _SCENES.get(scene)
     if pipe is None:
@@ -48,7 +51,7 @@ def load_scene_pipeline(scene: SceneSpec) -> Any:
     return pipe
 
 
-def render_frames(pipe: Any, frames: Sequence[dict[str, Any]], named: tuple[tuple[str, float], ...], pain: float,
+def render_frames(pipe: "Pipeline", frames: Sequence[dict[str, Any]], named: tuple[tuple[str, float], ...], pain: float,
                   native: bool) -> Iterator[tuple[np.ndarray, np.ndarray | None]]:
     """(quilt, native or None) uint8 images of each frame: the batch's one use of the pipeline.
 
