@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from ..errors import HoloViewerError
+from ..errors import ExportError, HoloViewerError
 from ..fileio import atomic_write
 from .executors import Executor
 from .jobs import (PNG_KINDS, VIDEO_KINDS, ChunkResult, ChunkTask, ResolvedJob, chunk_tasks, load_frames,
@@ -354,7 +354,10 @@ def _finish(j: _Job, root: Path, summary: BatchSummary) -> None:
     with atomic_write(stage / "job.json", "w") as fh:
         json.dump(info, fh, indent=2)
     final = root / r.hash
-    if not (final / "job.json").is_file():  # else an earlier run finished it: keep that one
+    if final.exists() and not (final / "job.json").is_file():
+        raise ExportError(f"{final}: expected a finished job folder (with job.json) or none, found a folder "
+                          "without job.json (not written by render-batch?); move it away and re-run")
+    if not final.exists():  # else an earlier run finished it: keep that one
         os.replace(stage, final)  # one rename: the job folder appears complete or not at all
     shutil.rmtree(j.work, ignore_errors=True)
     rec.status, rec.seconds, rec.render_seconds = "done", seconds, j.render_seconds
