@@ -100,7 +100,7 @@ class RayExecutor:
         if not ray.is_initialized():
             kw: dict[str, Any] = {"log_to_driver": False, "logging_level": "WARNING"}
             if self.address is None:
-                cpus = (self._requested_workers or max(1, (os.cpu_count() or 1) // self.threads)) * self.threads
+                cpus = (self._requested_workers or max(1, _usable_cpus() // self.threads)) * self.threads
                 kw.update(num_cpus=cpus, include_dashboard=False)
             try:
                 ray.init(address=self.address, **kw)
@@ -163,6 +163,14 @@ class RayExecutor:
         if self._owns:
             self._ray.shutdown()
             self._owns = False
+
+
+def _usable_cpus() -> int:
+    """CPUs this process may run on (the affinity mask in a container), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
 
 
 def make_executor(address: str | None = None, workers: int | None = None, threads: int = 1,
