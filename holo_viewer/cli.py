@@ -36,6 +36,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "train-reaction": ("train_reaction", "train the listener-reaction model"),
     "evaluate-reactions": ("evaluate_reactions", "REACT metrics of the model and baselines on the test split"),
     "react": ("react", "generate listener FLAME parameters from speaker audio and features"),
+    "render-batch": ("render_batch", "render many clips from a manifest to quilt/native videos (Ray or in-process)"),
 }
 
 

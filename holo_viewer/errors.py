@@ -25,6 +25,7 @@ __all__ = [
     "ReactionError",
     "ExportError",
     "MissingDependencyError",
+    "ManifestError",
 ]
 
 
@@ -70,6 +71,10 @@ class ReactionError(HoloViewerError):
 
 class ExportError(HoloViewerError):
     """A quilt, image or video could not be written."""
+
+
+class ManifestError(InputError):
+    """A batch manifest row is malformed: its message names the file, line, field, expected and found."""
 
 
 class MissingDependencyError(HoloViewerError, ImportError):

@@ -3,7 +3,7 @@
 ::
 
     entry      cli, __main__                      -> commands (lazily), base
-    front      commands/, gui/, apps/             -> pipeline, stage packages, base (apps: never gui/)
+    front      commands/, gui/, batch/, apps/     -> pipeline, stage packages, base (apps: never gui/)
     pipeline   pipeline/                          -> stage packages, base
     stages     flame/ avatar/ render/ display/ reaction/  -> base (+ the few edges in STAGE_EDGES)
     base       errors validation fileio geometry camera testing
@@ -81,7 +81,7 @@ def _layer(area: str) -> str:
         return "stages"
     if area == "pipeline":
         return "pipeline"
-    if area in ("gui", "commands", "apps"):
+    if area in ("gui", "commands", "batch", "apps"):
         return "front"
     if area in ("cli", "__main__"):
         return "entry"
@@ -133,6 +133,8 @@ def test_no_import_runs_back_up_the_layers(mod):
         if src == "front" and dst == "front":
             assert not (src_area == "apps" and area == "gui"), f"{mod} imports {target}: apps/ are headless, no gui/"
             assert not (src_area == "gui" and area == "commands"), f"{mod} imports {target}: gui/ uses no commands/"
+            assert not (src_area == "batch" and area in ("gui", "commands")), (
+                f"{mod} imports {target}: batch/ is headless and below the commands")
 
 
 def _chain_violations(mod: str, imports: set[tuple[str, str]]) -> list[str]:

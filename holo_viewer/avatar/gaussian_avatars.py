@@ -201,6 +201,9 @@ def load_gaussian_avatar(ply_path: str | os.PathLike, flame_param_path: str | os
         from ..flame.default_head import load_default_model
 
         flame_model = load_default_model()
+        binding = np.asarray(local.extra.get("binding_0", local.extra.get("binding")))
+        if binding.size and int(binding.max()) >= int(flame_model.faces.shape[0]):  # bound to the teeth too
+            flame_model = load_default_model(add_teeth=True)  # as default_avatar() is
     elif isinstance(flame_model, (str, os.PathLike)):
         flame_model = FlameModel.load(flame_model, add_teeth=True)
     if flame_param_path is None and (ply_path.parent / "flame_param.npz").exists():
