@@ -1355,13 +1355,13 @@ class HoloViewer:
         style = _scene_only_style(inter, self.scene_renderer)
         iren.style = style
         self._style = style
-        inter.AddObserver("KeyPressEvent", self._on_key)
-        inter.AddObserver("ExitEvent", lambda *_: self.quit())
+        self._observers = [(inter, inter.AddObserver("KeyPressEvent", self._on_key)),
+                           (inter, inter.AddObserver("ExitEvent", lambda *_: self.quit())),
+                           (inter, inter.AddObserver("RenderEvent", self._on_render_request))]
         axes = getattr(self.scene_renderer, "axes_widget", None)
         if axes is not None:
             axes.KeyPressActivationOff()
             axes.InteractiveOff()
-        inter.AddObserver("RenderEvent", self._on_render_request)
 
     def _on_render_request(self, *_: Any) -> None:
         self._dirty = True
@@ -1425,8 +1425,18 @@ class HoloViewer:
         if self._worker is not None:
             self._worker.close()
             self._worker = None
+        # observers hold Python callables that hold this viewer: remove them, or the cycle keeps the
+        # interactor (and its X display connection) alive after the window is gone
+        for obj, tag in getattr(self, "_observers", []):
+            obj.RemoveObserver(tag)
+        self._observers = []
+        style = getattr(self, "_style", None)
+        if style is not None:
+            style.RemoveAllObservers()
+            self._style = None
         for w in self.sliders.values():
             w.EnabledOff()
+            w.RemoveAllObservers()
             w.SetInteractor(None)
         self.plotter.close()
 
@@ -1469,7 +1479,7 @@ class HoloViewer:
 
         x0, y0, x1, y1 = self.panel_box(which)
         arr = vtk.vtkUnsignedCharArray()
-        self.plotter.ren_win.GetPixelData(x0, y0, x1, y1, 1 if front else 0, arr)
+        self.plotter.ren_win.GetPixelData(x0, y0, x1, y1, 1 if front else 0, arr, 0)
         return vtk_to_numpy(arr).reshape(y1 - y0 + 1, x1 - x0 + 1, 3)
 
 
