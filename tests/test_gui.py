@@ -296,6 +296,7 @@ def test_i_key_saves_a_screenshot_and_leaves_the_sliders_alone(window, xin):
             for k, w in window.sliders.items()}
     assert xin.key("i", until=lambda: len(window.exports) == 1, timeout=5)
     assert window.exports[0].name.startswith("screenshot") and window.exports[0].exists()
+    assert all(w.GetEnabled() for w in window.sliders.values())  # VTK's 'i' used to disable the first one
     xin.key("i", until=lambda: len(window.exports) == 2, timeout=5)
     assert {k: (w.GetRepresentation().GetPoint1Coordinate().GetValue(), w.GetEnabled())
             for k, w in window.sliders.items()} == reps
