@@ -354,7 +354,10 @@ class HoloViewer:
         self._jobs = BackgroundJobs()
         self._thumb_pending_key: tuple | None = None
         self._thumb_started = 0.0
+        self._in_events = False
         self._live: dict[str, tuple[float, float]] = {}  # slider key -> (value, event time)
+        self._released: list[_Slider] = []  # sliders released during this loop turn's events
+        self._thumb_wanted = False
         self._entry: str | None = None  # the value being typed after Return
         self._message = ""
         self._releasing = ""  # key of the slider whose release is being handled
@@ -700,6 +703,13 @@ class HoloViewer:
             return
         self._live.pop(spec.key, None)
         spec.value_text.SetInput(spec.fmt % spec.value)
+        if self._in_events:  # applied by step() once the events are processed: one frame, no extra render
+            if spec not in self._released:
+                self._released.append(spec)
+            return
+        self._apply_release(spec)
+
+    def _apply_release(self, spec: _Slider) -> None:
         self._releasing = spec.key
         self._guarded(spec.release, spec.value)
 
@@ -846,7 +856,10 @@ class HoloViewer:
             self.timings.preview_ms = (time.perf_counter() - t0) * 1e3
             self._update_status()
             if self.config.auto_thumbnail:
-                self._update_thumbnail()
+                if self._looping:
+                    self._thumb_wanted = True  # submitted at the start of the next loop turn
+                else:
+                    self._update_thumbnail()
         else:
             self._update_status()
             self._render()
@@ -1370,17 +1383,25 @@ class HoloViewer:
         """One turn of the event loop: X events, live sliders, background results, one frame if needed.
 
         Returns False once the window should close (``q``, the window's close button)."""
+        if self._thumb_wanted:
+            self._thumb_wanted = False
+            self._guarded(self._update_thumbnail)
         iren = self.plotter.iren
         if iren is not None and not self.off_screen:
             inter = iren.interactor
             inter.EnableRenderOff()  # widget / camera renders are coalesced into one per turn
+            self._in_events = True
             try:
                 iren.process_events()
             finally:
+                self._in_events = False
                 inter.EnableRenderOn()
             if inter.GetDone():
                 self._quit = True
         self._apply_live()
+        released, self._released = self._released, []
+        for spec in released:
+            self._apply_release(spec)
         try:
             self.poll_thumbnail()
         except Exception as exc:  # noqa: BLE001 - a worker failure must not kill the event loop
