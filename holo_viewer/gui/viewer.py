@@ -52,6 +52,7 @@ KEYS: tuple[tuple[str, str, str], ...] = (
     ("c", "c", "ellipsoid colour: own / opacity / size"),
     ("o", "o", "cameras, frusta, focal plane on / off"),
     ("r", "r", "camera: back to head + all cameras"),
+    ("z", "z", "camera: close-up of the head"),
     ("0", "0", "face back to neutral"),
     ("Left", "<- ->", "previous / next view"),
     ("Right", "", ""),
@@ -395,10 +396,10 @@ class HoloViewer:
             self._update_glyphs()
         self._add_cameras()
         self.axes_actor = p.add_axes(interactive=False, line_width=2, labels_off=False)
-        self.status = _text_actor("", F - 1, "white", justify="right", mono=False)
+        self.status = _text_actor("", F - 1, "white", justify="right", background=0.55)
         self.status.SetPosition(0.99, 0.01)
         self.scene_renderer.AddViewProp(self.status)
-        self.hint = _text_actor("h  help", F, "#ffe680", vjust="top")
+        self.hint = _text_actor("h  help", F, "#ffe680", vjust="top", background=0.55)
         self.hint.SetPosition(0.01, 0.99)
         self.scene_renderer.AddViewProp(self.hint)
         self.help_actor = _text_actor(HELP_TEXT, F - 1, "#ffe680", vjust="top", mono=True, background=0.8)
@@ -413,7 +414,7 @@ class HoloViewer:
         self.preview_panel = _ImagePanel(p, (0, 2), "selected view", F)
         self.thumb_panel = _ImagePanel(p, (1, 2), "quilt", F)
         cal = pipe.calibration
-        self.thumb_panel.set_title(f"quilt {cal.cols}x{cal.rows}, view 0 bottom left")
+        self.thumb_panel.set_title(f"quilt {cal.cols}x{cal.rows} (0 bottom left)")
         if pipe.avatar is None:
             why = "no Gaussian avatar\n(--avatar none: mesh only)\nnothing to render here"
             self.preview_panel.set_message(why)
@@ -437,18 +438,24 @@ class HoloViewer:
         return scene_bounds(self.pipeline.mesh(), cams.positions, corners, pad=0.02)
 
     def reset_camera(self) -> None:
-        """Frame the head and all the quilt cameras, seen from the front right and above (key ``r``)."""
+        """Frame the head and all the quilt cameras, seen from the right and above (key ``r``)."""
+        self._frame(self._default_camera_bounds(), (1.0, 0.7, 0.45), 1.05)
+
+    def head_closeup(self) -> None:
+        """Frame the head only, seen from the front right (key ``z``)."""
+        self._frame(scene_bounds(self.pipeline.mesh(), pad=0.0), (0.45, 0.2, 1.0), 1.5)
+
+    def _frame(self, b: tuple[float, ...], direction: tuple[float, float, float], zoom: float) -> None:
         ren = self.scene_renderer
-        b = self._default_camera_bounds()
         focal = np.array([(b[0] + b[1]) / 2, (b[2] + b[3]) / 2, (b[4] + b[5]) / 2])
         cam = ren.GetActiveCamera()
-        direction = np.array([1.0, 0.7, 0.45]) / np.linalg.norm([1.0, 0.7, 0.45])
+        direction = np.asarray(direction, dtype=np.float64) / np.linalg.norm(direction)
         cam.SetFocalPoint(*focal)
         cam.SetPosition(*(focal + direction))
         cam.SetViewUp(0.0, 1.0, 0.0)
         cam.SetViewAngle(30.0)
         ren.ResetCamera(*b)  # keeps the direction, fits the bounding sphere
-        cam.Zoom(1.05)  # the bounding sphere is loose around this flat box
+        cam.Zoom(zoom)  # the bounding sphere is loose around a flat box
         ren.ResetCameraClippingRange()
         ren.camera_set = True
         self._render()
@@ -465,6 +472,10 @@ class HoloViewer:
         V = len(cams)
         pts, lines, vid = frusta_arrays(cams, centre)
         cols = view_colors(V)
+        # every view's frustum would be a solid fan (the sheared frusta share the focal rectangle):
+        # draw every 6th and the last, plus all 48 camera centres; the selected one is drawn apart
+        drawn = np.isin(vid, np.unique(np.r_[np.arange(0, V, 6), V - 1]))
+        lines, vid = lines[drawn], vid[drawn]
         cells = np.hstack([np.full((lines.shape[0], 1), 2, dtype=np.int64), lines]).ravel()
         self.frusta = pv.PolyData(pts, lines=cells)
         self.frusta.cell_data["rgb"] = (cols[vid] * 255).astype(np.uint8)
@@ -473,7 +484,7 @@ class HoloViewer:
         self.frusta = self.frusta_actor.mapper.dataset  # update what VTK draws
         self.camera_points = pv.PolyData(cams.positions.copy())
         self.camera_points.point_data["rgb"] = (cols * 255).astype(np.uint8)
-        self.camera_actor = p.add_mesh(self.camera_points, scalars="rgb", rgb=True, point_size=9,
+        self.camera_actor = p.add_mesh(self.camera_points, scalars="rgb", rgb=True, point_size=11,
                                        render_points_as_spheres=True, name="cameras", reset_camera=False,
                                        lighting=False)
         self.camera_points = self.camera_actor.mapper.dataset
@@ -488,23 +499,19 @@ class HoloViewer:
         # numbers at a few cameras (colour-keyed) and at the selected one
         self._numbered = sorted({0, V // 4, V // 2, (3 * V) // 4, V - 1})
         self.camera_labels = []
-        for i in self._numbered:
-            lab = vtk.vtkBillboardTextActor3D()
-            lab.SetInput(str(i))
-            tp = lab.GetTextProperty()
-            tp.SetFontSize(self._font)
-            tp.SetColor(*cols[i])
-            tp.SetJustificationToCentered()
-            tp.BoldOn()
-            self.scene_renderer.AddActor(lab)
+        for i in self._numbered:  # 2D text anchored at a world point: drawn on top, never hidden
+            lab = _text_actor(str(i), self._font, "white", justify="center")
+            lab.GetTextProperty().SetColor(*cols[i])
+            lab.GetTextProperty().BoldOn()
+            lab.GetTextProperty().ShadowOn()
+            lab.GetPositionCoordinate().SetCoordinateSystemToWorld()
+            self.scene_renderer.AddViewProp(lab)
             self.camera_labels.append(lab)
-        self.selected_label = vtk.vtkBillboardTextActor3D()
-        tp = self.selected_label.GetTextProperty()
-        tp.SetFontSize(self._font + 2)
-        tp.SetColor(1.0, 1.0, 1.0)
-        tp.BoldOn()
-        tp.SetJustificationToCentered()
-        self.scene_renderer.AddActor(self.selected_label)
+        self.selected_label = _text_actor("", self._font + 1, "white", justify="center")
+        self.selected_label.GetTextProperty().BoldOn()
+        self.selected_label.GetTextProperty().ShadowOn()
+        self.selected_label.GetPositionCoordinate().SetCoordinateSystemToWorld()
+        self.scene_renderer.AddViewProp(self.selected_label)
         # legend: view index -> colour
         lut = vtk.vtkLookupTable()
         lut.SetNumberOfTableValues(V)
@@ -545,10 +552,10 @@ class HoloViewer:
         pos = cams.positions
         lift = np.array([0.0, 0.025, 0.0])
         for lab, i in zip(self.camera_labels, self._numbered):
-            lab.SetPosition(*(pos[i] + lift))
+            lab.GetPositionCoordinate().SetValue(*(pos[i] + lift))
             lab.SetVisibility(self.show_frusta and i != self.selected_view)
         self.selected_label.SetInput(f"view {self.selected_view}")
-        self.selected_label.SetPosition(*(pos[self.selected_view] + 2.2 * lift))
+        self.selected_label.GetPositionCoordinate().SetValue(*(pos[self.selected_view] + lift))
 
     def _slider_specs(self) -> list[_Slider]:
         pipe, cfg = self.pipeline, self.config
@@ -964,8 +971,8 @@ class HoloViewer:
         if not hasattr(self, "preview_panel"):
             return
         n = len(self.pipeline.cameras())
-        self.preview_panel.set_title(f"view {self.selected_view}/{n - 1}, "
-                                     f"alpha {self._view_angle(self.selected_view):+.1f} deg")
+        self.preview_panel.set_title(f"view {self.selected_view}/{n - 1} "
+                                     f"({self._view_angle(self.selected_view):+.1f} deg)")
 
     def _update_preview(self) -> None:
         if self.pipeline.avatar is None:
@@ -1100,7 +1107,7 @@ class HoloViewer:
     def _key_actions(self) -> dict[str, Callable[[], Any]]:
         return {"h": self.toggle_help, "q": self.quit, "m": self.toggle_mesh, "l": self.toggle_wireframe,
                 "g": self.toggle_gaussians, "c": self.cycle_glyph_color, "o": self.toggle_frusta,
-                "r": self.reset_camera, "0": self.reset_face, "Left": lambda: self.step_view(-1),
+                "r": self.reset_camera, "z": self.head_closeup, "0": self.reset_face, "Left": lambda: self.step_view(-1),
                 "Right": lambda: self.step_view(1), "Return": self.start_entry, "KP_Enter": self.start_entry,
                 "k": self.export_quilt, "n": self.export_native, "x": self.export_sweep_video,
                 "i": self.save_screenshot}
