@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
             xdo("mousemove", "--window", wid, 5, 5)
             overhead.append((time.perf_counter() - t) * 1e3)
 
-    sliders = {"pain": (0.2, 0.9), "smile": (0.3, 1.0), "jaw": (0.05, 0.3), "expr4": (0.2, 1.0)}
+    sliders = {"pain": (0.2, 0.9), "smile": (0.3, 0.95), "jaw": (0.05, 0.3), "expr4": (0.2, 1.0)}
     records = []
     settle(1.0)
     for rep in range(args.repeats):

@@ -632,7 +632,7 @@ class HoloViewer:
             rep.SetTitleText("")
             for c in (rep.GetPoint1Coordinate(), rep.GetPoint2Coordinate()):
                 c.SetCoordinateSystemToNormalizedViewport()
-            rep.SetSliderLength(0.02)
+            rep.SetSliderLength(0.035)
             rep.SetSliderWidth(0.02)
             rep.SetTubeWidth(0.006)
             rep.SetEndCapLength(0.0)
@@ -1480,7 +1480,8 @@ class HoloViewer:
         rep = spec.widget.GetRepresentation()
         v = spec.value if value is None else float(value)
         lo, hi = spec.rng
-        t = (v - lo) / (hi - lo)
+        L = rep.GetSliderLength()  # the knob travels between L/2 and 1 - L/2 of the track
+        t = L / 2 + (v - lo) / (hi - lo) * (1.0 - L)
         x0, y0, x1, y1 = self.slider_renderer.GetViewport()
         W, H = self.plotter.ren_win.GetSize()
         p1 = rep.GetPoint1Coordinate().GetValue()
