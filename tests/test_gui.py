@@ -708,3 +708,30 @@ def test_event_loop_shows_the_thumbnail_from_the_worker(xvfb, tmp_path):
         assert np.abs(viewer.read_pixels("quilt").astype(int) - shot).max() > 30  # on screen, not only in memory
     finally:
         viewer.close()
+
+
+def test_view_command_opens_a_window_and_q_closes_it(xdotool, tmp_path):
+    """The real command in its own process: the window appears on the X display, a real 'q' ends it (exit 0)."""
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    proc = subprocess.Popen([sys.executable, "-m", "holo_viewer", "view", "--avatar", "none", "--window-size",
+                             "640", "360", "--out-dir", str(tmp_path)], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        found = subprocess.run([xdotool, "search", "--sync", "--onlyvisible", "--name", "h for help"],
+                               capture_output=True, text=True, timeout=90)
+        wid = found.stdout.split()[0]
+        out = None
+        for _ in range(20):  # the window may be mapped before the viewer listens to keys: press again
+            subprocess.run([xdotool, "mousemove", "--window", wid, "300", "150"], timeout=10)
+            subprocess.run([xdotool, "key", "q"], check=True, timeout=10)
+            try:
+                out, _ = proc.communicate(timeout=3)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, out
+    assert "FLAME mesh only" in out and "press h" in out
