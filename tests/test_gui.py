@@ -246,6 +246,13 @@ def test_view_sliders_move_frusta_not_mesh(window):
     assert window.pipeline.stage_version("mesh") == mesh_v
     _fire_slider(window.sliders["view"], 3)
     assert window.selected_view == 3
+    positions = np.array(window.camera_points.points)
+    _fire_slider(window.sliders["angle"], 12.0)  # Algorithm 1's cone centre follows the viewer
+    assert window.pipeline.view.viewer_angle == pytest.approx(12.0)
+    assert np.abs(np.array(window.camera_points.points) - positions).max() > 1e-3
+    assert window.pipeline.stage_version("mesh") == mesh_v
+    assert window._specs["angle"].value_text.GetInput() == "+12.0"
+    assert "nan" not in window.status.GetInput()
 
 
 def test_keys_write_their_files(window, tmp_path):
