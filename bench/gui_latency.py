@@ -56,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         print("xdotool is not installed (apt-get install xdotool); pass --input events", file=sys.stderr)
         return 2
 
-    from holo_viewer.gui.loading import load_scene
+    from holo_viewer.pipeline.scene import load_scene
     from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
 
     load0 = os.getloadavg()[0]

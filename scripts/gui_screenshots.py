@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-kb", type=int, default=280)
     args = ap.parse_args(argv)
 
-    from holo_viewer.gui.loading import load_scene
+    from holo_viewer.pipeline.scene import load_scene
     from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
 
     out = Path(args.out_dir)

@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..gui.loading import load_scene
+    from ..pipeline.scene import load_scene
     from ..gui.offscreen import offscreen_viewer
     from ..pipeline import FaceControls
 

@@ -80,7 +80,7 @@ def require_display() -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..gui.loading import load_scene
+    from ..pipeline.scene import load_scene
     from ..pipeline import FaceControls
 
     toolkit = args.toolkit

@@ -1514,9 +1514,7 @@ class HoloViewer:
 
 def _quilt_with_progress(pipe: Pipeline, job: Job, chunk: int = 8) -> np.ndarray:
     """The full quilt of ``pipe`` rendered ``chunk`` views at a time, reporting progress to ``job``."""
-    from ..display.quilt import tile_quilt
-    from ..pipeline import quilt_layout
-    from ..render.api import render_views
+    from ..pipeline import quilt_layout, render_images, tile_views
 
     g = pipe.gaussians()
     cams = pipe.cameras()
@@ -1525,10 +1523,10 @@ def _quilt_with_progress(pipe: Pipeline, job: Job, chunk: int = 8) -> np.ndarray
     job.progress(0, V, "views")
     for s in range(0, V, chunk):
         idx = list(range(s, min(s + chunk, V)))
-        parts.append(render_views(g, cams[idx], backend=pipe.backend, config=pipe.render_config).images)
+        parts.append(render_images(g, cams[idx], backend=pipe.backend, config=pipe.render_config))
         job.progress(idx[-1] + 1, V, "views")
     cols, rows = quilt_layout(pipe.calibration)
-    return tile_quilt(np.concatenate(parts, axis=0), cols, rows, as_uint8=True)
+    return tile_views(np.concatenate(parts, axis=0), cols, rows)
 
 
 def _scene_only_style(interactor: Any, scene_renderer: Any) -> Any:
