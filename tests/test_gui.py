@@ -742,3 +742,22 @@ def test_view_command_opens_a_window_and_q_closes_it(xdotool, tmp_path):
             proc.wait()
     assert proc.returncode == 0, out
     assert "FLAME mesh only" in out and "press h" in out
+
+
+def test_quit_while_exporting_finishes_the_export_first(xvfb, tmp_path):
+    from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
+
+    viewer = HoloViewer(_small_scene(), ViewerConfig(window_size=(640, 360), out_dir=str(tmp_path),
+                                                     thumbnail_scale=0.1))
+    seen = {}
+
+    def slow(job):
+        time.sleep(0.5)
+        seen["status"] = viewer.status.GetInput()
+        return viewer._out("late.txt")
+
+    viewer._submit("exporting test", slow)
+    viewer.quit()
+    viewer.show()  # returns only once the export is written and the window closed
+    assert viewer.exports and viewer.exports[-1].name == "late.txt"
+    assert "then quitting" in seen["status"]

@@ -356,6 +356,7 @@ class HoloViewer:
         self._thumb_pending_key: tuple | None = None
         self._thumb_started = 0.0
         self._in_events = False
+        self._last_job_line = ""
         self._live: dict[str, tuple[float, float]] = {}  # slider key -> (value, event time)
         self._released: list[_Slider] = []  # sliders released during this loop turn's events
         self._thumb_wanted = False
@@ -919,8 +920,13 @@ class HoloViewer:
         self._render()
 
     def cycle_glyph_color(self) -> None:
+        """Next ellipsoid colour mode (key ``c``); the status line says how to read it."""
         modes = GLYPH_COLOR_MODES
         self.set_glyphs(color=modes[(modes.index(self.glyph_color) + 1) % len(modes)])
+        self._set_status({"colour": "ellipsoid colour: each Gaussian's own (DC) colour",
+                          "opacity": "ellipsoid colour: opacity (viridis: dark blue transparent, yellow opaque)",
+                          "size": "ellipsoid colour: largest sigma (plasma: dark small, yellow large)"}[self.glyph_color])
+        self._render()
 
     def _update_glyph_header(self) -> None:
         h = getattr(self, "_headers", {}).get("Gaussians")
@@ -1041,8 +1047,13 @@ class HoloViewer:
         busy = self._jobs.status_line()
         if busy:
             lines.append(busy)
-        elif self._message:
-            lines.append(self._message)
+        if self._message:  # wrapped to the scene's width, at most 3 lines (errors can be long)
+            import textwrap
+
+            x0, _, x1, _ = self.scene_renderer.GetViewport()
+            chars = max(30, int((x1 - x0) * self._size[0] / (0.6 * self._font)))
+            wrapped = textwrap.wrap(self._message, chars)
+            lines += wrapped[:3] + (["..."] if len(wrapped) > 3 else [])
         self.status.SetInput("\n".join(lines))
 
     def _set_status(self, text: str) -> None:
@@ -1299,7 +1310,7 @@ class HoloViewer:
                 self._record(job.result)
         if self._jobs.pending:
             line = self._jobs.status_line()
-            if line != getattr(self, "_last_job_line", ""):
+            if line != self._last_job_line:
                 self._last_job_line = line
                 self._update_status()
                 self._dirty = True
@@ -1443,8 +1454,12 @@ class HoloViewer:
         """Open the window and run the event loop until it is closed (``q`` or the close button)."""
         self.open()
         self.run()
-        if self._jobs.pending:
-            print(f"holo-viewer: waiting for {len(self._jobs.pending)} export(s) to finish...")
+        if self._jobs.pending:  # quit asked while exporting: finish them with the window still drawn
+            n = len(self._jobs.pending)
+            print(f"holo-viewer: finishing {n} export(s) before quitting...")
+            self._quit = False
+            self._set_status(f"finishing {n} export(s), then quitting")
+            self.run(until=lambda: not self._jobs.pending)
         self.close()
 
     def close(self) -> None:
