@@ -751,9 +751,11 @@ def test_quit_while_exporting_finishes_the_export_first(xvfb, tmp_path):
                                                      thumbnail_scale=0.1))
     seen = {}
 
-    def slow(job):
-        time.sleep(0.5)
-        seen["status"] = viewer.status.GetInput()
+    def slow(job):  # still running when the window says it will quit after it
+        end = time.time() + 30
+        while "then quitting" not in viewer._message and time.time() < end:
+            time.sleep(0.05)
+        seen["status"] = viewer._message
         return viewer._out("late.txt")
 
     viewer._submit("exporting test", slow)
