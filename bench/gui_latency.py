@@ -1,12 +1,24 @@
-"""Viewer responsiveness on the default avatar: slider release -> mesh on screen, -> preview on screen.
+"""Viewer responsiveness on the default avatar, measured on screen: input event -> pixels changed.
 
-Run under an X server (a real display, or ``xvfb-run -s "-screen 0 1920x1080x24" python bench/gui_latency.py``);
-``--offscreen`` uses OSMesa instead. Fires slider releases from code (set value + EndInteractionEvent,
-exactly what a mouse release does), records the viewer's own timings, and prints a table:
-median and max milliseconds for "mesh" (pipeline params+mesh and one window render) and "preview"
-(Gaussians, glyphs, the selected view rendered by the fast renderer, second window render), plus the
-thumbnail quilt (rendered in a worker process). ``--json FILE`` writes the records; ``--screenshot PNG``
-saves the window after the last release.
+Run under an X server (a real display, or ``xvfb-run -a -s "-screen 0 1920x1080x24" python
+bench/gui_latency.py``). The viewer runs its own event loop (``HoloViewer.step``); after every turn
+the benchmark reads the window's front buffer (``vtkRenderWindow.GetPixelData``) in the 3D
+scene, the preview and the quilt-thumbnail panels, and records when each first differs from
+the frame before the input. Input is real X input by default: xdotool presses the mouse on a
+slider's knob, drags it (live scrub) and releases it, so the times include X delivery and
+xdotool's own start (``input overhead`` in the output); ``--input events`` fires the widget's
+VTK events from code instead. Rows:
+
+* drag step -> mesh on screen (the live scrub: one pointer motion, the mesh follows);
+* release -> ellipsoids on screen (the Gaussians of the new face drawn in the 3D scene);
+* release -> preview on screen (the selected view rendered by the fast renderer);
+* release -> quilt thumbnail on screen (rendered in the worker process, shown by the loop).
+
+Beside each on-screen time it prints the viewer's own timer for the same update (what the
+status line shows, measured inside the callback) and the ratio on-screen / own timer. The
+ellipsoid count is the ``view`` command's default (``ViewerConfig.max_glyphs``); the status
+line is off so that its text does not count as a changed pixel. ``--json FILE`` writes the
+config and every record; ``--screenshot PNG`` saves the window after the last release.
 """
 
 from __future__ import annotations
@@ -14,75 +26,178 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
+import subprocess
 import sys
 import time
+
+import numpy as np
+
+PANELS = ("scene", "preview", "quilt")
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--repeats", type=int, default=4, help="releases per slider")
-    ap.add_argument("--offscreen", action="store_true", help="OSMesa instead of the X display")
+    ap.add_argument("--repeats", type=int, default=3, help="drags per slider")
     ap.add_argument("--window-size", type=int, nargs=2, default=(1400, 800))
+    ap.add_argument("--input", choices=("xdotool", "events"), default=None,
+                    help="real X input (default when xdotool is installed) or VTK events fired from code")
+    ap.add_argument("--timeout", type=float, default=15.0, help="seconds to wait for a panel to change")
     ap.add_argument("--json", default=None)
     ap.add_argument("--screenshot", default=None)
     args = ap.parse_args(argv)
 
-    from holo_viewer.gui.loading import load_scene
+    if not os.environ.get("DISPLAY"):
+        print("no DISPLAY: run under xvfb-run (the benchmark measures pixels on an X window)", file=sys.stderr)
+        return 2
+    method = args.input or ("xdotool" if shutil.which("xdotool") else "events")
+    if method == "xdotool" and not shutil.which("xdotool"):
+        print("xdotool is not installed (apt-get install xdotool); pass --input events", file=sys.stderr)
+        return 2
+
+    from holo_viewer.pipeline.scene import load_scene
     from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
 
-    if not args.offscreen and not os.environ.get("DISPLAY"):
-        print("no DISPLAY: run under xvfb-run or pass --offscreen", file=sys.stderr)
-        return 2
+    load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     scene = load_scene("default")
     load_s = time.perf_counter() - t0
-    cfg = ViewerConfig(window_size=tuple(args.window_size))
+    cfg = ViewerConfig(window_size=tuple(args.window_size), show_status=False)
     t0 = time.perf_counter()
-    if args.offscreen:
-        from holo_viewer.gui.offscreen import osmesa_window
-
-        with osmesa_window():
-            viewer = HoloViewer(scene.pipeline, cfg, off_screen=True)
-    else:
-        viewer = HoloViewer(scene.pipeline, cfg)
+    viewer = HoloViewer(scene.pipeline, cfg)
     viewer.open()
     build_s = time.perf_counter() - t0
-    sliders = {"pain": (0.2, 0.9), "smile": (0.3, 1.0), "jaw": (0.05, 0.3), "expr4": (0.2, 1.0)}
+    viewer._looping = True  # renders requested by callbacks are drawn by step(), as in run()
+
+    def xdo(*a: object) -> None:
+        subprocess.run(["xdotool", *map(str, a)], check=True)
+
+    wid = str(viewer.window_id())
+    H = viewer.plotter.ren_win.GetSize()[1]
+
+    def settle(seconds: float = 0.3) -> None:
+        """Loop until the thumbnail worker is idle, then ``seconds`` more."""
+        end = time.perf_counter() + args.timeout
+        while (viewer._thumb_pending_key is not None) and time.perf_counter() < end:
+            viewer.step()
+            time.sleep(0.002)
+        end = time.perf_counter() + seconds
+        while time.perf_counter() < end:
+            viewer.step()
+            time.sleep(0.002)
+
+    def grab() -> dict[str, np.ndarray]:
+        return {p: viewer.read_pixels(p).astype(np.int16) for p in PANELS}
+
+    def wait_changes(before: dict[str, np.ndarray], t_input: float, panels: tuple[str, ...]) -> dict[str, float]:
+        """Milliseconds from ``t_input`` until each panel's pixels differ (> 8 levels) from ``before``."""
+        seen: dict[str, float] = {}
+        end = time.perf_counter() + args.timeout
+        while len(seen) < len(panels) and time.perf_counter() < end:
+            viewer.step()
+            now = time.perf_counter()
+            for p in panels:
+                if p not in seen and np.abs(viewer.read_pixels(p).astype(np.int16) - before[p]).max() > 8:
+                    seen[p] = (now - t_input) * 1e3
+            time.sleep(0.001)
+        return {p: seen.get(p, float("nan")) for p in panels}
+
+    overhead = []
+    if method == "xdotool":
+        for _ in range(5):
+            t = time.perf_counter()
+            xdo("mousemove", "--window", wid, 5, 5)
+            overhead.append((time.perf_counter() - t) * 1e3)
+
+    sliders = {"pain": (0.2, 0.9), "smile": (0.3, 0.95), "jaw": (0.05, 0.3), "expr4": (0.2, 1.0)}
     records = []
+    settle(1.0)
     for rep in range(args.repeats):
         for key, (lo, hi) in sliders.items():
+            spec = viewer._specs[key]
+            start_v = spec.value
+            target = lo if abs(start_v - lo) > abs(start_v - hi) else hi
+            mid = 0.5 * (start_v + target)
             w = viewer.sliders[key]
-            w.GetRepresentation().SetValue(lo if rep % 2 == 0 else hi)
-            w.InvokeEvent("EndInteractionEvent")
+            # press on the knob, move half way (a drag step), measure, then the rest, then release
+            if method == "xdotool":
+                xdo("mousemove", "--window", wid, *viewer.slider_point(key))
+                xdo("mousedown", 1)
+            else:
+                w.InvokeEvent("StartInteractionEvent")
+            settle(0.2)
+            before = grab()
+            t = time.perf_counter()
+            if method == "xdotool":
+                xdo("mousemove", "--window", wid, *viewer.slider_point(key, mid))
+            else:
+                w.GetRepresentation().SetValue(mid)
+                w.InvokeEvent("InteractionEvent")
+            drag = wait_changes(before, t, ("scene",))["scene"]
+            own_live = viewer.timings.live_ms
+            if method == "xdotool":
+                xdo("mousemove", "--window", wid, *viewer.slider_point(key, target))
+            else:
+                w.GetRepresentation().SetValue(target)
+                w.InvokeEvent("InteractionEvent")
+            settle(0.2)
+            before = grab()
+            t = time.perf_counter()
+            if method == "xdotool":
+                xdo("mouseup", 1)
+            else:
+                w.InvokeEvent("EndInteractionEvent")
+            rel = wait_changes(before, t, PANELS)
             tm = viewer.timings
-            viewer.poll_thumbnail(wait=True)  # let the worker finish so it does not skew the next release
-            records.append({"slider": key, "mesh_ms": tm.mesh_ms, "preview_ms": tm.preview_ms,
-                            "thumbnail_ms": viewer.timings.thumbnail_ms})
+            records.append({"slider": key, "value": spec.value, "drag_mesh_ms": drag,
+                            "release_glyphs_ms": rel["scene"], "release_preview_ms": rel["preview"],
+                            "release_thumbnail_ms": rel["quilt"], "own_live_ms": own_live,
+                            "own_preview_ms": tm.preview_ms, "own_thumbnail_ms": tm.thumbnail_ms})
+            settle(0.2)
     if args.screenshot:
         viewer.save_screenshot(args.screenshot)
+    viewer._looping = False
     viewer.close()
+    load1 = os.getloadavg()[0]
 
     def col(name: str) -> list[float]:
-        return [r[name] for r in records if r[name] == r[name]]
+        return [r[name] for r in records if r[name] is not None and r[name] == r[name]]
 
-    print(f"default avatar: {len(scene.pipeline.avatar)} Gaussians; load {load_s:.1f} s, window {build_s:.1f} s; "
-          f"{'OSMesa' if args.offscreen else 'X display ' + os.environ.get('DISPLAY', '')}, "
-          f"{args.window_size[0]}x{args.window_size[1]}, cpu count {os.cpu_count()}, "
-          f"load average {os.getloadavg()[0]:.1f}")
-    print(f"{'slider release ->':<22} {'median ms':>10} {'max ms':>8}  n")
-    for name, label in (("mesh_ms", "mesh on screen"), ("preview_ms", "preview on screen"),
-                        ("thumbnail_ms", "thumbnail quilt")):
+    n_g = len(scene.pipeline.avatar)
+    print(f"default avatar: {n_g} Gaussians, {cfg.max_glyphs} drawn as ellipsoids (the view command's default); "
+          f"load {load_s:.1f} s, window {build_s:.1f} s")
+    print(f"X display {os.environ.get('DISPLAY')}, {args.window_size[0]}x{args.window_size[1]}, input {method}"
+          + (f" (input overhead: xdotool run {statistics.median(overhead):.0f} ms median, included)" if overhead
+             else "") + f", cpu count {os.cpu_count()}, load average {load0:.1f} -> {load1:.1f}")
+    print(f"{'event -> pixels changed':<36} {'median ms':>10} {'max ms':>8} {'own timer ms':>13} {'ratio':>6}  n")
+    rows = (("drag_mesh_ms", "drag step -> mesh on screen", "own_live_ms"),
+            ("release_glyphs_ms", "release -> ellipsoids on screen", None),
+            ("release_preview_ms", "release -> preview on screen", "own_preview_ms"),
+            ("release_thumbnail_ms", "release -> quilt thumbnail on screen", "own_thumbnail_ms"))
+    summary = {}
+    for name, label, own in rows:
         v = col(name)
-        print(f"{label:<22} {statistics.median(v):>10.0f} {max(v):>8.0f}  {len(v)}")
+        if not v:
+            print(f"{label:<36} {'-':>10} {'-':>8}")
+            continue
+        med = statistics.median(v)
+        own_med = statistics.median(col(own)) if own and col(own) else None
+        ratio = med / own_med if own_med else None
+        summary[name] = {"median_ms": med, "max_ms": max(v), "own_median_ms": own_med, "ratio": ratio,
+                         "n": len(v), "missed": len(records) - len(v)}
+        print(f"{label:<36} {med:>10.0f} {max(v):>8.0f} "
+              f"{(f'{own_med:.0f}' if own_med else '-'):>13} {(f'{ratio:.2f}' if ratio else '-'):>6}  {len(v)}")
     if args.json:
         from holo_viewer.fileio import atomic_write
 
         with atomic_write(args.json, "w") as fh:
-            json.dump({"config": {"window_size": list(args.window_size), "offscreen": args.offscreen,
-                                  "n_gaussians": len(scene.pipeline.avatar), "preview_scale": cfg.preview_scale,
-                                  "thumbnail_scale": cfg.thumbnail_scale, "max_glyphs": cfg.max_glyphs},
-                       "load_average": os.getloadavg()[0], "records": records}, fh, indent=2)
+            json.dump({"config": {"window_size": list(args.window_size), "input": method, "n_gaussians": n_g,
+                                  "max_glyphs": cfg.max_glyphs, "glyph_min_opacity": cfg.glyph_min_opacity,
+                                  "preview_scale": cfg.preview_scale, "thumbnail_scale": cfg.thumbnail_scale,
+                                  "repeats": args.repeats, "cpu_count": os.cpu_count()},
+                       "load_average": [load0, load1], "input_overhead_ms": overhead, "summary": summary,
+                       "records": records}, fh, indent=2)
     return 0
 
 

@@ -81,7 +81,8 @@ class MissingDependencyError(HoloViewerError, ImportError):
     """An optional dependency needed by the requested feature is not installed."""
 
     def __init__(self, package: str, feature: str, extra: str | None = None) -> None:
-        hint = f'pip install "holo_viewer[{extra}]"' if extra else f"pip install {package}"
+        hint = (f'pip install -e ".[{extra}]" in a source checkout (pip install "holo_viewer[{extra}]" from '
+                f'an index)' if extra else f"pip install {package}")
         super().__init__(f"{feature} needs the optional package '{package}', which is not installed; "
                          f"install it with: {hint}")
         self.package = package

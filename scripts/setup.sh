@@ -7,12 +7,13 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV="${VENV:-.venv}"
 PYTHON="${PYTHON:-python3}"
-APT_PKGS="libosmesa6 xvfb libusb-1.0-0 libgl1 libegl1 libxrender1"
+APT_PKGS="libosmesa6 xvfb xdotool libusb-1.0-0 libgl1 libegl1 libxrender1"
 
 have_lib() { ldconfig -p 2>/dev/null | grep -q "$1"; }
 missing=""
 have_lib libOSMesa.so || missing="$missing libosmesa6"
 command -v Xvfb >/dev/null 2>&1 || missing="$missing xvfb"
+command -v xdotool >/dev/null 2>&1 || missing="$missing xdotool"
 have_lib libusb-1.0.so || missing="$missing libusb-1.0-0"
 have_lib libGL.so.1 || missing="$missing libgl1"
 have_lib libEGL.so.1 || missing="$missing libegl1"
@@ -26,7 +27,7 @@ if [ -n "$missing" ]; then
   else
     echo "setup: WARNING: missing system packages:$missing" >&2
     echo "setup: install them with: sudo apt-get install$missing" >&2
-    echo "setup: (offscreen rendering needs libosmesa6, GUI tests need xvfb, USB needs libusb-1.0-0;" >&2
+    echo "setup: (offscreen rendering needs libosmesa6, GUI tests need xvfb and xdotool (real key presses / mouse drags), USB needs libusb-1.0-0;" >&2
     echo "        tests that need them are skipped with a message)" >&2
   fi
 fi

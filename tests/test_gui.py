@@ -1,5 +1,8 @@
-"""The PyVista viewer: a real window under Xvfb (started by a fixture), sliders fired from code,
-keys that export, the offscreen (OSMesa) snapshot against a golden image, the Open3D error path.
+"""The PyVista viewer: a real window under Xvfb (started by a fixture) driven by real X input
+(xdotool key presses, mouse drags and wheel turns against the window, processed by the viewer's
+own event loop), plus direct callback calls; the offscreen (OSMesa) snapshot against a golden
+image; the command line (no display, --toolkit, shared ellipsoid options); the Open3D error path.
+Tests that need Xvfb or xdotool skip with a message naming the apt package.
 
 The scene is a small seeded FLAME-format model (``flame.testing``) with a few hundred Gaussians
 bound to its triangles, so the tests run in seconds and do not change when the default head
@@ -114,10 +117,91 @@ def _fire_slider(widget, value: float) -> None:
 
 
 def _press(viewer, key: str) -> None:
+    """A key event injected into VTK (no X server round trip): KeyPress then Char, as X delivers them."""
     iren = viewer.plotter.iren.interactor
     iren.SetKeySym(key)
-    iren.SetKeyCode(key)
+    iren.SetKeyCode(key if len(key) == 1 else "\0")
     iren.InvokeEvent("KeyPressEvent")
+    iren.InvokeEvent("CharEvent")
+
+
+# ------------------------------------------------------------------ real X input (xdotool)
+
+
+@pytest.fixture(scope="module")
+def xdotool(xvfb):
+    exe = shutil.which("xdotool")
+    if exe is None:
+        pytest.skip("xdotool is not installed (apt-get install xdotool); the real-input tests send X key presses "
+                    "and mouse drags with it")
+    return exe
+
+
+class XInput:
+    """Real X events for a viewer's window: xdotool moves the pointer / presses keys through the
+    XTEST extension, the X server delivers them to the window under the pointer, and the viewer's
+    event loop (``viewer.run``) processes them."""
+
+    def __init__(self, exe: str, viewer) -> None:
+        self.exe, self.viewer = exe, viewer
+        self.wid = str(viewer.window_id())
+
+    def xdo(self, *args) -> None:
+        subprocess.run([self.exe, *map(str, args)], check=True, timeout=10)
+
+    def settle(self, until=None, timeout: float = 0.4) -> bool:
+        return self.viewer.run(until=until, timeout=timeout)
+
+    def move(self, x: int, y: int) -> None:
+        self.xdo("mousemove", "--window", self.wid, int(x), int(y))
+
+    def key(self, *keys: str, until=None, timeout: float = 0.5) -> bool:
+        for k in keys:
+            self.xdo("key", k)
+        return self.settle(until, timeout)
+
+    def type(self, text: str) -> None:
+        names = {" ": "space", ".": "period", "-": "minus", "_": "underscore"}
+        for ch in text:
+            self.xdo("key", names.get(ch, ch))
+
+    def drag(self, start, end, button: int = 1, steps: int = 4, during=None) -> None:
+        self.move(*start)
+        self.xdo("mousedown", button)
+        self.settle(timeout=0.15)
+        for k in range(1, steps + 1):
+            self.move(start[0] + (end[0] - start[0]) * k // steps, start[1] + (end[1] - start[1]) * k // steps)
+            self.settle(timeout=0.15)
+        if during is not None:
+            during()
+        self.xdo("mouseup", button)
+        self.settle(timeout=0.3)
+
+    def wheel(self, at, clicks: int = 3) -> None:
+        self.move(*at)
+        for _ in range(clicks):
+            self.xdo("click", 4)
+            self.xdo("click", 5)
+            self.xdo("click", 5)
+        self.settle(timeout=0.3)
+
+    def centre(self, panel: str) -> tuple[int, int]:
+        x0, y0, x1, y1 = self.viewer.panel_box(panel)
+        H = self.viewer.plotter.ren_win.GetSize()[1]
+        return (x0 + x1) // 2, H - 1 - (y0 + y1) // 2
+
+
+@pytest.fixture()
+def xin(window, xdotool):
+    x = XInput(xdotool, window)
+    x.move(*x.centre("scene"))
+    x.settle()
+    return x
+
+
+def _camera_state(renderer):
+    cam = renderer.GetActiveCamera()
+    return (cam.GetPosition(), cam.GetFocalPoint(), cam.GetViewUp(), cam.GetParallelScale(), cam.GetViewAngle())
 
 
 # ------------------------------------------------------------------ interactive window
@@ -162,6 +246,13 @@ def test_view_sliders_move_frusta_not_mesh(window):
     assert window.pipeline.stage_version("mesh") == mesh_v
     _fire_slider(window.sliders["view"], 3)
     assert window.selected_view == 3
+    positions = np.array(window.camera_points.points)
+    _fire_slider(window.sliders["angle"], 12.0)  # Algorithm 1's cone centre follows the viewer
+    assert window.pipeline.view.viewer_angle == pytest.approx(12.0)
+    assert np.abs(np.array(window.camera_points.points) - positions).max() > 1e-3
+    assert window.pipeline.stage_version("mesh") == mesh_v
+    assert window._specs["angle"].value_text.GetInput() == "+12.0"
+    assert "nan" not in window.status.GetInput()
 
 
 def test_keys_write_their_files(window, tmp_path):
@@ -169,6 +260,7 @@ def test_keys_write_their_files(window, tmp_path):
 
     for key in ("k", "n", "i", "x"):
         _press(window, key)
+    window.wait_exports(timeout=120)
     out = sorted(p.name for p in (tmp_path / "exports").iterdir())
     quilts = [n for n in out if n.endswith("_qs8x6a0.75.png")]
     natives = [n for n in out if n.endswith("_native.png")]
@@ -200,6 +292,286 @@ def test_toggles_and_help(window):
     assert not window.glyph_actor.GetVisibility()
     _press(window, "l")
     assert window.wireframe
+
+
+# ------------------------------------------------------------------ real X input: bugs 1-5 of issue 20
+
+
+def test_i_key_saves_a_screenshot_and_leaves_the_sliders_alone(window, xin):
+    """Bug 1: 'i' was VTK's slider activation key; a real key press hid the first slider."""
+    reps = {k: (w.GetRepresentation().GetPoint1Coordinate().GetValue(), w.GetEnabled())
+            for k, w in window.sliders.items()}
+    assert xin.key("i", until=lambda: len(window.exports) == 1, timeout=5)
+    assert window.exports[0].name.startswith("screenshot") and window.exports[0].exists()
+    assert all(w.GetEnabled() for w in window.sliders.values())  # VTK's 'i' used to disable the first one
+    xin.key("i", until=lambda: len(window.exports) == 2, timeout=5)
+    assert {k: (w.GetRepresentation().GetPoint1Coordinate().GetValue(), w.GetEnabled())
+            for k, w in window.sliders.items()} == reps
+
+
+def test_builtin_vtk_and_pyvista_keys_do_nothing(window, xin):
+    """Bug 3: w/s wireframe/surface, 3 stereo, e quit, f/p/v camera and picking, Up/Down/+/- zoom."""
+    scene = _camera_state(window.scene_renderer)
+    thumb = _camera_state(window.thumb_panel.renderer)
+    shot = window.read_pixels("quilt").copy()
+    xin.key("w", "3", "f", "p", "v", "j", "t", "u", "e", "Up", "Down", "plus", "minus", timeout=0.6)
+    xin.move(*xin.centre("quilt"))  # the zoom keys used to act on the panel under the pointer
+    assert not xin.key("Up", "Up", "plus", "w", "s", timeout=0.6)  # the loop is still running ('e' did not quit)
+    assert window.mesh_actor.GetProperty().GetRepresentation() == 2  # surface
+    assert not window.plotter.ren_win.GetStereoRender()
+    assert _camera_state(window.scene_renderer) == scene
+    assert _camera_state(window.thumb_panel.renderer) == thumb
+    assert np.array_equal(window.read_pixels("quilt"), shot)
+    assert not window._quit
+
+
+def test_image_panels_ignore_the_mouse_and_the_scene_takes_it(window, xin):
+    """Bug 4: a drag tilted the preview, the wheel zoomed it; only the 3D scene takes the mouse now."""
+    panels = {n: _camera_state(r) for n, r in (("preview", window.preview_panel.renderer),
+                                                ("quilt", window.thumb_panel.renderer))}
+    shot = window.read_pixels("preview").copy()
+    for name in ("preview", "quilt"):
+        c = xin.centre(name)
+        xin.drag(c, (c[0] + 60, c[1] + 40))
+        xin.drag(c, (c[0] - 30, c[1] + 50), button=3)
+        xin.wheel(c)
+        xin.key("w", "s")
+    assert {n: _camera_state(r) for n, r in (("preview", window.preview_panel.renderer),
+                                              ("quilt", window.thumb_panel.renderer))} == panels
+    assert np.array_equal(window.read_pixels("preview"), shot)
+    # the scene rotates with a drag, zooms with the wheel, and 'r' brings the default framing back
+    home = _camera_state(window.scene_renderer)
+    c = xin.centre("scene")
+    xin.drag(c, (c[0] + 80, c[1] + 20))
+    rotated = _camera_state(window.scene_renderer)
+    assert rotated != home
+    xin.wheel(c)
+    xin.key("r")
+    np.testing.assert_allclose(np.array(_camera_state(window.scene_renderer)[0]), np.array(home[0]), atol=1e-9)
+
+
+def test_slider_drag_scrubs_the_mesh_live_and_the_preview_on_release(window, xin):
+    drawn = window.mesh_actor.mapper.dataset
+    mesh0 = np.array(drawn.points)
+    preview0 = window.preview_panel.image.copy()
+    state = {}
+
+    def during():  # the button is still down
+        state["expr0"] = float(window.pipeline.face.expr[0])
+        state["moved"] = float(np.abs(np.array(drawn.points) - mesh0).max())
+        state["preview_same"] = np.array_equal(window.preview_panel.image, preview0)
+        state["live_ms"] = window.timings.live_ms
+
+    start, end = window.slider_point("expr0", 0.0), window.slider_point("expr0", 1.5)
+    xin.drag(start, end, during=during)
+    assert state["expr0"] > 1.0 and state["moved"] > 1e-4, state  # the mesh followed the knob while dragging
+    assert state["preview_same"] and state["live_ms"] is not None  # the Gaussian preview waits for the release
+    assert window.pipeline.face.expr[0] == pytest.approx(window._specs["expr0"].value)
+    assert not np.array_equal(window.preview_panel.image, preview0)  # released: preview rendered
+    np.testing.assert_allclose(np.array(drawn.points), window.pipeline.mesh(), atol=1e-6)
+    assert "nan" not in window.status.GetInput()
+
+
+def test_exports_run_in_the_background_with_progress_in_the_window(window, xin, tmp_path):
+    """Bug 5: exports froze the window. A job holds the export thread; keys still act meanwhile."""
+    import threading
+
+    gate = threading.Event()
+
+    def slow(job):
+        job.progress(1, 3, "steps")
+        gate.wait(20)
+        job.progress(3, 3, "steps")
+        return window._out("slow.txt")
+
+    window._submit("exporting test", slow)
+    assert xin.key("k", "n", "x", until=lambda: "(+3 queued)" in window.status.GetInput(), timeout=5)
+    assert "exporting test: 1/3 steps" in window.status.GetInput()
+    assert xin.key("h", until=lambda: window.help_actor.GetVisibility(), timeout=3)  # not blocked
+    assert xin.key("m", until=lambda: not window.mesh_actor.GetVisibility(), timeout=3)
+    gate.set()
+    assert xin.settle(until=lambda: len(window.exports) == 4, timeout=120), window.errors
+    assert "wrote" in window.status.GetInput()
+    names = sorted(p.name for p in (tmp_path / "exports").iterdir())
+    assert any(n.endswith("_qs8x6a0.75.png") for n in names) and any(n.endswith("_native.png") for n in names)
+    assert any(n.endswith(".mp4") for n in names), names
+
+
+def test_value_entry_arrow_keys_and_reset_to_neutral(window, xin):
+    xin.key("Return")
+    xin.type("expr0 1.2")
+    assert xin.key("Return", until=lambda: window.pipeline.face.expr[0] == pytest.approx(1.2), timeout=3)
+    assert window._specs["expr0"].value == pytest.approx(1.2)
+    xin.key("Return")
+    xin.type("nosuch 1")
+    xin.key("Return")
+    assert "no slider named 'nosuch'" in window.errors[-1]
+    frusta = window.frusta  # the 48 frusta are moved, never rebuilt
+    v0 = window.selected_view
+    assert xin.key("Right", until=lambda: window.selected_view == v0 + 1, timeout=3)
+    assert window.frusta is frusta and window.frusta_actor.mapper.dataset is frusta
+    np.testing.assert_allclose(np.array(window.selected.points), np.array(frusta.points)[5 * (v0 + 1): 5 * (v0 + 2)])
+    assert f"view {v0 + 1}/" in window.preview_panel.title.GetInput()
+    assert window._specs["view"].value == v0 + 1
+    assert xin.key("0", until=lambda: not np.any(window.pipeline.face.expr), timeout=3)
+    assert window._specs["expr0"].value == 0.0
+
+
+def test_q_quits_the_event_loop(window, xin):
+    assert xin.key("q", timeout=3) is False and window._quit
+
+
+# ------------------------------------------------------------------ what researchers expect
+
+
+def test_help_lists_every_key_and_every_listed_key_is_bound(window):
+    from holo_viewer.gui.viewer import HELP_TEXT, KEYS
+
+    actions = window._key_actions()
+    for keysym, shown, what in KEYS:
+        assert keysym in actions, keysym
+        if shown:
+            assert f" {shown}" in HELP_TEXT and what in HELP_TEXT
+    assert set(actions) - {k for k, _, _ in KEYS} <= {"KP_Enter"}
+    assert window.hint.GetVisibility() and "h" in window.hint.GetInput()  # the window says how to get help
+    assert "h for help" in window.plotter.ren_win.GetWindowName()
+
+
+def test_default_framing_shows_the_head_and_all_cameras(window):
+    ren = window.scene_renderer
+    window.plotter.ren_win.Render()
+    x0, y0, x1, y1 = window.panel_box("scene")
+    pts = np.concatenate([window.pipeline.cameras().positions, window.pipeline.mesh()[::10]])
+    for p in pts:
+        ren.SetWorldPoint(*p, 1.0)
+        ren.WorldToDisplay()
+        x, y, _ = ren.GetDisplayPoint()
+        assert x0 <= x <= x1 and y0 <= y <= y1, (p, x, y)
+    assert window.legend.GetVisibility() and window.legend.GetLookupTable().GetNumberOfTableValues() == 48
+    assert getattr(window.scene_renderer, "axes_widget", None) is not None  # orientation axes
+
+
+def test_gaussian_controls(window):
+    n0 = window._glyph_index.size
+    window.set_glyphs(count=50)
+    assert window._glyph_index.size == 50 and window.glyphs.n_points == 50 * 12
+    op = window.pipeline.gaussians().opacities
+    op = op.detach().numpy() if hasattr(op, "detach") else op
+    window.set_glyphs(count=n0, min_opacity=0.9)
+    assert np.all(op[window._glyph_index] >= 0.9) and window._glyph_index.size == int((op >= 0.9).sum())
+    pts = np.array(window.glyphs.points)
+    window.set_glyphs(sigmas=3.0)
+    assert np.ptp(np.array(window.glyphs.points), axis=0).max() > np.ptp(pts, axis=0).max()
+    rgb = np.array(window.glyphs.point_data["rgb"])
+    _press(window, "c")
+    assert window.glyph_color == "opacity" and not np.array_equal(np.array(window.glyphs.point_data["rgb"]), rgb)
+    assert "opacity" in window._headers["Gaussians"].GetInput()
+
+
+def test_layout_readable_at_800x450(xvfb, tmp_path):
+    from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
+
+    viewer = HoloViewer(_small_scene(), ViewerConfig(window_size=(800, 450), out_dir=str(tmp_path),
+                                                     thumbnail_scale=0.1))
+    try:
+        viewer.open()
+        ren = viewer.slider_renderer
+        boxes = []
+        for spec in viewer._specs.values():
+            assert spec.label.GetTextProperty().GetFontSize() >= 11
+            bb = _text_box(spec.label, ren)
+            knob_y = viewer.plotter.ren_win.GetSize()[1] - 1 - viewer.slider_point(spec.key)[1]
+            assert bb[2] > knob_y, f"{spec.title}: title not above its own slider"
+            boxes.append((spec.title, bb, knob_y))
+        for (t1, b1, _), (t2, b2, k2) in zip(boxes, boxes[1:]):
+            assert b2[3] < b1[2], f"titles {t1!r} and {t2!r} overlap"
+            assert k2 < b1[2] - 2, f"slider of {t2!r} runs into the title {t1!r}"
+        # the quilt title sits above the thumbnail image, not on it
+        panel = viewer.thumb_panel
+        bb = _text_box(panel.title, panel.renderer)
+        assert panel.title.GetTextProperty().GetFontSize() >= 11
+        img_top = _image_top_pixel(panel)
+        assert bb[2] >= img_top - 1, (bb, img_top)
+    finally:
+        viewer.close()
+
+
+def _text_box(actor, renderer) -> list[float]:
+    """(x0, x1, y0, y1) display pixels of a 2D text actor (VTK gives the size relative to its anchor)."""
+    x, y = actor.GetPositionCoordinate().GetComputedDisplayValue(renderer)
+    size = [0.0, 0.0]
+    actor.GetSize(renderer, size)
+    w, h = size
+    tp = actor.GetTextProperty()
+    x0 = x - {0: 0.0, 1: w / 2, 2: w}[tp.GetJustification()]
+    y0 = y - {0: 0.0, 1: h / 2, 2: h}[tp.GetVerticalJustification()]
+    return [x0, x0 + w, y0, y0 + h]
+
+
+def _image_top_pixel(panel) -> float:
+    h, w = panel.shape
+    ren = panel.renderer
+    ren.SetWorldPoint(0.0, 0.5, 0.0, 1.0)
+    ren.WorldToDisplay()
+    return ren.GetDisplayPoint()[1]
+
+
+def test_avatar_none_explains_the_black_panels(xvfb, tmp_path):
+    from holo_viewer.gui.loading import load_scene
+    from holo_viewer.gui.offscreen import offscreen_viewer
+
+    with offscreen_viewer(load_scene("none"), window_size=(640, 360)) as viewer:
+        assert "--avatar none" in viewer.preview_panel.message.GetInput()
+        assert "--avatar none" in viewer.thumb_panel.message.GetInput()
+        assert "glyphs" not in viewer.sliders
+        job_error = None
+        try:
+            viewer.export_quilt()
+        except Exception as exc:  # noqa: BLE001
+            job_error = exc
+        assert job_error is not None and "--avatar none" in str(job_error)
+
+
+# ------------------------------------------------------------------ command line
+
+
+def test_view_without_a_display_exits_1_pointing_to_xvfb_and_snapshot(monkeypatch, capsys):
+    from holo_viewer.cli import main
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    assert main(["view", "--avatar", "none"]) == 1
+    err = capsys.readouterr().err
+    assert "xvfb-run" in err and "holo-viewer snapshot" in err
+    monkeypatch.setenv("DISPLAY", ":4711")  # nothing listens there
+    assert main(["view", "--avatar", "none"]) == 1
+    assert "cannot open the X display" in capsys.readouterr().err
+
+
+def test_view_toolkit_option_and_deprecated_backend(monkeypatch, capsys):
+    from holo_viewer.cli import main
+
+    monkeypatch.setitem(sys.modules, "open3d", None)
+    assert main(["view", "--toolkit", "open3d"]) == 1
+    err = capsys.readouterr().err
+    assert 'pip install -e ".[open3d]"' in err and "deprecated" not in err
+    assert main(["view", "--backend", "open3d"]) == 1
+    assert "--backend is deprecated, use --toolkit" in capsys.readouterr().err
+
+
+def test_view_and_snapshot_share_the_ellipsoid_options_and_defaults():
+    import argparse
+
+    from holo_viewer.commands import snapshot, view
+    from holo_viewer.gui.viewer import ViewerConfig
+
+    cfg = ViewerConfig()
+    for mod in (view, snapshot):
+        ap = argparse.ArgumentParser()
+        mod.add_arguments(ap)
+        args = ap.parse_args([])
+        assert view.glyph_config(args) == {"max_glyphs": cfg.max_glyphs, "glyph_sigmas": cfg.glyph_sigmas,
+                                           "glyph_min_opacity": cfg.glyph_min_opacity,
+                                           "glyph_color": cfg.glyph_color}
 
 
 # ------------------------------------------------------------------ offscreen snapshot
@@ -266,7 +638,7 @@ def test_open3d_backend_missing_is_a_clear_error(monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "open3d", None)  # as if not installed
     with pytest.raises(MissingDependencyError, match=r"holo_viewer\[open3d\]"):
         require_open3d()
-    rc = main(["view", "--backend", "open3d"])
+    rc = main(["view", "--toolkit", "open3d"])
     assert rc == 1
     err = capsys.readouterr().err
     assert "open3d" in err and "pip install" in err
@@ -327,24 +699,67 @@ def test_flame_params_sequence_adds_a_frame_slider(tmp_path):
 
 
 def test_event_loop_shows_the_thumbnail_from_the_worker(xvfb, tmp_path):
-    """show(): the real VTK event loop; a slider release starts the worker, the timer shows its quilt."""
+    """run(): the viewer's own event loop; a slider release starts the worker, the loop shows its quilt."""
     from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
 
     viewer = HoloViewer(_small_scene(), ViewerConfig(window_size=(640, 360), out_dir=str(tmp_path),
                                                      thumbnail_scale=0.1))
-    iren = viewer.plotter.iren
-    state = {"tick": 0, "key_before": None, "shown": False}
+    try:
+        viewer.open()
+        before = viewer._thumb_key
+        shot = viewer.read_pixels("quilt").copy()
+        _fire_slider(viewer.sliders["expr1"], -1.0)
+        assert viewer.run(until=lambda: viewer._thumb_key != before and viewer._thumb_pending_key is None,
+                          timeout=30), "thumbnail not shown within 30 s"
+        viewer.run(timeout=0.1)
+        assert np.abs(viewer.read_pixels("quilt").astype(int) - shot).max() > 30  # on screen, not only in memory
+    finally:
+        viewer.close()
 
-    def tick(*_):
-        state["tick"] += 1
-        if state["tick"] == 2:
-            state["key_before"] = viewer._thumb_key
-            _fire_slider(viewer.sliders["expr1"], -1.0)
-        if state["tick"] > 2 and viewer._thumb_key != state["key_before"] and viewer._thumb_pending_key is None:
-            state["shown"] = True
-        if state["shown"] or state["tick"] > 150:  # 150 x 200 ms
-            iren.interactor.TerminateApp()
 
-    iren.add_observer("TimerEvent", tick)
-    viewer.show()  # returns when the loop terminates; closes the window and the worker
-    assert state["shown"], f"thumbnail not shown after {state['tick']} timer ticks"
+def test_view_command_opens_a_window_and_q_closes_it(xdotool, tmp_path):
+    """The real command in its own process: the window appears on the X display, a real 'q' ends it (exit 0)."""
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    proc = subprocess.Popen([sys.executable, "-m", "holo_viewer", "view", "--avatar", "none", "--window-size",
+                             "640", "360", "--out-dir", str(tmp_path)], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        found = subprocess.run([xdotool, "search", "--sync", "--onlyvisible", "--name", "h for help"],
+                               capture_output=True, text=True, timeout=90)
+        wid = found.stdout.split()[0]
+        out = None
+        for _ in range(20):  # the window may be mapped before the viewer listens to keys: press again
+            subprocess.run([xdotool, "mousemove", "--window", wid, "300", "150"], timeout=10)
+            subprocess.run([xdotool, "key", "q"], check=True, timeout=10)
+            try:
+                out, _ = proc.communicate(timeout=3)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, out
+    assert "FLAME mesh only" in out and "press h" in out
+
+
+def test_quit_while_exporting_finishes_the_export_first(xvfb, tmp_path):
+    from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
+
+    viewer = HoloViewer(_small_scene(), ViewerConfig(window_size=(640, 360), out_dir=str(tmp_path),
+                                                     thumbnail_scale=0.1))
+    seen = {}
+
+    def slow(job):  # still running when the window says it will quit after it
+        end = time.time() + 30
+        while "then quitting" not in viewer._message and time.time() < end:
+            time.sleep(0.05)
+        seen["status"] = viewer._message
+        return viewer._out("late.txt")
+
+    viewer._submit("exporting test", slow)
+    viewer.quit()
+    viewer.show()  # returns only once the export is written and the window closed
+    assert viewer.exports and viewer.exports[-1].name == "late.txt"
+    assert "then quitting" in seen["status"]

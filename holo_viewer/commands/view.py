@@ -1,10 +1,34 @@
-"""``holo-viewer view``: the interactive inspection window (PyVista, no Qt; or Open3D)."""
+"""``holo-viewer view``: the interactive inspection window (PyVista/VTK, no Qt; or Open3D)."""
 
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 
-__all__ = ["add_arguments", "run"]
+__all__ = ["add_arguments", "add_glyph_arguments", "glyph_config", "require_display", "run"]
+
+
+def add_glyph_arguments(parser: argparse.ArgumentParser) -> None:
+    """Ellipsoid options shared by ``view`` and ``snapshot`` (defaults from ``ViewerConfig``)."""
+    from ..gui.scene import GLYPH_COLOR_MODES
+
+    # the numbers below are ViewerConfig's defaults, repeated so that --help needs no VTK import;
+    # tests/test_gui.py checks that they agree
+    parser.add_argument("--max-glyphs", type=int, default=2500, metavar="N",
+                        help="Gaussians drawn as ellipsoids (default 2500; slider 'ellipsoids drawn')")
+    parser.add_argument("--glyph-sigmas", type=float, default=1.5, metavar="S",
+                        help="ellipsoid radius in standard deviations (default 1.5)")
+    parser.add_argument("--glyph-min-opacity", type=float, default=0.5, metavar="O",
+                        help="draw only Gaussians at least this opaque (default 0.5)")
+    parser.add_argument("--glyph-color", choices=GLYPH_COLOR_MODES, default="colour",
+                        help="colour ellipsoids by their own colour, their opacity or their size (default colour)")
+
+
+def glyph_config(args: argparse.Namespace) -> dict:
+    """The ``ViewerConfig`` fields set by :func:`add_glyph_arguments`."""
+    return {"max_glyphs": args.max_glyphs, "glyph_sigmas": args.glyph_sigmas,
+            "glyph_min_opacity": args.glyph_min_opacity, "glyph_color": args.glyph_color}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -16,38 +40,75 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="flame_param.npz sequence; frame 0 is shown and a slider scrubs the frames")
     parser.add_argument("--calibration", default=None, metavar="JSON",
                         help="Looking Glass visual.json or preset name (default: the shipped Portrait calibration)")
-    parser.add_argument("--backend", choices=("pyvista", "open3d"), default="pyvista",
-                        help="window toolkit (open3d needs the optional extra: pip install 'holo_viewer[open3d]')")
+    parser.add_argument("--toolkit", choices=("pyvista", "open3d"), default=None,
+                        help="window toolkit (default pyvista; open3d needs the optional extra, from a checkout: "
+                             "pip install -e \".[open3d]\")")
+    parser.add_argument("--backend", choices=("pyvista", "open3d"), default=None, dest="backend_deprecated",
+                        help=argparse.SUPPRESS)  # the old name of --toolkit
     parser.add_argument("--renderer", default="fast", help="splat renderer backend for the preview (default fast)")
     parser.add_argument("--out-dir", default="holo_viewer_out", help="folder for exports (keys k, n, x, i)")
-    parser.add_argument("--max-glyphs", type=int, default=2500, help="Gaussians drawn as ellipsoids")
+    add_glyph_arguments(parser)
     parser.add_argument("--pain", type=float, default=0.0, help="initial pain intensity in [0, 1]")
     parser.add_argument("--window-size", type=int, nargs=2, default=(1400, 800), metavar=("W", "H"))
 
 
+def require_display() -> None:
+    """Raise DisplayError unless an X display can be opened (the window needs one)."""
+    from ..errors import DisplayError
+
+    hint = ("run it under a virtual X server: xvfb-run -a holo-viewer view ..., or render the same scene to a "
+            "PNG without a display: holo-viewer snapshot --out viewer.png")
+    if not sys.platform.startswith("linux"):
+        return  # VTK opens native windows on macOS / Windows
+    display = os.environ.get("DISPLAY", "")
+    if not display:
+        raise DisplayError(f"view: no X display (DISPLAY is not set); {hint}")
+    import ctypes
+    import ctypes.util
+
+    lib = ctypes.util.find_library("X11")
+    if lib is None:
+        return  # cannot check here; VTK will report it
+    x11 = ctypes.CDLL(lib)
+    x11.XOpenDisplay.restype = ctypes.c_void_p
+    x11.XOpenDisplay.argtypes = [ctypes.c_char_p]
+    x11.XCloseDisplay.argtypes = [ctypes.c_void_p]
+    handle = x11.XOpenDisplay(display.encode())
+    if not handle:
+        raise DisplayError(f"view: cannot open the X display DISPLAY={display}; {hint}")
+    x11.XCloseDisplay(handle)
+
+
 def run(args: argparse.Namespace) -> int:
-    from ..gui.loading import load_scene
+    from ..pipeline.scene import load_scene
     from ..pipeline import FaceControls
 
-    if args.backend == "open3d":
+    toolkit = args.toolkit
+    if args.backend_deprecated is not None:
+        print("holo-viewer view: --backend is deprecated, use --toolkit", file=sys.stderr)
+        toolkit = toolkit or args.backend_deprecated
+    toolkit = toolkit or "pyvista"
+    if toolkit == "open3d":
         from ..gui.open3d_viewer import require_open3d
 
         require_open3d()  # fail before loading anything
+    require_display()
     scene = load_scene(args.avatar, args.flame_model, args.flame_params, args.calibration, backend=args.renderer,
                        face=FaceControls(pain=args.pain))
     print(f"holo-viewer view: {scene.description}")
-    if args.backend == "open3d":
+    if toolkit == "open3d":
         from ..gui.open3d_viewer import run_open3d_viewer
 
         run_open3d_viewer(scene.pipeline, max_glyphs=args.max_glyphs)
         return 0
     from ..gui.viewer import HoloViewer, ViewerConfig
 
-    cfg = ViewerConfig(window_size=tuple(args.window_size), max_glyphs=args.max_glyphs, out_dir=args.out_dir)
+    cfg = ViewerConfig(window_size=tuple(args.window_size), out_dir=args.out_dir, **glyph_config(args))
     viewer = HoloViewer(scene.pipeline, cfg, frames=scene.frames)
-    print("keys: h help, m mesh, l wireframe, g Gaussians, o frusta, k quilt, n native, x sweep video, "
-          "i screenshot, q quit")
+    print("press h in the window for the keys (q quits)")
     viewer.show()
     for path in viewer.exports:
         print(f"wrote {path}")
+    for err in viewer.errors:
+        print(f"error shown in the window: {err}", file=sys.stderr)
     return 0

@@ -1,4 +1,4 @@
-"""Optional Open3D inspection window (``holo-viewer view --backend open3d``).
+"""Optional Open3D inspection window (``holo-viewer view --toolkit open3d``).
 
 Shows the same inspection scene as the PyVista viewer with Open3D's legacy
 ``Visualizer``: the FLAME mesh, the Gaussian centres (a subsample, coloured by their DC
@@ -25,7 +25,7 @@ def require_open3d() -> Any:
     try:
         import open3d  # noqa: F401
     except ImportError as exc:
-        raise MissingDependencyError("open3d", "the Open3D viewer (--backend open3d)", extra="open3d") from exc
+        raise MissingDependencyError("open3d", "the Open3D viewer (--toolkit open3d)", extra="open3d") from exc
     return open3d
 
 

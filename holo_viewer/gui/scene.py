@@ -18,8 +18,31 @@ from ..validation import check_array
 __all__ = [
     "frusta_arrays", "focal_plane_corners", "ellipsoid_glyph_arrays", "subsample_indices",
     "unit_icosphere", "mesh_polydata", "frusta_polydata", "focal_plane_polydata", "glyph_polydata",
-    "image_plane", "view_colors", "vertex_normals",
+    "image_plane", "view_colors", "vertex_normals", "glyph_selection", "glyph_colors", "GLYPH_COLOR_MODES",
+    "AU_DESCRIPTIONS", "au_label", "scene_bounds",
 ]
+
+#: FACS action-unit names (Ekman & Friesen) of the default head's expression components
+AU_DESCRIPTIONS: dict[str, str] = {
+    "AU1": "inner brow raiser", "AU2": "outer brow raiser", "AU4": "brow lowerer", "AU5": "upper lid raiser",
+    "AU6": "cheek raiser", "AU7": "lid tightener", "AU9": "nose wrinkler", "AU10": "upper lip raiser",
+    "AU12": "lip corner puller", "AU14": "dimpler", "AU15": "lip corner depressor", "AU16": "lower lip depressor",
+    "AU17": "chin raiser", "AU18": "lip pucker", "AU20": "lip stretcher", "AU23": "lip tightener",
+    "AU24": "lip pressor", "AU25": "lips part", "AU26": "jaw drop", "AU43": "eyes closed",
+}
+
+#: how the ellipsoid glyphs are coloured: their own (DC) colour, their opacity, their largest sigma
+GLYPH_COLOR_MODES: tuple[str, ...] = ("colour", "opacity", "size")
+
+
+def au_label(name: str) -> str:
+    """Slider title of an expression component: ``"AU9"`` -> ``"AU9 nose wrinkler"``,
+    ``"AU2_L"`` -> ``"AU2 outer brow raiser (left)"``; other names are returned as they are."""
+    base, _, side = str(name).partition("_")
+    desc = AU_DESCRIPTIONS.get(base)
+    if desc is None:
+        return str(name)
+    return f"{base} {desc}" + {"L": " (left)", "R": " (right)"}.get(side, "")
 
 
 # ============================================================================ numpy
@@ -161,6 +184,53 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
+def glyph_selection(opacities: np.ndarray, count: int, min_opacity: float = 0.0, seed: int = 0) -> np.ndarray:
+    """Sorted indices of at most ``count`` Gaussians among those with opacity >= ``min_opacity``.
+
+    A deterministic random subset (``seed``), so the same controls always draw the same glyphs.
+    """
+    o = np.asarray(opacities, dtype=np.float64).reshape(-1)  # (N,)
+    if not 0.0 <= min_opacity < 1.0:
+        raise InputError(f"min_opacity: expected in [0, 1), found {min_opacity}")
+    keep = np.flatnonzero(o >= min_opacity)
+    if keep.size == 0:
+        return keep
+    return keep[subsample_indices(keep.size, int(count), seed)]
+
+
+def glyph_colors(gaussians: Any, index: np.ndarray, mode: str = "colour") -> np.ndarray:
+    """(len(index), 3) uint8 colour of each drawn glyph.
+
+    ``mode``: ``"colour"`` the Gaussian's DC colour; ``"opacity"`` its opacity on viridis (0 dark
+    blue, 1 yellow); ``"size"`` its largest standard deviation on plasma, log scale between the 2nd
+    and 98th percentile of the drawn glyphs (small dark blue, large yellow).
+    """
+    import matplotlib
+
+    g = gaussians.numpy() if gaussians.is_torch else gaussians
+    idx = np.asarray(index, dtype=np.int64)
+    if mode == "colour":
+        rgb = np.clip(g.colors_dc()[idx], 0.0, 1.0)
+    elif mode == "opacity":
+        rgb = matplotlib.colormaps["viridis"](np.asarray(g.opacities, dtype=np.float64)[idx])[:, :3]
+    elif mode == "size":
+        s = np.asarray(g.log_scales, dtype=np.float64)[idx].max(axis=1) if idx.size else np.zeros(0)
+        lo, hi = (np.percentile(s, [2, 98]) if s.size else (0.0, 1.0))
+        t = np.clip((s - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
+        rgb = matplotlib.colormaps["plasma"](t)[:, :3]
+    else:
+        raise InputError(f"glyph colour mode: expected one of {GLYPH_COLOR_MODES}, found {mode!r}")
+    return (np.asarray(rgb) * 255 + 0.5).astype(np.uint8)
+
+
+def scene_bounds(*point_sets: np.ndarray, pad: float = 0.05) -> tuple[float, ...]:
+    """(xmin, xmax, ymin, ymax, zmin, zmax) around all the (N, 3) point sets, padded by ``pad`` x the size."""
+    pts = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in point_sets], axis=0)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    m = pad * float(np.max(hi - lo))
+    return (lo[0] - m, hi[0] + m, lo[1] - m, hi[1] + m, lo[2] - m, hi[2] + m)
+
+
 def view_colors(n_views: int, cmap: str = "turbo") -> np.ndarray:
     """(n_views, 3) float RGB in [0, 1] of each view index (view 0 = first colour of ``cmap``)."""
     import matplotlib
@@ -204,8 +274,9 @@ def focal_plane_polydata(cameras: Any, focal_center: np.ndarray) -> Any:
     return pv.PolyData(c, faces=np.array([4, 0, 1, 2, 3]))
 
 
-def glyph_polydata(gaussians: Any, index: np.ndarray, *, sigmas: float = 1.0, subdivisions: int = 1) -> Any:
-    """Ellipsoid glyphs of the Gaussians ``index`` with an ``rgb`` uint8 point array (DC colour)."""
+def glyph_polydata(gaussians: Any, index: np.ndarray, *, sigmas: float = 1.0, subdivisions: int = 1,
+                   color_mode: str = "colour") -> Any:
+    """Ellipsoid glyphs of the Gaussians ``index`` with an ``rgb`` uint8 point array (:func:`glyph_colors`)."""
     import pyvista as pv
 
     g = gaussians.numpy() if gaussians.is_torch else gaussians
@@ -213,9 +284,8 @@ def glyph_polydata(gaussians: Any, index: np.ndarray, *, sigmas: float = 1.0, su
     pts, tri = ellipsoid_glyph_arrays(g.means[idx], g.quats[idx], np.exp(g.log_scales[idx]),
                                       sigmas=sigmas, subdivisions=subdivisions)
     poly = pv.PolyData(pts, faces=_faces_to_vtk(tri))
-    rgb = np.clip(g.colors_dc()[idx], 0.0, 1.0)
     P = unit_icosphere(subdivisions)[0].shape[0]
-    poly.point_data["rgb"] = np.repeat((rgb * 255).astype(np.uint8), P, axis=0)
+    poly.point_data["rgb"] = np.repeat(glyph_colors(g, idx, color_mode), P, axis=0)
     return poly
 
 

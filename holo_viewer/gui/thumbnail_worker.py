@@ -6,7 +6,9 @@ thumbnail therefore renders in a separate process, started once with ``python -m
 holo_viewer.gui.thumbnail_worker`` (no re-import of the caller's ``__main__``, unlike
 multiprocessing's spawn). Jobs and results are pickled over the child's stdin / stdout, between
 processes of the same program only. At most one job is in flight; a newer request replaces a
-queued one, so a burst of slider releases renders only the latest state.
+queued one, so a burst of slider releases renders only the latest state. A job (~25 MB for the
+100k-Gaussian default avatar) is written to the pipe by a short-lived writer thread, so the
+event loop does not wait while the child reads it.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import pickle
 import select
 import subprocess
 import sys
+import threading
 from typing import Any
 
 __all__ = ["ThumbnailWorker", "render_thumbnail"]
@@ -34,6 +37,7 @@ class ThumbnailWorker:
         self._proc: subprocess.Popen | None = None
         self._in_flight: Any = None  # key of the running job
         self._queued: tuple[Any, tuple] | None = None
+        self._writer: threading.Thread | None = None
 
     def _start(self) -> subprocess.Popen:
         if self._proc is None or self._proc.poll() is not None:
@@ -52,8 +56,19 @@ class ThumbnailWorker:
             self._queued = (key, args)
             return
         proc = self._start()
-        pickle.dump((key, args), proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
-        proc.stdin.flush()
+        data = pickle.dumps((key, args), protocol=pickle.HIGHEST_PROTOCOL)
+        if self._writer is not None:
+            self._writer.join()
+
+        def write() -> None:
+            try:
+                proc.stdin.write(data)
+                proc.stdin.flush()
+            except (BrokenPipeError, ValueError, OSError):
+                pass  # the child died: poll() reports it
+
+        self._writer = threading.Thread(target=write, name="thumbnail-job-writer", daemon=True)
+        self._writer.start()
         self._in_flight = key
 
     def poll(self, wait: bool = False) -> tuple[Any, Any] | None:
@@ -79,6 +94,9 @@ class ThumbnailWorker:
     def close(self) -> None:
         proc, self._proc = self._proc, None
         self._queued = self._in_flight = None
+        if self._writer is not None:
+            self._writer.join()
+            self._writer = None
         if proc is None:
             return
         try:

@@ -1,0 +1,76 @@
+"""Screenshots of the viewer for docs/gui.md: the default window, the help overlay, a scrub in progress.
+
+Run under an X server with xdotool (``xvfb-run -a -s "-screen 0 1920x1080x24" python
+scripts/gui_screenshots.py``). The scrub is a real mouse drag on the pain slider, captured while the
+button is still down (the mesh has followed the knob; the preview waits for the release). The
+PNGs are reduced to a 256-colour palette when larger than ``--max-kb``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import subprocess
+import sys
+from pathlib import Path
+
+
+def save_small(path: Path, img, max_kb: int) -> int:
+    from PIL import Image
+
+    im = Image.fromarray(img)
+    buf = io.BytesIO()
+    im.save(buf, format="PNG", optimize=True)
+    if buf.tell() > max_kb * 1024:
+        buf = io.BytesIO()
+        im.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(
+            buf, format="PNG", optimize=True)
+    path.write_bytes(buf.getvalue())
+    return buf.tell() // 1024
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out-dir", default="docs/images")
+    ap.add_argument("--window-size", type=int, nargs=2, default=(1200, 680))
+    ap.add_argument("--max-kb", type=int, default=280)
+    args = ap.parse_args(argv)
+
+    from holo_viewer.pipeline.scene import load_scene
+    from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
+
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = load_scene("default")
+    viewer = HoloViewer(scene.pipeline, ViewerConfig(window_size=tuple(args.window_size), out_dir="/tmp"))
+    viewer.open()
+    wid = str(viewer.window_id())
+
+    def xdo(*a: object) -> None:
+        subprocess.run(["xdotool", *map(str, a)], check=True)
+
+    viewer.run(timeout=1.0)
+    print("viewer_default.png", save_small(out / "viewer_default.png", viewer.screenshot(), args.max_kb), "KB")
+    xdo("mousemove", "--window", wid, *viewer.slider_point("expr2"))  # a real key press needs the pointer in
+    xdo("key", "h")
+    viewer.run(until=lambda: viewer.show_help, timeout=3)
+    viewer.run(timeout=0.3)
+    print("viewer_help.png", save_small(out / "viewer_help.png", viewer.screenshot(), args.max_kb), "KB")
+    xdo("key", "h", "z")  # help off, close-up of the head
+    viewer.run(timeout=0.5)
+    start, end = viewer.slider_point("pain", 0.0), viewer.slider_point("pain", 0.9)
+    xdo("mousemove", "--window", wid, *start)
+    xdo("mousedown", 1)
+    viewer.run(timeout=0.2)
+    for k in range(1, 7):
+        xdo("mousemove", "--window", wid, start[0] + (end[0] - start[0]) * k // 6, start[1])
+        viewer.run(timeout=0.25)
+    print("viewer_scrub.png", save_small(out / "viewer_scrub.png", viewer.screenshot(), args.max_kb), "KB")
+    xdo("mouseup", 1)
+    viewer.run(timeout=0.5)
+    viewer.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
