@@ -98,6 +98,8 @@ class Cameras:
         sizes: dict[str, int] = {}
         check_array(w2c, "world_to_cam", ("V", 4, 4), sizes=sizes)
         check_array(K, "K", ("V", 3, 3), sizes=sizes)
+        if sizes["V"] == 0:
+            raise InputError("world_to_cam: expected at least one camera, found 0")
         R = w2c[:, :3, :3]
         err = np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max()
         if err > 1e-6 or np.any(np.linalg.det(R) < 0):

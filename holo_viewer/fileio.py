@@ -75,8 +75,11 @@ def reporting_write_errors(path: str | os.PathLike, what: str = "file") -> Itera
         raise write_error(path, exc, what) from exc
 
 
-def ensure_dir(path: str | os.PathLike, what: str = "output directory") -> Path:
+def ensure_dir(path: str | os.PathLike, what: str = "output directory", *,
+               for_file: str | os.PathLike | None = None) -> Path:
     """Create directory ``path`` (and parents) if needed; ExportError when it cannot be one.
+
+    ``for_file``: the file about to be written into ``path`` (the message then names it).
 
     Raises
     ------
@@ -88,13 +91,15 @@ def ensure_dir(path: str | os.PathLike, what: str = "output directory") -> Path:
     for anc in (p, *p.parents):
         if anc.exists() or anc.is_symlink():
             if not anc.is_dir():
+                if for_file is not None:
+                    raise ExportError(f"{for_file}: cannot write the file: {anc} is a file, not a directory")
                 where = "it" if anc == p else f"its parent {anc}"
                 raise ExportError(f"{p}: expected a directory for the {what}, but {where} is a file")
             break
     try:
         p.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise write_error(p, exc, what) from exc
+        raise write_error(p if for_file is None else for_file, exc, what if for_file is None else "file") from exc
     return p
 
 
@@ -113,7 +118,7 @@ def check_writable(path: str | os.PathLike, what: str = "file") -> Path:
     target = Path(path)
     if target.is_dir():
         raise ExportError(f"{target}: cannot write the {what}: the path is a directory")
-    ensure_dir(target.parent)
+    ensure_dir(target.parent, for_file=target)
     with reporting_write_errors(target, what):
         fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".tmp{target.suffix}", dir=target.parent)
         os.close(fd)
@@ -197,7 +202,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         Any earlier file at ``path`` is unchanged and the temporary is removed.
     """
     target = Path(path)
-    ensure_dir(target.parent)
+    ensure_dir(target.parent, for_file=target)
     suf = target.suffix if suffix is None else suffix
     with reporting_write_errors(target):
         remove_stale_temps(target, suf)

@@ -186,6 +186,20 @@ def test_output_below_a_file_is_reported(tmp_path: Path, capsys: pytest.CaptureF
         fileio.check_writable(tmp_path)
 
 
+@pytest.mark.slow
+def test_disk_full_demo(tmp_path: Path, disk_full, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "demo"
+    disk_full()
+    rc = main(["demo", "--out", str(out), "--seconds", "0.4", "--fps", "5", "--video-scale", "0.1",
+               "--skip-head-renders", "--time-budget", "0"])
+    _assert_reported(rc, capsys.readouterr().err, "default_qs8x6a0.75.png", "no space left on the device")
+    assert list(out.iterdir()) == []
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    rc = main(["demo", "--out", str(blocker / "demo"), "--skip-head-renders"])
+    _assert_reported(rc, capsys.readouterr().err, "is a file")
+
+
 # --------------------------------------------------------------------------- 4. 16-bit images
 
 
@@ -646,3 +660,51 @@ def test_export_mesh_expression_values_are_range_checked(tmp_path: Path, capsys)
     _assert_reported(rc, capsys.readouterr().err, "--expr 1: expected >= -10")
     assert not (tmp_path / "h.obj").exists()
     assert main(["export-mesh", "--expr", "0=2.5", "--out", str(tmp_path / "h.obj")]) == 0
+
+
+# --------------------------------------------------------------------------- sweep: empty inputs, JSON types, writes
+
+
+def test_zero_cameras_in_the_api() -> None:
+    with pytest.raises(InputError, match="expected at least one camera, found 0"):
+        Cameras(np.zeros((0, 4, 4)), np.zeros((0, 3, 3)), 10, 10)
+    cams = Cameras(np.eye(4), intrinsics(10, 10, 5, 5), 10, 10)
+    with pytest.raises(InputError, match="at least one camera"):
+        cams[[]]
+
+
+@pytest.mark.parametrize("loader", ["au_map", "calibration", "train_config", "cameras"])
+def test_json_inputs_that_are_not_text(tmp_path: Path, loader: str) -> None:
+    from holo_viewer.commands.render_ply import load_cameras
+    from holo_viewer.display.calibration import DisplayCalibration
+    from holo_viewer.errors import HoloViewerError
+    from holo_viewer.flame.expressions import AUMap
+    from holo_viewer.reaction.train import load_train_config
+
+    p = tmp_path / "binary.json"
+    p.write_bytes(b"\xff\xfe\x00\x01 not utf-8")
+    fn = {"au_map": AUMap.load_json, "calibration": DisplayCalibration.load, "train_config": load_train_config,
+          "cameras": load_cameras}[loader]
+    with pytest.raises(HoloViewerError, match=r"binary\.json: cannot read"):
+        fn(p)
+
+
+def test_results_json_checked_before_evaluating(tmp_path: Path, capsys) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    rc = main(["evaluate-reactions", "--json", str(blocker / "r.json")])
+    captured = capsys.readouterr()
+    _assert_reported(rc, captured.err, "r.json: cannot write the file", "is a file, not a directory")
+    assert "generating" not in captured.out
+
+
+def test_pipeline_after_importing_the_default_avatar_module() -> None:
+    """``holo_viewer.avatar.default_avatar`` is both a submodule and a function: importing the
+    submodule (as evaluate-reactions does) must not break the default scene."""
+    import importlib
+
+    importlib.import_module("holo_viewer.avatar.default_avatar")
+    from holo_viewer.gui.loading import load_scene
+
+    scene = load_scene("default", None, None, None)
+    assert len(scene.pipeline.avatar) > 0
