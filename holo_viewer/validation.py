@@ -115,6 +115,10 @@ def check_array(
             x = np.asarray(x, dtype=np.float64)
         except (TypeError, ValueError) as exc:
             raise InputError(f"{prefix}{name}: expected a numeric array, found {type(x).__name__}") from exc
+    if isinstance(x, np.ndarray) and x.dtype.kind not in "biufc":
+        raise InputError(f"{prefix}{name}: expected a numeric array, found dtype {x.dtype} "
+                         f"(e.g. {x.reshape(-1)[:1].tolist()})" if x.size else
+                         f"{prefix}{name}: expected a numeric array, found dtype {x.dtype}")
     bound: dict[str, int] = dict(sizes) if sizes is not None else {}
     if shape is not None:
         found = tuple(int(n) for n in x.shape)

@@ -708,3 +708,32 @@ def test_pipeline_after_importing_the_default_avatar_module() -> None:
 
     scene = load_scene("default", None, None, None)
     assert len(scene.pipeline.avatar) > 0
+
+
+def test_check_array_refuses_non_numeric_arrays() -> None:
+    from holo_viewer.validation import check_array
+
+    for bad in (np.array(["1", "2"]), np.array([b"x"]), np.array([None, 1.0], dtype=object)):
+        with pytest.raises(InputError, match=r"x: expected a numeric array, found dtype"):
+            check_array(bad, "x")
+    assert check_array(np.array([True, False]), "x").dtype == bool
+
+
+def test_react_empty_past_and_text_arrays(tmp_path: Path, capsys) -> None:
+    from holo_viewer.reaction.api import default_checkpoint_path
+
+    if not default_checkpoint_path().is_file():
+        pytest.skip("shipped reaction checkpoint missing")
+    wav, npz = _speaker_files(tmp_path)
+    past = tmp_path / "past0.npz"
+    np.savez(past, expr=np.zeros((0, 24)), jaw_pose=np.zeros((0, 3)), rotation=np.zeros((0, 3)))
+    out = tmp_path / "o.npz"
+    assert main(["react", "--audio", str(wav), "--speaker", str(npz), "--listener-past", str(past),
+                 "--out", str(out)]) == 0  # an empty past is no past
+    with np.load(npz) as z:
+        text = {k: z[k] for k in z.files}
+    text["expr"] = text["expr"].astype(str)
+    bad = tmp_path / "text.npz"
+    np.savez(bad, **text)
+    rc = main(["react", "--audio", str(wav), "--speaker", str(bad), "--out", str(tmp_path / "o2.npz")])
+    _assert_reported(rc, capsys.readouterr().err, "text.npz: expr: expected a numeric array, found dtype <U")
