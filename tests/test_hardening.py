@@ -737,3 +737,15 @@ def test_react_empty_past_and_text_arrays(tmp_path: Path, capsys) -> None:
     np.savez(bad, **text)
     rc = main(["react", "--audio", str(wav), "--speaker", str(bad), "--out", str(tmp_path / "o2.npz")])
     _assert_reported(rc, capsys.readouterr().err, "text.npz: expr: expected a numeric array, found dtype <U")
+
+
+def test_flame_sequence_text_and_empty() -> None:
+    from holo_viewer.pipeline import flame_sequence_frames
+
+    with pytest.raises(InputError, match=r"seq: expr: expected numbers, found dtype <U3"):
+        flame_sequence_frames({"expr": np.array([["abc"] * 4])}, source="seq")
+    with pytest.raises(InputError, match=r"seq: shape: expected numbers"):
+        flame_sequence_frames({"expr": np.zeros((2, 4)), "shape": np.array(["x"])}, source="seq")
+    with pytest.raises(InputError, match=r"seq: expected at least one frame, found 0"):
+        flame_sequence_frames({"expr": np.zeros((0, 4)), "jaw_pose": np.zeros((0, 3))}, source="seq")
+    assert len(flame_sequence_frames({"expr": np.zeros((2, 4))}, source="seq")) == 2
