@@ -749,3 +749,24 @@ def test_flame_sequence_text_and_empty() -> None:
     with pytest.raises(InputError, match=r"seq: expected at least one frame, found 0"):
         flame_sequence_frames({"expr": np.zeros((0, 4)), "jaw_pose": np.zeros((0, 3))}, source="seq")
     assert len(flame_sequence_frames({"expr": np.zeros((2, 4))}, source="seq")) == 2
+
+
+def test_render_batch_bad_out_and_disk_full(tmp_path: Path, disk_full, capsys) -> None:
+    manifest = tmp_path / "m.jsonl"
+    manifest.write_text(json.dumps({"id": "a", "frames": 2, "tile_scale": 0.1, "outputs": ["quilt_png"]}) + "\n")
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    rc = main(["render-batch", str(manifest), "--out", str(blocker / "o"), "--in-process", "--no-progress"])
+    _assert_reported(rc, capsys.readouterr().err, "is a file")
+    empty = tmp_path / "empty.jsonl"
+    empty.write_text("\n")
+    rc = main(["render-batch", str(empty), "--out", str(tmp_path / "o"), "--in-process", "--no-progress"])
+    _assert_reported(rc, capsys.readouterr().err, "expected at least one job row, found none")
+    out = tmp_path / "full"
+    out.mkdir()
+    disk_full()
+    rc = main(["render-batch", str(manifest), "--out", str(out), "--in-process", "--no-progress"])
+    captured = capsys.readouterr()
+    assert rc == 1 and "Traceback" not in captured.err + captured.out
+    assert "no space left on the device" in captured.err + captured.out
+    assert [p for p in out.rglob("*") if p.is_file()] == []
