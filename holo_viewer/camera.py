@@ -22,9 +22,14 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from .errors import InputError
-from .validation import check_array, check_finite_scalar
+from .validation import check_array, check_finite_scalar, check_json_number
 
-__all__ = ["Cameras", "look_at", "intrinsics", "opencv_to_opengl"]
+__all__ = ["Cameras", "look_at", "intrinsics", "opencv_to_opengl", "MAX_IMAGE_SIDE", "MAX_IMAGE_PIXELS"]
+
+#: Largest image side in pixels a camera may have (the common GPU texture limit).
+MAX_IMAGE_SIDE = 16384
+#: Largest image area per view (8192 x 8192 = 64 Mpx; one float32 RGB view is then 768 MiB).
+MAX_IMAGE_PIXELS = 8192 * 8192
 
 
 def intrinsics(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
@@ -69,7 +74,9 @@ class Cameras:
     K : numpy.ndarray
         (V, 3, 3) float64 intrinsics in pixels.
     width, height : int
-        Image size in pixels (arrays are (height, width, 3)).
+        Image size in pixels (arrays are (height, width, 3)); each side at most
+        :data:`MAX_IMAGE_SIDE` and the area at most :data:`MAX_IMAGE_PIXELS`, checked here,
+        before any renderer allocates an image.
     near, far : float
         Clip distances along camera +z in metres (0 < near < far).
     """
@@ -91,6 +98,8 @@ class Cameras:
         sizes: dict[str, int] = {}
         check_array(w2c, "world_to_cam", ("V", 4, 4), sizes=sizes)
         check_array(K, "K", ("V", 3, 3), sizes=sizes)
+        if sizes["V"] == 0:
+            raise InputError("world_to_cam: expected at least one camera, found 0")
         R = w2c[:, :3, :3]
         err = np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max()
         if err > 1e-6 or np.any(np.linalg.det(R) < 0):
@@ -100,9 +109,15 @@ class Cameras:
             raise InputError("world_to_cam: expected last row [0, 0, 0, 1]")
         if np.any(K[:, 0, 0] <= 0) or np.any(K[:, 1, 1] <= 0):
             raise InputError(f"K: expected fx, fy > 0, found fx={K[:, 0, 0].min()}, fy={K[:, 1, 1].min()}")
-        width, height = int(self.width), int(self.height)
+        try:
+            width, height = int(self.width), int(self.height)
+        except (TypeError, ValueError, OverflowError):
+            width = height = 0
         if width <= 0 or height <= 0 or width != self.width or height != self.height:
-            raise InputError(f"width, height: expected positive integers, found {self.width} x {self.height}")
+            raise InputError(f"width, height: expected positive integers, found {self.width!r} x {self.height!r}")
+        if max(width, height) > MAX_IMAGE_SIDE or width * height > MAX_IMAGE_PIXELS:
+            raise InputError(f"width, height: expected at most {MAX_IMAGE_SIDE} pixels per side and "
+                             f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpx per view (8192 x 8192), found {width} x {height}")
         near = check_finite_scalar(self.near, "near", low=0.0, low_open=True)
         far = check_finite_scalar(self.far, "far")
         if far <= near:
@@ -234,24 +249,45 @@ class Cameras:
             for key in ("width", "height", "fx", "fy", "cx", "cy"):
                 if key not in it:
                     raise InputError(f"{where}.{key}: missing")
-                vals[key] = check_finite_scalar(it[key], f"{where}.{key}")
+                vals[key] = check_json_number(it[key], f"{where}.{key}", integer=key in ("width", "height"))
             if "world_to_cam" not in it:
                 raise InputError(f"{where}.world_to_cam: missing")
             try:
-                m = np.asarray(it["world_to_cam"], dtype=np.float64)
-            except (TypeError, ValueError) as exc:
-                raise InputError(f"{where}.world_to_cam: expected a 4x4 numeric matrix") from exc
-            check_array(m, f"{where}.world_to_cam", (4, 4))
+                m = np.asarray(it["world_to_cam"])
+            except (TypeError, ValueError):  # ragged nested lists
+                m = np.asarray(None)
+            if m.dtype.kind not in "iuf" or m.shape != (4, 4):
+                raise InputError(f"{where}.world_to_cam: expected a 4x4 matrix of numbers (a list of 4 rows), "
+                                 f"found {_describe_json(it['world_to_cam'])}")
+            m = check_array(m.astype(np.float64), f"{where}.world_to_cam", (4, 4))
             w2c.append(m)
             Ks.append(intrinsics(vals["fx"], vals["fy"], vals["cx"], vals["cy"]))
             sizes.add((vals["width"], vals["height"]))
-            clips.add((float(it.get("near", 0.01)), float(it.get("far", 100.0))))
+            near = check_json_number(it.get("near", 0.01), f"{where}.near", low=0.0, low_open=True)
+            far = check_json_number(it.get("far", 100.0), f"{where}.far", low=0.0, low_open=True)
+            clips.add((near, far))
         if len(sizes) != 1:
             raise InputError(f"{source}: expected one image size for all cameras, found {sorted(sizes)}")
         if len(clips) != 1:
             raise InputError(f"{source}: expected one near/far for all cameras, found {sorted(clips)}")
         (w, h), (near, far) = sizes.pop(), clips.pop()
-        return cls(np.stack(w2c), np.stack(Ks), int(w), int(h), near, far)
+        return cls(np.stack(w2c), np.stack(Ks), w, h, near, far)
+
+
+def _describe_json(value: Any) -> str:
+    """Short description of a JSON value for error messages."""
+    if value is None:
+        return "null"
+    if isinstance(value, (list, tuple)):
+        arr = None
+        try:
+            arr = np.asarray(value)
+        except (TypeError, ValueError):
+            pass
+        if arr is not None and arr.dtype != object:
+            return f"an array of shape {arr.shape} and type {arr.dtype}"
+        return f"a list of {len(value)} items (ragged or mixed types)"
+    return f"{type(value).__name__} {value!r}"[:80]
 
 
 def opencv_to_opengl(cams: Cameras) -> tuple[np.ndarray, np.ndarray]:

@@ -8,14 +8,16 @@ Each subcommand lives in ``holo_viewer/commands/<module>.py`` and exposes
 Only the chosen subcommand's module is imported, so ``holo-viewer --help`` is fast
 and never loads vtk, torch or usb. Exit codes: 0 success, 1 a
 :class:`~holo_viewer.errors.HoloViewerError` (message on stderr), 2 usage error,
-130 interrupted.
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM; temporary files are removed as on Ctrl-C).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
+import threading
 from typing import Sequence
 
 from . import __version__
@@ -67,6 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "_run", None) is None:
         parser.print_help()
         return 0 if not argv else 2
+    previous = _install_sigterm()
     try:
         return int(args._run(args) or 0)
     except HoloViewerError as exc:
@@ -75,6 +78,33 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print("terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class Terminated(BaseException):
+    """Raised in the main thread on SIGTERM so that ``finally`` blocks (temp-file cleanup) run.
+
+    A BaseException like KeyboardInterrupt: ``except Exception`` handlers do not swallow it.
+    """
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise Terminated()
+
+
+def _install_sigterm():  # noqa: ANN202 - the previous handler, or None when not installed
+    """SIGTERM -> :class:`Terminated` while a subcommand runs (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    try:
+        return signal.signal(signal.SIGTERM, _on_sigterm)
+    except (ValueError, OSError):  # pragma: no cover - no signals here
+        return None
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,14 +1,26 @@
 """Atomic file writes: a temp file in the target directory, fsync, then rename.
 
 A failure (exception, crash, full disk) leaves any earlier file at the target
-path untouched and no partial file behind.
+path untouched and no partial file behind. Every write of the package goes through
+:func:`atomic_path` / :func:`atomic_write`, so one place turns an ``OSError`` (disk
+full, permission denied, read-only file system, a parent that is a file) into an
+:class:`~holo_viewer.errors.ExportError` naming the file and the reason
+(:func:`write_error`, :func:`reporting_write_errors`, :func:`ensure_dir`).
+
+A process killed while writing (SIGKILL, power loss) leaves its hidden temporary
+``.{stem}.XXXXXXXX.tmp{suffix}`` behind; the next write of the same target removes
+such files when they are older than the running process and no live writer holds
+them (each writer keeps an advisory ``flock`` on its temporary while it writes).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import re
 import tempfile
+import time
 import zipfile
 import zlib
 from pathlib import Path
@@ -18,7 +30,149 @@ import numpy as np
 
 from .errors import ExportError, HoloViewerError
 
-__all__ = ["atomic_write", "atomic_path", "save_image", "load_image", "save_npz", "read_npz", "read_npy"]
+__all__ = ["atomic_write", "atomic_path", "save_image", "load_image", "save_npz", "read_npz", "read_npy",
+           "write_error", "reporting_write_errors", "ensure_dir", "check_writable", "remove_stale_temps"]
+
+#: wall-clock time this module was imported: temporaries older than this are not ours
+_PROCESS_START = time.time()
+
+_WRITE_REASONS = {
+    errno.ENOSPC: "no space left on the device (the disk is full)",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EFBIG: "file too large (file-system or process file-size limit)",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.EROFS: "read-only file system",
+    errno.ENOTDIR: "a parent of the path is a file, not a directory",
+    errno.EISDIR: "the path is a directory",
+    errno.ENAMETOOLONG: "file name too long",
+    errno.EIO: "input/output error",
+}
+
+
+def write_error(path: str | os.PathLike, exc: OSError, what: str = "file") -> ExportError:
+    """The :class:`ExportError` every command reports when writing ``path`` failed with ``exc``.
+
+    Names the file, the reason in words (disk full, permission denied, ...) and the errno,
+    and states that an earlier file there is unchanged (writes are atomic).
+    """
+    reason = _WRITE_REASONS.get(exc.errno or -1)
+    detail = exc.strerror or str(exc)
+    if reason is None:
+        reason = detail
+    elif detail and exc.errno is not None:
+        reason = f"{reason}; [Errno {exc.errno}] {detail}"
+    return ExportError(f"{path}: cannot write the {what}: {reason} (nothing was written; an earlier file "
+                       f"there is unchanged)")
+
+
+@contextlib.contextmanager
+def reporting_write_errors(path: str | os.PathLike, what: str = "file") -> Iterator[None]:
+    """Turn an ``OSError`` raised inside the block into :func:`write_error` for ``path``."""
+    try:
+        yield
+    except OSError as exc:
+        raise write_error(path, exc, what) from exc
+
+
+def ensure_dir(path: str | os.PathLike, what: str = "output directory", *,
+               for_file: str | os.PathLike | None = None) -> Path:
+    """Create directory ``path`` (and parents) if needed; ExportError when it cannot be one.
+
+    ``for_file``: the file about to be written into ``path`` (the message then names it).
+
+    Raises
+    ------
+    ExportError
+        ``path`` or one of its parents exists as a file, or the directory cannot be
+        created (permission, read-only file system, disk full).
+    """
+    p = Path(path)
+    for anc in (p, *p.parents):
+        if anc.exists() or anc.is_symlink():
+            if not anc.is_dir():
+                if for_file is not None:
+                    raise ExportError(f"{for_file}: cannot write the file: {anc} is a file, not a directory")
+                where = "it" if anc == p else f"its parent {anc}"
+                raise ExportError(f"{p}: expected a directory for the {what}, but {where} is a file")
+            break
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise write_error(p if for_file is None else for_file, exc, what if for_file is None else "file") from exc
+    return p
+
+
+def check_writable(path: str | os.PathLike, what: str = "file") -> Path:
+    """Fail now, not after a long job, when ``path`` cannot be written.
+
+    Creates the parent directory if needed and creates and removes a temporary file
+    there (the kind :func:`atomic_path` writes). Disk space for the real output is not
+    reserved: a disk that fills up later is still reported by the write itself.
+
+    Raises
+    ------
+    ExportError
+        ``path`` is a directory, a parent is a file, or the directory is not writable.
+    """
+    target = Path(path)
+    if target.is_dir():
+        raise ExportError(f"{target}: cannot write the {what}: the path is a directory")
+    ensure_dir(target.parent, for_file=target)
+    with reporting_write_errors(target, what):
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".tmp{target.suffix}", dir=target.parent)
+        os.close(fd)
+        os.unlink(tmp)
+    return target
+
+
+def _temp_pattern(target: Path, suffix: str) -> re.Pattern:
+    """Names ``tempfile.mkstemp(prefix=f".{stem}.", suffix=f".tmp{suffix}")`` gives for ``target``."""
+    return re.compile(rf"\.{re.escape(target.stem)}\.[A-Za-z0-9_]{{8}}\.tmp{re.escape(suffix)}")
+
+
+def _try_lock(fd: int) -> bool:
+    """Take an exclusive advisory lock without waiting; True if taken (or locks are unsupported)."""
+    try:
+        import fcntl
+    except ImportError:  # Windows: the age rule alone decides
+        return True
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    return True
+
+
+def remove_stale_temps(target: Path, suffix: str) -> list[Path]:
+    """Delete temporaries of ``target`` left by killed writers; returns the removed paths.
+
+    A temporary is stale when its name has the pattern of ``target``'s temporaries, it is
+    older than this process, and no writer holds its lock.
+    """
+    removed: list[Path] = []
+    pattern = _temp_pattern(target, suffix)
+    try:
+        names = [n for n in os.listdir(target.parent) if pattern.fullmatch(n)]
+    except OSError:
+        return removed
+    for name in names:
+        tmp = target.parent / name
+        try:
+            if tmp.is_symlink() or not tmp.is_file() or tmp.stat().st_mtime >= _PROCESS_START:
+                continue
+            fd = os.open(tmp, os.O_RDONLY)
+        except OSError:
+            continue
+        try:
+            if _try_lock(fd):
+                tmp.unlink()
+                removed.append(tmp)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return removed
 
 
 def _target_mode(target: Path) -> int:
@@ -39,22 +193,35 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
 
     Use for writers that want a file name (ffmpeg, trimesh, numpy). The temporary
     file keeps the target's suffix so format detection by extension still works.
+
+    Raises
+    ------
+    ExportError
+        The writer produced nothing, or any ``OSError`` while creating the directory,
+        writing or renaming (:func:`write_error`: disk full, permission denied, ...).
+        Any earlier file at ``path`` is unchanged and the temporary is removed.
     """
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
+    ensure_dir(target.parent, for_file=target)
     suf = target.suffix if suffix is None else suffix
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".tmp{suf}", dir=target.parent)
-    os.close(fd)
+    with reporting_write_errors(target):
+        remove_stale_temps(target, suf)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".tmp{suf}", dir=target.parent)
     tmp_path = Path(tmp)
     try:
-        yield tmp_path
-        if not tmp_path.exists() or tmp_path.stat().st_size == 0:
-            raise ExportError(f"{target}: writer produced no data")
-        os.chmod(tmp_path, _target_mode(target))
-        os.replace(tmp_path, target)
+        _try_lock(fd)  # tells remove_stale_temps of other processes that this one is alive
+        with reporting_write_errors(target):
+            yield tmp_path
+            if not tmp_path.exists() or tmp_path.stat().st_size == 0:
+                raise ExportError(f"{target}: writer produced no data")
+            os.chmod(tmp_path, _target_mode(target))
+            os.replace(tmp_path, target)
     finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
+        try:
+            if tmp_path.exists():
+                tmp_path.unlink()
+        finally:
+            os.close(fd)
 
 
 @contextlib.contextmanager
@@ -99,16 +266,43 @@ def save_image(path: str | os.PathLike, image: np.ndarray) -> Path:
     return target
 
 
+#: Pillow modes of 16-bit single-channel images (PNG gray 16): scaled by 1/65535
+_MODES_16 = ("I;16", "I;16B", "I;16L", "I;16N")
+
+
 def load_image(path: str | os.PathLike) -> np.ndarray:
-    """Read an image as float32 RGB in [0, 1], shape (H, W, 3)."""
+    """Read an image as float32 RGB in [0, 1], shape (H, W, 3).
+
+    8-bit images (gray, palette, RGB, RGBA: alpha dropped) are scaled by 1/255; 16-bit
+    gray (PNG) by 1/65535 and repeated to RGB; 16-bit RGB(A) PNGs are read by Pillow at
+    8 bits per channel (high byte). Other modes (32-bit integer or float) have no
+    agreed range and are refused naming the mode, rather than clipped.
+
+    Raises
+    ------
+    ExportError
+        Missing, unreadable or unsupported image (the message names the file and mode).
+    """
     from PIL import Image, UnidentifiedImageError
 
     try:
         with Image.open(path) as im:
-            arr = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
+            mode = im.mode
+            if mode in _MODES_16 or (mode == "I" and im.format == "PNG"):  # PNG 16-bit gray
+                gray = np.asarray(im, dtype=np.float64)
+                if gray.size and (gray.min() < 0 or gray.max() > 65535):
+                    raise ExportError(f"{path}: 16-bit image with values outside [0, 65535] "
+                                      f"(found {gray.min():g}..{gray.max():g})")
+                arr = np.repeat((gray / 65535.0).astype(np.float32)[:, :, None], 3, axis=2)
+            elif mode in ("I", "F") or mode.startswith(("I;", "F;")):
+                raise ExportError(f"{path}: {'32-bit float' if mode.startswith('F') else 'integer'} image "
+                                  f"(Pillow mode {mode!r}) has no defined [0, 1] range; expected an 8-bit or "
+                                  f"16-bit gray/RGB/RGBA image")
+            else:
+                arr = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
     except FileNotFoundError as exc:
         raise ExportError(f"{path}: file not found") from exc
-    except (UnidentifiedImageError, OSError) as exc:
+    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
         raise ExportError(f"{path}: not a readable image ({exc})") from exc
     return arr
 

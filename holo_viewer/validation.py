@@ -19,7 +19,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["check_array", "format_shape", "check_finite_scalar", "is_torch"]
+__all__ = ["check_array", "format_shape", "check_finite_scalar", "check_json_number", "is_torch"]
 
 ShapeSpec = Sequence[Any]
 
@@ -115,6 +115,10 @@ def check_array(
             x = np.asarray(x, dtype=np.float64)
         except (TypeError, ValueError) as exc:
             raise InputError(f"{prefix}{name}: expected a numeric array, found {type(x).__name__}") from exc
+    if isinstance(x, np.ndarray) and x.dtype.kind not in "biufc":
+        raise InputError(f"{prefix}{name}: expected a numeric array, found dtype {x.dtype} "
+                         f"(e.g. {x.reshape(-1)[:1].tolist()})" if x.size else
+                         f"{prefix}{name}: expected a numeric array, found dtype {x.dtype}")
     bound: dict[str, int] = dict(sizes) if sizes is not None else {}
     if shape is not None:
         found = tuple(int(n) for n in x.shape)
@@ -168,4 +172,31 @@ def check_finite_scalar(value: Any, name: str, *, low: float | None = None, high
         raise InputError(f"{name}: expected {'>' if low_open else '>='} {low}, found {v}")
     if high is not None and v > high:
         raise InputError(f"{name}: expected <= {high}, found {v}")
+    return v
+
+
+def check_json_number(value: Any, name: str, *, integer: bool = False, low: float | None = None,
+                      high: float | None = None, low_open: bool = False) -> float:
+    """Validate a number read from JSON (or another typed source) and return it.
+
+    Unlike :func:`check_finite_scalar`, which converts anything ``float()`` accepts, this
+    requires an actual number: strings (``"abc"``, ``"1"``), ``null``, booleans, lists
+    and objects are refused, naming the type found. ``integer=True`` also refuses
+    fractional values (``64.7``) and returns an ``int``.
+
+    Raises
+    ------
+    InputError
+        ``"{name}: expected a number, found str 'abc'"`` and the like; range errors as
+        :func:`check_finite_scalar`.
+    """
+    kind = "an integer" if integer else "a number"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        shown = "null" if value is None else f"{type(value).__name__} {value!r}"
+        raise InputError(f"{name}: expected {kind}, found {shown[:80]}")
+    v = check_finite_scalar(value, name, low=low, high=high, low_open=low_open)
+    if integer:
+        if v != int(v):
+            raise InputError(f"{name}: expected an integer, found {value!r}")
+        return int(v)
     return v

@@ -192,10 +192,10 @@ def _ascii_vertices(path: Path, header: PlyHeader, data: bytes, vi: int) -> np.n
     rows = body[start:start + vert.count]
     n_props = len(vert.props)
     dtype = np.dtype([(p, "=" + t) for p, t in vert.props])
-    out = np.zeros(vert.count, dtype=dtype)
-    if len(rows) < vert.count:
+    if len(rows) < vert.count:  # checked before allocating: a header may claim billions of vertices
         raise PlyError(f"{path}: truncated: header declares {vert.count} vertices, found {len(rows)} lines; "
                        f"vertex {len(rows)} missing (first field {vert.props[0][0]!r})")
+    out = np.zeros(vert.count, dtype=dtype)
     if vi == len(header.elements) - 1:
         trailing = [r for r in body[start + vert.count:] if r.strip()]
         if trailing:

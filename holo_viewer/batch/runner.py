@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from ..errors import ExportError, HoloViewerError
-from ..fileio import atomic_write
+from ..fileio import atomic_write, ensure_dir
 from .executors import Executor
 from .jobs import (PNG_KINDS, VIDEO_KINDS, ChunkResult, ChunkTask, ResolvedJob, chunk_tasks, load_frames,
                    plan_chunks, plan_job)
@@ -159,8 +159,7 @@ def run_batch(manifest: str | os.PathLike, out: str | os.PathLike, executor: Exe
     """
     t_start = time.perf_counter()
     rows = read_manifest(manifest)
-    root = Path(out)
-    root.mkdir(parents=True, exist_ok=True)
+    root = ensure_dir(out, "output directory (--out)")
     work_root = root / ".work"
     _remove_stale_temps(work_root)
     digests = FileDigests()
@@ -344,7 +343,7 @@ def _finish(j: _Job, root: Path, summary: BatchSummary) -> None:
             join_segments(segs, stage / names[kind])
     for kind in PNG_KINDS:
         if kind in names:
-            (stage / "frames").mkdir(parents=True, exist_ok=True)
+            ensure_dir(stage / "frames", "frames directory")
     seconds = time.perf_counter() - j.t0 if j.t0 is not None else 0.0
     info = {"hash": r.hash, "line": r.spec.line, "id": r.spec.id, "frames": r.n_frames, "fps": r.fps,
             "chunks": j.n_chunks, "render_seconds": j.render_seconds, "wall_seconds": seconds,

@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     from ..display.export import write_quilt_video
     from ..display.quilt import quilt_filename
     from ..errors import InputError
-    from ..fileio import atomic_write, save_image
+    from ..fileio import atomic_write, ensure_dir, save_image
     from ..pipeline import STAGES, FaceControls, Pipeline, StageTimings, apply_frame, render_images
 
     for name in ("smile", "pain"):
@@ -89,8 +89,7 @@ def run(args: argparse.Namespace) -> int:
     if not (0 < args.seconds <= 60 and 0 < args.fps <= 120 and 0.05 <= args.video_scale <= 1.0):
         raise InputError(f"--seconds/--fps/--video-scale: expected (0, 60], (0, 120], [0.05, 1], found "
                          f"{args.seconds}, {args.fps}, {args.video_scale}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = ensure_dir(args.out, "output directory (--out)")
     rows: list[tuple[str, float, str]] = []
     t_all = time.perf_counter()
     steps = tqdm(total=6, desc="demo", unit="step")

@@ -26,13 +26,15 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..errors import InputError
-    from ..fileio import atomic_write
+    from ..fileio import atomic_write, check_writable
     from ..reaction.api import load_default_bundle
     from ..reaction.data import make_synthetic_split
     from ..reaction.evaluate import evaluate, format_table
 
     if args.samples < 1:
         raise InputError(f"--samples: expected >= 1, found {args.samples}")
+    if args.json:
+        check_writable(args.json, "results JSON")  # before minutes of evaluation, not after
     torch.set_num_threads(max(1, args.threads))
     bundle = load_default_bundle(args.checkpoint)
     data_cfg = bundle.train_config.data

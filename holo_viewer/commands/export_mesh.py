@@ -27,6 +27,9 @@ from ..validation import check_finite_scalar
 __all__ = ["add_arguments", "run", "parse_expr_assignments", "FORMATS"]
 
 FORMATS = (".obj", ".ply", ".glb")
+#: largest |value| of an ``--expr`` coefficient (in units of the component's standard deviation;
+#: FLAME faces stay plausible within about +-3, beyond +-10 the head is torn apart)
+EXPR_LIMIT = 10.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,7 +55,8 @@ def parse_expr_assignments(items: Sequence[str], names: Sequence[str] | None, n_
     Raises
     ------
     InputError
-        Malformed entry, unknown name, index out of range or a non-finite value.
+        Malformed entry, unknown name, index out of range, a non-finite value or one outside
+        [-EXPR_LIMIT, EXPR_LIMIT].
     """
     out: dict[int, float] = {}
     lookup = {n: i for i, n in enumerate(names or [])}
@@ -74,7 +78,7 @@ def parse_expr_assignments(items: Sequence[str], names: Sequence[str] | None, n_
                                  f"[0, {n_expr}), found {key!r}") from None
             if not 0 <= idx < n_expr:
                 raise InputError(f"--expr: expected a component index in [0, {n_expr}), found {idx}")
-        out[idx] = check_finite_scalar(raw, f"--expr {key}")
+        out[idx] = check_finite_scalar(raw, f"--expr {key}", low=-EXPR_LIMIT, high=EXPR_LIMIT)
     return out
 
 

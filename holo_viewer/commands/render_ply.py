@@ -8,7 +8,9 @@ The cameras file is a JSON list of objects, one per view, in OpenCV conventions
 
 (optional "near"/"far" in metres, equal for all views). Views are written as
 ``DIR/view_000.png, view_001.png, ...`` (each file atomically), rendered in batches of
-views so the progress bar moves; one batch shares the backend's per-quilt work.
+views so the progress bar moves; one batch shares the backend's per-quilt work. A batch
+holds at most ``BATCH_PIXELS`` pixels (views larger than a tile are rendered fewer at a time);
+a camera larger than :data:`~holo_viewer.camera.MAX_IMAGE_SIDE` / ``MAX_IMAGE_PIXELS`` is refused.
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ from ..errors import InputError
 __all__ = ["add_arguments", "run", "parse_background", "load_cameras"]
 
 BACKEND_CHOICES = ("reference", "fast", "vtk", "torch", "gsplat", "auto")
+#: pixels rendered per backend call at most (a batch of big views is split; 16 LGP tiles are 3.8 Mpx)
+BATCH_PIXELS = 32 * 1024 * 1024
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -86,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..avatar.ply import load_ply
-    from ..fileio import save_image
+    from ..fileio import ensure_dir, save_image
     from ..render.api import render_views
     from ..render.config import RenderConfig
 
@@ -99,17 +103,15 @@ def run(args: argparse.Namespace) -> int:
     cameras = load_cameras(args.cameras)
     gaussians = load_ply(scene)
     config = RenderConfig(background=background, sh_degree=args.sh_degree)
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: expected a directory, found a file")
-    out.mkdir(parents=True, exist_ok=True)
+    out = ensure_dir(args.out, "output directory (--out)")
     n = len(cameras)
+    batch = max(1, min(args.batch, BATCH_PIXELS // (cameras.width * cameras.height)))
     t0 = time.perf_counter()
     used = args.backend
     with tqdm(total=n, desc=f"render-ply ({args.backend})", unit="view", disable=args.quiet,
               file=sys.stderr) as bar:
-        for v0 in range(0, n, args.batch):
-            idx = list(range(v0, min(v0 + args.batch, n)))
+        for v0 in range(0, n, batch):
+            idx = list(range(v0, min(v0 + batch, n)))
             result = render_views(gaussians, cameras[idx], backend=args.backend, config=config)
             used = result.backend
             for k, i in enumerate(idx):

@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from ..fileio import atomic_write
-    from ..reaction.train import TrainConfig, load_train_config, train
+    from ..reaction.train import TrainConfig, load_train_config, train, validate_train_config
 
     cfg = load_train_config(args.config) if args.config else TrainConfig()
     if args.seed is not None:
@@ -36,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
         cfg = replace(cfg, max_steps=args.max_steps)
     if args.threads is not None:
         cfg = replace(cfg, threads=args.threads)
+    cfg = validate_train_config(cfg, "train-reaction (config and overrides)")  # before anything is written
     if args.config_out:
         with atomic_write(args.config_out, "w") as fh:
             json.dump(cfg.to_dict(), fh, indent=2)

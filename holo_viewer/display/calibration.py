@@ -37,7 +37,7 @@ from typing import Any, Mapping
 from ..errors import CalibrationError
 
 __all__ = ["DisplayCalibration", "QuiltLayout", "DevicePreset", "PRESETS", "preset_for_serial",
-           "JSON_FIELDS"]
+           "JSON_FIELDS", "LIMITS"]
 
 #: visual.json key -> (DisplayCalibration attribute, kind). kind: "float" or "flag".
 JSON_FIELDS: dict[str, tuple[str, str]] = {
@@ -54,6 +54,15 @@ JSON_FIELDS: dict[str, tuple[str, str]] = {
     "flipImageX": ("flip_image_x", "flag"),
     "flipImageY": ("flip_image_y", "flag"),
     "flipSubp": ("flip_subp", "flag"),
+}
+#: Plausible ranges of the lenticular numbers: (low, high, what). Real panels: pitch 40-55 lenticules
+#: per inch, DPI 130-500, |slope| 5-8, center (a phase, only its fractional part matters) within +-1.
+#: Values outside give a broken native image, so they are refused rather than rendered.
+LIMITS: dict[str, tuple[float, float, str]] = {
+    "pitch": (1.0, 1000.0, "lenticules per inch"),
+    "dpi": (10.0, 5000.0, "pixels per inch"),
+    "slope": (0.01, 1000.0, "a lens slope (screen rows per pixel of lens shift)"),
+    "center": (-1000.0, 1000.0, "a lens phase"),
 }
 #: keys that may be absent from a visual.json (older firmware) and their defaults
 _OPTIONAL_DEFAULTS = {"fringe": 0.0, "verticalAngle": 0.0, "flipImageX": 0.0, "flipImageY": 0.0,
@@ -243,12 +252,15 @@ class DisplayCalibration:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise CalibrationError(f"{src}: field '{name}': expected a finite number, found {v!r}")
             object.__setattr__(self, name, float(v))
-        if self.pitch <= 0:
-            raise CalibrationError(f"{src}: field 'pitch': expected > 0 lenticules per inch, found {self.pitch}")
-        if self.slope == 0:
-            raise CalibrationError(f"{src}: field 'slope': expected a non-zero lens slope, found 0")
-        if self.dpi <= 0:
-            raise CalibrationError(f"{src}: field 'DPI': expected > 0, found {self.dpi}")
+        for name, key in (("pitch", "pitch"), ("dpi", "DPI"), ("center", "center")):
+            low, high, unit = LIMITS[name]
+            v = getattr(self, name)
+            if not low <= v <= high:
+                raise CalibrationError(f"{src}: field '{key}': expected {unit} in [{low:g}, {high:g}], found {v:g}")
+        low, high, unit = LIMITS["slope"]
+        if not low <= abs(self.slope) <= high:
+            raise CalibrationError(f"{src}: field 'slope': expected {unit} with magnitude in [{low:g}, {high:g}], "
+                                   f"found {self.slope:g}")
         if not (0 < self.view_cone < 180):
             raise CalibrationError(f"{src}: field 'viewCone': expected degrees in (0, 180), found {self.view_cone}")
         for name, key in (("screen_w", "screenW"), ("screen_h", "screenH")):
@@ -260,6 +272,11 @@ class DisplayCalibration:
             object.__setattr__(self, name, int(v))
         for name in ("inv_view", "flip_image_x", "flip_image_y", "flip_subp", "nominal"):
             object.__setattr__(self, name, bool(getattr(self, name)))
+        lenses = self.pitch * self.screen_w / self.dpi * math.cos(math.atan(1.0 / self.slope))
+        if not 1.0 <= lenses <= self.screen_w:
+            raise CalibrationError(f"{src}: fields 'pitch', 'DPI', 'slope', 'screenW': expected between 1 and screenW "
+                                   f"({self.screen_w}) lenticules across the screen (pitch * screenW / DPI * "
+                                   f"cos(atan(1 / slope))), found {lenses:.4g}")
         if not isinstance(self.quilt, QuiltLayout):
             raise CalibrationError(f"{src}: quilt: expected a QuiltLayout, found {type(self.quilt).__name__}")
 

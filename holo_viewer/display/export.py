@@ -154,4 +154,24 @@ def write_quilt_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps
             writer.close()
         if count == 0:
             raise ExportError(f"{p}: no frames to write")
+        _check_video(p, tmp, count)
     return p
+
+
+def _check_video(target: Path, tmp: Path, count: int) -> None:
+    """ExportError unless ffmpeg finished ``tmp`` with ``count`` frames.
+
+    imageio-ffmpeg ignores ffmpeg's exit status on close, so an encoder that failed while
+    finishing the file (a full disk while writing the index) would otherwise leave a broken
+    mp4 that is then renamed into place.
+    """
+    import imageio_ffmpeg
+
+    try:
+        n, _ = imageio_ffmpeg.count_frames_and_secs(str(tmp))
+    except (RuntimeError, OSError, ValueError) as exc:
+        raise ExportError(f"{target}: ffmpeg did not produce a readable video (a full disk or a killed "
+                          f"encoder?); nothing was written ({str(exc).strip().splitlines()[-1:]})") from exc
+    if n != count:
+        raise ExportError(f"{target}: ffmpeg wrote {n} of {count} frames (a full disk or a killed encoder?); "
+                          f"nothing was written")

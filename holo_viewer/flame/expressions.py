@@ -186,7 +186,7 @@ class AUMap:
             text = p.read_text(encoding="utf-8")
         except FileNotFoundError as exc:
             raise InputError(f"{p}: AU map file not found") from exc
-        except OSError as exc:
+        except (OSError, UnicodeDecodeError) as exc:
             raise InputError(f"{p}: cannot read the AU map ({exc})") from exc
         try:
             data = json.loads(text)

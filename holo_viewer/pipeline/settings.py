@@ -242,14 +242,20 @@ def flame_sequence_frames(params: Mapping[str, Any], *, source: str = "flame par
 
     Per-frame keys are those of :data:`FLAME_KEYS` (and ``pain`` (T,) when present); ``shape``
     ((n,) or (1, n)) and ``static_offset`` are per sequence. Raises InputError naming the key
-    when the frame counts disagree.
+    when the frame counts disagree, a value is not a number, or there are no frames.
     """
+    def floats(key: str) -> np.ndarray:
+        a = np.asarray(params[key])
+        if a.dtype.kind not in "biuf":
+            raise InputError(f"{source}: {key}: expected numbers, found dtype {a.dtype}")
+        return a.astype(np.float64)
+
     T = None
     seq: dict[str, np.ndarray] = {}
     for key in list(FLAME_KEYS) + ["pain"]:
         if key not in params:
             continue
-        a = np.asarray(params[key], dtype=np.float64)
+        a = floats(key)
         width = FLAME_KEYS.get(key)
         if key == "pain":
             a = a.reshape(-1, 1)
@@ -267,14 +273,16 @@ def flame_sequence_frames(params: Mapping[str, Any], *, source: str = "flame par
     if T is None:
         raise InputError(f"{source}: expected at least one of the keys {sorted(FLAME_KEYS)}, found "
                          f"{sorted(params)}")
+    if T == 0:
+        raise InputError(f"{source}: expected at least one frame, found 0")
     dyn = params.get("dynamic_offset") if isinstance(params, Mapping) else None
     if dyn is not None:
-        dyn = np.asarray(dyn, dtype=np.float64)
+        dyn = floats("dynamic_offset")
         if dyn.ndim != 3 or dyn.shape[0] != T or dyn.shape[2] != 3:
             raise InputError(f"{source}: dynamic_offset: expected shape ({T}, V, 3), found {dyn.shape}")
     shape = None
     if "shape" in params:
-        shape = np.asarray(params["shape"], dtype=np.float64).reshape(-1)
+        shape = floats("shape").reshape(-1)
     frames = []
     for t in range(T):
         fr = {k: (v[t, 0] if k == "pain" else v[t]) for k, v in seq.items()}

@@ -140,7 +140,8 @@ def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_s
     speaker_state : numpy.ndarray, shape (T, S)
     pain : float in [0, 1]
     listener_past : numpy.ndarray, shape (P, S), optional
-        Listener frames before the clip (the most recent ``listener_window`` are used).
+        Listener frames before the clip (the most recent ``listener_window`` are used); P = 0
+        is the same as no past.
     temperature, top_k, seed : decoding (temperature 0 = argmax)
     smoothing : float >= 0
         Time constant in seconds of :func:`smooth_states` applied to the output (0 = raw model
@@ -154,8 +155,9 @@ def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_s
     feats = log_mel(audio, sample_rate, T, AudioConfig(n_mels=cfg.n_mels))
     past = None
     if listener_past is not None:
-        past = torch.from_numpy(np.asarray(check_array(listener_past, "listener_past", ("P", S)),
-                                           dtype=np.float32))[None]
+        lp = check_array(listener_past, "listener_past", ("P", S))
+        if lp.shape[0]:  # an empty past is no past
+            past = torch.from_numpy(np.asarray(lp, dtype=np.float32))[None]
     out = generate(bundle.model, bundle.centroids(), feats[None],
                    torch.from_numpy(np.asarray(speaker_state, dtype=np.float32))[None],
                    torch.tensor([pain], dtype=torch.float32), listener_past=past, temperature=temperature,

@@ -12,6 +12,7 @@ computation (explicit frame loop, ``numpy.fft.rfft``) it is tested against.
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -166,7 +167,9 @@ def read_wav(path: str | os.PathLike) -> tuple[np.ndarray, int]:
     Raises
     ------
     ReactionError
-        Missing or unreadable file, or NaN samples.
+        Missing, unreadable, corrupt or truncated file (whatever scipy's parser raises).
+    InputError
+        NaN/inf samples.
     """
     from scipy.io import wavfile
 
@@ -174,9 +177,20 @@ def read_wav(path: str | os.PathLike) -> tuple[np.ndarray, int]:
     if not p.is_file():
         raise ReactionError(f"{p}: audio file not found")
     try:
-        sr, data = wavfile.read(p)
-    except (ValueError, OSError) as exc:
-        raise ReactionError(f"{p}: not a readable WAV file ({exc})") from exc
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", wavfile.WavFileWarning)
+            sr, data = wavfile.read(p)
+        for w in caught:
+            if "EOF prematurely" in str(w.message):
+                raise ReactionError(f"{p}: truncated WAV file ({w.message})")
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    except ReactionError:
+        raise
+    except MemoryError as exc:
+        raise ReactionError(f"{p}: not a readable WAV file (its header claims more data than fits in memory)") from exc
+    except Exception as exc:  # noqa: BLE001 - scipy's parser of untrusted bytes raises ValueError, OSError,
+        # EOFError, struct.error, IndexError and even UnboundLocalError (seen on a corrupt fmt chunk)
+        raise ReactionError(f"{p}: not a readable WAV file ({type(exc).__name__}: {exc})") from exc
     if data.dtype == np.uint8:
         x = (data.astype(np.float32) - 128.0) / 128.0
     elif np.issubdtype(data.dtype, np.integer):

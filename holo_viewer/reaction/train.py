@@ -13,6 +13,7 @@ evaluation and removed at the end. ``resume=True`` continues from it.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -25,14 +26,14 @@ import numpy as np
 import torch
 
 from ..errors import ReactionError
-from ..fileio import atomic_path
+from ..fileio import atomic_path, check_writable
 from .audio import AudioConfig
 from .data import ReactionSplit, SyntheticConfig, make_synthetic_split
 from .model import ModelConfig, ReactionModel
 from .tokens import Codebook, fit_codebook, state_weights
 
 __all__ = ["TrainConfig", "ReactionBundle", "train", "load_checkpoint", "save_checkpoint", "load_train_config",
-           "train_config_from_dict",
+           "train_config_from_dict", "validate_train_config",
            "batch_windows"]
 
 CHECKPOINT_VERSION = 1
@@ -67,6 +68,9 @@ class TrainConfig:
 def _from_dict(cls, d: dict | None, name: str):
     if d is None:
         return cls()
+    if not isinstance(d, dict):
+        raise ReactionError(f"{name}: expected a JSON object of {cls.__name__} fields, found "
+                            f"{'null' if d is None else type(d).__name__}")
     known = {f.name: f for f in fields(cls)}
     bad = sorted(set(d) - set(known))
     if bad:
@@ -77,13 +81,101 @@ def _from_dict(cls, d: dict | None, name: str):
     return cls(**kw)
 
 
-def train_config_from_dict(d: dict) -> TrainConfig:
-    """TrainConfig from a (partial) nested dict; unknown keys raise :class:`ReactionError`."""
+def train_config_from_dict(d: dict, source: str = "config") -> TrainConfig:
+    """TrainConfig from a (partial) nested dict, validated (:func:`validate_train_config`).
+
+    Raises
+    ------
+    ReactionError
+        Unknown keys, a value of the wrong JSON type or out of range (naming ``source`` and the field).
+    """
+    if not isinstance(d, dict):
+        raise ReactionError(f"{source}: expected a JSON object, found {type(d).__name__}")
     d = dict(d)
-    data = _from_dict(SyntheticConfig, d.pop("data", None), "data")
-    model = _from_dict(ModelConfig, d.pop("model", None), "model")
-    top = _from_dict(TrainConfig, d, "config")
-    return TrainConfig(**{**{f.name: getattr(top, f.name) for f in fields(TrainConfig)}, "data": data, "model": model})
+    data = _from_dict(SyntheticConfig, d.pop("data", None), f"{source}: data")
+    model = _from_dict(ModelConfig, d.pop("model", None), f"{source}: model")
+    top = _from_dict(TrainConfig, d, source)
+    cfg = TrainConfig(**{**{f.name: getattr(top, f.name) for f in fields(TrainConfig)}, "data": data, "model": model})
+    return validate_train_config(cfg, source)
+
+
+# field -> (low, high, low_open); integer-ness follows the field's default value. Unlisted numbers: finite.
+_LIMITS: dict[str, tuple[float | None, float | None, bool]] = {
+    "seed": (0, None, False), "n_codes": (2, None, False), "pose_weight": (0, None, True),
+    "batch_size": (1, None, False), "max_steps": (1, None, False), "lr": (0, 1.0, True),
+    "weight_decay": (0, None, False), "warmup": (1, None, False), "label_smoothing": (0, 1, False),
+    "eval_every": (1, None, False), "val_windows": (1, None, False), "patience": (1, None, False),
+    "threads": (1, 1024, False), "max_minutes": (0, None, True),
+    "data.seed": (0, None, False), "data.seconds": (1.0, 3600.0, False), "data.train_contexts": (1, None, False),
+    "data.val_contexts": (1, None, False), "data.test_contexts": (1, None, False),
+    "data.listeners_per_context": (1, None, False), "data.pain_zero_fraction": (0, 1, False),
+    "data.audio.sample_rate": (1, None, False), "data.audio.fps": (1, None, False),
+    "data.audio.n_fft": (2, None, False), "data.audio.n_mels": (1, None, False), "data.audio.fmin": (0, None, False),
+    "data.audio.fmax": (0, None, True), "data.audio.eps": (0, None, True),
+    "model.n_mels": (1, None, False), "model.state_dim": (1, None, False), "model.n_codes": (2, None, False),
+    "model.d_model": (1, 4096, False), "model.n_heads": (1, None, False), "model.enc_layers": (1, 64, False),
+    "model.dec_layers": (1, 64, False), "model.ff_dim": (1, 65536, False), "model.dropout": (0, 1, False),
+    "model.speaker_window": (2, None, False), "model.listener_window": (1, None, False), "model.k": (1, None, False),
+}
+
+
+def _check_fields(obj: Any, prefix: str, source: str) -> None:
+    from ..errors import InputError
+    from ..validation import check_json_number
+
+    default = type(obj)()
+    for f in fields(obj):
+        path = prefix + f.name
+        value, ref = getattr(obj, f.name), getattr(default, f.name)
+        if dataclasses.is_dataclass(ref):
+            if not isinstance(value, type(ref)):
+                raise ReactionError(f"{source}: {path}: expected an object of {type(ref).__name__} fields, "
+                                    f"found {type(value).__name__}")
+            _check_fields(value, path + ".", source)
+            continue
+        if isinstance(ref, bool) or not isinstance(ref, (int, float)):
+            continue
+        low, high, low_open = _LIMITS.get(path, (None, None, False))
+        try:
+            check_json_number(value, path, integer=isinstance(ref, int), low=low, high=high, low_open=low_open)
+        except InputError as exc:
+            raise ReactionError(f"{source}: {exc}") from None
+
+
+def validate_train_config(cfg: TrainConfig, source: str = "config") -> TrainConfig:
+    """Check every field of a :class:`TrainConfig` before any training step; returns it.
+
+    Types (integers where the default is one, numbers elsewhere; no strings, null or
+    booleans), ranges (``_LIMITS``: ``batch_size >= 1``, ``max_steps >= 1``, ``0 < lr <= 1``,
+    ...) and the relations between fields (``d_model`` divisible by ``n_heads``, an even
+    ``speaker_window``, ``fmin < fmax <= sample_rate / 2``, clips longer than ``k`` frames).
+
+    Raises
+    ------
+    ReactionError
+        Naming ``source``, the field (``model.d_model``), the expected and the found.
+    """
+    if not isinstance(cfg, TrainConfig):
+        raise ReactionError(f"{source}: expected a TrainConfig, found {type(cfg).__name__}")
+    _check_fields(cfg, "", source)
+    m, a = cfg.model, cfg.data.audio
+    rules = [
+        (m.d_model % m.n_heads == 0, f"model.d_model: expected a multiple of model.n_heads ({m.n_heads}), "
+                                     f"found {m.d_model}"),
+        (m.speaker_window % 2 == 0, f"model.speaker_window: expected an even number of frames, found "
+                                    f"{m.speaker_window}"),
+        (cfg.n_codes <= m.n_codes, f"n_codes: expected <= model.n_codes ({m.n_codes}), found {cfg.n_codes}"),
+        (a.sample_rate // a.fps >= 1, f"data.audio.fps: expected <= data.audio.sample_rate ({a.sample_rate}), "
+                                      f"found {a.fps}"),
+        (a.fmin < a.fmax <= a.sample_rate / 2, f"data.audio.fmin/fmax: expected 0 <= fmin < fmax <= sample_rate / 2 "
+                                               f"({a.sample_rate / 2:g}), found {a.fmin:g}, {a.fmax:g}"),
+        (cfg.data.n_frames > m.k, f"data.seconds: expected clips longer than model.k = {m.k} frames, found "
+                                  f"{cfg.data.n_frames} frames"),
+    ]
+    for ok, message in rules:
+        if not ok:
+            raise ReactionError(f"{source}: {message}")
+    return cfg
 
 
 def load_train_config(path: str | os.PathLike) -> TrainConfig:
@@ -95,9 +187,9 @@ def load_train_config(path: str | os.PathLike) -> TrainConfig:
         raise ReactionError(f"{p}: config file not found") from exc
     except json.JSONDecodeError as exc:
         raise ReactionError(f"{p}: not valid JSON ({exc})") from exc
-    if not isinstance(d, dict):
-        raise ReactionError(f"{p}: expected a JSON object, found {type(d).__name__}")
-    return train_config_from_dict(d)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ReactionError(f"{p}: cannot read the config ({exc})") from exc
+    return train_config_from_dict(d, source=str(p))
 
 
 @dataclass
@@ -224,9 +316,12 @@ def train(cfg: TrainConfig, out: str | os.PathLike, resume: bool = False, progre
     from tqdm import tqdm
 
     t_start = time.time()
-    torch.set_num_threads(max(1, int(cfg.threads)))
+    cfg = validate_train_config(cfg)
     out = Path(out)
     partial = out.with_name(out.name + ".partial.pt")
+    check_writable(out, "checkpoint")  # before training, not after it
+    check_writable(partial, "resumable checkpoint")
+    torch.set_num_threads(int(cfg.threads))
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
     if splits is None:

@@ -91,7 +91,8 @@ def render_views(gaussians: Gaussians, cameras: Cameras, backend: BackendName = 
     Parameters
     ----------
     gaussians : Gaussians
-        N Gaussians (numpy or torch fields); validated here (NaN/inf -> InputError).
+        N Gaussians (numpy or torch fields); validated here (NaN/inf -> InputError). With
+        N = 0 every view is the background (any backend).
     cameras : Cameras
         V cameras of one image size (OpenCV conventions, see :mod:`holo_viewer.camera`).
     backend : {"fast", "reference", "vtk", "torch", "gsplat", "auto"}
@@ -125,6 +126,11 @@ def render_views(gaussians: Gaussians, cameras: Cameras, backend: BackendName = 
         raise InputError(f"backend: expected one of {sorted(BACKENDS) + ['auto']}, found {backend!r}")
     validate_inputs(gaussians, cameras)
     t1 = time.perf_counter()
+    if len(gaussians) == 0:  # an empty scene is the background in every view, whatever the backend
+        images = np.empty((len(cameras), cameras.height, cameras.width, 3), dtype=np.float32)
+        images[...] = np.asarray(config.background, dtype=np.float32)
+        return RenderResult(images=images, timings={"validate": t1 - t0, "total": time.perf_counter() - t0},
+                            stats={"n_input": 0, "n_visible": 0}, backend=backend)
     module = _load(backend)
     result = module.render(gaussians, cameras, config)
     timings = {"validate": t1 - t0, **result.timings}
