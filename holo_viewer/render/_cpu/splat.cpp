@@ -1108,10 +1108,11 @@ HV_ALWAYS_INLINE inline void emit(const ProjJob& P, const BinJob& B, int v, int 
 
 // project_count for a view restricted to a pixel rectangle (cam[14..17] smaller than the image):
 // a cheap conservative test first keeps the splats whose box can reach the rectangle, which are
-// then gathered 8 at a time and projected by the same project_block (identical records). The
-// test bounds the box half-width: hx <= rad <= rs sqrt(lambda_max) + 1 and lambda_max <= a + c =
-// tr(J Sigma J^T) + 2 d <= tr(Sigma) |J|_F^2 + 2 d (Sigma positive semi-definite), with the same
-// clamped J as the projection; a kept splat may still turn out not to be drawn.
+// then projected by the same project_block, 8 at a time (identical records). The
+// test bounds the box half-widths from the projected covariance's diagonal (a, c: the same
+// expressions as project_block, no conic, colour or record): hx = min(rad, sqrt(q a) 1.0001 +
+// 1e-3) with rad <= rs sqrt(lambda_max) + 1 and lambda_max <= a + c (the trace), same for hy;
+// the rectangle is widened by 2 px against rounding. A kept splat may still not be drawn.
 template <int DEG, bool SHARED>
 HV_ALWAYS_INLINE inline void project_count_region(const ProjJob& P, const BinJob& B, int v, int k0, int k1,
                                                   int64_t* cnt, Entries& ent) {
@@ -1119,56 +1120,87 @@ HV_ALWAYS_INLINE inline void project_count_region(const ProjJob& P, const BinJob
     const int64_t mp = P.mp;
     const double fx = cam[0], fy = cam[1], cx = cam[2], cy = cam[3];
     const double xlo = cam[14] - 2.0, xhi = cam[15] + 2.0, ylo = cam[16] - 2.0, yhi = cam[17] + 2.0;
-    const double rs2 = P.radius_sigmas * P.radius_sigmas * (1.0 + 1e-6), d2 = 2.0 * P.dilation;
+    const double rs2 = P.radius_sigmas * P.radius_sigmas * (1.0 + 1e-6), d = P.dilation;
     const double thr = P.alpha_threshold, near = P.near;
-    const int nrows = SHARED ? 3 : (DEG + 1) * (DEG + 1) * 3;
+    const double ox = cam[4], oy = cam[5], oz = cam[6], lx0 = cam[10], lx1 = cam[11], ly0 = cam[12], ly1 = cam[13];
     constexpr int SPAN = 8 * LANES;
-    alignas(64) uint8_t keep[SPAN];
-    int32_t idx[SPAN];
+    alignas(64) int32_t keep[SPAN];  // not char: a char store may alias the inputs and block vectorisation
+    const double* __restrict pcx = P.pc;
+    const double* __restrict cv = P.cov;
+    const double* __restrict opa = P.op;
+    const double* __restrict qa = P.q;
+    Block o;
+    alignas(64) int32_t pre[LANES][4];
+    const bool banded = B.div.shift >= 0;
+    constexpr int DENSE = 3;  // kept splats in a block of 8 from which it is projected in place
+    const int nrows = SHARED ? 3 : (DEG + 1) * (DEG + 1) * 3;
+    int32_t idx[LANES];
+    int np_ = 0;
     Gathered g;
     ProjJob Pl = P;
     Pl.pc = &g.pc[0][0]; Pl.cov = &g.cov[0][0]; Pl.means = &g.means[0][0]; Pl.op = g.op; Pl.q = g.q;
     Pl.sh = &g.sh[0][0]; Pl.mp = LANES;
-    Block o;
-    alignas(64) int32_t pre[LANES][4];
-    const bool banded = B.div.shift >= 0;
+    auto flush = [&]() {
+        if (np_ == 0) return;
+        for (int l = 0; l < LANES; ++l) {  // unused lanes repeat the first splat with opacity 0
+            const int k = idx[l < np_ ? l : 0];
+            for (int i = 0; i < 3; ++i) g.pc[i][l] = P.pc[i * mp + k];
+            for (int i = 0; i < 6; ++i) g.cov[i][l] = P.cov[i * mp + k];
+            for (int i = 0; i < 3; ++i) g.means[i][l] = P.means[i * mp + k];
+            g.op[l] = l < np_ ? P.op[k] : 0.0;
+            g.q[l] = P.q[k];
+            for (int i = 0; i < nrows; ++i) g.sh[i][l] = P.sh[i * mp + k];
+        }
+        project_block<DEG, SHARED>(Pl, cam, 0, o);
+        if (banded) band_block(o, g.q, B.div.shift, pre);
+        for (int l = 0; l < np_; ++l) emit(P, B, v, idx[l], o, l, banded ? pre[l] : nullptr, cnt, ent);
+        np_ = 0;
+    };
     for (int ks = k0; ks < k1; ks += SPAN) {
         const int n = std::min(SPAN, k1 - ks);
 #pragma GCC ivdep
         for (int l = 0; l < n; ++l) {
             const int k = ks + l;
-            const double tx = P.pc[k] + cam[4], ty = P.pc[mp + k] + cam[5], tz = P.pc[2 * mp + k] + cam[6];
+            const double tx = pcx[k] + ox, ty = pcx[mp + k] + oy, tz = pcx[2 * mp + k] + oz;
             const double itz = 1.0 / tz;
             const double u = fx * tx * itz + cx, vv = fy * ty * itz + cy;
-            const double xc = std::min(std::max(tx * itz, cam[10]), cam[11]);
-            const double yc = std::min(std::max(ty * itz, cam[12]), cam[13]);
-            const double jf2 = (fx * fx * (1.0 + xc * xc) + fy * fy * (1.0 + yc * yc)) * itz * itz;
-            const double tr = P.cov[k] + P.cov[3 * mp + k] + P.cov[5 * mp + k];
-            const double R = std::sqrt(rs2 * (tr * jf2 + d2)) + 1.0;
-            keep[l] = (P.op[k] >= thr) & (tz > near) & (u - R < xhi) & (u + R > xlo) & (vv - R < yhi) &
-                      (vv + R > ylo);
+            // the projected covariance's diagonal, as project_block computes it
+            const double sxx = cv[k], sxz = cv[2 * mp + k];
+            const double syy = cv[3 * mp + k], syz = cv[4 * mp + k], szz = cv[5 * mp + k];
+            const double txc = std::min(std::max(tx * itz, lx0), lx1) * tz;
+            const double tyc = std::min(std::max(ty * itz, ly0), ly1) * tz;
+            const double j00 = fx * itz, j02 = -fx * txc * itz * itz, j11 = fy * itz, j12 = -fy * tyc * itz * itz;
+            const double sa = (j00 * sxx + j02 * sxz) * j00 + (j00 * sxz + j02 * szz) * j02;
+            const double sc = (j11 * syy + j12 * syz) * j11 + (j11 * syz + j12 * szz) * j12;
+            const double a = sa + d, c = sc + d, q = qa[k];
+            // hx = min(rad, sqrt(q a) 1.0001 + 1e-3) with rad <= rs sqrt(lambda_max) + 1, lambda_max <= a + c
+            const double rad = std::sqrt(rs2 * std::max(a + c, 0.0)) + 1.0;
+            const double hx = std::min(rad, std::sqrt(std::max(q * a, 0.0)) * 1.0001 + 1e-3) + 1e-6 * std::abs(u);
+            const double hy = std::min(rad, std::sqrt(std::max(q * c, 0.0)) * 1.0001 + 1e-3) + 1e-6 * std::abs(vv);
+            keep[l] = int32_t((opa[k] >= thr) & (tz > near) & (u - hx < xhi) & (u + hx > xlo) & (vv - hy < yhi) &
+                              (vv + hy > ylo));
         }
-        int nc = 0;
-        for (int l = 0; l < n; ++l) {
-            idx[nc] = ks + l;
-            nc += keep[l];
-        }
-        for (int c0 = 0; c0 < nc; c0 += LANES) {
-            const int nl = std::min(LANES, nc - c0);
-            for (int l = 0; l < LANES; ++l) {  // unused lanes repeat the first splat with opacity 0
-                const int k = idx[c0 + (l < nl ? l : 0)];
-                for (int i = 0; i < 3; ++i) g.pc[i][l] = P.pc[i * mp + k];
-                for (int i = 0; i < 6; ++i) g.cov[i][l] = P.cov[i * mp + k];
-                for (int i = 0; i < 3; ++i) g.means[i][l] = P.means[i * mp + k];
-                g.op[l] = l < nl ? P.op[k] : 0.0;
-                g.q[l] = P.q[k];
-                for (int i = 0; i < nrows; ++i) g.sh[i][l] = P.sh[i * mp + k];
+        // blocks of 8 with several kept splats go through project_block where they lie (sequential
+        // reads); single kept splats are gathered into blocks of 8 first
+        for (int b0 = 0; b0 < n; b0 += LANES) {
+            int cnt8 = 0;
+            for (int l = b0; l < b0 + LANES; ++l) cnt8 += l < n ? keep[l] : 0;
+            if (cnt8 == 0) continue;
+            if (cnt8 >= DENSE) {
+                project_block<DEG, SHARED>(P, cam, ks + b0, o);
+                if (banded) band_block(o, P.q + ks + b0, B.div.shift, pre);
+                for (int l = 0; l < LANES && b0 + l < n; ++l)
+                    if (keep[b0 + l]) emit(P, B, v, ks + b0 + l, o, l, banded ? pre[l] : nullptr, cnt, ent);
+                continue;
             }
-            project_block<DEG, SHARED>(Pl, cam, 0, o);
-            if (banded) band_block(o, g.q, B.div.shift, pre);
-            for (int l = 0; l < nl; ++l) emit(P, B, v, idx[c0 + l], o, l, banded ? pre[l] : nullptr, cnt, ent);
+            for (int l = b0; l < b0 + LANES && l < n; ++l)
+                if (keep[l]) {
+                    idx[np_++] = ks + l;
+                    if (np_ == LANES) flush();
+                }
         }
     }
+    flush();
 }
 
 template <int DEG, bool SHARED>
