@@ -1187,6 +1187,7 @@ HV_ALWAYS_INLINE inline void project_count_region(const ProjJob& P, const BinJob
             for (int l = b0; l < b0 + LANES; ++l) cnt8 += l < n ? keep[l] : 0;
             if (cnt8 == 0) continue;
             if (cnt8 >= DENSE) {
+                flush();  // the pending gathered splats come first: the lists stay in depth order
                 project_block<DEG, SHARED>(P, cam, ks + b0, o);
                 if (banded) band_block(o, P.q + ks + b0, B.div.shift, pre);
                 for (int l = 0; l < LANES && b0 + l < n; ++l)
