@@ -18,6 +18,14 @@ Modes (``LiveRenderer.frame`` / :func:`render_native`), all producing the panel'
     previous frames (``fast.render(tile_mask=..., out=...)``); the quilt and the native image are
     updated only where they read those columns (:meth:`Interleaver.update`). The native subpixels
     the eyes receive are exactly those of ``full_quilt`` (tested); the others hold older frames.
+``eye_centred``
+    A tracked viewer, the alternative of the tracked light-field displays in the literature: one
+    perspective image per eye from the eye's own position (a camera interpolated between the
+    quilt cameras, :func:`~holo_viewer.display.eyes.eye_cameras`), written into the subpixels
+    whose light reaches that eye (weight > ``threshold``, the nearer eye wins;
+    :func:`~holo_viewer.display.eyes.scatter_eye_images`). Two views instead of dozens of bands,
+    but a different picture from the 48-view light field: its error against full quality is
+    the perspective difference (bench/live_frame.py measures it).
 ``auto``
     ``tracked`` when a viewer is given, ``all_views`` otherwise.
 
@@ -26,6 +34,7 @@ The first frame of a :class:`LiveRenderer` (or after a change of avatar size) re
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -38,8 +47,8 @@ from .render.config import RenderConfig
 
 __all__ = ["LiveConfig", "LiveFrame", "LiveRenderer", "render_native", "MODES"]
 
-Mode = Literal["auto", "tracked", "all_views", "full_quilt"]
-MODES = ("auto", "tracked", "all_views", "full_quilt")
+Mode = Literal["auto", "tracked", "all_views", "full_quilt", "eye_centred"]
+MODES = ("auto", "tracked", "all_views", "full_quilt", "eye_centred")
 
 
 @dataclass(frozen=True)
@@ -144,6 +153,8 @@ class LiveRenderer:
         self._lod = None
         self._rest = rest
         self._device = None
+        self._zeta: np.ndarray | None = None
+        self._texel: np.ndarray | None = None
 
     # ------------------------------------------------------------------ public
     def frame(self, gaussians: Any, viewer: Any = None, mode: Mode = "auto") -> LiveFrame:
@@ -169,8 +180,8 @@ class LiveRenderer:
             raise InputError(f"mode: expected one of {', '.join(MODES)}, found {mode!r}")
         if mode == "auto":
             mode = "tracked" if viewer is not None else "all_views"
-        if mode == "tracked" and viewer is None:
-            raise InputError("mode 'tracked' needs a viewer (holo_viewer.display.eyes.TrackedViewer)")
+        if mode in ("tracked", "eye_centred") and viewer is None:
+            raise InputError(f"mode {mode!r} needs a viewer (holo_viewer.display.eyes.TrackedViewer)")
         validate_inputs(gaussians, self.cameras)
         if self._n_gaussians != len(gaussians):  # a new avatar: no valid previous frame
             self._n_gaussians = None
@@ -178,8 +189,10 @@ class LiveRenderer:
         timings: dict[str, float] = {"validate": time.perf_counter() - t0}
         if mode == "tracked" and self._n_gaussians is not None:
             fraction = self._tracked(gaussians, viewer, timings)
+        elif mode == "eye_centred" and self._n_gaussians is not None:
+            fraction = self._eye_centred(gaussians, viewer, timings)
         else:
-            if mode == "tracked":
+            if mode in ("tracked", "eye_centred"):
                 mode = "full_quilt"  # first frame: everything
             fraction = self._everything(gaussians, lod=mode == "all_views", timings=timings)
             self._n_gaussians = len(gaussians)
@@ -275,6 +288,35 @@ class LiveRenderer:
         t4 = time.perf_counter()
         timings.update(select=t1 - t, render=t2 - t1, quilt=t3 - t2, interleave=t4 - t3)
         return float(colmask.mean())
+
+
+    def _eye_centred(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
+        from .display import eyes
+        from .display.quilt import to_uint8
+        from .render import fast
+
+        t = time.perf_counter()
+        if self._zeta is None:
+            from .display.device import view_gather_indices
+            from .display.simulate import VirtualDisplay
+
+            V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
+            vd = VirtualDisplay(self.calibration, n_views=V, sigma_views=self.config.sigma_views)
+            self._zeta = vd.zeta.astype(np.float32)
+            idx0 = view_gather_indices(self.interleaver, V, H, W)[0]
+            self._texel = (idx0 % (H * W * 3)).astype(np.int32)
+        cams = eyes.eye_cameras(self.cameras, self.calibration, viewer)
+        t1 = time.perf_counter()
+        imgs = fast.render(gaussians, cams, self.config.render).images
+        t2 = time.perf_counter()
+        c = self.config
+        reach = c.sigma_views * math.sqrt(2.0 * math.log(1.0 / c.threshold))
+        t_eyes = eyes.eye_view_coordinates(self.calibration, viewer, len(self.cameras))
+        n = eyes.scatter_eye_images(self.native, self._zeta, t_eyes, self._texel, to_uint8(imgs),
+                                    len(self.cameras), reach)
+        t3 = time.perf_counter()
+        timings.update(select=t1 - t, render=t2 - t1, interleave=t3 - t2)
+        return len(cams) / len(self.cameras)
 
 
 _CACHE: dict[Any, LiveRenderer] = {}

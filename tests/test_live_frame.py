@@ -15,6 +15,7 @@ Tolerances (stated once):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -262,6 +263,33 @@ def test_full_quilt_and_all_views_modes(small_cameras):
         live.frame(g, mode="tracked")
     with pytest.raises(InputError, match="mode"):
         live.frame(g, mode="sparse")
+
+
+def test_eye_cameras_reproduce_the_quilt_cameras(small_cameras):
+    cams = small_cameras
+    V = len(cams)
+    for k in (0, 17, V - 1):
+        alpha = (k / (V - 1) - 0.5) * SMALL.view_cone  # the eye sees view k's camera angle
+        viewer = eyes.TrackedViewer(alpha, 0.6, ipd_m=0.0)
+        ec = eyes.eye_cameras(cams, SMALL, viewer)
+        np.testing.assert_allclose(ec.world_to_cam[0], cams.world_to_cam[k], atol=1e-12)
+        np.testing.assert_allclose(ec.K[0], cams.K[k], atol=1e-9)
+    with pytest.raises(InputError, match="affine"):
+        eyes.eye_cameras(cams, dataclasses.replace(SMALL, view_cone=30.0), eyes.TrackedViewer())
+
+
+def test_eye_centred_writes_only_received_subpixels(display, small_cameras):
+    g = _scene(4)
+    cfg = LiveConfig()
+    live = LiveRenderer(SMALL, small_cameras, cfg)
+    before = live.frame(g, mode="full_quilt").native.copy()
+    viewer = eyes.TrackedViewer(4.0, 0.6)
+    f = live.frame(_moved(g, 4), viewer, mode="eye_centred")
+    assert f.mode == "eye_centred" and f.rendered_fraction == 2 / len(small_cameras)
+    changed = f.native != before
+    assert changed.any()
+    seen = eyes.received_subpixels(display, viewer, cfg.threshold)
+    assert not changed[~seen].any()
 
 
 def test_render_native_picks_the_mode(small_cameras):

@@ -33,11 +33,13 @@ import numpy as np
 
 from ..errors import InputError
 from ..validation import check_finite_scalar
+from ..camera import Cameras
 from .calibration import DisplayCalibration
 from .simulate import VirtualDisplay
 
 __all__ = ["TrackedViewer", "eye_positions", "view_columns", "column_tile_mask", "received_subpixels",
-           "eye_images", "head_psnr", "eye_psnr", "psnr"]
+           "eye_cameras", "eye_view_coordinates", "scatter_eye_images", "eye_images", "head_psnr", "eye_psnr",
+           "psnr"]
 
 Mode = Literal["nearest", "blend"]
 
@@ -157,6 +159,133 @@ def column_tile_mask(columns: np.ndarray, tile_height: int, tile: int = 16) -> n
     pad[:, :W] = cols
     per_tile = pad.reshape(V, tx, tile).any(axis=2)  # (V, tx)
     return np.repeat(per_tile[:, None, :], ty, axis=1)
+
+
+def eye_cameras(cameras: Cameras, calibration: DisplayCalibration, viewer: TrackedViewer) -> Cameras:
+    """One perspective camera per eye, interpolated from the quilt cameras (left eye first).
+
+    Quilt camera ``k`` (Algorithm 1) sits at ``x_k = D tan(alpha_k)`` along the shared right axis
+    with its principal point sheared so the focal plane (the panel) stays centred; both are affine
+    in ``s = tan(alpha)``. An eye at ``(xe, d)`` sees the panel centre under ``tan(phi) = xe / d``,
+    so its camera is the affine fit of the V cameras evaluated at ``s = xe / d`` (``alpha_k`` from
+    the calibration's view cone, the optics of :class:`VirtualDisplay`).
+
+    Raises
+    ------
+    InputError
+        If the cameras are not one row of off-axis cameras sharing one rotation (fit residual).
+    """
+    V = len(cameras)
+    if V < 2:
+        raise InputError(f"cameras: expected >= 2 quilt cameras, found {V}")
+    R = cameras.R
+    if np.abs(R - R[0]).max() > 1e-9:
+        raise InputError("cameras: expected quilt cameras sharing one rotation")
+    alpha = np.radians((np.arange(V) / (V - 1) - 0.5) * calibration.view_cone)
+    A = np.stack([np.ones(V), np.tan(alpha)], axis=1)  # (V, 2)
+    pos = cameras.positions  # (V, 3)
+    cx = cameras.K[:, 0, 2]
+    coef_p, *_ = np.linalg.lstsq(A, pos, rcond=None)
+    coef_c, *_ = np.linalg.lstsq(A, cx, rcond=None)
+    scale = max(float(np.abs(pos - pos.mean(axis=0)).max()), 1e-12)
+    if np.abs(A @ coef_p - pos).max() > 1e-6 * scale + 1e-12:
+        raise InputError("cameras: positions are not affine in tan(view angle) of the calibration's view cone "
+                         f"({calibration.view_cone} deg): not this calibration's quilt cameras")
+    w2c, K = [], []
+    for angle, dist in eye_positions(viewer):
+        s_e = math.tan(math.radians(angle))  # = xe / d
+        p = coef_p[0] + coef_p[1] * s_e
+        M = np.eye(4)
+        M[:3, :3] = R[0]
+        M[:3, 3] = -R[0] @ p
+        k = cameras.K[0].copy()
+        k[0, 2] = coef_c[0] + coef_c[1] * s_e
+        w2c.append(M)
+        K.append(k)
+    return Cameras(np.array(w2c), np.array(K), cameras.width, cameras.height, cameras.near, cameras.far)
+
+
+def eye_view_coordinates(calibration: DisplayCalibration, viewer: TrackedViewer, n_views: int | None = None
+                         ) -> np.ndarray:
+    """(n_eyes, screen_w) view coordinate ``t(x)`` each eye looks at through every native column."""
+    cal = calibration
+    n = cal.n_views if n_views is None else int(n_views)
+    W = cal.screen_w
+    x_m = ((np.arange(W, dtype=np.float64) + 0.5) / W - 0.5) * cal.physical_size_m[0]
+    return np.stack([_view_coordinate(cal, n, x_m, d * math.tan(math.radians(a)), d)
+                     for a, d in eye_positions(viewer)])
+
+
+_SCATTER = None
+
+
+def scatter_eye_images(native: np.ndarray, zeta: np.ndarray, t_eyes: np.ndarray, texel: np.ndarray,
+                       images: np.ndarray, n_views: int, reach: float) -> int:
+    """Eye-centred output: write each eye's own image into the subpixels whose light reaches it.
+
+    Parameters
+    ----------
+    native : numpy.ndarray
+        (H, W, 3) uint8 native image, updated in place.
+    zeta : numpy.ndarray
+        (H, W, 3) float32 lens view coordinate of every subpixel (``VirtualDisplay.zeta``).
+    t_eyes : numpy.ndarray
+        (E, W) view coordinate each eye looks at per native column (:func:`eye_view_coordinates`).
+    texel : numpy.ndarray
+        (H W 3,) int32 flat index into one (h, w, 3) view of the texel (and channel) each
+        subpixel samples (the interleaver's lookup, the same for every view).
+    images : numpy.ndarray
+        (E, h, w, 3) uint8 per-eye images.
+    n_views : int
+    reach : float
+        A subpixel is written when its circular distance in views to the nearest eye's ``t`` is
+        below ``reach`` (``sigma sqrt(2 ln(1/threshold))`` for weight > threshold); the eye with
+        the smaller distance wins.
+
+    Returns
+    -------
+    int
+        Subpixels written.
+    """
+    global _SCATTER
+    if _SCATTER is None:
+        import numba
+
+        @numba.njit(parallel=True, cache=True, boundscheck=False)
+        def scatter(out, zeta, t, tex, imgs, W, n, reach):  # pragma: no cover - compiled
+            m = out.shape[0]
+            ne = t.shape[0]
+            nchunks = 64
+            per = (m + nchunks - 1) // nchunks
+            written = np.zeros(nchunks, dtype=np.int64)
+            for c in numba.prange(nchunks):
+                cnt = 0
+                for s in range(c * per, min(m, c * per + per)):
+                    col = (s // 3) % W
+                    best = reach
+                    eb = -1
+                    for e in range(ne):
+                        d = zeta[s] - t[e, col] + 0.5 * n
+                        d = d - math.floor(d / n) * n - 0.5 * n
+                        d = abs(d)
+                        if d < best:
+                            best = d
+                            eb = e
+                    if eb >= 0:
+                        out[s] = imgs[eb, tex[s]]
+                        cnt += 1
+                written[c] = cnt
+            return written.sum()
+
+        _SCATTER = scatter
+    H, W, _ = native.shape
+    if not (native.dtype == np.uint8 and native.flags.c_contiguous and zeta.shape == native.shape):
+        raise InputError(f"native, zeta: expected a C-contiguous uint8 (H, W, 3) image and (H, W, 3) zeta, found "
+                         f"{native.shape} {native.dtype}, {zeta.shape}")
+    imgs = np.ascontiguousarray(images, dtype=np.uint8)
+    return int(_SCATTER(native.reshape(-1), np.ascontiguousarray(zeta, dtype=np.float32).reshape(-1),
+                        np.ascontiguousarray(t_eyes, dtype=np.float64), texel, imgs.reshape(len(imgs), -1),
+                        W, int(n_views), float(reach)))
 
 
 def received_subpixels(display: VirtualDisplay, viewer: TrackedViewer, threshold: float = 0.01) -> np.ndarray:
