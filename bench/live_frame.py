@@ -50,9 +50,9 @@ from holo_viewer.display.calibration import DisplayCalibration  # noqa: E402
 from holo_viewer.display.simulate import VirtualDisplay  # noqa: E402
 from holo_viewer.errors import HoloViewerError  # noqa: E402
 from holo_viewer.fileio import atomic_write  # noqa: E402
-from holo_viewer.live_frame import LiveConfig, LiveRenderer  # noqa: E402
+from holo_viewer.pipeline.live import LiveConfig, LiveRenderer  # noqa: E402
 from holo_viewer.pipeline import Pipeline  # noqa: E402
-from holo_viewer.pipeline_types import FaceControls  # noqa: E402
+from holo_viewer.pipeline import FaceControls  # noqa: E402
 from holo_viewer.render import RenderConfig, render_views  # noqa: E402
 
 

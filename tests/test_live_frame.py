@@ -34,7 +34,7 @@ from holo_viewer.display.lenticular import Interleaver  # noqa: E402
 from holo_viewer.display.quilt import tile_quilt  # noqa: E402
 from holo_viewer.display.simulate import VirtualDisplay  # noqa: E402
 from holo_viewer.errors import InputError, RenderError  # noqa: E402
-from holo_viewer.live_frame import LiveConfig, LiveRenderer, render_native  # noqa: E402
+from holo_viewer.pipeline.live import LiveConfig, LiveRenderer, render_native  # noqa: E402
 from holo_viewer.render import RenderConfig, fast  # noqa: E402
 from holo_viewer.render.lod import contribution, lod_keep  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""Live native frames: render only what the viewers can see.
+"""Live native frames: render only what the viewers can see (``holo_viewer.pipeline.live``).
 
 Modes (``LiveRenderer.frame`` / :func:`render_native`), all producing the panel's native image:
 
@@ -41,9 +41,9 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .camera import Cameras
-from .errors import InputError
-from .render.config import RenderConfig
+from ..camera import Cameras
+from ..errors import InputError
+from ..render.config import RenderConfig
 
 __all__ = ["LiveConfig", "LiveFrame", "LiveRenderer", "render_native", "MODES"]
 
@@ -125,8 +125,8 @@ class LiveRenderer:
 
     def __init__(self, calibration: Any, cameras: Cameras, config: LiveConfig | None = None,
                  rest: Any = None) -> None:
-        from .display.calibration import DisplayCalibration
-        from .display.lenticular import Interleaver
+        from ..display.calibration import DisplayCalibration
+        from ..display.lenticular import Interleaver
 
         if not isinstance(calibration, DisplayCalibration):
             raise InputError(f"calibration: expected a DisplayCalibration, found {type(calibration).__name__}")
@@ -173,7 +173,7 @@ class LiveRenderer:
         LiveFrame
             ``native`` is the renderer's own buffer, overwritten by the next frame (copy to keep).
         """
-        from .render.api import validate_inputs
+        from ..render.api import validate_inputs
 
         t0 = time.perf_counter()
         if mode not in MODES:
@@ -201,13 +201,13 @@ class LiveRenderer:
 
     # ------------------------------------------------------------------ modes
     def _everything(self, gaussians: Any, lod: bool, timings: dict[str, float]) -> float:
-        from .display.quilt import tile_slices, to_uint8
-        from .render import fast
+        from ..display.quilt import tile_slices, to_uint8
+        from ..render import fast
 
         g = gaussians
         if lod and self.config.lod_fraction < 1.0:
             if self._lod is None:
-                from .render.lod import lod_keep
+                from ..render.lod import lod_keep
 
                 rest = self._rest if self._rest is not None and len(self._rest) == len(gaussians) else gaussians
                 self._lod = lod_keep(rest, self.config.lod_fraction)
@@ -229,8 +229,8 @@ class LiveRenderer:
 
     def _everything_device(self, g: Any, timings: dict[str, float]) -> float:
         """All views with gsplat on CUDA, tiled and interleaved on the GPU (views stay there)."""
-        from .display.device import DeviceInterleaver
-        from .render import gsplat_backend
+        from ..display.device import DeviceInterleaver
+        from ..render import gsplat_backend
 
         t = time.perf_counter()
         views = gsplat_backend.render_device(g, self.cameras, self.config.render)
@@ -247,7 +247,7 @@ class LiveRenderer:
     def tracked_columns(self, viewer: Any) -> np.ndarray:
         """(V, tiles_x) bool: the tile columns of each view a tracked frame renders for ``viewer``
         (before the round-robin refresh)."""
-        from .display.eyes import view_columns
+        from ..display.eyes import view_columns
 
         c = self.config
         cols = view_columns(self.calibration, viewer, self.cameras.width, n_views=len(self.cameras),
@@ -258,8 +258,8 @@ class LiveRenderer:
         return pad.reshape(cols.shape[0], self.tiles_x, self.tile).any(axis=2)
 
     def _tracked(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
-        from .display.quilt import tile_slices, to_uint8
-        from .render import fast
+        from ..display.quilt import tile_slices, to_uint8
+        from ..render import fast
 
         t = time.perf_counter()
         colmask = self.tracked_columns(viewer)
@@ -291,14 +291,14 @@ class LiveRenderer:
 
 
     def _eye_centred(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
-        from .display import eyes
-        from .display.quilt import to_uint8
-        from .render import fast
+        from ..display import eyes
+        from ..display.quilt import to_uint8
+        from ..render import fast
 
         t = time.perf_counter()
         if self._zeta is None:
-            from .display.device import view_gather_indices
-            from .display.simulate import VirtualDisplay
+            from ..display.device import view_gather_indices
+            from ..display.simulate import VirtualDisplay
 
             V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
             vd = VirtualDisplay(self.calibration, n_views=V, sigma_views=self.config.sigma_views)
