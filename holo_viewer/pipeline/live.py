@@ -121,6 +121,12 @@ class LiveRenderer:
     config : LiveConfig, optional
     rest : Gaussians, optional
         The avatar at rest, for the level of detail (default: the first frame's Gaussians).
+
+    Notes
+    -----
+    Holds ~250 MB (float views, quilt, native, the interleaver's tables); not thread-safe (one
+    renderer per render thread). With ``backend="gsplat"`` the views stay on the GPU, so every
+    frame renders all views (a tracked frame on the CPU path needs the kept host views).
     """
 
     def __init__(self, calibration: Any, cameras: Cameras, config: LiveConfig | None = None,
@@ -195,7 +201,8 @@ class LiveRenderer:
             if mode in ("tracked", "eye_centred"):
                 mode = "full_quilt"  # first frame: everything
             fraction = self._everything(gaussians, lod=mode == "all_views", timings=timings)
-            self._n_gaussians = len(gaussians)
+            # the kept host views are this frame's (the GPU path keeps its views on the device)
+            self._n_gaussians = len(gaussians) if self.config.backend == "fast" else None
         return LiveFrame(native=self.native, mode=mode, seconds=time.perf_counter() - t0, timings=timings,
                          rendered_fraction=fraction)
 
@@ -241,7 +248,6 @@ class LiveRenderer:
         self.native[...] = self._device(views)
         t2 = time.perf_counter()
         timings.update(render=t1 - t, interleave=t2 - t1)
-        self._n_gaussians = None  # the host views are not kept: a tracked frame starts over
         return 1.0
 
     def tracked_columns(self, viewer: Any) -> np.ndarray:
