@@ -123,13 +123,8 @@ def small_interleaver(request):
 
 def _read_columns(il: Interleaver, subpixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(view, texel column) of every quilt value the listed flat subpixels read."""
-    i0, i1, _ = il.gather_indices()
-    idx = i0[subpixels] if i1 is None else np.concatenate([i0[subpixels], i1[subpixels]])
-    Hq, Wq, _ = il.quilt_shape
-    tw, th = Wq // il.cols, Hq // il.rows
-    pix = idx // 3
-    qr, qc = pix // Wq, pix % Wq
-    return qc // tw + il.cols * ((Hq - 1 - qr) // th), qc % tw
+    view, _, col = eyes.quilt_samples(il, subpixels)
+    return view, col
 
 
 @pytest.mark.parametrize("angle,distance", [(0.0, 0.6), (14.0, 0.5), (-21.0, 0.8), (3.0, 1.5)])
@@ -142,11 +137,24 @@ def test_view_columns_cover_every_received_sample(display, small_interleaver, an
     for dx, dd in [(0.0, 0.0), (0.01, 0.04), (-0.01, -0.04), (0.01, -0.04), (-0.005, 0.02)]:
         x = viewer.centre_x_m + dx
         moved = eyes.TrackedViewer(math.degrees(math.atan2(x, distance + dd)), distance + dd)
-        rec = np.flatnonzero(eyes.received_subpixels(display, moved, 0.01).reshape(-1))
-        view, col = _read_columns(il, rec)
-        assert cols[view, col].all()
+        view, row, col = eyes.received_samples(display, il, moved, 0.01)
+        assert cols[view, col].all() and row.min() >= 0 and row.max() < 140
     # tight: most of the selected columns are read by a received subpixel at some eye position
     assert cols.mean() < 0.45
+
+
+def test_quilt_samples_name_the_value_a_subpixel_shows():
+    from holo_viewer.display.quilt import tile_slices
+
+    il = Interleaver(SMALL, (840, 840, 3), mode="nearest")
+    rng = np.random.default_rng(9)
+    q = rng.integers(0, 256, il.quilt_shape).astype(np.uint8)
+    native = il(q).reshape(-1)
+    subs = rng.integers(0, native.size, 2000)
+    view, row, col = eyes.quilt_samples(il, subs)
+    for s, k, r, c in zip(subs, view, row, col):
+        rs, cs = tile_slices(840, 840, 8, 6, int(k))
+        assert native[s] == q[rs, cs][r, c, s % 3]
 
 
 def test_eye_geometry_and_validation():

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -38,6 +38,7 @@ from .calibration import DisplayCalibration
 from .simulate import VirtualDisplay
 
 __all__ = ["TrackedViewer", "eye_positions", "view_columns", "column_tile_mask", "received_subpixels",
+           "received_samples", "quilt_samples",
            "eye_cameras", "eye_view_coordinates", "scatter_eye_images", "eye_images", "head_psnr", "eye_psnr",
            "psnr"]
 
@@ -295,6 +296,28 @@ def received_subpixels(display: VirtualDisplay, viewer: TrackedViewer, threshold
     for angle, dist in eye_positions(viewer):
         out |= display.weights(angle, dist) > threshold
     return out
+
+
+def quilt_samples(interleaver: Any, subpixels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(view, row, column) in the view's tile (row 0 at the top) of every quilt value that the
+    listed flat native subpixels read (both views of a blended subpixel: twice as many entries)."""
+    i0, i1, _ = interleaver.gather_indices()
+    sub = np.asarray(subpixels, dtype=np.int64)
+    idx = i0[sub] if i1 is None else np.concatenate([i0[sub], i1[sub]])
+    Hq, Wq, _ = interleaver.quilt_shape
+    tw, th = Wq // interleaver.cols, Hq // interleaver.rows
+    pix = idx.astype(np.int64) // 3
+    qr, qc = pix // Wq, pix % Wq
+    r_from_bottom = (Hq - 1 - qr) // th
+    view = qc // tw + interleaver.cols * r_from_bottom
+    return view, qr - (Hq - (r_from_bottom + 1) * th), qc % tw
+
+
+def received_samples(display: VirtualDisplay, interleaver: Any, viewer: TrackedViewer, threshold: float = 0.01
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The (view, row, column) quilt samples either eye receives with light weight > ``threshold``:
+    :func:`received_subpixels` mapped through the interleaver's gather indices (repeats included)."""
+    return quilt_samples(interleaver, np.flatnonzero(received_subpixels(display, viewer, threshold).reshape(-1)))
 
 
 def eye_images(display: VirtualDisplay, native: np.ndarray, viewer: TrackedViewer) -> list[np.ndarray]:
