@@ -222,7 +222,27 @@ def _numba_kernels():
                     a = src[i0[k]]
                     out[k] = a + (src[i1[k]] - a) * w[k]
 
-        _NUMBA_KERNELS = (gather, blend_u8, blend_f)
+        @numba.njit(parallel=True, cache=True, boundscheck=False)
+        def update(src, i0, i1, w8, wf, sel, out, mode):  # pragma: no cover - compiled
+            # out[s] for the listed flat subpixels s only; mode 0 nearest, 1 blend uint8, 2 blend float
+            n = sel.shape[0]
+            nchunks = 64
+            per = (n + nchunks - 1) // nchunks
+            for c in numba.prange(nchunks):
+                for j in range(c * per, min(n, c * per + per)):
+                    s = sel[j]
+                    if mode == 0:
+                        out[s] = src[i0[s]]
+                    elif mode == 1:
+                        a = np.uint32(src[i0[s]])
+                        b = np.uint32(src[i1[s]])
+                        ww = np.uint32(w8[s])
+                        out[s] = (a * (256 - ww) + b * ww + 128) >> 8
+                    else:
+                        a = src[i0[s]]
+                        out[s] = a + (src[i1[s]] - a) * wf[s]
+
+        _NUMBA_KERNELS = (gather, blend_u8, blend_f, update)
     return _NUMBA_KERNELS
 
 
@@ -400,6 +420,112 @@ class Interleaver:
         else:
             a = src[self._idx0]
             flat_out[:] = a + (src[self._idx1] - a) * self._wf
+        return out
+
+
+    # ------------------------------------------------------------------ partial updates
+    def gather_indices(self) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """The flat gather: ``native.ravel()[s]`` = ``quilt.ravel()[idx0[s]]`` (nearest), or the
+        blend of ``idx0[s]`` and ``idx1[s]`` with weight ``weight[s]`` on the second (float32; the
+        uint8 path rounds it to 1/256). Returns (idx0, idx1, weight): (H W 3,) int32, int32 or
+        None, float32 or None. Read-only views: the same indices drive the torch path
+        (:mod:`holo_viewer.display.device`)."""
+        i0 = self._idx0.view()
+        i0.flags.writeable = False
+        if self.mode == "nearest":
+            return i0, None, None
+        if self._wf is None:
+            self._wf = self.weight.reshape(-1).astype(np.float32)
+        i1, wf = self._idx1.view(), self._wf.view()
+        i1.flags.writeable = False
+        wf.flags.writeable = False
+        return i0, i1, wf
+
+    def _reader_table(self, block: int) -> tuple[np.ndarray, np.ndarray]:
+        """Flat subpixels sorted by the (view, texel column // block) they read, and offsets."""
+        cached = getattr(self, "_readers", None)
+        if cached is not None and cached[0] == block:
+            return cached[1], cached[2]
+        Hq, Wq, _ = self.quilt_shape
+        tw, th = Wq // self.cols, Hq // self.rows
+        nb = -(-tw // block)
+
+        def key(idx: np.ndarray) -> np.ndarray:
+            pix = idx // 3
+            qr, qc = pix // Wq, pix % Wq
+            view = qc // tw + self.cols * ((Hq - 1 - qr) // th)
+            return (view * nb + (qc % tw) // block).astype(np.int32)
+
+        n = self._idx0.size
+        if self.mode == "nearest":
+            keys = key(self._idx0)
+            subs = np.arange(n, dtype=np.int32)
+        else:  # a blended subpixel reads two views: listed under both
+            keys = np.concatenate([key(self._idx0), key(self._idx1)])
+            subs = np.concatenate([np.arange(n, dtype=np.int32)] * 2)
+        order = np.argsort(keys, kind="stable")
+        subs = subs[order]
+        offsets = np.searchsorted(keys[order], np.arange(self.n_views * nb + 1)).astype(np.int64)
+        self._readers = (block, subs, offsets)
+        return subs, offsets
+
+    def readers(self, columns: np.ndarray, block: int = 16) -> np.ndarray:
+        """Flat native subpixels that read any of the given quilt texel-column blocks.
+
+        Parameters
+        ----------
+        columns : numpy.ndarray
+            (n_views, ceil(tile_width / block)) bool: texel columns ``[j block, (j+1) block)`` of
+            each view's tile (all rows).
+        block : int
+            Column block width (the renderer's tile size); the table is built once per block
+            (~1-2 s for the Portrait, then cached).
+
+        Returns
+        -------
+        numpy.ndarray
+            int32 flat indices into ``native.reshape(-1)`` (may repeat in blend mode).
+        """
+        subs, offsets = self._reader_table(int(block))
+        cols = np.asarray(columns, dtype=bool)
+        nb = offsets.size - 1
+        if cols.size != nb:
+            raise InputError(f"columns: expected {self.n_views} x {nb // self.n_views} bools, found {cols.shape}")
+        keys = np.flatnonzero(cols.reshape(-1))
+        if keys.size == 0:
+            return np.empty(0, dtype=np.int32)
+        return np.concatenate([subs[offsets[k]:offsets[k + 1]] for k in keys])
+
+    def update(self, quilt: np.ndarray, out: np.ndarray, subpixels: np.ndarray) -> np.ndarray:
+        """Recompute only the listed flat subpixels of ``out`` from ``quilt`` (same values as a
+        full call there; the rest of ``out`` is left as it is). Returns ``out``."""
+        q = np.asarray(quilt)
+        if q.shape != self.quilt_shape or q.dtype not in (np.uint8, np.float32):
+            raise InputError(f"quilt: expected {self.quilt_shape} uint8 or float32, found {q.shape} {q.dtype}")
+        if out.shape != self.shape or out.dtype != q.dtype or not out.flags.c_contiguous:
+            raise InputError(f"out: expected a C-contiguous {self.shape} {q.dtype} array, found {out.shape} {out.dtype}")
+        sel = np.ascontiguousarray(subpixels, dtype=np.int32)
+        if sel.size and (int(sel.min()) < 0 or int(sel.max()) >= out.size):
+            raise InputError(f"subpixels: expected flat indices in [0, {out.size}), found [{sel.min()}, {sel.max()}]")
+        src = np.ascontiguousarray(q).reshape(-1)
+        flat = out.reshape(-1)
+        if self.mode == "nearest":
+            mode, i1, w8, wf = 0, self._idx0, self._idx0[:1].astype(np.uint16), np.zeros(1, np.float32)
+        else:
+            _, _, wf = self.gather_indices()
+            mode, i1, w8 = (1 if q.dtype == np.uint8 else 2), self._idx1, self._w8
+        if self.backend == "numba":
+            _numba_kernels()[3](src, self._idx0, i1, w8, wf, sel, flat, mode)
+        elif mode == 0:
+            flat[sel] = src[self._idx0[sel]]
+        elif mode == 1:
+            a = src[self._idx0[sel]].astype(np.uint32)
+            b = src[i1[sel]].astype(np.uint32)
+            w = w8[sel].astype(np.uint32)
+            flat[sel] = ((a * (256 - w) + b * w + 128) >> 8).astype(np.uint8)
+        else:
+            a = src[self._idx0[sel]]
+            flat[sel] = a + (src[i1[sel]] - a) * wf[sel]
         return out
 
 

@@ -43,7 +43,7 @@ from ..errors import RenderError
 from .config import RenderConfig, RenderResult
 from .projection import clamp_limits
 
-__all__ = ["render", "cpp_available", "kernel_names", "release_buffers"]
+__all__ = ["render", "tile_grid", "cpp_available", "kernel_names", "release_buffers"]
 
 #: C++ compositor path: 0 = the best the CPU runs (AVX-512 for 16x16 tiles, else AVX2, else scalar),
 #: 1 = scalar, 2 = require AVX2, 3 = require AVX-512 (tests and the benchmark set this)
@@ -276,10 +276,17 @@ def depth_order(z: np.ndarray, keep: np.ndarray, hint: np.ndarray | None = None)
     return full[keep[full]], full
 
 
-def _view_params(cameras: Cameras, views: np.ndarray) -> np.ndarray:
-    """(len(views), 14) float64 per-view parameters of the projection kernels (project_views docs)."""
+def _view_params(cameras: Cameras, views: np.ndarray, rects: np.ndarray | None = None) -> np.ndarray:
+    """(len(views), 18) float64 per-view parameters of the projection kernels (project_views docs).
+
+    ``rects``: (V, 4) pixel rectangles x0, x1, y0, y1 (all cameras) the splat boxes are clipped
+    to; None = the image."""
     W, H = cameras.width, cameras.height
-    cams = np.empty((len(views), 14))
+    cams = np.empty((len(views), 18))
+    if rects is None:
+        cams[:, 14:18] = (0.0, W, 0.0, H)
+    else:
+        cams[:, 14:18] = rects[views]
     cams[:, 0], cams[:, 1] = cameras.fx[views], cameras.fy[views]
     cams[:, 2], cams[:, 3] = cameras.cx[views], cameras.cy[views]
     cams[:, 4:7] = cameras.t[views]
@@ -324,20 +331,68 @@ def _threads(config: RenderConfig) -> int:
     return n
 
 
-def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None = None) -> RenderResult:
+def tile_grid(cameras: Cameras, config: RenderConfig | None = None) -> tuple[int, int]:
+    """(tiles_y, tiles_x) of the compositor's tile grid for these cameras (``config.tile_size``)."""
+    tile = int((config or RenderConfig()).tile_size)
+    return -(-cameras.height // tile), -(-cameras.width // tile)
+
+
+def _check_region(cameras: Cameras, config: RenderConfig, tile_mask: np.ndarray | None,
+                  out: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Validated (tile_mask, pixel rectangles (V, 4) of its tiles per view) or (None, None)."""
+    V, H, W = len(cameras), cameras.height, cameras.width
+    if out is not None:
+        if not (isinstance(out, np.ndarray) and out.shape == (V, H, W, 3) and out.dtype == np.float32
+                and out.flags.c_contiguous and out.flags.writeable):
+            raise RenderError(f"fast backend: out: expected a writeable C-contiguous ({V}, {H}, {W}, 3) float32 "
+                              f"array, found {getattr(out, 'shape', None)} {getattr(out, 'dtype', type(out).__name__)}")
+    if tile_mask is None:
+        return None, None
+    ty, tx = tile_grid(cameras, config)
+    mask = np.asarray(tile_mask)
+    if mask.dtype != np.bool_ or mask.shape != (V, ty, tx):
+        raise RenderError(f"fast backend: tile_mask: expected a bool ({V}, {ty}, {tx}) array (views, tile rows, "
+                          f"tile columns of {config.tile_size}-pixel tiles), found {mask.dtype} {mask.shape}")
+    tile = int(config.tile_size)
+    rects = np.zeros((V, 4))
+    cols_any, rows_any = mask.any(axis=1), mask.any(axis=2)
+    for v in np.flatnonzero(cols_any.any(axis=1)):
+        c, r = np.flatnonzero(cols_any[v]), np.flatnonzero(rows_any[v])
+        rects[v] = (c[0] * tile, min(W, (c[-1] + 1) * tile), r[0] * tile, min(H, (r[-1] + 1) * tile))
+    return mask, rects
+
+
+def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None = None, *,
+           tile_mask: np.ndarray | None = None, out: np.ndarray | None = None) -> RenderResult:
     """Render every camera with the fast backend (see the module docstring).
 
     Inputs are assumed validated (use :func:`holo_viewer.render.render_views`).
 
+    Parameters
+    ----------
+    tile_mask : numpy.ndarray or None
+        (V, tiles_y, tiles_x) bool (:func:`tile_grid`): render only these tiles of each view.
+        The pixels of a masked tile are exactly those of the full render; the other tiles are
+        not written (they keep ``out``'s values, or 0 in a new array). Views without a tile are
+        skipped; each view's splat boxes are clipped to the bounding rectangle of its tiles, and
+        (C++ path) splats that cannot reach it are dropped by a cheap conservative test before
+        they are projected, so the cost follows the rendered area.
+    out : numpy.ndarray or None
+        (V, H, W, 3) float32 C-contiguous array to render into (e.g. the previous frame's views).
+
     Returns
     -------
     RenderResult
-        images (V, H, W, 3) float32; timings "preprocess", "sort", "project", "bin",
-        "composite", "total"; stats n_input, n_visible, mean_blends_per_pixel, threads, kernel.
+        images (V, H, W, 3) float32 (``out`` when given); timings "preprocess", "sort", "project",
+        "bin", "composite", "total"; stats n_input, n_visible, mean_blends_per_pixel, threads,
+        kernel, rendered_tiles.
     """
+    config = config or RenderConfig()
+    mask, rects = _check_region(cameras, config, tile_mask, out)
     shared = _SHARED_WORKSPACE.lock.acquire(blocking=False)
     try:
-        return _render(gaussians, cameras, config or RenderConfig(), _SHARED_WORKSPACE if shared else _Workspace())
+        return _render(gaussians, cameras, config, _SHARED_WORKSPACE if shared else _Workspace(),
+                       mask, rects, out)
     finally:
         if shared:
             if _SHARED_WORKSPACE.nbytes() > _KEEP_AT_MOST:  # a huge scene: do not hold its buffers
@@ -345,7 +400,17 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
             _SHARED_WORKSPACE.lock.release()
 
 
-def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, workspace: _Workspace) -> RenderResult:
+def _runs(views: np.ndarray) -> list[np.ndarray]:
+    """Split sorted view indices into runs of consecutive indices."""
+    if views.size == 0:
+        return []
+    cut = np.flatnonzero(np.diff(views) != 1) + 1
+    return np.split(views, cut)
+
+
+def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, workspace: _Workspace,
+            mask: np.ndarray | None = None, rects: np.ndarray | None = None,
+            out_images: np.ndarray | None = None) -> RenderResult:
     from . import fast_kernels as fk
 
     kernel = config.kernel
@@ -372,7 +437,14 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
     tile = int(config.tile_size)
     tiles_x, tiles_y = -(-W // tile), -(-H // tile)
     n_tiles = tiles_x * tiles_y
-    images = _OUTPUTS.empty((V, H, W, 3))
+    if out_images is not None:
+        images = out_images
+    elif mask is not None:
+        images = np.zeros((V, H, W, 3), dtype=np.float32)
+    else:
+        images = _OUTPUTS.empty((V, H, W, 3))
+    active = np.ones(V, dtype=bool) if mask is None else mask.any(axis=(1, 2))
+    no_jobs = np.empty(0, dtype=np.int32)
     bg = np.asarray(config.background, dtype=np.float32)
     cull = -1.0 if config.cull_margin is None else float(config.cull_margin)
     positions = cameras.positions
@@ -384,11 +456,15 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
         shared_rgb = np.zeros((1, 3), dtype=np.float32)
     total_blends = 0
     total_entries = 0
+    rendered_tiles = 0
     path = ""
     n_visible_mask = np.zeros(len(g), dtype=bool)
     timings["preprocess"] += time.perf_counter() - t_start
 
     for gi, group in enumerate(_groups(cameras)):
+        group = group[active[group]]
+        if group.size == 0:
+            continue
         t0 = time.perf_counter()
         Wrot = np.ascontiguousarray(cameras.R[group[0]])
         pc, cov = fk.prep_3d(means, quats, log_scales, Wrot)
@@ -404,10 +480,11 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
         timings["preprocess"] += t1 - t0
         timings["sort"] += t2 - t1  # the depth sort and the depth-ordered copies
         chunk = max(1, min(len(group), int(config.max_chunk_bytes // max(1, m * _BYTES_PER_SPLAT_VIEW))))
-        for c0 in range(0, len(group), chunk):
-            views = group[c0:c0 + chunk]
+        chunks = [r[c0:c0 + chunk] for r in (_runs(np.sort(group)) if mask is not None else [group])
+                  for c0 in range(0, len(r), chunk)]
+        for views in chunks:
             t3 = time.perf_counter()
-            cams = _view_params(cameras, views)
+            cams = _view_params(cameras, views, rects)
             if use_cpp:  # projection and binning fused in one pass per view, buffers reused
                 rec = workspace.records(len(views), m)
                 off = np.empty((len(views), n_tiles + 1), dtype=np.int64)
@@ -439,17 +516,30 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
             n_visible_mask[order[seen.astype(bool)]] = True
             total_entries += ids.size
             t5 = time.perf_counter()
-            contiguous = bool(np.all(np.diff(views) == 1))
+            contiguous = bool(np.all(np.diff(views) == 1))  # always, with a mask
             out = images[views[0]:views[-1] + 1] if contiguous else np.empty((len(views), H, W, 3), np.float32)
             blends = np.zeros(len(views) * n_tiles, dtype=np.int64)
+            jobs = no_jobs
+            if mask is not None:
+                jobs = np.flatnonzero(mask[views].reshape(-1)).astype(np.int32)
+                rendered_tiles += jobs.size
+            else:
+                rendered_tiles += len(views) * n_tiles
             if use_cpp:
                 path = cpp.composite(rec, off, base, ids, len(views), m, tile, tiles_x, tiles_y, W, H,
                                      float(config.alpha_threshold), float(config.alpha_cap), float(config.t_min),
-                                     bg, bool(config.clip_output), out, blends, threads, _CPP_MODE)
+                                     bg, bool(config.clip_output), out, blends, threads, _CPP_MODE, jobs)
             else:
+                target = out
+                if mask is not None:  # the numba compositor does every tile: keep only the masked ones
+                    out = np.empty((len(views), H, W, 3), np.float32)
                 fk.composite(rec, box, off, base, ids, tile, tiles_x, tiles_y, W, H,
                              float(config.alpha_threshold), float(config.alpha_cap), float(config.t_min),
                              bg, bool(config.clip_output), out, blends)
+                if mask is not None:
+                    px = np.repeat(np.repeat(mask[views], tile, axis=1), tile, axis=2)[:, :H, :W]
+                    np.copyto(target, out, where=px[..., None])
+                    out = target
             if not contiguous:
                 images[views] = out
             total_blends += int(blends.sum())
@@ -460,6 +550,7 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
     timings["total"] = time.perf_counter() - t_start
     stats = {"n_input": len(g), "n_visible": int(n_visible_mask.sum()),
              "mean_blends_per_pixel": total_blends / float(V * H * W), "threads": threads,
-             "cpu_seconds": time.process_time() - cpu_start, "tile_entries": total_entries}
+             "cpu_seconds": time.process_time() - cpu_start, "tile_entries": total_entries,
+             "rendered_tiles": rendered_tiles}
     return RenderResult(images=images, timings=timings, stats=stats,
                         backend=f"fast/cpp-{path}" if use_cpp else "fast/numba")

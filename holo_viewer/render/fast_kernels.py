@@ -122,8 +122,9 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
                   near, dilation, radius_sigmas, alpha_threshold, cull_margin, rec, box):  # pragma: no cover - compiled
     """Per view and splat (in depth order ``order``): 2D centre, conic, colour and pixel box.
 
-    cams (V, 14): fx, fy, cx, cy, tx, ty, tz (world->camera translation), cam_pos xyz (world),
-    clamp limits lo_x, hi_x, lo_y, hi_y of t.x/t.z and t.y/t.z (projection.clamp_limits).
+    cams (V, 18): fx, fy, cx, cy, tx, ty, tz (world->camera translation), cam_pos xyz (world),
+    clamp limits lo_x, hi_x, lo_y, hi_y of t.x/t.z and t.y/t.z (projection.clamp_limits), and the
+    pixel rectangle x0, x1, y0, y1 the boxes are clipped to (0, width, 0, height: the image).
     cull_margin < 0 disables centre culling. Writes rec (V, M, REC) and box (V, M, 4).
     Returns (M,) uint8: 1 where the splat's box is non-empty in at least one view.
     """
@@ -196,10 +197,10 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
             fx1 = math.floor(u + hx - 0.5) + 1.0
             fy0 = math.ceil(vv - hy - 0.5)
             fy1 = math.floor(vv + hy - 0.5) + 1.0
-            x0 = int(min(max(fx0, 0.0), width))
-            x1 = int(min(max(fx1, 0.0), width))
-            y0 = int(min(max(fy0, 0.0), height))
-            y1 = int(min(max(fy1, 0.0), height))
+            x0 = int(min(max(fx0, cams[v, 14]), cams[v, 15]))  # clipped to the view's pixel rectangle
+            x1 = int(min(max(fx1, cams[v, 14]), cams[v, 15]))
+            y0 = int(min(max(fy0, cams[v, 16]), cams[v, 17]))
+            y1 = int(min(max(fy1, cams[v, 16]), cams[v, 17]))
             if x0 >= x1 or y0 >= y1:
                 continue
             box[v, k, 0] = x0

@@ -26,7 +26,7 @@ from ..camera import Cameras
 from ..errors import RenderError
 from .config import RenderConfig, RenderResult
 
-__all__ = ["render", "is_available", "check_config", "BACKEND_NAME"]
+__all__ = ["render", "render_device", "is_available", "check_config", "BACKEND_NAME"]
 
 BACKEND_NAME = "gsplat"
 
@@ -93,10 +93,34 @@ def render(gaussians: Any, cameras: Cameras, config: RenderConfig | None = None)
         No CUDA, gsplat missing, or a knob gsplat cannot honour.
     """
     t_start = time.perf_counter()
-    config = config or RenderConfig()
+    timings: dict[str, float] = {}
+    out, n_input, degree = _rasterize(gaussians, cameras, config or RenderConfig(), VIEWS_PER_CALL, timings,
+                                      to_host=True)
+    timings["total"] = time.perf_counter() - t_start
+    images = np.ascontiguousarray(np.concatenate(out, axis=0), dtype=np.float32)
+    return RenderResult(images=images, timings=timings,
+                        stats={"n_input": n_input, "sh_degree": degree}, backend=BACKEND_NAME)
+
+
+def render_device(gaussians: Any, cameras: Cameras, config: RenderConfig | None = None,
+                  views_per_call: int | None = None) -> Any:
+    """Render all V views with gsplat and keep them on the GPU.
+
+    One batched ``gsplat.rasterization`` call for all views (``viewmats`` [V, 4, 4]) unless
+    ``views_per_call`` splits them. Returns a (V, H, W, 3) float32 CUDA tensor (clipped to
+    [0, 1] when ``config.clip_output``), for :class:`holo_viewer.display.device.DeviceInterleaver`.
+    """
+    import torch
+
+    out, _, _ = _rasterize(gaussians, cameras, config or RenderConfig(), views_per_call or len(cameras), {},
+                           to_host=False)
+    return out[0] if len(out) == 1 else torch.cat(out, dim=0)
+
+
+def _rasterize(gaussians: Any, cameras: Cameras, config: RenderConfig, per_call: int, timings: dict[str, float],
+               to_host: bool) -> tuple[list[Any], int, int]:
     torch, gsplat = _import()
     check_config(config)
-    timings: dict[str, float] = {}
     t0 = time.perf_counter()
     dev = torch.device("cuda") if not gaussians.is_torch or gaussians.device.type != "cuda" else gaussians.device
     g = gaussians.torch(device=dev, dtype=torch.float32)
@@ -122,8 +146,8 @@ def render(gaussians: Any, cameras: Cameras, config: RenderConfig | None = None)
     t0 = time.perf_counter()
     out = []
     with torch.no_grad():
-        for v0 in range(0, len(cameras), VIEWS_PER_CALL):
-            vm, kk = viewmats[v0:v0 + VIEWS_PER_CALL], Ks[v0:v0 + VIEWS_PER_CALL]
+        for v0 in range(0, len(cameras), per_call):
+            vm, kk = viewmats[v0:v0 + per_call], Ks[v0:v0 + per_call]
             img, _, _ = gsplat.rasterization(
                 g.means, quats, scales, opac, colors, vm, kk, cameras.width, cameras.height,
                 near_plane=near, far_plane=cameras.far, eps2d=config.dilation, sh_degree=sh_deg_arg,
@@ -131,10 +155,8 @@ def render(gaussians: Any, cameras: Cameras, config: RenderConfig | None = None)
                 rasterize_mode="classic")
             if config.clip_output:
                 img = img.clamp(0.0, 1.0)
-            out.append(img.float().cpu().numpy())
+            out.append(img.float().cpu().numpy() if to_host else img.float())
     torch.cuda.synchronize(dev)
     timings["rasterize"] = time.perf_counter() - t0
-    timings["total"] = time.perf_counter() - t_start
-    images = np.ascontiguousarray(np.concatenate(out, axis=0), dtype=np.float32)
-    return RenderResult(images=images, timings=timings,
-                        stats={"n_input": len(g), "sh_degree": degree}, backend=BACKEND_NAME)
+    return out, len(g), degree
+

@@ -45,6 +45,7 @@ namespace {
 // q = 2 ln(opacity/threshold), then the int32 pixel box x0, x1, y0, y1 (fast_kernels.py REC_STRIDE, BOX_AT).
 constexpr int REC = 16;            // floats per record
 constexpr int BOX_AT = 10;         // word offset of the box in the record
+constexpr int CAM = 18;            // doubles per view in project_bin's cams (fast_kernels.project_views)
 constexpr float EXP_LO = -12.8f;   // exp(x < EXP_LO) treated as exp(EXP_LO); alpha_threshold >= 1e-5
 
 struct Job {
@@ -58,6 +59,8 @@ struct Job {
     int clip;
     float* out;
     int64_t* blends;
+    const int32_t* sel;             // the (view * tiles + tile) jobs to run, or nullptr: all of them
+    int64_t n_sel;
 };
 
 inline float fast_exp(float x) {
@@ -668,7 +671,7 @@ enum class Path { scalar, avx2, avx512 };
 
 void run_jobs(const Job& J, int n_threads, Path path) {
     const int64_t nt = int64_t(J.tiles_x) * J.tiles_y;
-    const int64_t n_jobs = nt * J.nv;
+    const int64_t n_jobs = J.sel ? J.n_sel : nt * J.nv;
     std::atomic<int64_t> next{0};
     auto worker = [&]() {
         TileBuf b(J.tile);
@@ -676,8 +679,9 @@ void run_jobs(const Job& J, int n_threads, Path path) {
         AvxScratch s(path == Path::avx2 ? J.tile : 8);
 #endif
         for (;;) {
-            const int64_t job = next.fetch_add(1);
-            if (job >= n_jobs) break;
+            const int64_t i = next.fetch_add(1);
+            if (i >= n_jobs) break;
+            const int64_t job = J.sel ? int64_t(J.sel[i]) : i;
             const int v = int(job / nt), t = int(job % nt);
             int64_t nbl;
 #if HV_HAVE_AVX2_PATH
@@ -708,12 +712,12 @@ bool need(Py_buffer& b, Py_ssize_t n_bytes, const char* name) {
 }
 
 PyObject* composite(PyObject*, PyObject* args) {
-    Py_buffer rec{}, off{}, base{}, ids{}, bg{}, out{}, blends{};
+    Py_buffer rec{}, off{}, base{}, ids{}, bg{}, out{}, blends{}, sel{};
     int nv, m, tile, tiles_x, tiles_y, width, height, clip, n_threads, mode;
     double thr, cap, tmin;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*iiiiiiidddy*pw*w*ii", &rec, &off, &base, &ids, &nv, &m, &tile,
+    if (!PyArg_ParseTuple(args, "y*y*y*y*iiiiiiidddy*pw*w*iiy*", &rec, &off, &base, &ids, &nv, &m, &tile,
                           &tiles_x, &tiles_y, &width, &height, &thr, &cap, &tmin, &bg, &clip, &out, &blends,
-                          &n_threads, &mode))
+                          &n_threads, &mode, &sel))
         return nullptr;
     PyObject* result = nullptr;
     const int64_t nt = int64_t(tiles_x) * tiles_y;
@@ -733,13 +737,22 @@ PyObject* composite(PyObject*, PyObject* args) {
         J.thr = float(thr); J.cap = float(cap); J.tmin = float(tmin);
         std::memcpy(J.bg, bg.buf, 12);
         J.clip = clip; J.out = (float*)out.buf; J.blends = (int64_t*)blends.buf;
+        // jobs: int32 (view * tiles + tile) indices of the tiles to composite (others are not
+        // written); an empty buffer composites every tile
+        J.n_sel = sel.len / 4;
+        J.sel = J.n_sel > 0 ? (const int32_t*)sel.buf : nullptr;
+        for (int64_t i = 0; i < J.n_sel && ok; ++i)
+            if (J.sel[i] < 0 || J.sel[i] >= int64_t(nv) * nt) ok = false;
+        if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.composite: a job index is outside 0 .. nv * tiles");
         // every tile list must stay inside ids
         const int64_t n_ids = ids.len / 4;
+        bool lists_ok = true;
         for (int v = 0; v < nv && ok; ++v) {
             const int64_t last = J.base[v] + J.off[int64_t(v) * (nt + 1) + nt];
-            if (J.base[v] < 0 || last > n_ids) ok = false;
+            if (J.base[v] < 0 || last > n_ids) lists_ok = false;
         }
-        if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.composite: tile lists exceed ids");
+        if (ok && !lists_ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.composite: tile lists exceed ids");
+        ok = ok && lists_ok;
         // mode: 0 = auto (AVX-512 for 16x16 tiles, else AVX2, when the CPU has it), 1 = scalar,
         // 2 = require AVX2, 3 = require AVX-512
         const bool can2 = (tile % 8 == 0) && tile <= 256 && cpu_has_avx2();
@@ -766,6 +779,7 @@ PyObject* composite(PyObject*, PyObject* args) {
     }
     PyBuffer_Release(&rec); PyBuffer_Release(&off); PyBuffer_Release(&base);
     PyBuffer_Release(&ids); PyBuffer_Release(&bg); PyBuffer_Release(&out); PyBuffer_Release(&blends);
+    PyBuffer_Release(&sel);
     return result;
 }
 
@@ -927,7 +941,7 @@ template <int DEG, bool SHARED>
 HV_ALWAYS_INLINE inline void project_block(const ProjJob& P, const double* cam, int k, Block& o) {
     const int64_t mp = P.mp;
     const double fx = cam[0], fy = cam[1], cx = cam[2], cy = cam[3];
-    const double W = P.width, H = P.height, d = P.dilation, thr = P.alpha_threshold, near = P.near;
+    const double d = P.dilation, thr = P.alpha_threshold, near = P.near;
     const bool cull = P.cull_margin >= 0.0;
     const double ulo = -P.cull_margin * P.width, uhi = (1.0 + P.cull_margin) * P.width;
     const double vlo = -P.cull_margin * P.height, vhi = (1.0 + P.cull_margin) * P.height;
@@ -959,10 +973,11 @@ HV_ALWAYS_INLINE inline void project_block(const ProjJob& P, const double* cam, 
         const double rad = std::ceil(P.radius_sigmas * std::sqrt(std::max(lam, 0.0)));
         const double hx = std::min(rad, std::sqrt(q * a) * 1.0001 + 1e-3);
         const double hy = std::min(rad, std::sqrt(q * c) * 1.0001 + 1e-3);
-        const double bx0 = std::min(std::max(std::ceil(u - hx - 0.5), 0.0), W);
-        const double bx1 = std::min(std::max(std::floor(u + hx - 0.5) + 1.0, 0.0), W);
-        const double by0 = std::min(std::max(std::ceil(vv - hy - 0.5), 0.0), H);
-        const double by1 = std::min(std::max(std::floor(vv + hy - 0.5) + 1.0, 0.0), H);
+        // the box clipped to the view's pixel rectangle cam[14..17] (the image, or a region of it)
+        const double bx0 = std::min(std::max(std::ceil(u - hx - 0.5), cam[14]), cam[15]);
+        const double bx1 = std::min(std::max(std::floor(u + hx - 0.5) + 1.0, cam[14]), cam[15]);
+        const double by0 = std::min(std::max(std::ceil(vv - hy - 0.5), cam[16]), cam[17]);
+        const double by1 = std::min(std::max(std::floor(vv + hy - 0.5) + 1.0, cam[16]), cam[17]);
         // not drawn: an empty box (0, 0, 0, 0), and no NaN reaches the integer conversion
         const bool drawn = (op >= thr) & (tz > near) & !(cull & outside) & (det > 0.0) & (bx0 < bx1) & (by0 < by1);
         o.box[0][l] = int32_t(drawn ? bx0 : 0.0);
@@ -1065,10 +1080,136 @@ using Entries = std::vector<uint64_t>;
 // One work unit of project_bin: splats [k0, k1) of view v, projected 8 at a time, each drawn
 // one binned at once: entries counted per tile and appended to ent. Compiled once per
 // instruction set.
+// Inputs of up to LANES splats gathered from scattered indices, in the layout of ProjJob with
+// row stride LANES (project_block reads it through a ProjJob whose pointers are set here).
+struct Gathered {
+    alignas(64) double pc[3][LANES], cov[6][LANES], means[3][LANES], op[LANES], q[LANES];
+    alignas(64) float sh[48][LANES];
+};
+
+// Writes the record of splat k (lane l of o) into view v and bins it (as project_count).
+HV_ALWAYS_INLINE inline void emit(const ProjJob& P, const BinJob& B, int v, int k, const Block& o, int l,
+                                  const int32_t* pre, int64_t* cnt, Entries& ent) {
+    float* r = P.rec + (int64_t(v) * P.m + k) * REC;
+    const int32_t box[4] = {o.box[0][l], o.box[1][l], o.box[2][l], o.box[3][l]};
+    std::memcpy(r + BOX_AT, box, sizeof(box));
+    if (box[0] >= box[1] || box[2] >= box[3]) return;
+    r[0] = float(o.u[l]); r[1] = float(o.vv[l]);
+    r[2] = float(o.A[l]); r[3] = float(o.B[l]); r[4] = float(o.C[l]);
+    r[5] = float(P.op[k]);
+    r[6] = float(o.col[0][l]); r[7] = float(o.col[1][l]); r[8] = float(o.col[2][l]);
+    r[9] = float(P.q[k]);
+    reinterpret_cast<std::atomic<uint8_t>*>(P.seen + k)->store(1, std::memory_order_relaxed);
+    entries_of(B, v, k, pre, [&](int kk, int t) {
+        ++cnt[t];
+        ent.push_back(uint64_t(uint32_t(kk)) | (uint64_t(uint32_t(t)) << 32));
+    });
+}
+
+// project_count for a view restricted to a pixel rectangle (cam[14..17] smaller than the image):
+// a cheap conservative test first keeps the splats whose box can reach the rectangle, which are
+// then projected by the same project_block, 8 at a time (identical records). The
+// test bounds the box half-widths from the projected covariance's diagonal (a, c: the same
+// expressions as project_block, no conic, colour or record): hx = min(rad, sqrt(q a) 1.0001 +
+// 1e-3) with rad <= rs sqrt(lambda_max) + 1 and lambda_max <= a + c (the trace), same for hy;
+// the rectangle is widened by 2 px against rounding. A kept splat may still not be drawn.
+template <int DEG, bool SHARED>
+HV_ALWAYS_INLINE inline void project_count_region(const ProjJob& P, const BinJob& B, int v, int k0, int k1,
+                                                  int64_t* cnt, Entries& ent) {
+    const double* cam = P.cams + int64_t(v) * CAM;
+    const int64_t mp = P.mp;
+    const double fx = cam[0], fy = cam[1], cx = cam[2], cy = cam[3];
+    const double xlo = cam[14] - 2.0, xhi = cam[15] + 2.0, ylo = cam[16] - 2.0, yhi = cam[17] + 2.0;
+    const double rs2 = P.radius_sigmas * P.radius_sigmas * (1.0 + 1e-6), d = P.dilation;
+    const double thr = P.alpha_threshold, near = P.near;
+    const double ox = cam[4], oy = cam[5], oz = cam[6], lx0 = cam[10], lx1 = cam[11], ly0 = cam[12], ly1 = cam[13];
+    constexpr int SPAN = 8 * LANES;
+    alignas(64) int32_t keep[SPAN];  // not char: a char store may alias the inputs and block vectorisation
+    const double* __restrict pcx = P.pc;
+    const double* __restrict cv = P.cov;
+    const double* __restrict opa = P.op;
+    const double* __restrict qa = P.q;
+    Block o;
+    alignas(64) int32_t pre[LANES][4];
+    const bool banded = B.div.shift >= 0;
+    constexpr int DENSE = 3;  // kept splats in a block of 8 from which it is projected in place
+    const int nrows = SHARED ? 3 : (DEG + 1) * (DEG + 1) * 3;
+    int32_t idx[LANES];
+    int np_ = 0;
+    Gathered g;
+    ProjJob Pl = P;
+    Pl.pc = &g.pc[0][0]; Pl.cov = &g.cov[0][0]; Pl.means = &g.means[0][0]; Pl.op = g.op; Pl.q = g.q;
+    Pl.sh = &g.sh[0][0]; Pl.mp = LANES;
+    auto flush = [&]() {
+        if (np_ == 0) return;
+        for (int l = 0; l < LANES; ++l) {  // unused lanes repeat the first splat with opacity 0
+            const int k = idx[l < np_ ? l : 0];
+            for (int i = 0; i < 3; ++i) g.pc[i][l] = P.pc[i * mp + k];
+            for (int i = 0; i < 6; ++i) g.cov[i][l] = P.cov[i * mp + k];
+            for (int i = 0; i < 3; ++i) g.means[i][l] = P.means[i * mp + k];
+            g.op[l] = l < np_ ? P.op[k] : 0.0;
+            g.q[l] = P.q[k];
+            for (int i = 0; i < nrows; ++i) g.sh[i][l] = P.sh[i * mp + k];
+        }
+        project_block<DEG, SHARED>(Pl, cam, 0, o);
+        if (banded) band_block(o, g.q, B.div.shift, pre);
+        for (int l = 0; l < np_; ++l) emit(P, B, v, idx[l], o, l, banded ? pre[l] : nullptr, cnt, ent);
+        np_ = 0;
+    };
+    for (int ks = k0; ks < k1; ks += SPAN) {
+        const int n = std::min(SPAN, k1 - ks);
+#pragma GCC ivdep
+        for (int l = 0; l < n; ++l) {
+            const int k = ks + l;
+            const double tx = pcx[k] + ox, ty = pcx[mp + k] + oy, tz = pcx[2 * mp + k] + oz;
+            const double itz = 1.0 / tz;
+            const double u = fx * tx * itz + cx, vv = fy * ty * itz + cy;
+            // the projected covariance's diagonal, as project_block computes it
+            const double sxx = cv[k], sxz = cv[2 * mp + k];
+            const double syy = cv[3 * mp + k], syz = cv[4 * mp + k], szz = cv[5 * mp + k];
+            const double txc = std::min(std::max(tx * itz, lx0), lx1) * tz;
+            const double tyc = std::min(std::max(ty * itz, ly0), ly1) * tz;
+            const double j00 = fx * itz, j02 = -fx * txc * itz * itz, j11 = fy * itz, j12 = -fy * tyc * itz * itz;
+            const double sa = (j00 * sxx + j02 * sxz) * j00 + (j00 * sxz + j02 * szz) * j02;
+            const double sc = (j11 * syy + j12 * syz) * j11 + (j11 * syz + j12 * szz) * j12;
+            const double a = sa + d, c = sc + d, q = qa[k];
+            // hx = min(rad, sqrt(q a) 1.0001 + 1e-3) with rad <= rs sqrt(lambda_max) + 1, lambda_max <= a + c
+            const double rad = std::sqrt(rs2 * std::max(a + c, 0.0)) + 1.0;
+            const double hx = std::min(rad, std::sqrt(std::max(q * a, 0.0)) * 1.0001 + 1e-3) + 1e-6 * std::abs(u);
+            const double hy = std::min(rad, std::sqrt(std::max(q * c, 0.0)) * 1.0001 + 1e-3) + 1e-6 * std::abs(vv);
+            keep[l] = int32_t((opa[k] >= thr) & (tz > near) & (u - hx < xhi) & (u + hx > xlo) & (vv - hy < yhi) &
+                              (vv + hy > ylo));
+        }
+        // blocks of 8 with several kept splats go through project_block where they lie (sequential
+        // reads); single kept splats are gathered into blocks of 8 first
+        for (int b0 = 0; b0 < n; b0 += LANES) {
+            int cnt8 = 0;
+            for (int l = b0; l < b0 + LANES; ++l) cnt8 += l < n ? keep[l] : 0;
+            if (cnt8 == 0) continue;
+            if (cnt8 >= DENSE) {
+                flush();  // the pending gathered splats come first: the lists stay in depth order
+                project_block<DEG, SHARED>(P, cam, ks + b0, o);
+                if (banded) band_block(o, P.q + ks + b0, B.div.shift, pre);
+                for (int l = 0; l < LANES && b0 + l < n; ++l)
+                    if (keep[b0 + l]) emit(P, B, v, ks + b0 + l, o, l, banded ? pre[l] : nullptr, cnt, ent);
+                continue;
+            }
+            for (int l = b0; l < b0 + LANES && l < n; ++l)
+                if (keep[l]) {
+                    idx[np_++] = ks + l;
+                    if (np_ == LANES) flush();
+                }
+        }
+    }
+    flush();
+}
+
 template <int DEG, bool SHARED>
 HV_ALWAYS_INLINE inline void project_count(const ProjJob& P, const BinJob& B, int v, int k0, int k1,
                                                          int64_t* cnt, Entries& ent) {
-    const double* cam = P.cams + int64_t(v) * 14;
+    const double* cam = P.cams + int64_t(v) * CAM;
+    if (cam[14] > 0.0 || cam[15] < P.width || cam[16] > 0.0 || cam[17] < P.height)
+        return project_count_region<DEG, SHARED>(P, B, v, k0, k1, cnt, ent);
     Block o;
     alignas(64) int32_t pre[LANES][4];
     const bool banded = B.div.shift >= 0;
@@ -1171,7 +1312,7 @@ PyObject* project_bin(PyObject*, PyObject* args) {
     const Py_ssize_t m = P.m, mp = P.mp;
     ok = ok && need(pc, mp * 24, "pc") && need(cov, mp * 48, "cov") && need(means, mp * 24, "means") &&
          need(op, mp * 8, "opacity") && need(q, mp * 8, "q") && need(sh, mp * nk * 12, "sh") &&
-         need(cams, Py_ssize_t(P.nv) * 14 * 8, "cams") && need(rec, Py_ssize_t(P.nv) * m * REC * 4, "rec") &&
+         need(cams, Py_ssize_t(P.nv) * CAM * 8, "cams") && need(rec, Py_ssize_t(P.nv) * m * REC * 4, "rec") &&
          need(off, Py_ssize_t(P.nv) * (nt + 1) * 8, "off") && need(base, Py_ssize_t(P.nv) * 8, "base") &&
          need(seen, m, "seen");
     if (ok) {
@@ -1291,13 +1432,17 @@ PyObject* has_avx512(PyObject*, PyObject*) { return PyBool_FromLong(cpu_has_avx5
 PyMethodDef methods[] = {
     {"composite", composite, METH_VARARGS,
      "composite(rec, off, base, ids, nv, m, tile, tiles_x, tiles_y, width, height, alpha_threshold, "
-     "alpha_cap, t_min, bg, clip, out, blends, n_threads, mode) -> 'avx512' | 'avx2' | 'scalar'\n\n"
+     "alpha_cap, t_min, bg, clip, out, blends, n_threads, mode, jobs) -> 'avx512' | 'avx2' | 'scalar'\n\n"
      "Blend per-(view, tile) splat lists front to back into out (V, H, W, 3) float32. mode: 0 auto, "
-     "1 scalar, 2 require AVX2, 3 require AVX-512 (16x16 tiles)."},
+     "1 scalar, 2 require AVX2, 3 require AVX-512 (16x16 tiles). jobs: int32 view * tiles + tile of the "
+     "tiles to composite (the others are left as they are in out), or empty for all."},
     {"project_bin", project_bin, METH_VARARGS,
      "project_bin(pc, cov, means, opacity, q, sh, cams, m, mp, nv, width, height, degree, use_shared, tile, "
      "tiles_x, tiles_y, near, dilation, radius_sigmas, alpha_threshold, cull_margin, rec, off, base, seen, ids, "
      "n_threads) -> (total entries, seconds spent filling the lists)\n\n"
+     "cams (nv, 18) float64: fast_kernels.project_views' 14 parameters, then the pixel rectangle x0, x1, "
+     "y0, y1 every box is clipped to (the image, or a region of it: splats that cannot reach it are "
+     "skipped by a conservative test before projection).\n"
      "fast_kernels.project_views, count_tiles and fill_tiles in one pass over the splats (inputs in depth "
      "order, float64 structure of arrays with row stride mp, a multiple of 8 >= m, padding opacity 0; "
      "sh float32). Writes rec, off, base, seen and, when ids holds them, the tile lists; returns the "

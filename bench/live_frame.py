@@ -1,0 +1,242 @@
+"""Live native frame rate by mode, against full quality (issue 16).
+
+Default avatar (Pipeline defaults, 100k Gaussians), Portrait calibration, 48 views 420x560. A
+short animation (smile and jaw changing every frame) is deformed first; the timed part of every
+frame is **deformed Gaussians -> native image** (``LiveRenderer.frame``). All from one run:
+
+* ``full_quilt``: every view in full, uint8 quilt, interleave (the quality reference). Its views
+  are also compared with the float64 reference renderer on ``--ref-views`` views (PSNR).
+* ``all_views``: untracked, every view; one record per level of detail (``lod_fraction``).
+  ``psnr_db``: native image against full_quilt's, over the head region.
+* ``tracked``: a viewer at 0.6 m moving sideways across the cone; one record per head motion
+  margin. ``psnr_db``: the worse eye's perceived image (VirtualDisplay) against full_quilt's
+  at the tracked position, head region, over the frames; ``worst_sweep_psnr_db``: the worst over
+  a sweep of eye positions (last frame): sideways +-1 and +-2 cm (+-1 cm with --quick) and +-5 cm
+  in depth, whatever the margin, so the records show what the margin buys. The first tracked frame
+  (everything) is not timed.
+* ``eye_centred``: the same viewer path; one perspective image per eye (camera interpolated between
+  the quilt cameras) written into the subpixels that eye receives. ``psnr_db`` as ``tracked``.
+* ``vtk``: the VTK point-Gaussian pass on ``--vtk-views`` views after a warm-up, extrapolated to
+  48 views (``extrapolated``: true); ``psnr_db`` of those views against full_quilt's views.
+* ``--device cuda``: ``all_views`` with gsplat (one batched call, ``viewmats`` [48, 4, 4]) and
+  the quilt + interleave as one torch gather on the GPU (``backend``: gsplat); skipped, and
+  said so, without CUDA.
+
+Wall clock on a shared machine: the load average (1 min) before and after is recorded with the
+CPU seconds of every mode; compare ratios from one run.
+
+Usage::
+
+    python bench/live_frame.py [--quick] [--device cpu|cuda] [--json bench/results/live_frame.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from holo_viewer.display import eyes  # noqa: E402
+from holo_viewer.display.calibration import DisplayCalibration  # noqa: E402
+from holo_viewer.display.simulate import VirtualDisplay  # noqa: E402
+from holo_viewer.errors import HoloViewerError  # noqa: E402
+from holo_viewer.fileio import atomic_write  # noqa: E402
+from holo_viewer.pipeline.live import LiveConfig, LiveRenderer  # noqa: E402
+from holo_viewer.pipeline import Pipeline  # noqa: E402
+from holo_viewer.pipeline import FaceControls  # noqa: E402
+from holo_viewer.render import RenderConfig, render_views  # noqa: E402
+
+
+def frames_of_animation(pipe: Pipeline, n: int) -> list:
+    """n deformed Gaussians of a smile + jaw animation (deformation not timed)."""
+    out = []
+    for k in range(n):
+        s = 0.5 + 0.5 * math.sin(2 * math.pi * k / max(n, 2))
+        pipe.set_face(FaceControls(named=(("smile", s),), jaw_pose=np.array([0.15 * (1 - s), 0.0, 0.0])))
+        out.append(pipe.gaussians())
+    return out
+
+
+def load() -> float:
+    return os.getloadavg()[0]
+
+
+def run_mode(live: LiveRenderer, frames: list, mode: str, viewers: list | None = None) -> tuple[list, float, float]:
+    """Frame times (wall), natives (copies) and CPU seconds per frame."""
+    secs, natives = [], []
+    c0 = time.process_time()
+    for k, g in enumerate(frames):
+        f = live.frame(g, viewers[k] if viewers else None, mode)
+        secs.append(f.seconds)
+        natives.append(f.native.copy())
+    return secs, natives, (time.process_time() - c0) / len(frames)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="fewer frames and knobs (< 3 min)")
+    ap.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="also time the GPU path (cuda)")
+    ap.add_argument("--json", default="bench/results/live_frame.json", help="output JSON file")
+    ap.add_argument("--frames", type=int, default=None, help="frames per mode (default 4 quick, 10 full)")
+    ap.add_argument("--ref-views", type=int, default=None, help="views checked against float64 (1 quick, 2)")
+    ap.add_argument("--vtk-views", type=int, default=None, help="VTK views timed (1 quick, 3)")
+    args = ap.parse_args(argv)
+    n_frames = args.frames or (4 if args.quick else 10)
+    ref_views = args.ref_views if args.ref_views is not None else (1 if args.quick else 2)
+    vtk_views = args.vtk_views if args.vtk_views is not None else (1 if args.quick else 3)
+    t_run = time.perf_counter()
+    load_before = load()
+    try:
+        cal = DisplayCalibration.load(None)
+        pipe = Pipeline(calibration=cal)
+        cams = pipe.cameras()
+        frames = frames_of_animation(pipe, n_frames + 1)  # frame 0 primes the kept state
+        display = VirtualDisplay(cal)
+        records: list[dict] = []
+        print(f"avatar: {len(frames[0])} Gaussians, {len(cams)} views {cams.width}x{cams.height}, "
+              f"{n_frames} frames per mode, load {load_before:.2f}", flush=True)
+
+        # ---- full quality (reference of every other mode)
+        full = LiveRenderer(cal, cams)
+        full.frame(frames[0], mode="full_quilt")  # warm-up (numba cache, buffers)
+        secs, ref_natives, cpu = run_mode(full, frames[1:], "full_quilt")
+        ref_views_img = full.views[:ref_views].copy()  # last frame's views
+        f64 = render_views(frames[-1], cams[list(range(ref_views))], "reference", RenderConfig()).images
+        p64 = min(eyes.psnr(f64[i], ref_views_img[i]) for i in range(ref_views))
+        full_s = float(np.median(secs))
+        records.append({"mode": "full_quilt", "seconds_per_frame": full_s, "best_seconds": float(min(secs)),
+                        "cpu_seconds_per_frame": cpu, "psnr_db": math.inf, "psnr_vs_float64_db": p64,
+                        "float64_views": ref_views, "rendered_fraction": 1.0})
+        print(f"full_quilt   {full_s:.3f} s/frame (best {min(secs):.3f}, cpu {cpu:.2f})  "
+              f"views vs float64 {p64:.1f} dB", flush=True)
+
+        # ---- untracked, all views, by level of detail
+        for frac in ((1.0, 0.5) if args.quick else (1.0, 0.7, 0.5, 0.3)):
+            live = LiveRenderer(cal, cams, LiveConfig(lod_fraction=frac), rest=frames[0])
+            live.frame(frames[0], mode="all_views")
+            secs, natives, cpu = run_mode(live, frames[1:], "all_views")
+            p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
+            s = float(np.median(secs))
+            records.append({"mode": "all_views", "lod_fraction": frac, "seconds_per_frame": s,
+                            "best_seconds": float(min(secs)), "cpu_seconds_per_frame": cpu, "psnr_db": p,
+                            "rendered_fraction": 1.0, "ratio_to_full_quilt": full_s / s})
+            print(f"all_views    lod {frac:.1f}  {s:.3f} s/frame (cpu {cpu:.2f})  native {p:.1f} dB", flush=True)
+
+        # ---- tracked viewer, by head motion margin
+        angles = np.linspace(-8.0, 8.0, n_frames + 1)
+        viewers = [eyes.TrackedViewer(float(a), 0.6) for a in angles]
+        for motion in ((0.01,) if args.quick else (0.0, 0.01, 0.02)):
+            cfg = LiveConfig(motion_m=motion, motion_distance_m=0.05 if motion else 0.0)
+            live = LiveRenderer(cal, cams, cfg)
+            live.frame(frames[0], viewers[0], mode="tracked")  # everything, once
+            secs, fracs, worst = [], [], math.inf
+            c0 = time.process_time()
+            natives = []
+            for k in range(1, n_frames + 1):
+                f = live.frame(frames[k], viewers[k], mode="tracked")
+                secs.append(f.seconds)
+                fracs.append(f.rendered_fraction)
+                natives.append(f.native.copy())
+            cpu = (time.process_time() - c0) / n_frames
+            eval_frames = [n_frames - 1] if args.quick else list(range(0, n_frames, max(1, n_frames // 3)))
+            per_eye = min(eyes.eye_psnr(display, ref_natives[k], natives[k], viewers[k + 1]) for k in eval_frames)
+            v = viewers[-1]
+            # eyes displaced sideways (and in depth) from the tracked position: inside the margin
+            # every received subpixel is exact; outside it, stale ones start to be seen
+            sweep = [(dx, 0.0) for dx in ((-0.01, 0.01) if args.quick else (-0.02, -0.01, 0.01, 0.02))]
+            if not args.quick:
+                sweep += [(0.0, -0.05), (0.0, 0.05)]
+            for dx, dd in sweep:
+                x = v.centre_x_m + dx
+                moved = eyes.TrackedViewer(math.degrees(math.atan2(x, v.distance_m + dd)), v.distance_m + dd)
+                worst = min(worst, eyes.eye_psnr(display, ref_natives[-1], natives[-1], moved))
+            s = float(np.median(secs))
+            records.append({"mode": "tracked", "motion_m": motion, "refresh_columns": cfg.refresh_columns,
+                            "seconds_per_frame": s, "best_seconds": float(min(secs)), "cpu_seconds_per_frame": cpu,
+                            "psnr_db": per_eye, "worst_sweep_psnr_db": worst,
+                            "rendered_fraction": float(np.mean(fracs)), "ratio_to_full_quilt": full_s / s,
+                            "viewer": "0.6 m, angle -8..8 deg"})
+            print(f"tracked      motion {motion * 100:.0f} cm  {s:.3f} s/frame (cpu {cpu:.2f}, "
+                  f"{np.mean(fracs) * 100:.0f} % of tiles)  per-eye {per_eye:.1f} dB, worst in sweep {worst:.1f} dB",
+                  flush=True)
+
+        # ---- eye-centred: one perspective image per eye, scattered into the subpixels it receives
+        live = LiveRenderer(cal, cams)
+        live.frame(frames[0], mode="full_quilt")
+        secs, natives = [], []
+        c0 = time.process_time()
+        for k in range(1, n_frames + 1):
+            f = live.frame(frames[k], viewers[k], mode="eye_centred")
+            secs.append(f.seconds)
+            natives.append(f.native.copy())
+        cpu = (time.process_time() - c0) / n_frames
+        k = n_frames - 1
+        per_eye = eyes.eye_psnr(display, ref_natives[k], natives[k], viewers[k + 1])
+        s = float(np.median(secs))
+        records.append({"mode": "eye_centred", "seconds_per_frame": s, "best_seconds": float(min(secs)),
+                        "cpu_seconds_per_frame": cpu, "psnr_db": per_eye, "rendered_fraction": 2 / len(cams),
+                        "ratio_to_full_quilt": full_s / s, "viewer": "0.6 m, angle -8..8 deg"})
+        print(f"eye_centred  {s:.3f} s/frame (cpu {cpu:.2f})  per-eye {per_eye:.1f} dB", flush=True)
+
+        # ---- VTK (extrapolated)
+        try:
+            sub = cams[list(range(vtk_views + 1))]
+            render_views(frames[-1], sub[[0]], "vtk")  # warm-up: OSMesa context, shaders
+            t0, c0 = time.perf_counter(), time.process_time()
+            r = render_views(frames[-1], sub[list(range(1, vtk_views + 1))], "vtk")
+            s = (time.perf_counter() - t0) / vtk_views * len(cams)
+            cpu = (time.process_time() - c0) / vtk_views * len(cams)
+            p = min(eyes.psnr(full.views[i + 1], r.images[i]) for i in range(vtk_views))
+            records.append({"mode": "vtk", "seconds_per_frame": s, "cpu_seconds_per_frame": cpu, "psnr_db": p,
+                            "extrapolated": True, "views_timed": vtk_views, "ratio_to_full_quilt": full_s / s,
+                            "note": "views only (no quilt or interleave); psnr of those views"})
+            print(f"vtk          {s:.2f} s/frame (extrapolated from {vtk_views} views)  views {p:.1f} dB", flush=True)
+        except HoloViewerError as exc:
+            records.append({"mode": "vtk", "skipped": str(exc)})
+            print(f"vtk skipped: {exc}", flush=True)
+
+        # ---- GPU
+        if args.device == "cuda":
+            try:
+                import torch
+
+                if not torch.cuda.is_available():
+                    raise HoloViewerError("no CUDA device")
+                live = LiveRenderer(cal, cams, LiveConfig(backend="gsplat"))
+                live.frame(frames[0], mode="all_views")
+                secs, natives, cpu = run_mode(live, frames[1:], "all_views")
+                p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
+                s = float(np.median(secs))
+                records.append({"mode": "all_views", "backend": "gsplat", "device": torch.cuda.get_device_name(0),
+                                "seconds_per_frame": s, "best_seconds": float(min(secs)), "psnr_db": p,
+                                "frames_per_second": 1.0 / s})
+                print(f"all_views GPU  {s * 1000:.1f} ms/frame ({1 / s:.0f} fps)  native {p:.1f} dB", flush=True)
+            except (HoloViewerError, ImportError) as exc:
+                records.append({"mode": "all_views", "backend": "gsplat", "skipped": str(exc)})
+                print(f"GPU skipped: {exc}", flush=True)
+    except HoloViewerError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    result = {"benchmark": "live_frame", "quick": args.quick, "frames_per_mode": n_frames,
+              "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                          "load_1min_before": load_before, "load_1min_after": load()},
+              "seconds_total": time.perf_counter() - t_run, "records": records}
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(args.json, "w") as fh:
+        json.dump(result, fh, indent=1, default=float)
+    print(f"wrote {args.json} ({result['seconds_total']:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

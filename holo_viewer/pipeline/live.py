@@ -1,0 +1,360 @@
+"""Live native frames: render only what the viewers can see (``holo_viewer.pipeline.live``).
+
+Modes (``LiveRenderer.frame`` / :func:`render_native`), all producing the panel's native image:
+
+``full_quilt``
+    Every view in full (the quality reference): render -> uint8 quilt -> interleave.
+``all_views``
+    Untracked: every view, optionally with a level of detail (``LiveConfig.lod_fraction``, the
+    Gaussians that contribute most over the cone, chosen once per avatar). The interleave samples
+    59 % of the quilt's pixels but some pixel of every 16x16 tile of every view (measured on the
+    Portrait), so a per-calibration tile mask saves nothing with row-vector compositing; see
+    docs/live_frame.md.
+``tracked``
+    A tracked viewer (:class:`~holo_viewer.display.eyes.TrackedViewer`): only the tile columns
+    of the views whose light can reach the two eyes (beam weight > ``threshold``, over the head
+    motion margin; :func:`~holo_viewer.display.eyes.view_columns`), plus ``refresh_columns``
+    tile columns of the other views in round-robin order, are rendered into the kept views of the
+    previous frames (``fast.render(tile_mask=..., out=...)``); the quilt and the native image are
+    updated only where they read those columns (:meth:`Interleaver.update`). The native subpixels
+    the eyes receive are exactly those of ``full_quilt`` (tested); the others hold older frames.
+``eye_centred``
+    A tracked viewer, the alternative of the tracked light-field displays in the literature: one
+    perspective image per eye from the eye's own position (a camera interpolated between the
+    quilt cameras, :func:`~holo_viewer.display.eyes.eye_cameras`), written into the subpixels
+    whose light reaches that eye (weight > ``threshold``, the nearer eye wins;
+    :func:`~holo_viewer.display.eyes.scatter_eye_images`). Two views instead of dozens of bands,
+    but a different picture from the 48-view light field: its error against full quality is
+    the perspective difference (bench/live_frame.py measures it).
+``auto``
+    ``tracked`` when a viewer is given, ``all_views`` otherwise.
+
+The first frame of a :class:`LiveRenderer` (or after a change of avatar size) renders everything.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from ..camera import Cameras
+from ..errors import InputError
+from ..render.config import RenderConfig
+
+__all__ = ["LiveConfig", "LiveFrame", "LiveRenderer", "render_native", "MODES"]
+
+Mode = Literal["auto", "tracked", "all_views", "full_quilt", "eye_centred"]
+MODES = ("auto", "tracked", "all_views", "full_quilt", "eye_centred")
+
+
+@dataclass(frozen=True)
+class LiveConfig:
+    """Knobs of :class:`LiveRenderer`.
+
+    Parameters
+    ----------
+    render : RenderConfig
+        Renderer knobs (tile_size is the unit of the tracked restriction).
+    blend : bool
+        Interleave mode: blend of the two nearest views (True) or nearest (False).
+    threshold : float
+        Tracked: light weight above which a subpixel counts as seen by an eye.
+    sigma_views : float
+        Beam width of the optics model (VirtualDisplay), view spacings.
+    motion_m, motion_distance_m : float
+        Tracked: head motion margin during one frame, sideways and in depth (metres).
+    refresh_columns : int
+        Tracked: tile columns of the other views re-rendered per frame, round-robin (0 = none).
+    lod_fraction : float
+        all_views: fraction of the Gaussians kept (1 = all).
+    backend : str
+        all_views / full_quilt renderer: "fast" (CPU), or "gsplat" (CUDA: the views stay on the
+        GPU and are tiled and interleaved there, :class:`~holo_viewer.display.device.DeviceInterleaver`).
+    """
+
+    render: RenderConfig = field(default_factory=RenderConfig)
+    blend: bool = False
+    threshold: float = 0.01
+    sigma_views: float = 0.5
+    motion_m: float = 0.01
+    motion_distance_m: float = 0.05
+    refresh_columns: int = 8
+    lod_fraction: float = 1.0
+    backend: str = "fast"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.render, RenderConfig):
+            raise InputError(f"render: expected RenderConfig, found {type(self.render).__name__}")
+        if int(self.refresh_columns) != self.refresh_columns or self.refresh_columns < 0:
+            raise InputError(f"refresh_columns: expected an integer >= 0, found {self.refresh_columns!r}")
+        if not 0.0 < float(self.lod_fraction) <= 1.0:
+            raise InputError(f"lod_fraction: expected in (0, 1], found {self.lod_fraction}")
+        if self.backend not in ("fast", "gsplat"):
+            raise InputError(f"backend: expected 'fast' or 'gsplat', found {self.backend!r}")
+
+
+@dataclass
+class LiveFrame:
+    """One native frame: ``native`` (screen_h, screen_w, 3) uint8, the mode that ran, wall seconds
+    from Gaussians to native, per-step timings and the fraction of the quilt's tiles rendered."""
+
+    native: np.ndarray
+    mode: str
+    seconds: float
+    timings: dict[str, float]
+    rendered_fraction: float
+
+
+class LiveRenderer:
+    """Renders native frames for one calibration and one set of quilt cameras, keeping the last
+    views, quilt and native image between frames (see the module docstring).
+
+    Parameters
+    ----------
+    calibration : DisplayCalibration
+    cameras : Cameras
+        The quilt cameras (V <= cols x rows views, each the size of a quilt tile).
+    config : LiveConfig, optional
+    rest : Gaussians, optional
+        The avatar at rest, for the level of detail (default: the first frame's Gaussians).
+
+    Notes
+    -----
+    Holds ~250 MB (float views, quilt, native, the interleaver's tables); not thread-safe (one
+    renderer per render thread). With ``backend="gsplat"`` the views stay on the GPU, so every
+    frame renders all views (a tracked frame on the CPU path needs the kept host views).
+    """
+
+    def __init__(self, calibration: Any, cameras: Cameras, config: LiveConfig | None = None,
+                 rest: Any = None) -> None:
+        from ..display.calibration import DisplayCalibration
+        from ..display.lenticular import Interleaver
+
+        if not isinstance(calibration, DisplayCalibration):
+            raise InputError(f"calibration: expected a DisplayCalibration, found {type(calibration).__name__}")
+        if not isinstance(cameras, Cameras):
+            raise InputError(f"cameras: expected holo_viewer.camera.Cameras, found {type(cameras).__name__}")
+        self.config = config or LiveConfig()
+        self.calibration = calibration
+        self.cameras = cameras
+        V, H, W = len(cameras), cameras.height, cameras.width
+        cols, rows = calibration.cols, calibration.rows
+        if V > cols * rows:
+            raise InputError(f"cameras: {V} views do not fit the calibration's {cols}x{rows} quilt")
+        self.quilt_shape = (rows * H, cols * W, 3)
+        self.interleaver = Interleaver(calibration, self.quilt_shape, cols=cols, rows=rows, n_views=V,
+                                       mode="blend" if self.config.blend else "nearest")
+        self.views = np.zeros((V, H, W, 3), dtype=np.float32)
+        self.quilt = np.zeros(self.quilt_shape, dtype=np.uint8)
+        self.native = np.zeros(self.interleaver.shape, dtype=np.uint8)
+        tile = int(self.config.render.tile_size)
+        self.tile = tile
+        self.tiles_y, self.tiles_x = -(-H // tile), -(-W // tile)
+        self._n_gaussians: int | None = None
+        self._rr = 0
+        self._lod = None
+        self._rest = rest
+        self._device = None
+        self._zeta: np.ndarray | None = None
+        self._texel: np.ndarray | None = None
+
+    # ------------------------------------------------------------------ public
+    def frame(self, gaussians: Any, viewer: Any = None, mode: Mode = "auto") -> LiveFrame:
+        """Render one native frame.
+
+        Parameters
+        ----------
+        gaussians : Gaussians
+            The deformed avatar (N Gaussians; N fixed while the renderer keeps state).
+        viewer : TrackedViewer or None
+            The tracked viewer; needed by ``tracked``.
+        mode : {"auto", "tracked", "all_views", "full_quilt"}
+
+        Returns
+        -------
+        LiveFrame
+            ``native`` is the renderer's own buffer, overwritten by the next frame (copy to keep).
+        """
+        from ..render.api import validate_inputs
+
+        t0 = time.perf_counter()
+        if mode not in MODES:
+            raise InputError(f"mode: expected one of {', '.join(MODES)}, found {mode!r}")
+        if mode == "auto":
+            mode = "tracked" if viewer is not None else "all_views"
+        if mode in ("tracked", "eye_centred") and viewer is None:
+            raise InputError(f"mode {mode!r} needs a viewer (holo_viewer.display.eyes.TrackedViewer)")
+        validate_inputs(gaussians, self.cameras)
+        if self._n_gaussians != len(gaussians):  # a new avatar: no valid previous frame
+            self._n_gaussians = None
+            self._lod = None
+        timings: dict[str, float] = {"validate": time.perf_counter() - t0}
+        if mode == "tracked" and self._n_gaussians is not None:
+            fraction = self._tracked(gaussians, viewer, timings)
+        elif mode == "eye_centred" and self._n_gaussians is not None:
+            fraction = self._eye_centred(gaussians, viewer, timings)
+        else:
+            if mode in ("tracked", "eye_centred"):
+                mode = "full_quilt"  # first frame: everything
+            fraction = self._everything(gaussians, lod=mode == "all_views", timings=timings)
+            # the kept host views are this frame's (the GPU path keeps its views on the device)
+            self._n_gaussians = len(gaussians) if self.config.backend == "fast" else None
+        return LiveFrame(native=self.native, mode=mode, seconds=time.perf_counter() - t0, timings=timings,
+                         rendered_fraction=fraction)
+
+    # ------------------------------------------------------------------ modes
+    def _everything(self, gaussians: Any, lod: bool, timings: dict[str, float]) -> float:
+        from ..display.quilt import tile_slices, to_uint8
+        from ..render import fast
+
+        g = gaussians
+        if lod and self.config.lod_fraction < 1.0:
+            if self._lod is None:
+                from ..render.lod import lod_keep
+
+                rest = self._rest if self._rest is not None and len(self._rest) == len(gaussians) else gaussians
+                self._lod = lod_keep(rest, self.config.lod_fraction)
+            g = gaussians.subset(self._lod)
+        t = time.perf_counter()
+        if self.config.backend == "gsplat":
+            return self._everything_device(g, timings)
+        fast.render(g, self.cameras, self.config.render, out=self.views)
+        t1 = time.perf_counter()
+        Hq, Wq, _ = self.quilt_shape
+        for k in range(len(self.cameras)):
+            rs, cs = tile_slices(Hq, Wq, self.calibration.cols, self.calibration.rows, k)
+            to_uint8(self.views[k], out=self.quilt[rs, cs])
+        t2 = time.perf_counter()
+        self.interleaver(self.quilt, out=self.native)
+        t3 = time.perf_counter()
+        timings.update(render=t1 - t, quilt=t2 - t1, interleave=t3 - t2)
+        return 1.0
+
+    def _everything_device(self, g: Any, timings: dict[str, float]) -> float:
+        """All views with gsplat on CUDA, tiled and interleaved on the GPU (views stay there)."""
+        from ..display.device import DeviceInterleaver
+        from ..render import gsplat_backend
+
+        t = time.perf_counter()
+        views = gsplat_backend.render_device(g, self.cameras, self.config.render)
+        t1 = time.perf_counter()
+        if self._device is None:
+            V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
+            self._device = DeviceInterleaver(self.interleaver, V, H, W, device=views.device)
+        self.native[...] = self._device(views)
+        t2 = time.perf_counter()
+        timings.update(render=t1 - t, interleave=t2 - t1)
+        return 1.0
+
+    def tracked_columns(self, viewer: Any) -> np.ndarray:
+        """(V, tiles_x) bool: the tile columns of each view a tracked frame renders for ``viewer``
+        (before the round-robin refresh)."""
+        from ..display.eyes import view_columns
+
+        c = self.config
+        cols = view_columns(self.calibration, viewer, self.cameras.width, n_views=len(self.cameras),
+                            mode="blend" if c.blend else "nearest", sigma_views=c.sigma_views,
+                            threshold=c.threshold, motion_m=c.motion_m, motion_distance_m=c.motion_distance_m)
+        pad = np.zeros((cols.shape[0], self.tiles_x * self.tile), dtype=bool)
+        pad[:, :cols.shape[1]] = cols
+        return pad.reshape(cols.shape[0], self.tiles_x, self.tile).any(axis=2)
+
+    def _tracked(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
+        from ..display.quilt import tile_slices, to_uint8
+        from ..render import fast
+
+        t = time.perf_counter()
+        colmask = self.tracked_columns(viewer)
+        n_cols = colmask.size
+        r = int(self.config.refresh_columns)
+        if r:  # round-robin refresh of everything else
+            nxt = (self._rr + np.arange(min(r, n_cols))) % n_cols
+            colmask.reshape(-1)[nxt] = True
+            self._rr = int((self._rr + r) % n_cols)
+        tile_mask = np.repeat(colmask[:, None, :], self.tiles_y, axis=1)
+        t1 = time.perf_counter()
+        fast.render(gaussians, self.cameras, self.config.render, tile_mask=tile_mask, out=self.views)
+        t2 = time.perf_counter()
+        Hq, Wq, _ = self.quilt_shape
+        W = self.cameras.width
+        for k in np.flatnonzero(colmask.any(axis=1)):
+            rs, cs = tile_slices(Hq, Wq, self.calibration.cols, self.calibration.rows, int(k))
+            on = np.concatenate(([False], colmask[k], [False]))
+            starts = np.flatnonzero(on[1:] & ~on[:-1])
+            ends = np.flatnonzero(~on[1:] & on[:-1])
+            for a, b in zip(starts * self.tile, np.minimum(ends * self.tile, W)):
+                to_uint8(self.views[k, :, a:b], out=self.quilt[rs, cs.start + a:cs.start + b])
+        t3 = time.perf_counter()
+        subs = self.interleaver.readers(colmask, block=self.tile)
+        self.interleaver.update(self.quilt, self.native, subs)
+        t4 = time.perf_counter()
+        timings.update(select=t1 - t, render=t2 - t1, quilt=t3 - t2, interleave=t4 - t3)
+        return float(colmask.mean())
+
+
+    def _eye_centred(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
+        from ..display import eyes
+        from ..display.quilt import to_uint8
+        from ..render import fast
+
+        t = time.perf_counter()
+        if self._zeta is None:
+            from ..display.device import view_gather_indices
+            from ..display.simulate import VirtualDisplay
+
+            V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
+            vd = VirtualDisplay(self.calibration, n_views=V, sigma_views=self.config.sigma_views)
+            self._zeta = vd.zeta.astype(np.float32)
+            idx0 = view_gather_indices(self.interleaver, V, H, W)[0]
+            self._texel = (idx0 % (H * W * 3)).astype(np.int32)
+        cams = eyes.eye_cameras(self.cameras, self.calibration, viewer)
+        t1 = time.perf_counter()
+        imgs = fast.render(gaussians, cams, self.config.render).images
+        t2 = time.perf_counter()
+        c = self.config
+        reach = c.sigma_views * math.sqrt(2.0 * math.log(1.0 / c.threshold))
+        t_eyes = eyes.eye_view_coordinates(self.calibration, viewer, len(self.cameras))
+        n = eyes.scatter_eye_images(self.native, self._zeta, t_eyes, self._texel, to_uint8(imgs),
+                                    len(self.cameras), reach)
+        t3 = time.perf_counter()
+        timings.update(select=t1 - t, render=t2 - t1, interleave=t3 - t2)
+        return len(cams) / len(self.cameras)
+
+
+_CACHE: dict[Any, LiveRenderer] = {}
+
+
+def render_native(gaussians: Any, cameras: Cameras, calibration: Any, viewer: Any = None, mode: Mode = "auto",
+                  config: LiveConfig | None = None) -> LiveFrame:
+    """One native frame; the mode chooser for the pipeline and the live loop.
+
+    ``tracked`` while a viewer is given (a face is tracked), ``all_views`` otherwise (``mode="auto"``).
+    Keeps one :class:`LiveRenderer` per (calibration, cameras, config) between calls, so a tracked
+    frame reuses the previous frames' views; hold your own ``LiveRenderer`` to control that state.
+
+    Parameters
+    ----------
+    gaussians : Gaussians
+    cameras : Cameras
+        Quilt cameras.
+    calibration : DisplayCalibration
+    viewer : TrackedViewer or None
+    mode : {"auto", "tracked", "all_views", "full_quilt"}
+    config : LiveConfig, optional
+
+    Returns
+    -------
+    LiveFrame
+    """
+    config = config or LiveConfig()
+    key = (id(calibration), cameras.width, cameras.height, np.asarray(cameras.world_to_cam).tobytes(),
+           np.asarray(cameras.K).tobytes(), config)
+    renderer = _CACHE.get(key)
+    if renderer is None or renderer.calibration is not calibration:
+        _CACHE.clear()  # one live state at a time (each holds ~200 MB of views and quilt)
+        renderer = _CACHE[key] = LiveRenderer(calibration, cameras, config)
+    return renderer.frame(gaussians, viewer, mode)
