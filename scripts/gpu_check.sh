@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# What a lent GPU machine runs (NVIDIA, CUDA; see docs/renderer.md "On a GPU"): the CUDA tests and the
+# GPU benchmarks. That machine has its own Python with torch + CUDA and no registry access, so the few
+# packages it lacks travel as wheels in .whl/ (gsplat 1.5.3, plyfile, trimesh, pyusb, libusb-package;
+# `pip download --no-deps --only-binary=:all: --python-version 3.12 ...`), and the C++ extension is
+# built there in place. Results go to $OUT (or bench/results/gpu when OUT is unset).
+set -uo pipefail
+cd "$(dirname "$0")/.."
+out="${OUT:-bench/results/gpu}"
+mkdir -p "$out"
+if [ -d .whl ]; then
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
+    || { echo "gpu_check: wheel install failed" >&2; exit 1; }
+  export PYTHONPATH=/tmp/site:$PWD
+else
+  export PYTHONPATH=$PWD
+fi
+export PYTHONUNBUFFERED=1
+nvidia-smi -L
+python3 setup.py -q build_ext --inplace 2>&1 | tail -n 3
+python3 - <<'PY'
+import time
+t = time.perf_counter()
+from holo_viewer.render import gsplat_backend
+print("gsplat available:", gsplat_backend.is_available(), f"({time.perf_counter() - t:.1f} s incl. its CUDA build)")
+PY
+python3 -m pytest -q -p no:cacheprovider tests/test_render_torch.py tests/test_flame_model.py tests/test_live_frame.py \
+  -k "cuda or gsplat or device" 2>&1 | tee "$out/gpu_tests.log" | tail -n 15
+python3 bench/render_gpu.py --json "$out/render_gpu.json" 2>&1 | tail -n 12
+python3 bench/live_frame.py --quick --device cuda --json "$out/live_frame_gpu.json" 2>&1 | tail -n 25
