@@ -221,6 +221,30 @@ def main(argv: list[str] | None = None) -> int:
                                 "seconds_per_frame": s, "best_seconds": float(min(secs)), "psnr_db": p,
                                 "frames_per_second": 1.0 / s})
                 print(f"all_views GPU  {s * 1000:.1f} ms/frame ({1 / s:.0f} fps)  native {p:.1f} dB", flush=True)
+                try:
+                    # the same frames with the Gaussians already on the GPU (what a frame costs when the
+                    # deformation runs there too: the host -> device upload of ~24 MB of Gaussians is gone;
+                    # the deformation itself is not in this number)
+                    resident = [g.torch(device="cuda") for g in frames]
+                    torch.cuda.synchronize()
+                    t_up = time.perf_counter()
+                    frames[1].torch(device="cuda")
+                    torch.cuda.synchronize()
+                    upload_s = time.perf_counter() - t_up
+                    live.frame(resident[0], mode="all_views")
+                    secs, natives, cpu = run_mode(live, resident[1:], "all_views")
+                    p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
+                    s = float(np.median(secs))
+                    records.append({"mode": "all_views", "backend": "gsplat", "gaussians_on_device": True,
+                                    "device": torch.cuda.get_device_name(0), "seconds_per_frame": s,
+                                    "best_seconds": float(min(secs)), "psnr_db": p, "frames_per_second": 1.0 / s,
+                                    "upload_seconds": upload_s})
+                    print(f"all_views GPU, Gaussians on the GPU  {s * 1000:.1f} ms/frame ({1 / s:.0f} fps)  "
+                          f"native {p:.1f} dB  (their upload: {upload_s * 1000:.1f} ms)", flush=True)
+                except (HoloViewerError, RuntimeError, TypeError) as exc:  # a GPU-only path: say why, keep the rest
+                    records.append({"mode": "all_views", "backend": "gsplat", "gaussians_on_device": True,
+                                    "skipped": f"{type(exc).__name__}: {exc}"})
+                    print(f"GPU-resident run skipped: {exc}", flush=True)
             except (HoloViewerError, ImportError) as exc:
                 records.append({"mode": "all_views", "backend": "gsplat", "skipped": str(exc)})
                 print(f"GPU skipped: {exc}", flush=True)
