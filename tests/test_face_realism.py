@@ -19,8 +19,10 @@ from bench.face_realism import (  # noqa: E402
     face_measures,
     inter_ocular,
     masked_psnr,
+    median_measures,
     monotone,
     nearest_views,
+    view_window,
 )
 
 
@@ -114,6 +116,16 @@ def test_monotone_psnr_and_view_choice():
     idx = nearest_views(angles, (-20.0, -15.0, 15.0, 20.0))
     assert idx == [0, 6, 41, 47]
     assert abs(angles[idx[1]] + 15) < 0.5
+    w = view_window(angles, 0.0, 2.0)
+    assert w == [22, 23, 24, 25] and np.all(np.abs(angles[w]) <= 2.0)
+    assert view_window(angles, 0.0, 0.01) == [23]  # nothing within 0.01 deg: the nearest view
+
+
+def test_median_measures_skips_views_without_a_face():
+    a, b, c = (face_measures(synthetic_face(aperture=x)) for x in (6.0, 12.0, 30.0))
+    med = median_measures([a, None, c, b])
+    assert med["eye_aperture"] == pytest.approx(12 / 60)
+    assert median_measures([None, None]) is None
 
 
 have_dlib = importlib.util.find_spec("dlib") is not None and importlib.util.find_spec("face_recognition_models") is not None
