@@ -1,0 +1,538 @@
+"""Face realism of the default avatar, measured by an independent landmark detector (issue 17).
+
+The detector is dlib's HOG face detector and 68-point shape predictor (iBUG 300-W layout),
+trained on real photographs (packages ``dlib-bin`` and ``face_recognition_models``, the
+``realism`` extra). It measures, on renders of the default avatar:
+
+* ``found``: in how many of the 48 quilt views (Gaussians) a face is detected, per expression;
+* landmark ratios against neutral (same renderer), each measure the median over the quilt views
+  within 2 degrees of 0, -15 and +15 degrees (:func:`view_window`): eye aperture, brow-to-eye gap
+  and nose-to-lip gap at pain 1.0, mouth width for a smile (definitions in
+  :func:`face_measures` and docs/face_realism.md);
+* monotonicity of every measure as pain goes 0 -> 0.25 -> 0.5 -> 1 (same three windows);
+* fidelity: PSNR of the Gaussian view against the mesh render with the *same* quilt camera
+  (VTK, exact intrinsics including the off-axis principal point, :func:`render_mesh_cameras`)
+  over the mesh's mask, at the views nearest to 0 and +-20 degrees.
+
+Renderers: ``gaussians`` = ``Pipeline.views()`` (the quilt's 48 views, 420x560); ``mesh`` =
+the posed FLAME mesh from the same ``Pipeline.mesh()``, region colours and lights of
+``flame.preview`` (the "textured" head of ``make demo``'s ``out/head``), through the quilt
+cameras; ``mesh_preview_front`` = ``flame.preview.render_mesh`` at 400x480 framed exactly as
+``out/head/*_front.png`` (the renders the issue's numbers came from), turned by the front
+window's camera angles.
+
+Expressions (``FaceControls``): neutral; smile = named ``smile`` 1.0; pain 0.25 / 0.5 / 1.0 =
+``pain``; mouth open = named ``mouth_open`` 1.0 (the intensities of ``flame.preview.HEAD_POSES``).
+
+Usage::
+
+    python bench/face_realism.py [--json bench/results/face_realism.json] [--images DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from holo_viewer.errors import MissingDependencyError  # noqa: E402
+
+PREDICTOR = "shape_predictor_68_face_landmarks.dat"
+
+#: 68-point (iBUG 300-W, 0-based) index groups; "right" = the subject's right (image left)
+RIGHT_EYE = list(range(36, 42))
+LEFT_EYE = list(range(42, 48))
+RIGHT_BROW = list(range(17, 22))
+LEFT_BROW = list(range(22, 27))
+#: (upper, lower) lid landmark pairs whose distances make the eye aperture
+EYE_LID_PAIRS = ((37, 41), (38, 40), (43, 47), (44, 46))
+#: upper-lid landmarks under each brow
+RIGHT_UPPER_LID = [37, 38]
+LEFT_UPPER_LID = [43, 44]
+SUBNASALE = 33  # nose base, centre
+UPPER_LIP_TOP = 51  # upper lip outer contour, centre
+MOUTH_CORNERS = (48, 54)
+
+MEASURES = ("eye_aperture", "brow_eye_gap", "nose_lip_gap", "mouth_width")
+
+#: the issue's targets: (measure, expression, comparison, threshold) on ratio to neutral
+TARGETS = (
+    ("eye_aperture", "pain_1", "<=", 0.6),
+    ("brow_eye_gap", "pain_1", "<=", 0.85),
+    ("nose_lip_gap", "pain_1", "<=", 0.85),
+    ("mouth_width", "smile", ">=", 1.1),
+)
+FOUND_TARGET = 46  # of 48 views
+PSNR_TARGET_DB = 30.0
+PAIN_LEVELS = (0.0, 0.25, 0.5, 1.0)
+LANDMARK_ANGLES = (0.0, -15.0, 15.0)
+#: landmark measures are medians over the views within this many degrees of each angle (the
+#: predictor's landmarks jitter by several percent between neighbouring views 0.85 deg apart)
+WINDOW_DEG = 2.0
+FIDELITY_ANGLES = (0.0, -20.0, 20.0)
+
+
+# =============================================================================== measures (pure)
+
+
+def inter_ocular(lm: np.ndarray) -> float:
+    """Distance between the eye centres (means of landmarks 36-41 and 42-47), pixels. ``lm`` (68, 2)."""
+    lm = np.asarray(lm, dtype=np.float64)
+    return float(np.linalg.norm(lm[RIGHT_EYE].mean(0) - lm[LEFT_EYE].mean(0)))
+
+
+def face_measures(lm: np.ndarray) -> dict[str, float]:
+    """The four landmark measures of one face, each divided by the inter-ocular distance.
+
+    Parameters
+    ----------
+    lm : numpy.ndarray
+        (68, 2) landmark pixel coordinates, iBUG 300-W order.
+
+    Returns
+    -------
+    dict
+        ``eye_aperture``: mean of the four upper-to-lower lid distances |37-41|, |38-40|,
+        |43-47|, |44-46|; ``brow_eye_gap``: mean over both sides of the distance from the brow
+        centroid (17-21, 22-26) to the centroid of the upper-lid points below it (37-38,
+        43-44); ``nose_lip_gap``: |33-51| (subnasale to the top of the upper lip);
+        ``mouth_width``: |48-54| (mouth corners); all over :func:`inter_ocular`.
+    """
+    lm = np.asarray(lm, dtype=np.float64)
+    if lm.shape != (68, 2) or not np.all(np.isfinite(lm)):
+        raise ValueError(f"landmarks: expected finite (68, 2), found {lm.shape}")
+    iod = inter_ocular(lm)
+    if iod <= 0:
+        raise ValueError("landmarks: the two eye centres coincide")
+
+    def d(a: Any, b: Any) -> float:
+        return float(np.linalg.norm(np.atleast_2d(lm[a]).mean(0) - np.atleast_2d(lm[b]).mean(0)))
+
+    return {
+        "eye_aperture": float(np.mean([d(a, b) for a, b in EYE_LID_PAIRS])) / iod,
+        "brow_eye_gap": 0.5 * (d(RIGHT_BROW, RIGHT_UPPER_LID) + d(LEFT_BROW, LEFT_UPPER_LID)) / iod,
+        "nose_lip_gap": d(SUBNASALE, UPPER_LIP_TOP) / iod,
+        "mouth_width": d(MOUTH_CORNERS[0], MOUTH_CORNERS[1]) / iod,
+    }
+
+
+def monotone(values: Sequence[float], direction: int = 0) -> bool:
+    """True when consecutive differences all have one sign (``direction`` -1 / +1 forces it; 0 either)."""
+    diff = np.diff(np.asarray(values, dtype=np.float64))
+    if not np.all(np.isfinite(diff)):
+        return False
+    if direction < 0:
+        return bool(np.all(diff <= 0))
+    if direction > 0:
+        return bool(np.all(diff >= 0))
+    return bool(np.all(diff <= 0) or np.all(diff >= 0))
+
+
+def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
+    """PSNR (dB, peak 1) of two (H, W, 3) images in [0, 1] over the pixels where ``mask`` (H, W) is true."""
+    m = np.asarray(mask, dtype=bool)
+    if not m.any():
+        raise ValueError("mask: no pixel selected")
+    diff = np.asarray(a, np.float64)[m] - np.asarray(b, np.float64)[m]
+    mse = float(np.mean(diff * diff))
+    return float("inf") if mse == 0 else float(10.0 * np.log10(1.0 / mse))
+
+
+def nearest_views(angles: np.ndarray, targets: Sequence[float]) -> list[int]:
+    """Index of the view whose angle (degrees) is nearest to each target (first on ties)."""
+    a = np.asarray(angles, dtype=np.float64)
+    return [int(np.argmin(np.abs(a - t))) for t in targets]
+
+
+# =============================================================================== detector
+
+
+def predictor_path() -> Path:
+    """The 68-point model inside ``face_recognition_models``, found without importing the package
+    (its ``__init__`` needs ``pkg_resources``)."""
+    spec = importlib.util.find_spec("face_recognition_models")
+    if spec is None or not spec.submodule_search_locations:
+        raise MissingDependencyError("face_recognition_models", "the face realism measurement", extra="realism")
+    for loc in spec.submodule_search_locations:
+        p = Path(loc) / "models" / PREDICTOR
+        if p.is_file():
+            return p
+    raise MissingDependencyError("face_recognition_models (models/" + PREDICTOR + ")",
+                                 "the face realism measurement", extra="realism")
+
+
+class Detector:
+    """dlib HOG face detector (1x upsampling) + 68-point shape predictor on RGB images."""
+
+    def __init__(self, upsample: int = 1) -> None:
+        try:
+            import dlib
+        except ImportError as exc:
+            raise MissingDependencyError("dlib-bin", "the face realism measurement", extra="realism") from exc
+        self._det = dlib.get_frontal_face_detector()
+        self._sp = dlib.shape_predictor(str(predictor_path()))
+        self._rect = dlib.rectangle
+        self.upsample = int(upsample)
+
+    def __call__(self, image: np.ndarray) -> tuple[np.ndarray, float] | None:
+        """(68, 2) landmarks and HOG score of the highest-scoring face in ``image`` (H, W, 3), or None."""
+        img = np.asarray(image)
+        if img.dtype != np.uint8:
+            img = (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+        img = np.ascontiguousarray(img[..., :3])
+        rects, scores, _ = self._det.run(img, self.upsample, 0.0)
+        if not rects:
+            return None
+        k = int(np.argmax(scores))
+        shape = self._sp(img, rects[k])
+        lm = np.array([(shape.part(i).x, shape.part(i).y) for i in range(68)], dtype=np.float64)
+        return lm, float(scores[k])
+
+
+# =============================================================================== mesh renders
+
+
+def camera_angles(cameras: Any, focal_center: np.ndarray) -> np.ndarray:
+    """(V,) horizontal angle (degrees, + toward world +x) of each camera centre seen from the focal centre."""
+    R, t = cameras.world_to_cam[:, :3, :3], cameras.world_to_cam[:, :3, 3]
+    centres = -np.einsum("vji,vj->vi", R, t)
+    rel = centres - np.asarray(focal_center)[None]
+    return np.degrees(np.arctan2(rel[:, 0], rel[:, 2]))
+
+
+def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray, cameras: Any,
+                        indices: Sequence[int], focal_distance: float,
+                        background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Render a vertex-coloured mesh through quilt cameras with their exact OpenCV intrinsics (VTK).
+
+    Lighting, material and normals are those of :func:`holo_viewer.flame.preview.render_mesh`;
+    the camera is the quilt camera: centre, orientation, vertical view angle ``2 atan(H / 2 fy)``
+    and the principal point (cx, cy) as VTK's window centre (off-axis frustum).
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        (N, H, W, 3) float32 images in [0, 1] and (N, H, W) bool masks (depth < far).
+    """
+    from holo_viewer.flame.preview import _import_vtk
+
+    vtk, nps = _import_vtk()
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    W, H = int(cameras.width), int(cameras.height)
+    pts = vtk.vtkPoints()
+    pts.SetData(nps.numpy_to_vtk(np.ascontiguousarray(v), deep=True))
+    polys = vtk.vtkCellArray()
+    polys.SetData(nps.numpy_to_vtkIdTypeArray(np.arange(0, 3 * len(f) + 1, 3, dtype=np.int64), deep=True),
+                  nps.numpy_to_vtkIdTypeArray(np.ascontiguousarray(f).ravel(), deep=True))
+    poly = vtk.vtkPolyData()
+    poly.SetPoints(pts)
+    poly.SetPolys(polys)
+    rgb = nps.numpy_to_vtk(np.ascontiguousarray(np.clip(colors, 0, 1) * 255).astype(np.uint8), deep=True)
+    rgb.SetName("rgb")
+    poly.GetPointData().SetScalars(rgb)
+    normals = vtk.vtkPolyDataNormals()
+    normals.SetInputData(poly)
+    normals.SetFeatureAngle(60.0)
+    normals.SplittingOff()
+    normals.ConsistencyOff()
+    normals.AutoOrientNormalsOff()
+    mapper = vtk.vtkPolyDataMapper()
+    mapper.SetInputConnection(normals.GetOutputPort())
+    mapper.SetColorModeToDirectScalars()
+    actor = vtk.vtkActor()
+    actor.SetMapper(mapper)
+    prop = actor.GetProperty()
+    prop.SetInterpolationToPhong()
+    prop.SetAmbient(0.25)
+    prop.SetDiffuse(0.8)
+    prop.SetSpecular(0.12)
+    prop.SetSpecularPower(20)
+    ren = vtk.vtkRenderer()
+    ren.AddActor(actor)
+    ren.SetBackground(*background)
+    ren.AutomaticLightCreationOff()
+    win = vtk.vtkRenderWindow()
+    win.SetOffScreenRendering(1)
+    win.SetSize(W, H)
+    win.AddRenderer(ren)
+    images, masks = [], []
+    try:
+        for i in indices:
+            R, t, K = cameras.world_to_cam[i, :3, :3], cameras.world_to_cam[i, :3, 3], cameras.K[i]
+            C = -R.T @ t
+            fwd, up = R[2], -R[1]  # OpenCV +z forward, +y down
+            centre = C + focal_distance * fwd
+            cam = ren.GetActiveCamera()
+            cam.SetPosition(*C)
+            cam.SetFocalPoint(*centre)
+            cam.SetViewUp(*up)
+            cam.SetViewAngle(float(np.degrees(2 * np.arctan(0.5 * H / K[1, 1]))))
+            cam.SetWindowCenter(float(1 - 2 * K[0, 2] / W), float(2 * K[1, 2] / H - 1))  # optical axis at (cx, cy)
+            cam.SetClippingRange(cameras.near, cameras.far)
+            ren.RemoveAllLights()
+            d = -fwd
+            right = np.cross(d, up)
+            right /= np.linalg.norm(right)
+            for offset, intensity in ((0.6 * up + 0.5 * right, 0.75), (-0.4 * right + 0.1 * up, 0.35),
+                                      (np.zeros(3), 0.25)):
+                light = vtk.vtkLight()
+                light.SetLightTypeToSceneLight()
+                light.SetPosition(*(centre + focal_distance * (d + offset)))
+                light.SetFocalPoint(*centre)
+                light.SetIntensity(intensity)
+                ren.AddLight(light)
+            win.Render()
+            out = []
+            for kind in ("rgb", "z"):
+                grab = vtk.vtkWindowToImageFilter()
+                grab.SetInput(win)
+                grab.SetInputBufferTypeToRGB() if kind == "rgb" else grab.SetInputBufferTypeToZBuffer()
+                grab.ReadFrontBufferOff()
+                grab.Update()
+                arr = nps.vtk_to_numpy(grab.GetOutput().GetPointData().GetScalars())
+                out.append(np.ascontiguousarray(arr.reshape(H, W, -1)[::-1]))
+            images.append(out[0].astype(np.float32) / 255.0)
+            masks.append(out[1][..., 0] < 1.0)
+    finally:
+        win.Finalize()
+    return np.stack(images), np.stack(masks)
+
+
+def mesh_colors(model: Any) -> np.ndarray:
+    """Per-vertex region colours of the default head, smoothed once (as ``write_head_renders``)."""
+    from holo_viewer.flame.preview import region_colors, smooth_vertex_colors
+
+    meta = getattr(model, "metadata", {}) or {}
+    faces = model.faces.cpu().numpy()
+    c = region_colors(meta["vertex_region"], [str(s) for s in meta["region_names"]], int(model.n_vertices))
+    return smooth_vertex_colors(c, faces, 1)
+
+
+# =============================================================================== bench
+
+
+def expressions() -> dict[str, Any]:
+    from holo_viewer.pipeline import FaceControls
+
+    out = {"neutral": FaceControls(), "smile": FaceControls(named=(("smile", 1.0),))}
+    for p in PAIN_LEVELS[1:]:
+        out[f"pain_{p:g}".replace(".", "")] = FaceControls(pain=p)
+    out["mouth_open"] = FaceControls(named=(("mouth_open", 1.0),))
+    return out
+
+
+def _draw(image: np.ndarray, lm: np.ndarray | None) -> np.ndarray:
+    """``image`` (H, W, 3) float with the 68 landmarks ``lm`` (68, 2) drawn as dots (eyes green,
+    brows yellow, the rest red); unchanged when None."""
+    if lm is None:
+        return image
+    from PIL import Image, ImageDraw
+
+    im = Image.fromarray((np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8))
+    dr = ImageDraw.Draw(im)
+    for k, (x, y) in enumerate(lm):
+        c = (0, 255, 0) if 36 <= k < 48 else (255, 255, 0) if 17 <= k < 27 else (255, 0, 0)
+        dr.ellipse([x - 1.5, y - 1.5, x + 1.5, y + 1.5], fill=c)
+    return np.asarray(im)
+
+
+def _ratio(a: dict | None, b: dict | None, key: str) -> float | None:
+    if a is None or b is None:
+        return None
+    return a[key] / b[key]
+
+
+def view_window(angles: np.ndarray, target: float, half_width: float = WINDOW_DEG) -> list[int]:
+    """Views whose angle (degrees) lies within ``half_width`` of ``target``; the nearest one if none does."""
+    a = np.asarray(angles, dtype=np.float64)
+    idx = np.nonzero(np.abs(a - target) <= half_width)[0]
+    return [int(i) for i in idx] if len(idx) else nearest_views(a, [target])
+
+
+def median_measures(per_view: Sequence[dict | None]) -> dict[str, float] | None:
+    """Per-measure median over the views where a face was found (None when in none)."""
+    got = [m for m in per_view if m is not None]
+    if not got:
+        return None
+    return {k: float(np.median([m[k] for m in got])) for k in MEASURES}
+
+
+def run(images_dir: Path | None = None) -> dict[str, Any]:
+    from holo_viewer.fileio import save_image
+    from holo_viewer.flame.preview import render_mesh
+    from holo_viewer.pipeline import Pipeline
+
+    det = Detector()
+    load_before = os.getloadavg()[0]
+    t_start = time.perf_counter()
+    pipe = Pipeline()
+    model = pipe.model
+    faces = model.faces.cpu().numpy()
+    colors = mesh_colors(model)
+    cams = pipe.cameras()
+    (framing,), _ = pipe.compute("framing")
+    centre = np.asarray(framing[0])
+    angles = camera_angles(cams, centre)
+    R0, t0 = cams.world_to_cam[0, :3, :3], cams.world_to_cam[0, :3, 3]
+    focal_distance = float(abs((-R0.T @ t0 - centre)[2]))
+    windows = {f"{t:+g} deg": view_window(angles, t) for t in LANDMARK_ANGLES}
+    lm_views = sorted({i for w in windows.values() for i in w})
+    fid_views = nearest_views(angles, FIDELITY_ANGLES)
+    mesh_views = sorted(set(lm_views) | set(fid_views))
+    preview_yaws = [float(angles[i]) for i in windows[f"{LANDMARK_ANGLES[0]:+g} deg"]]
+
+    per: dict[str, Any] = {}
+    for name, face in expressions().items():
+        pipe.set_face(face)
+        views = pipe.views()
+        verts = pipe.mesh()
+        found, scores, meas, marks = 0, [], {}, {}
+        for i in range(len(cams)):
+            r = det(views[i])
+            if r is not None:
+                found += 1
+                scores.append(r[1])
+                if i in lm_views:
+                    meas[i] = face_measures(r[0])
+                    marks[("g", i)] = r[0]
+        mimg, mmask = render_mesh_cameras(verts, faces, colors, cams, mesh_views, focal_distance)
+        mesh_meas = {}
+        for k, i in enumerate(mesh_views):
+            r = det(mimg[k])
+            mesh_meas[i] = None if r is None else face_measures(r[0])
+            if r is not None:
+                marks[("m", i)] = r[0]
+        psnr = {int(i): masked_psnr(views[i], mimg[mesh_views.index(i)], mmask[mesh_views.index(i)])
+                for i in fid_views}
+        # the out/head front framing (flame.preview.write_head_renders), same posed vertices, turned by
+        # the front window's camera angles
+        lo, hi = verts.min(0), verts.max(0)
+        prevs = render_mesh(verts, faces, views=[(y, 0.0) for y in preview_yaws], size=(400, 480), colors=colors,
+                            target=0.5 * (lo + hi), distance=0.95)
+        prev_det = [det(im) for im in prevs]
+        prev_meas = [None if r is None else face_measures(r[0]) for r in prev_det]
+        entry: dict[str, Any] = {"found": found, "score_median": float(np.median(scores)) if scores else None}
+        for renderer, table in (("gaussians", meas), ("mesh", mesh_meas)):
+            entry[renderer] = {label: {"views": w, "per_view": {int(i): table.get(i) for i in w},
+                                       "median": median_measures([table.get(i) for i in w])}
+                               for label, w in windows.items()}
+        entry["mesh_preview_front"] = {"yaw_deg": preview_yaws, "per_view": prev_meas,
+                                       "median": median_measures(prev_meas)}
+        entry["psnr_db"] = psnr
+        per[name] = entry
+        if images_dir is not None:
+            images_dir.mkdir(parents=True, exist_ok=True)
+            for i in mesh_views:
+                k = mesh_views.index(i)
+                pair = np.concatenate([_draw(views[i], marks.get(("g", i))), _draw(mimg[k], marks.get(("m", i)))],
+                                      axis=1)
+                save_image(images_dir / f"{name}_view{i:02d}_gauss_mesh.png", pair)
+            mid = len(prevs) // 2
+            r = prev_det[mid]
+            save_image(images_dir / f"{name}_preview_yaw{preview_yaws[mid]:+.1f}.png",
+                       _draw(prevs[mid], None if r is None else r[0]))
+        print(f"  {name}: found {found}/48, PSNR " + ", ".join(f"v{i} {p:.1f}" for i, p in psnr.items()),
+              flush=True)
+    seconds = time.perf_counter() - t_start
+    return {"per_expression": per, "angles": angles, "windows": windows, "fid_views": fid_views,
+            "preview_yaws": preview_yaws, "seconds": seconds, "load_before": load_before,
+            "load_after": os.getloadavg()[0], "n_gaussians": len(pipe.avatar), "tile": [cams.width, cams.height]}
+
+
+def evaluate(res: dict[str, Any]) -> list[dict[str, Any]]:
+    """Rows (measure, renderer, view, value, target, pass) from :func:`run`'s result."""
+    per, angles = res["per_expression"], res["angles"]
+    rows: list[dict[str, Any]] = []
+    for name, e in per.items():
+        if name in ("neutral", "smile", "pain_1", "mouth_open"):
+            rows.append({"measure": "faces_found", "renderer": "gaussians", "expression": name, "view": "all 48",
+                         "value": e["found"], "target": f">= {FOUND_TARGET}", "pass": e["found"] >= FOUND_TARGET})
+    sources = [(r, label) for r in ("gaussians", "mesh") for label in res["windows"]] + \
+              [("mesh_preview_front", None)]
+    for renderer, label in sources:
+        def m(expr: str) -> dict | None:
+            e = per[expr][renderer]
+            return (e if label is None else e[label])["median"]
+        if label is None:
+            view = f"front, yaw {min(res['preview_yaws']):+.1f}..{max(res['preview_yaws']):+.1f}"
+        else:
+            w = res["windows"][label]
+            view = f"{label} (v{w[0]}-{w[-1]})"
+        for measure, expr, op, thr in TARGETS:
+            v = _ratio(m(expr), m("neutral"), measure)
+            ok = v is not None and (v <= thr if op == "<=" else v >= thr)
+            rows.append({"measure": f"{measure} ratio", "renderer": renderer, "expression": expr, "view": view,
+                         "value": v, "target": f"{op} {thr}", "pass": bool(ok)})
+        for measure in MEASURES:
+            seq = [m(n) for n in ("neutral", "pain_025", "pain_05", "pain_1")]
+            vals = [None if s is None else s[measure] for s in seq]
+            direction = 0 if measure == "mouth_width" else -1
+            ok = all(x is not None for x in vals) and monotone(vals, direction)
+            rows.append({"measure": f"{measure} monotone over pain", "renderer": renderer, "expression": "pain",
+                         "view": view, "value": vals, "target": "non-increasing" if direction < 0 else "monotone",
+                         "pass": bool(ok)})
+    for name in ("neutral", "smile", "pain_1", "mouth_open"):
+        for i, p in per[name]["psnr_db"].items():
+            rows.append({"measure": "PSNR gaussians vs mesh (mask)", "renderer": "both", "expression": name,
+                         "view": f"v{i} ({angles[i]:+.1f} deg)", "value": p, "target": f">= {PSNR_TARGET_DB}",
+                         "pass": p >= PSNR_TARGET_DB})
+    return rows
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "no face"
+    if isinstance(v, list):
+        return " > ".join("-" if x is None else f"{x:.3f}" for x in v)
+    if isinstance(v, float):
+        return f"{v:.3f}"
+    return str(v)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "face_realism.json"))
+    ap.add_argument("--images", default=None, help="write the measured views (Gaussians | mesh) here")
+    args = ap.parse_args(argv)
+    res = run(Path(args.images) if args.images else None)
+    rows = evaluate(res)
+    print(f"\n{'measure':<32} {'renderer':<19} {'expr':<10} {'view':<24} {'value':<34} {'target':<15} pass")
+    for r in rows:
+        print(f"{r['measure']:<32} {r['renderer']:<19} {r['expression']:<10} {r['view']:<24} "
+              f"{_fmt(r['value']):<34} {r['target']:<15} {'PASS' if r['pass'] else 'fail'}")
+    n_pass = sum(r["pass"] for r in rows)
+    print(f"\n{n_pass}/{len(rows)} pass; {res['seconds']:.0f} s, load {res['load_before']:.1f} -> {res['load_after']:.1f}")
+    from holo_viewer.fileio import atomic_write
+
+    record = {
+        "config": {"expressions": {"smile": 1.0, "pain": list(PAIN_LEVELS), "mouth_open": 1.0},
+                   "n_gaussians": res["n_gaussians"], "tile": res["tile"],
+                   "landmark_windows": {label: {int(i): float(res["angles"][i]) for i in w}
+                                        for label, w in res["windows"].items()},
+                   "window_half_width_deg": WINDOW_DEG, "preview_yaws_deg": res["preview_yaws"],
+                   "fidelity_views": {int(i): float(res["angles"][i]) for i in res["fid_views"]},
+                   "detector": "dlib HOG (upsample 1) + shape_predictor_68_face_landmarks",
+                   "host": platform.node(), "seconds": res["seconds"],
+                   "load_1min": [res["load_before"], res["load_after"]]},
+        "rows": rows, "passed": n_pass, "total": len(rows),
+        "raw": res["per_expression"],
+    }
+    with atomic_write(args.json, "w") as fh:
+        json.dump(record, fh, indent=1)
+    print(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
