@@ -133,3 +133,23 @@ def test_read_npz_and_npy_errors_name_the_file(tmp_path):
     (tmp_path / "cut.npy").write_bytes((tmp_path / "x.npy").read_bytes()[:-8])
     with pytest.raises(HoloViewerError, match="cut.npy: cannot read"):
         read_npy(tmp_path / "cut.npy")
+
+
+def test_one_uint8_converter_refuses_nan_and_inf():
+    """holo_viewer.images.to_uint8 is the only float -> uint8 conversion; NaN/inf raise ExportError."""
+    from holo_viewer.display import quilt
+    from holo_viewer.display.quilt import tile_quilt
+    from holo_viewer.images import to_uint8
+
+    assert quilt.to_uint8 is to_uint8
+    a = np.array([[0.0, 0.5 / 255, 1.5 / 255, 1.0, 1.2, -0.1]], dtype=np.float32)
+    np.testing.assert_array_equal(to_uint8(a), [[0, 0, 2, 255, 255, 0]])  # half to even, clipped
+    for bad in (np.nan, np.inf, -np.inf):
+        b = a.copy()
+        b[0, 1] = bad
+        with pytest.raises(ExportError, match="views\\[1\\]: contains NaN/inf"):
+            tile_quilt(np.stack([a, b])[..., None].repeat(3, -1), 2, 1, as_uint8=True)
+        with pytest.raises(ExportError, match="image: contains NaN/inf"):
+            to_uint8(b)
+    with pytest.raises(ExportError, match="dtype int32"):
+        to_uint8(np.zeros(3, np.int32))
