@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .rotation import rodrigues, rodrigues_np
+from ..geometry import rodrigues, rodrigues_np
 
 __all__ = ["lbs", "lbs_reference_np", "pose_feature"]
 
