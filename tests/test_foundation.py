@@ -153,3 +153,29 @@ def test_one_uint8_converter_refuses_nan_and_inf():
             to_uint8(b)
     with pytest.raises(ExportError, match="dtype int32"):
         to_uint8(np.zeros(3, np.int32))
+
+
+def test_one_cache_dir_honours_holo_viewer_cache(tmp_path, monkeypatch):
+    """HOLO_VIEWER_CACHE, then XDG_CACHE_HOME/holo_viewer, then ~/.cache/holo_viewer, for every cached file."""
+    from pathlib import Path
+
+    import importlib
+
+    from holo_viewer.cache import cache_dir
+
+    dav = importlib.import_module("holo_viewer.avatar.default_avatar")  # the package attribute is the function
+    from holo_viewer.flame import default_head
+
+    monkeypatch.setenv("HOLO_VIEWER_CACHE", str(tmp_path / "hv"))
+    assert cache_dir() == tmp_path / "hv" and dav._cache_dir() == cache_dir()
+    monkeypatch.delenv("HOLO_VIEWER_CACHE")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_dir() == tmp_path / "xdg" / "holo_viewer"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    assert cache_dir() == Path.home() / ".cache" / "holo_viewer"
+    # the default head, rebuilt when the asset is missing, goes to the same folder
+    monkeypatch.setenv("HOLO_VIEWER_CACHE", str(tmp_path / "hv"))
+    (tmp_path / "hv").mkdir()
+    (tmp_path / "hv" / default_head.ASSET_NAME).write_bytes(b"placeholder")
+    monkeypatch.setattr(default_head, "_repo_asset", lambda: tmp_path / "no-such-asset" / default_head.ASSET_NAME)
+    assert default_head.default_head_path() == tmp_path / "hv" / default_head.ASSET_NAME

@@ -7,7 +7,7 @@ committed as ``assets/default_head.npz`` (compressed float32, written with fixed
 zip timestamps so a rebuild gives the same bytes); ``scripts/build_default_head.py``
 regenerates it and the tests check that a rebuild reproduces it. If the asset is
 missing (e.g. a stripped checkout), :func:`load_default_model` builds it and writes
-it there (or, if that folder is read-only, to ``~/.cache/holo_viewer``).
+it there (or, if that folder is read-only, to :func:`holo_viewer.cache.cache_dir`).
 
 Format: FLAME's keys ``v_template`` (V, 3), ``shapedirs`` (V, 3, n_shape + n_expr),
 ``posedirs`` (V, 3, 36), ``J_regressor`` (5, V), ``weights`` (V, 5),
@@ -148,7 +148,8 @@ def default_head_path(build_if_missing: bool = True) -> Path:
     ----------
     build_if_missing : bool
         Build and write the asset when it does not exist (to ``assets/`` or, if that
-        cannot be written, to ``$XDG_CACHE_HOME/holo_viewer`` / ``~/.cache/holo_viewer``).
+        cannot be written, to :func:`holo_viewer.cache.cache_dir`: ``$HOLO_VIEWER_CACHE``, else
+        ``$XDG_CACHE_HOME/holo_viewer``, else ``~/.cache/holo_viewer``).
 
     Returns
     -------
@@ -157,7 +158,9 @@ def default_head_path(build_if_missing: bool = True) -> Path:
     asset = _repo_asset()
     if asset.exists() or not build_if_missing:
         return asset
-    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "holo_viewer" / ASSET_NAME
+    from ..cache import cache_dir
+
+    cache = cache_dir() / ASSET_NAME
     if cache.exists():
         return cache
     arrays = build_default_head()
