@@ -214,7 +214,7 @@ class AUMap:
 
 
 def default_au_map(n_expr: int | None = None) -> AUMap:
-    """AU map of the embedded default head (expression order of ``head_blendshapes.EXPRESSION_NAMES``).
+    """AU map of the embedded default head (expression order of ``default_head.EXPRESSION_NAMES``).
 
     Parameters
     ----------
@@ -222,7 +222,7 @@ def default_au_map(n_expr: int | None = None) -> AUMap:
         Expression count of the loaded model (columns beyond the 24 named components are
         zero; a smaller count drops the components past it).
     """
-    from .head_blendshapes import EXPRESSION_NAMES
+    from .default_head import EXPRESSION_NAMES
 
     k = len(EXPRESSION_NAMES) if n_expr is None else int(n_expr)
     if k < 1:
@@ -248,7 +248,7 @@ def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None) -> AUMa
     if au_map_path is not None:
         return AUMap.load_json(au_map_path, n_expr=n_expr)
     if getattr(model, "is_default_head", False):
-        from .head_blendshapes import EXPRESSION_NAMES
+        from .default_head import EXPRESSION_NAMES
 
         names = model.expression_names
         if names is not None and list(names) != list(EXPRESSION_NAMES[:len(names)]):
