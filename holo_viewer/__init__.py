@@ -1,7 +1,7 @@
 """holo_viewer: talking-face Gaussian avatars as live holograms on Looking Glass displays.
 
 Importing the package is cheap: it loads no vtk, pyvista, open3d, usb or torch-heavy
-modules. Subpackages (data flow, DESIGN.md section 2):
+modules. Subpackages (data flow, docs/design.md section 2):
 
 ``flame``     FLAME head model (LBS), the embedded default head, expressions and pain
 ``avatar``    3D Gaussians, PLY I/O, triangle-bound (rigged) and blend-shape avatars

@@ -29,7 +29,7 @@ def mesh():
 
 
 def _pose(arrays, expr=None, jaw=None, neck=None, eyes=None):
-    """Our own float64 numpy LBS (DESIGN.md formula, lbs_reference_np) of the head arrays."""
+    """Our own float64 numpy LBS (docs/design.md formula, lbs_reference_np) of the head arrays."""
     ns, ne = int(arrays["n_shape"]), int(arrays["n_expr"])
     coeff = np.zeros(ns + ne)
     if expr is not None:

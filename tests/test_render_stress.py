@@ -1,4 +1,4 @@
-"""Numerical stress tests of the splat renderers (DESIGN.md "Known traps").
+"""Numerical stress tests of the splat renderers (docs/design.md "Known traps").
 
 In every survivable case the fast path agrees with the float64 reference within the
 tolerances of test_render_fast.py (PSNR >= 50 dB, max abs error <= 0.01 per view) and no

@@ -3,7 +3,7 @@
 GaussianAvatars (Qian et al. CVPR'24) stores a trained avatar as a 3DGS PLY whose
 means, rotations and log-scales are in the local frames of the FLAME triangles named by
 the float property ``binding_0``, and a FLAME parameter sequence ``flame_param.npz``
-with (DESIGN.md) ``shape`` (300,), ``expr`` (T, 100), ``rotation``, ``neck_pose``,
+with (docs/design.md) ``shape`` (300,), ``expr`` (T, 100), ``rotation``, ``neck_pose``,
 ``jaw_pose``, ``translation`` (T, 3), ``eyes_pose`` (T, 6), ``static_offset`` (1, V, 3)
 and optionally ``dynamic_offset`` (T, V, 3). Its FLAME mesh has teeth (5143 vertices,
 10144 faces): load your FLAME model with ``add_teeth=True``.

@@ -1,6 +1,6 @@
 """Quilts: V views tiled ``cols`` x ``rows`` into one image (pure array code).
 
-Convention (DESIGN.md section 3): view 0 = leftmost camera = bottom-left tile; views run left to
+Convention (docs/design.md section 3): view 0 = leftmost camera = bottom-left tile; views run left to
 right, then bottom to top; the last view is top-right. Arrays are (H, W, C) with row 0 at the top,
 so tile ``(c, r)`` (column c, row r counted from the bottom) of a quilt ``Hq x Wq`` with tiles
 ``th = Hq // rows``, ``tw = Wq // cols`` occupies rows ``[Hq - (r+1) th, Hq - r th)`` and columns

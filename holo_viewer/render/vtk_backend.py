@@ -4,7 +4,7 @@ A second, independent implementation of the 3DGS forward pass, done by OpenGL
 through VTK (>= 9.4), that needs no display: the render window is an offscreen
 OSMesa window (``VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow``) when no
 ``DISPLAY`` is in use. It is the slow baseline the fast CPU rasterizer is measured
-against (DESIGN.md, "What this machine can do").
+against (docs/design.md, "What this machine can do").
 
 How the 3DGS pass maps onto VTK (and where it differs from the float64 reference)
 ---------------------------------------------------------------------------------
