@@ -19,11 +19,15 @@ from ..flame.params import FRAME_KEYS, FlameParams, check_expr, check_jaw_pose
 from ..validation import check_array, check_finite_scalar
 from .stages import StageTimings
 
-__all__ = ["FLAME_KEYS", "FaceControls", "ViewSettings", "FrameResult", "StreamReport", "apply_frame",
+__all__ = ["FLAME_KEYS", "FlameFrame", "FaceControls", "ViewSettings", "FrameResult", "StreamReport", "apply_frame",
            "flame_sequence_frames"]
 
 #: per-frame FLAME parameter keys and widths (:data:`holo_viewer.flame.params.FRAME_KEYS`)
 FLAME_KEYS = FRAME_KEYS
+
+#: one frame of a FLAME sequence: keys of :data:`FLAME_KEYS` (+ ``shape``, ``pain``, ``dynamic_offset``)
+#: to 1-D arrays (``expr`` (n_expr,), poses (3,) / (6,), ``dynamic_offset`` (V, 3))
+FlameFrame = Mapping[str, npt.ArrayLike]
 
 
 # =============================================================================== settings
@@ -258,7 +262,7 @@ class StreamReport:
 # =============================================================================== sequences
 
 
-def apply_frame(base: FaceControls, frame: Mapping[str, Any], index: int = 0) -> FaceControls:
+def apply_frame(base: FaceControls, frame: FlameFrame, index: int = 0) -> FaceControls:
     """``base`` with the FLAME parameters of one sequence frame (see :func:`flame_sequence_frames`)."""
     changes: dict[str, Any] = {}
     for key, value in frame.items():
