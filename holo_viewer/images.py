@@ -5,8 +5,10 @@ Images are float in [0, 1] inside the package and uint8 on export (docs/design.m
 uint8 passes through unchanged.
 
 NaN and +-inf are refused with :class:`~holo_viewer.errors.ExportError` (a wrong picture is
-never written or shown silently); the check is one reduction over the scaled values (a sum,
-which is non-finite exactly when a value is), about 0.05-0.2 ms per 420x560 view here.
+never written or shown silently), and so are finite values too large to be an image (float32
+above ~1e16, float64 above ~1e150, whose squares overflow): the check is one BLAS dot product of
+the scaled values with themselves, non-finite exactly then. Measured on a 48-view 420x560 quilt
+(2 cores, load ~3): 18 ms to convert without the check, 24 ms with it.
 """
 
 from __future__ import annotations
@@ -55,8 +57,9 @@ def to_uint8(images: np.ndarray, out: np.ndarray | None = None, *, name: str = "
         raise ExportError(f"{name}: expected uint8 or float in [0, 1], found dtype {a.dtype}")
     dtype = np.result_type(a.dtype, np.float32)  # float32 stays float32, float64 stays float64
     x = np.multiply(a, dtype.type(255.0), dtype=dtype)  # one temporary, updated in place
-    if x.size and not np.isfinite(np.add.reduce(x, axis=None)):
-        raise ExportError(f"{name}: contains NaN/inf values; refusing to write a wrong picture")
+    if x.size and not np.isfinite(np.vdot(x, x)):  # NaN/inf propagate through the sum of squares
+        raise ExportError(f"{name}: contains NaN/inf (or absurdly large) values; expected floats in [0, 1], "
+                          "refusing to write a wrong picture")
     np.rint(x, out=x)
     np.clip(x, 0, 255, out=x)
     if out is None:

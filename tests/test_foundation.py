@@ -151,6 +151,9 @@ def test_one_uint8_converter_refuses_nan_and_inf():
             tile_quilt(np.stack([a, b])[..., None].repeat(3, -1), 2, 1, as_uint8=True)
         with pytest.raises(ExportError, match="image: contains NaN/inf"):
             to_uint8(b)
+    with pytest.raises(ExportError, match="NaN/inf"):
+        to_uint8(np.array([0.5, 1e30], np.float32))  # finite but no image value (its square overflows)
+    np.testing.assert_array_equal(to_uint8(np.array([-3.0, 40.0])), [0, 255])  # out of range: clipped
     with pytest.raises(ExportError, match="dtype int32"):
         to_uint8(np.zeros(3, np.int32))
 
