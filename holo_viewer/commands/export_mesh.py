@@ -8,7 +8,7 @@ Examples::
     holo-viewer export-mesh --flame-model generic_model.pkl --au-map my_aus.json --pain 1 --out p.obj
 
 ``--expr`` entries are ``NAME=VALUE`` (a name from the model's ``expression_names``)
-or ``INDEX=VALUE`` (0-based component index), each within +-20 (``flame.params.EXPR_LIMIT``);
+or ``INDEX=VALUE`` (0-based component index), each within +-10 (``flame.params.EXPR_LIMIT``, as in Python);
 they are the base expression coefficients, and ``--pain`` *adds* the pain face to them, as
 ``FaceControls(expr=..., pain=...)`` does in Python (the head is posed by the same pipeline
 stage). ``--jaw`` opens the jaw (rotation about the head's x axis, degrees, in [-45, 90]).
@@ -31,9 +31,6 @@ from ..validation import check_finite_scalar
 __all__ = ["add_arguments", "run", "parse_expr_assignments", "FORMATS"]
 
 FORMATS = (".obj", ".ply", ".glb")
-#: largest |value| of an ``--expr`` coefficient (in units of the component's standard deviation;
-#: FLAME faces stay plausible within about +-3, beyond +-10 the head is torn apart)
-EXPR_LIMIT = 10.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -9,8 +9,9 @@ per-frame keys with T rows plus the per-subject ``shape`` and ``static_offset``;
 Limits (checked where parameters enter the pipeline, :class:`~holo_viewer.pipeline.FaceControls`,
 and by ``holo-viewer export-mesh``):
 
-* expression coefficients: ``|psi_k| <= EXPR_LIMIT`` (20; fitted FLAME faces stay within a few
-  standard deviations, the default head's coefficient 1 is full action-unit intensity);
+* expression coefficients: ``|psi_k| <= EXPR_LIMIT`` (10, in units of the component's standard
+  deviation: FLAME faces stay plausible within about +-3, beyond +-10 the head is torn apart; the
+  default head's coefficient 1 is full action-unit intensity);
 * jaw: rotation angle ``|jaw_pose| <= 90 deg`` and opening (x component) in
   ``JAW_LIMITS_DEG = (-45, 90)`` degrees, the range of ``export-mesh --jaw``.
 
@@ -39,8 +40,8 @@ FRAME_KEYS: dict[str, int | None] = {"expr": None, "rotation": 3, "neck_pose": 3
 #: per-subject parameters of a sequence
 IDENTITY_KEYS: tuple[str, ...] = ("shape", "static_offset")
 
-#: largest |expression coefficient| accepted
-EXPR_LIMIT = 20.0
+#: largest |expression coefficient| accepted (the API's and ``export-mesh --expr``'s one limit)
+EXPR_LIMIT = 10.0
 #: jaw opening (rotation about x, degrees) accepted: closed past rest by 45, open by 90
 JAW_LIMITS_DEG = (-45.0, 90.0)
 

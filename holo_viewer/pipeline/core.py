@@ -39,7 +39,7 @@ from ..validation import check_array, check_finite_scalar
 from .avatars import AvatarLike, PipelineAvatar, as_pipeline_avatar
 from .rendering import render_images, tile_views
 from .settings import FaceControls, FlameFrame, FrameResult, StreamReport, ViewSettings, apply_frame
-from .stages import STAGE_TABLE, STAGES, Stage, StageTimings
+from .stages import STAGE_TABLE, STAGES, STREAM_OUTPUTS, Stage, StageTimings
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..avatar.gaussians import Gaussians
@@ -491,8 +491,8 @@ class Pipeline:
         fps = check_finite_scalar(fps, "fps", low=0.0, low_open=True)
         if policy not in ("drop", "all"):
             raise InputError(f"policy: expected 'drop' or 'all', found {policy!r}")
-        if output not in STAGES or output in ("params", "framing", "cameras"):
-            raise InputError(f"output: expected one of mesh, gaussians, views, quilt, native, found {output!r}")
+        if output not in STREAM_OUTPUTS:
+            raise InputError(f"output: expected one of {', '.join(STREAM_OUTPUTS)}, found {output!r}")
         frames = list(frames)
         budget = 1.0 / fps
         if report is None:
