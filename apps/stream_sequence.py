@@ -21,6 +21,8 @@ import sys
 
 
 def main(argv: list[str] | None = None) -> int:
+    from holo_viewer.pipeline.stages import STREAM_OUTPUTS
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     src = ap.add_mutually_exclusive_group(required=True)
     src.add_argument("--flame-params", metavar="NPZ", help="flame_param.npz sequence")
@@ -30,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=2.0)
     ap.add_argument("--pain", type=float, default=0.5)
     ap.add_argument("--fps", type=float, default=25.0)
-    ap.add_argument("--output", default="quilt", choices=("mesh", "gaussians", "views", "quilt", "native"))
+    ap.add_argument("--output", default="quilt", choices=STREAM_OUTPUTS)
     ap.add_argument("--policy", default="drop", choices=("drop", "all"))
     ap.add_argument("--tile-scale", type=float, default=1.0)
     ap.add_argument("--video", default=None, help="write the computed quilts as mp4 (needs --output quilt)")

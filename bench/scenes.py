@@ -1,6 +1,6 @@
 """Shared scene and camera builders for renderer benchmarks and tests (deterministic, seeded).
 
-* :func:`quilt_cameras` - the 48 sheared Looking Glass cameras of DESIGN.md Algorithm 1
+* :func:`quilt_cameras` - the 48 sheared Looking Glass cameras of docs/design.md Algorithm 1
   (uses ``holo_viewer.display.cameras.make_quilt_cameras`` when it exists).
 * :func:`shell_scene` - a head-sized ellipsoidal shell of Gaussians that overfills a
   420x560 portrait frame like a face does (~45 blends per pixel at 100k Gaussians).
@@ -27,7 +27,7 @@ SIZE, FOV_DEG, CONE_DEG = 0.12, 14.0, 40.0
 def quilt_cameras(n_views: int = 48, width: int = 420, height: int = 560, size: float = SIZE,
                   fov_deg: float = FOV_DEG, cone_deg: float = CONE_DEG, target=(0.0, 0.0, 0.0),
                   use_display: bool = True) -> Cameras:
-    """The quilt cameras of DESIGN.md Algorithm 1 (OpenCV), view 0 = leftmost.
+    """The quilt cameras of docs/design.md Algorithm 1 (OpenCV), view 0 = leftmost.
 
     ``size`` is the half-height of the focal plane (m) through ``target``; all cameras look
     along world -z with a shared orientation; camera i sits at x offset

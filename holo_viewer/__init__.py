@@ -1,15 +1,19 @@
 """holo_viewer: talking-face Gaussian avatars as live holograms on Looking Glass displays.
 
 Importing the package is cheap: it loads no vtk, pyvista, open3d, usb or torch-heavy
-modules. Subpackages (data flow, DESIGN.md section 2):
+modules. Subpackages (data flow, docs/design.md section 2):
 
 ``flame``     FLAME head model (LBS), the embedded default head, expressions and pain
 ``avatar``    3D Gaussians, PLY I/O, triangle-bound (rigged) and blend-shape avatars
 ``render``    splat renderers: float64 reference, fast multi-view CPU, VTK/OSMesa
 ``display``   Looking Glass calibration, multi-view cameras, quilts, lenticular interleave
 ``reaction``  listener-reaction generator, REACT metrics, baselines
-``gui``       PyVista viewer (imported only by ``holo-viewer view``)
-``pipeline``  chains the stages with caching
+``pipeline``  the one place that chains the stages (stage table, caching, streaming, render_quilt)
+``commands``  one module per ``holo-viewer`` subcommand; ``gui`` the PyVista viewer; ``batch`` render-batch
+
+Shared base modules: ``errors``, ``validation``, ``fileio``, ``geometry`` (rotations), ``camera``,
+``images`` (float -> uint8), ``cache`` (the cache folder), ``offscreen`` (offscreen VTK windows),
+``testing`` (small random models and avatars for tests).
 """
 
 __version__ = "0.1.0"

@@ -1,6 +1,6 @@
 """The camera type shared by every module (pure math, no I/O).
 
-Conventions (DESIGN.md section 3), stated once here and tested in ``tests/test_camera.py``:
+Conventions (docs/design.md section 3), stated once here and tested in ``tests/test_camera.py``:
 
 * World frame = FLAME's: metres, +y up, +z out of the face toward the viewer.
 * ``world_to_cam`` is a 4x4 rigid transform into OpenCV camera space:

@@ -236,22 +236,13 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
             os.fsync(fh.fileno())
 
 
-def _to_uint8(image: np.ndarray) -> np.ndarray:
-    img = np.asarray(image)
-    if img.dtype == np.uint8:
-        return img
-    if not np.issubdtype(img.dtype, np.floating):
-        raise ExportError(f"image: expected uint8 or float in [0, 1], found dtype {img.dtype}")
-    if not np.all(np.isfinite(img)):
-        raise ExportError("image: contains NaN/inf values; refusing to write a wrong picture")
-    return np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
-
-
 def save_image(path: str | os.PathLike, image: np.ndarray) -> Path:
     """Write an (H, W, 3|4) image (uint8, or float in [0, 1]) atomically; format from the suffix."""
     from PIL import Image
 
-    img = _to_uint8(image)
+    from .images import to_uint8
+
+    img = to_uint8(image)
     if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] not in (1, 3, 4)):
         raise ExportError(f"{path}: expected an image of shape (H, W), (H, W, 3) or (H, W, 4), found {img.shape}")
     if img.ndim == 3 and img.shape[2] == 1:

@@ -29,7 +29,7 @@ def _local(n: int, n_faces: int, seed: int = 1, degree: int = 1) -> Gaussians:
 
 
 def _direct(vertices, faces, binding, mu, q_local, log_s):
-    """Per-Gaussian float64 formula written from DESIGN.md, one Gaussian at a time."""
+    """Per-Gaussian float64 formula written from docs/design.md, one Gaussian at a time."""
     means, rots, logs = [], [], []
     for b, m, q, ls in zip(binding, mu, q_local, log_s):
         v0, v1, v2 = vertices[faces[b]]

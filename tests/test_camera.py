@@ -1,4 +1,4 @@
-"""Camera conventions (DESIGN.md section 3), stated in holo_viewer/camera.py and tested once here."""
+"""Camera conventions (docs/design.md section 3), stated in holo_viewer/camera.py and tested once here."""
 
 import numpy as np
 import pytest

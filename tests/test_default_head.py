@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from holo_viewer.flame.default_head import (build_default_head, default_head_path, load_default_model,
-                                            write_default_head)
-from holo_viewer.flame.head_blendshapes import EXPRESSION_NAMES, LID_FLOOR_Y, MOUTH_COMPONENTS
-from holo_viewer.flame.head_sculpt import EYE_CENTRES, EYE_RADIUS, LID_RADIUS, sculpt_head
+from holo_viewer.flame.builder.head import build_default_head, write_default_head
+from holo_viewer.flame.default_head import default_head_path, load_default_model
+from holo_viewer.flame.builder.head_blendshapes import EXPRESSION_NAMES, LID_FLOOR_Y, MOUTH_COMPONENTS
+from holo_viewer.flame.builder.head_sculpt import EYE_CENTRES, EYE_RADIUS, LID_RADIUS, sculpt_head
 from holo_viewer.flame.lbs import lbs_reference_np
 from holo_viewer.flame.model import FlameModel
 
@@ -29,7 +29,7 @@ def mesh():
 
 
 def _pose(arrays, expr=None, jaw=None, neck=None, eyes=None):
-    """Our own float64 numpy LBS (DESIGN.md formula, lbs_reference_np) of the head arrays."""
+    """Our own float64 numpy LBS (docs/design.md formula, lbs_reference_np) of the head arrays."""
     ns, ne = int(arrays["n_shape"]), int(arrays["n_expr"])
     coeff = np.zeros(ns + ne)
     if expr is not None:
@@ -395,3 +395,16 @@ def test_lower_lids_follow_lid_aus(which, head, committed, mesh):
         posed = _pose(arrays, expr=expr, jaw=[0.3, 0.0, 0.0])
         assert np.abs(posed[inner] - rest[inner]).max() < 1e-12
         assert np.linalg.norm(posed[up[1:-1]] - posed[inner], axis=1).max() < 1.5e-3
+
+
+def test_loading_the_default_head_runs_no_build_code():
+    """The head builder is build-time code: loading the model imports nothing from flame.builder."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from holo_viewer.flame.default_head import load_default_model; "
+            "from holo_viewer.flame.expressions import default_au_map; load_default_model(); default_au_map(); "
+            "print([m for m in sys.modules if m.startswith('holo_viewer.flame.builder')])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"

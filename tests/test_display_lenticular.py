@@ -39,7 +39,7 @@ def _not_tie(cal, shape):
 
 
 def _scalar_view(cal, n, r, c, ch):
-    """The DESIGN.md formula for one subpixel with Python floats (no numpy)."""
+    """The docs/design.md formula for one subpixel with Python floats (no numpy)."""
     W, H = cal.screen_w, cal.screen_h
     pitch = cal.pitch * W / cal.dpi * math.cos(math.atan(1 / cal.slope))
     tilt = H / (W * cal.slope) * (-1 if cal.flip_image_x else 1)

@@ -11,7 +11,7 @@ import torch
 from holo_viewer.errors import FlameError, InputError
 from holo_viewer.flame import expressions as ex
 from holo_viewer.flame.default_head import load_default_model
-from holo_viewer.flame.head_blendshapes import EXPRESSION_NAMES
+from holo_viewer.flame.default_head import EXPRESSION_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -97,7 +97,7 @@ def test_au_map_for_default_and_user_model(tmp_path):
     model = load_default_model()
     amap = ex.au_map_for(model)
     assert amap.n_expr == model.n_expr
-    from holo_viewer.flame.default_head import build_default_head
+    from holo_viewer.flame.builder.head import build_default_head
     from holo_viewer.flame.model import FlameModel
 
     arrays = build_default_head()

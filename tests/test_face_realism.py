@@ -7,15 +7,11 @@ yet); docs/face_realism.md has the measured baseline.
 from __future__ import annotations
 
 import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.face_realism import (  # noqa: E402
+from bench.face_realism import (  # the repository root is on sys.path (conftest)
     face_measures,
     inter_ocular,
     masked_psnr,

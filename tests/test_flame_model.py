@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from holo_viewer.errors import FlameError, InputError
 from holo_viewer.flame.lbs import lbs_reference_np
 from holo_viewer.flame.model import FlameModel
-from holo_viewer.flame.rotation import rodrigues, rodrigues_np
+from holo_viewer.geometry import rodrigues, rodrigues_np
 from holo_viewer.flame.testing import random_flame_arrays
 
 PARENTS = (-1, 0, 1, 1, 1)

@@ -133,3 +133,52 @@ def test_read_npz_and_npy_errors_name_the_file(tmp_path):
     (tmp_path / "cut.npy").write_bytes((tmp_path / "x.npy").read_bytes()[:-8])
     with pytest.raises(HoloViewerError, match="cut.npy: cannot read"):
         read_npy(tmp_path / "cut.npy")
+
+
+def test_one_uint8_converter_refuses_nan_and_inf():
+    """holo_viewer.images.to_uint8 is the only float -> uint8 conversion; NaN/inf raise ExportError."""
+    from holo_viewer.display import quilt
+    from holo_viewer.display.quilt import tile_quilt
+    from holo_viewer.images import to_uint8
+
+    assert quilt.to_uint8 is to_uint8
+    a = np.array([[0.0, 0.5 / 255, 1.5 / 255, 1.0, 1.2, -0.1]], dtype=np.float32)
+    np.testing.assert_array_equal(to_uint8(a), [[0, 0, 2, 255, 255, 0]])  # half to even, clipped
+    for bad in (np.nan, np.inf, -np.inf):
+        b = a.copy()
+        b[0, 1] = bad
+        with pytest.raises(ExportError, match="views\\[1\\]: contains NaN/inf"):
+            tile_quilt(np.stack([a, b])[..., None].repeat(3, -1), 2, 1, as_uint8=True)
+        with pytest.raises(ExportError, match="image: contains NaN/inf"):
+            to_uint8(b)
+    with pytest.raises(ExportError, match="NaN/inf"):
+        to_uint8(np.array([0.5, 1e30], np.float32))  # finite but no image value (its square overflows)
+    np.testing.assert_array_equal(to_uint8(np.array([-3.0, 40.0])), [0, 255])  # out of range: clipped
+    with pytest.raises(ExportError, match="dtype int32"):
+        to_uint8(np.zeros(3, np.int32))
+
+
+def test_one_cache_dir_honours_holo_viewer_cache(tmp_path, monkeypatch):
+    """HOLO_VIEWER_CACHE, then XDG_CACHE_HOME/holo_viewer, then ~/.cache/holo_viewer, for every cached file."""
+    from pathlib import Path
+
+    import importlib
+
+    from holo_viewer.cache import cache_dir
+
+    dav = importlib.import_module("holo_viewer.avatar.default_avatar")  # the package attribute is the function
+    from holo_viewer.flame import default_head
+
+    monkeypatch.setenv("HOLO_VIEWER_CACHE", str(tmp_path / "hv"))
+    assert cache_dir() == tmp_path / "hv" and dav._cache_dir() == cache_dir()
+    monkeypatch.delenv("HOLO_VIEWER_CACHE")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_dir() == tmp_path / "xdg" / "holo_viewer"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    assert cache_dir() == Path.home() / ".cache" / "holo_viewer"
+    # the default head, rebuilt when the asset is missing, goes to the same folder
+    monkeypatch.setenv("HOLO_VIEWER_CACHE", str(tmp_path / "hv"))
+    (tmp_path / "hv").mkdir()
+    (tmp_path / "hv" / default_head.ASSET_NAME).write_bytes(b"placeholder")
+    monkeypatch.setattr(default_head, "_repo_asset", lambda: tmp_path / "no-such-asset" / default_head.ASSET_NAME)
+    assert default_head.default_head_path() == tmp_path / "hv" / default_head.ASSET_NAME

@@ -517,7 +517,7 @@ def _image_top_pixel(panel) -> float:
 
 
 def test_avatar_none_explains_the_black_panels(xvfb, tmp_path):
-    from holo_viewer.gui.loading import load_scene
+    from holo_viewer.pipeline.scene import load_scene
     from holo_viewer.gui.offscreen import offscreen_viewer
 
     with offscreen_viewer(load_scene("none"), window_size=(640, 360)) as viewer:
@@ -651,7 +651,7 @@ def test_load_scene_errors_name_the_problem(tmp_path):
     from holo_viewer.errors import InputError
     from holo_viewer.flame.io import save_flame_npz
     from holo_viewer.flame.testing import random_flame_arrays
-    from holo_viewer.gui.loading import load_scene
+    from holo_viewer.pipeline.scene import load_scene
 
     with pytest.raises(InputError, match="missing.ply: file not found"):
         load_scene(str(tmp_path / "missing.ply"))
@@ -664,7 +664,7 @@ def test_load_scene_static_ply_and_mesh_only(tmp_path):
     from holo_viewer.avatar import save_ply
     from holo_viewer.flame.io import save_flame_npz
     from holo_viewer.flame.testing import random_flame_arrays
-    from holo_viewer.gui.loading import StaticAvatar, load_scene
+    from holo_viewer.pipeline.scene import StaticAvatar, load_scene
 
     model_path = save_flame_npz(tmp_path / "flame.npz", random_flame_arrays(n_vertices=200, n_shape=4, n_expr=3))
     scene = load_scene("none", flame_model=model_path)
@@ -680,7 +680,7 @@ def test_load_scene_static_ply_and_mesh_only(tmp_path):
 
 def test_flame_params_sequence_adds_a_frame_slider(tmp_path):
     from holo_viewer.flame.default_head import load_default_model
-    from holo_viewer.gui.loading import load_scene
+    from holo_viewer.pipeline.scene import load_scene
     from holo_viewer.gui.offscreen import offscreen_viewer
 
     T, n_expr = 4, load_default_model().n_expr

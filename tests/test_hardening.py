@@ -704,7 +704,7 @@ def test_pipeline_after_importing_the_default_avatar_module() -> None:
     import importlib
 
     importlib.import_module("holo_viewer.avatar.default_avatar")
-    from holo_viewer.gui.loading import load_scene
+    from holo_viewer.pipeline.scene import load_scene
 
     scene = load_scene("default", None, None, None)
     assert len(scene.pipeline.avatar) > 0

@@ -11,32 +11,13 @@ import numpy as np
 import pytest
 
 from holo_viewer.errors import InputError
+from holo_viewer.testing import random_rigged_avatar
 from holo_viewer.pipeline import (STAGES, FaceControls, Pipeline, StageTimings, ViewSettings, flame_sequence_frames,
                                   frame_head)
 
 
 def _small_avatar(model, n=400, seed=0):
-    from holo_viewer.avatar import Gaussians, RiggedAvatar
-
-    rng = np.random.default_rng(seed)
-    F = int(model.faces.shape[0])
-    local = Gaussians(
-        means=rng.normal(scale=0.2, size=(n, 3)).astype(np.float32),
-        quats=rng.normal(size=(n, 4)).astype(np.float32),
-        log_scales=np.log(rng.uniform(0.05, 0.3, size=(n, 3))).astype(np.float32),
-        opacity_logits=rng.normal(1.0, 0.5, size=n).astype(np.float32),
-        sh=rng.normal(scale=0.5, size=(n, 4, 3)).astype(np.float32),
-        extra={"binding": rng.integers(0, F, size=n).astype(np.int64)},
-    )
-    return RiggedAvatar(model, local)
-
-
-@pytest.fixture(scope="module")
-def small_model():
-    from holo_viewer.flame.model import FlameModel
-    from holo_viewer.flame.testing import random_flame_arrays
-
-    return FlameModel.from_arrays(random_flame_arrays(n_vertices=300, n_shape=8, n_expr=6, seed=1))
+    return random_rigged_avatar(model, n=n, seed=seed)
 
 
 @pytest.fixture()

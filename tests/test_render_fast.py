@@ -9,19 +9,14 @@ settings are compared like for like.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.scenes import quilt_cameras, random_scene, shell_scene  # noqa: E402
-from holo_viewer.camera import Cameras, intrinsics, look_at  # noqa: E402
-from holo_viewer.errors import RenderError  # noqa: E402
-from holo_viewer.render import RenderConfig, render_views  # noqa: E402
-from holo_viewer.render import fast  # noqa: E402
+from bench.scenes import quilt_cameras, random_scene, shell_scene  # the repository root is on sys.path (conftest)
+from holo_viewer.camera import Cameras, intrinsics, look_at
+from holo_viewer.errors import RenderError
+from holo_viewer.render import RenderConfig, render_views
+from holo_viewer.render import fast
 
 PSNR_MIN, MAX_ERR = 50.0, 0.01
 

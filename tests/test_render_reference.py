@@ -1,4 +1,4 @@
-"""Float64 reference renderer on hand-checkable scenes (DESIGN.md "3DGS forward pass")."""
+"""Float64 reference renderer on hand-checkable scenes (docs/design.md "3DGS forward pass")."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Numerical stress tests of the splat renderers (DESIGN.md "Known traps").
+"""Numerical stress tests of the splat renderers (docs/design.md "Known traps").
 
 In every survivable case the fast path agrees with the float64 reference within the
 tolerances of test_render_fast.py (PSNR >= 50 dB, max abs error <= 0.01 per view) and no
@@ -15,14 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from bench.scenes import quilt_cameras, random_quats, random_scene  # the repository root is on sys.path (conftest)
+from holo_viewer.avatar.gaussians import Gaussians
+from holo_viewer.camera import Cameras, intrinsics
+from holo_viewer.errors import InputError
+from holo_viewer.render import RenderConfig, render_views
 
-from bench.scenes import quilt_cameras, random_quats, random_scene  # noqa: E402
-from holo_viewer.avatar.gaussians import Gaussians  # noqa: E402
-from holo_viewer.camera import Cameras, intrinsics  # noqa: E402
-from holo_viewer.errors import InputError  # noqa: E402
-from holo_viewer.render import RenderConfig, render_views  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 from holo_viewer.render import fast  # noqa: E402
 
 PSNR_MIN, MAX_ERR = 50.0, 0.01

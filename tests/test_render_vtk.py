@@ -62,20 +62,6 @@ def test_import_is_lazy_and_env_untouched() -> None:
     assert out.stdout.split() == ["False", "False"]
 
 
-def test_osmesa_selected_only_without_display(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.delenv("VTK_DEFAULT_OPENGL_WINDOW", raising=False)
-    monkeypatch.setenv("DISPLAY", ":0")
-    vtk_backend._select_offscreen_window()
-    assert "VTK_DEFAULT_OPENGL_WINDOW" not in os.environ
-    monkeypatch.delenv("DISPLAY")
-    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    vtk_backend._select_offscreen_window()
-    assert os.environ["VTK_DEFAULT_OPENGL_WINDOW"] == "vtkOSOpenGLRenderWindow"
-    monkeypatch.setenv("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")  # a user's choice wins
-    vtk_backend._select_offscreen_window()
-    assert os.environ["VTK_DEFAULT_OPENGL_WINDOW"] == "vtkEGLRenderWindow"
-
-
 @needs_gl
 def test_single_gaussian_lands_on_the_reference_pixel() -> None:
     """An isotropic Gaussian seen by off-axis cameras: same peak pixel, same footprint (8-bit)."""
@@ -157,3 +143,41 @@ def test_missing_vtk_is_a_render_error(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "vtkmodules.vtkRenderingCore", None)  # makes the import fail
     with pytest.raises(RenderError, match="cannot import VTK"):
         vtk_backend.render(dc_scene(n=2), quilt(1))
+
+
+def test_offscreen_policy_leaves_the_environment_alone(monkeypatch):
+    """holo_viewer.offscreen: OSMesa is chosen without a display only while a window is created."""
+    import os
+
+    from holo_viewer.offscreen import WINDOW_ENV, offscreen_window_class
+
+    monkeypatch.delenv(WINDOW_ENV, raising=False)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with offscreen_window_class() as chosen:
+        assert chosen == os.environ[WINDOW_ENV] == "vtkOSOpenGLRenderWindow"
+    assert WINDOW_ENV not in os.environ
+    monkeypatch.setenv(WINDOW_ENV, "vtkEGLRenderWindow")  # the user's choice wins ...
+    with offscreen_window_class() as chosen:
+        assert chosen == "vtkEGLRenderWindow"
+    with offscreen_window_class(force_osmesa=True) as chosen:  # ... unless OSMesa is forced
+        assert chosen == "vtkOSOpenGLRenderWindow"
+    assert os.environ[WINDOW_ENV] == "vtkEGLRenderWindow"
+    monkeypatch.delenv(WINDOW_ENV)
+    monkeypatch.setenv("DISPLAY", ":99")
+    with offscreen_window_class() as chosen:
+        assert chosen is None and WINDOW_ENV not in os.environ
+
+
+def test_mesh_preview_sets_no_process_wide_vtk_variable():
+    import subprocess
+    import sys
+
+    code = ("import os; os.environ.pop('DISPLAY', None); os.environ.pop('VTK_DEFAULT_OPENGL_WINDOW', None)\n"
+            "import numpy as np\nfrom holo_viewer.flame.preview import render_mesh\n"
+            "v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.]]); f = np.array([[0, 1, 2]])\n"
+            "try:\n    render_mesh(v, f, views=('front',), size=(16, 16))\nexcept Exception as e:\n    print('ERR', e)\n"
+            "print(os.environ.get('VTK_DEFAULT_OPENGL_WINDOW'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "None"

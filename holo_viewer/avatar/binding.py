@@ -1,7 +1,7 @@
 """GaussianAvatars triangle binding (pure math; torch fast path, numpy float64 reference).
 
 Each Gaussian has a parent face ``binding``, a local mean ``mu``, a local log-scale and a
-local quaternion. For a face with vertices ``v0, v1, v2`` (DESIGN.md, Qian et al. CVPR'24)::
+local quaternion. For a face with vertices ``v0, v1, v2`` (docs/design.md, Qian et al. CVPR'24)::
 
     a0 = n(v1 - v0)                      (first edge direction)
     a1 = n(a0 x (v2 - v0))               (face normal)

@@ -449,7 +449,7 @@ class BlendshapeAvatar:
 
     def _rigid(self, means: torch.Tensor, quats: torch.Tensor, rotation: Any,
                translation: Any) -> tuple[torch.Tensor, torch.Tensor]:
-        from ..flame.rotation import rodrigues
+        from ..geometry import rodrigues
 
         r = torch.as_tensor(np.zeros(3) if rotation is None else np.asarray(rotation, np.float64).reshape(-1, 3))
         t = torch.as_tensor(np.zeros(3) if translation is None else np.asarray(translation, np.float64).reshape(-1, 3))

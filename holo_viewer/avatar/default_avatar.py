@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import os
 from pathlib import Path
 from typing import Any
 
@@ -65,10 +64,9 @@ _OPACITY = 0.99
 
 
 def _cache_dir() -> Path:
-    root = os.environ.get("HOLO_VIEWER_CACHE")
-    if root:
-        return Path(root)
-    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "holo_viewer"
+    from ..cache import cache_dir
+
+    return cache_dir()
 
 
 def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:

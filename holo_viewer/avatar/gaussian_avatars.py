@@ -3,7 +3,7 @@
 GaussianAvatars (Qian et al. CVPR'24) stores a trained avatar as a 3DGS PLY whose
 means, rotations and log-scales are in the local frames of the FLAME triangles named by
 the float property ``binding_0``, and a FLAME parameter sequence ``flame_param.npz``
-with (DESIGN.md) ``shape`` (300,), ``expr`` (T, 100), ``rotation``, ``neck_pose``,
+with (docs/design.md) ``shape`` (300,), ``expr`` (T, 100), ``rotation``, ``neck_pose``,
 ``jaw_pose``, ``translation`` (T, 3), ``eyes_pose`` (T, 6), ``static_offset`` (1, V, 3)
 and optionally ``dynamic_offset`` (T, V, 3). Its FLAME mesh has teeth (5143 vertices,
 10144 faces): load your FLAME model with ``add_teeth=True``.
@@ -12,82 +12,21 @@ and optionally ``dynamic_offset`` (T, V, 3). Its FLAME mesh has teeth (5143 vert
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, fields, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
 from ..errors import AvatarError, InputError
-from ..fileio import read_npz, save_npz
+from ..fileio import read_npz
+from ..flame.params import FRAME_KEYS, FlameParams
 from .ply import load_ply, read_ply_header
 from .rigged import RiggedAvatar
 
 __all__ = ["FlameParams", "load_flame_params", "load_gaussian_avatar"]
 
-_PER_FRAME = {"expr": None, "rotation": 3, "neck_pose": 3, "jaw_pose": 3, "translation": 3, "eyes_pose": 6}
-
-
-@dataclass(frozen=True, eq=False)
-class FlameParams:
-    """A FLAME parameter sequence of T frames (float32 numpy arrays).
-
-    Attributes
-    ----------
-    shape : numpy.ndarray
-        (n_shape,) identity coefficients.
-    expr : numpy.ndarray
-        (T, n_expr).
-    rotation, neck_pose, jaw_pose, translation : numpy.ndarray
-        (T, 3) axis-angle (radians) / metres.
-    eyes_pose : numpy.ndarray
-        (T, 6).
-    static_offset : numpy.ndarray or None
-        (1, V, 3) per-vertex rest offsets, metres.
-    dynamic_offset : numpy.ndarray or None
-        (T, V, 3) per-frame offsets, metres.
-    """
-
-    shape: np.ndarray
-    expr: np.ndarray
-    rotation: np.ndarray
-    neck_pose: np.ndarray
-    jaw_pose: np.ndarray
-    translation: np.ndarray
-    eyes_pose: np.ndarray
-    static_offset: np.ndarray | None = None
-    dynamic_offset: np.ndarray | None = None
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.expr.shape[0])
-
-    def __len__(self) -> int:
-        return self.n_frames
-
-    def identity(self) -> dict[str, np.ndarray]:
-        """Per-subject parameters (``shape``, ``static_offset``) for :class:`RiggedAvatar`."""
-        out = {"shape": self.shape}
-        if self.static_offset is not None:
-            out["static_offset"] = self.static_offset
-        return out
-
-    def frame(self, index: Any) -> dict[str, np.ndarray]:
-        """Per-frame keyword arguments for ``RiggedAvatar.pose`` (index: int, slice or index array)."""
-        idx = np.atleast_1d(np.arange(self.n_frames)[index])
-        out = {k: getattr(self, k)[idx] for k in _PER_FRAME}
-        if self.dynamic_offset is not None:
-            out["dynamic_offset"] = self.dynamic_offset[idx]
-        return out
-
-    def __iter__(self) -> Iterator[dict[str, np.ndarray]]:
-        for i in range(self.n_frames):
-            yield self.frame(i)
-
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write ``flame_param.npz`` (atomic)."""
-        arrays = {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
-        return save_npz(path, **arrays)
+_PER_FRAME = FRAME_KEYS
 
 
 def load_flame_params(path: str | os.PathLike, n_vertices: int | tuple[int, ...] | None = None) -> FlameParams:

@@ -1,6 +1,6 @@
 """3DGS PLY I/O in the Inria (graphdeco-inria/gaussian-splatting) layout.
 
-The vertex element holds, per Gaussian (DESIGN.md "3DGS forward pass")::
+The vertex element holds, per Gaussian (docs/design.md "3DGS forward pass")::
 
     x y z  nx ny nz  f_dc_0..2  f_rest_0..(3 M - 1)  opacity  scale_0..2  rot_0..3
 

@@ -82,10 +82,13 @@ def run(args: argparse.Namespace) -> int:
     from ..fileio import atomic_write, ensure_dir, save_image
     from ..pipeline import STAGES, FaceControls, Pipeline, StageTimings, apply_frame, render_images
 
+    from ..flame.expressions import PAIN_RANGE
+
+    lo, hi = PAIN_RANGE  # named-expression intensities share pain's range
     for name in ("smile", "pain"):
         v = getattr(args, name)
-        if not 0.0 <= v <= 1.0:
-            raise InputError(f"--{name}: expected a value in [0, 1], found {v}")
+        if not lo <= v <= hi:
+            raise InputError(f"--{name}: expected a value in [{lo:g}, {hi:g}], found {v}")
     if not (0 < args.seconds <= 60 and 0 < args.fps <= 120 and 0.05 <= args.video_scale <= 1.0):
         raise InputError(f"--seconds/--fps/--video-scale: expected (0, 60], (0, 120], [0.05, 1], found "
                          f"{args.seconds}, {args.fps}, {args.video_scale}")

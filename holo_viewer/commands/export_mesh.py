@@ -8,9 +8,11 @@ Examples::
     holo-viewer export-mesh --flame-model generic_model.pkl --au-map my_aus.json --pain 1 --out p.obj
 
 ``--expr`` entries are ``NAME=VALUE`` (a name from the model's ``expression_names``)
-or ``INDEX=VALUE`` (0-based component index); they set those expression
-coefficients after ``--pain`` has filled in the rest. ``--jaw`` opens the jaw
-(rotation about the head's x axis, degrees). The file format follows the suffix.
+or ``INDEX=VALUE`` (0-based component index), each within +-10 (``flame.params.EXPR_LIMIT``, as in Python);
+they are the base expression coefficients, and ``--pain`` *adds* the pain face to them, as
+``FaceControls(expr=..., pain=...)`` does in Python (the head is posed by the same pipeline
+stage). ``--jaw`` opens the jaw (rotation about the head's x axis, degrees, in [-45, 90]).
+The file format follows the suffix.
 """
 
 from __future__ import annotations
@@ -22,14 +24,13 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import ExportError, InputError
+from ..flame.expressions import PAIN_RANGE
+from ..flame.params import EXPR_LIMIT, JAW_LIMITS_DEG
 from ..validation import check_finite_scalar
 
 __all__ = ["add_arguments", "run", "parse_expr_assignments", "FORMATS"]
 
 FORMATS = (".obj", ".ply", ".glb")
-#: largest |value| of an ``--expr`` coefficient (in units of the component's standard deviation;
-#: FLAME faces stay plausible within about +-3, beyond +-10 the head is torn apart)
-EXPR_LIMIT = 10.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,9 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--flame-model", metavar="PKL|NPZ", type=Path, default=None,
                         help="FLAME 2020/2023 .pkl or holo_viewer .npz (default: the embedded default head)")
     parser.add_argument("--expr", metavar="NAME=VALUE", nargs="+", action="extend", default=[],
-                        help="set expression coefficients by component name or 0-based index (repeatable)")
+                        help=f"expression coefficients by component name or 0-based index, within +-{EXPR_LIMIT:g} "
+                             "(repeatable); --pain adds to them")
     parser.add_argument("--jaw", metavar="DEG", type=float, default=0.0,
-                        help="jaw opening in degrees (rotation about the x axis; default 0)")
+                        help=f"jaw opening in degrees (rotation about the x axis, in [{JAW_LIMITS_DEG[0]:g}, "
+                             f"{JAW_LIMITS_DEG[1]:g}]; default 0)")
     parser.add_argument("--pain", metavar="P", type=float, default=None,
                         help="pain intensity in [0, 1] (canonical pain face via the AU map)")
     parser.add_argument("--au-map", metavar="JSON", type=Path, default=None,
@@ -99,20 +102,22 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() not in FORMATS:
         raise ExportError(f"--out {out}: expected a file ending in {', '.join(FORMATS)}, found {out.suffix!r}")
-    jaw_deg = check_finite_scalar(args.jaw, "--jaw", low=-45.0, high=90.0)
-    pain = None if args.pain is None else check_finite_scalar(args.pain, "--pain", low=0.0, high=1.0)
+    jaw_deg = check_finite_scalar(args.jaw, "--jaw", low=JAW_LIMITS_DEG[0], high=JAW_LIMITS_DEG[1])
+    pain = None if args.pain is None else check_finite_scalar(args.pain, "--pain", low=PAIN_RANGE[0],
+                                                               high=PAIN_RANGE[1])
+    from ..pipeline import FaceControls, Pipeline
 
     model = _load_model(args.flame_model, args.teeth)
     expr = np.zeros(model.n_expr)
-    if pain is not None:
-        from ..flame.expressions import au_map_for, pain_expression
-
-        au_map = au_map_for(model, args.au_map)
-        expr = np.asarray(pain_expression(pain, au_map), dtype=np.float64).reshape(-1)[: model.n_expr]
     for idx, value in parse_expr_assignments(args.expr, model.expression_names, model.n_expr).items():
         expr[idx] = value
-    jaw = np.array([np.deg2rad(jaw_deg), 0.0, 0.0])
-    verts = model(expr=expr[None], jaw_pose=jaw[None]).vertices[0].detach().cpu().numpy()
+    au_map = None
+    if pain is not None:
+        from ..flame.expressions import au_map_for
+
+        au_map = au_map_for(model, args.au_map)  # a user model needs --au-map for pain
+    face = FaceControls(expr=expr, jaw_pose=[np.deg2rad(jaw_deg), 0.0, 0.0], pain=pain or 0.0)
+    verts = Pipeline(model=model, avatar=False, face=face, au_map=au_map).mesh()
     faces = model.faces.cpu().numpy()
     path = write_mesh(out, verts, faces)
     print(f"wrote {path}: {verts.shape[0]} vertices, {faces.shape[0]} faces "

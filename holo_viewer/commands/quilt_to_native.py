@@ -18,7 +18,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
 
     from ..display.calibration import DisplayCalibration
     from ..display.export import save_native_png
@@ -26,6 +25,7 @@ def run(args: argparse.Namespace) -> int:
     from ..display.quilt import parse_quilt_filename
     from ..errors import InputError
     from ..fileio import load_image
+    from ..images import to_uint8
 
     cal = DisplayCalibration.load(args.calibration)
     cols, rows = args.cols, args.rows
@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
         rows = r if rows is None else rows
     if cols < 1 or rows < 1:
         raise InputError(f"--cols/--rows: expected positive integers, found {cols}x{rows}")
-    quilt = np.rint(load_image(args.quilt) * 255.0).astype(np.uint8)
+    quilt = to_uint8(load_image(args.quilt), name=str(args.quilt))
     t0 = time.perf_counter()
     il = Interleaver(cal, quilt.shape, cols, rows, args.views, mode="blend" if args.blend else "nearest")
     native = il(quilt)

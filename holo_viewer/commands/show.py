@@ -57,6 +57,7 @@ def frame_source(path: Path, cal, cols: int | None, rows: int | None, blend: boo
     from ..display.quilt import parse_quilt_filename
     from ..errors import InputError
     from ..fileio import load_image
+    from ..images import to_uint8
 
     if not path.exists():
         raise InputError(f"{path}: file not found")
@@ -72,7 +73,7 @@ def frame_source(path: Path, cal, cols: int | None, rows: int | None, blend: boo
     cache: dict = {}
 
     def to_native(frame: np.ndarray) -> np.ndarray:
-        f = frame if frame.dtype == np.uint8 else np.clip(np.rint(frame * 255.0), 0, 255).astype(np.uint8)
+        f = to_uint8(frame, name=str(path))
         f = f[..., :3]
         if tagged is None and f.shape[:2] == (cal.screen_h, cal.screen_w):
             return f

@@ -38,8 +38,11 @@ from ..validation import check_finite_scalar
 from .calibration import DisplayCalibration
 
 __all__ = ["make_quilt_cameras", "fov_for_viewer_distance", "view_angles", "sdk_view_projection",
-           "quilt_cameras_to_opengl"]
+           "quilt_cameras_to_opengl", "VIEWER_ANGLE_LIMIT_DEG"]
 
+
+#: a tracked viewer's horizontal angle (degrees) is accepted within +- this (also ViewSettings.viewer_angle)
+VIEWER_ANGLE_LIMIT_DEG = 60.0
 
 def fov_for_viewer_distance(panel_height_m: float, distance_m: float) -> float:
     """Vertical fov (degrees) at which the focal plane matches a panel of height ``panel_height_m``
@@ -126,7 +129,8 @@ def make_quilt_cameras(
     n = int(n_views if n_views is not None else cal.n_views)
     cone = check_finite_scalar(view_cone_deg if view_cone_deg is not None else cal.view_cone,
                                "view_cone_deg", low=0.0, high=170.0)
-    check_finite_scalar(viewer_angle_deg, "viewer_angle_deg", low=-80.0, high=80.0)
+    lim = VIEWER_ANGLE_LIMIT_DEG
+    check_finite_scalar(viewer_angle_deg, "viewer_angle_deg", low=-lim, high=lim)
     W = int(tile_width if tile_width is not None else cal.tile_width)
     H = int(tile_height if tile_height is not None else cal.tile_height)
     if W <= 0 or H <= 0:

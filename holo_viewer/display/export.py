@@ -10,6 +10,7 @@ import numpy as np
 
 from ..errors import ExportError
 from ..fileio import atomic_path, load_image, save_image
+from ..images import to_uint8
 from .quilt import format_aspect, parse_quilt_filename, quilt_filename, split_quilt, tile_quilt
 
 __all__ = ["save_quilt_png", "save_native_png", "write_quilt_video", "load_quilt", "quilt_path"]
@@ -91,15 +92,6 @@ def load_quilt(path: str | os.PathLike, cols: int | None = None, rows: int | Non
     return split_quilt(img, cols, rows, n_views), (int(cols), int(rows), float(a))
 
 
-def _to_u8(frame: np.ndarray) -> np.ndarray:
-    f = np.asarray(frame)
-    if f.dtype == np.uint8:
-        return f
-    if not np.issubdtype(f.dtype, np.floating) or not np.all(np.isfinite(f)):
-        raise ExportError(f"frame: expected uint8 or finite float in [0, 1], found dtype {f.dtype}")
-    return np.clip(np.rint(f * 255.0), 0, 255).astype(np.uint8)
-
-
 def write_quilt_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: float = 30.0, *,
                       progress: bool = True, preset: str = "medium", crf: int = 18,
                       total: int | None = None) -> Path:
@@ -137,7 +129,7 @@ def write_quilt_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps
                                     output_params=["-preset", preset, "-crf", str(crf)])
         try:
             for frame in tqdm(frames, total=total, disable=not progress, desc=f"encoding {p.name}", unit="frame"):
-                f = _to_u8(frame)
+                f = to_uint8(frame, name="frame")
                 if f.ndim != 3 or f.shape[2] != 3:
                     raise ExportError(f"frame {count}: expected (H, W, 3), found {f.shape}")
                 if shape is None:

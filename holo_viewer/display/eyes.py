@@ -1,6 +1,6 @@
 """What a tracked viewer's eyes receive from the panel, and error measured where it is seen.
 
-Pure array code on the optics of :class:`~holo_viewer.display.simulate.VirtualDisplay` (DESIGN.md
+Pure array code on the optics of :class:`~holo_viewer.display.simulate.VirtualDisplay` (docs/design.md
 "What a viewer actually sees"). An eye at horizontal position ``xe`` (metres from the panel centre,
 ``xe = d tan(angle)``) and distance ``d`` looks at screen column ``x`` under
 ``phi(x) = atan((xe - x) / d)``, i.e. at the view coordinate ``t(x) = (phi / cone + 1/2)(N - 1)``.

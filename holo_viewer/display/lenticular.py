@@ -1,6 +1,6 @@
 """Lenticular interleave: quilt -> native panel image (pure array code).
 
-The formula (DESIGN.md; HoloPlay.js, Unity HoloPlay, HoloPlayCore 0.1.1, LKG-Toolkit)::
+The formula (docs/design.md; HoloPlay.js, Unity HoloPlay, HoloPlayCore 0.1.1, LKG-Toolkit)::
 
     pitch' = pitch * screenW / DPI * cos(atan(1 / slope))
     tilt   = screenH / (screenW * slope)          (negated if flipImageX)

@@ -1,6 +1,6 @@
 """Quilts: V views tiled ``cols`` x ``rows`` into one image (pure array code).
 
-Convention (DESIGN.md section 3): view 0 = leftmost camera = bottom-left tile; views run left to
+Convention (docs/design.md section 3): view 0 = leftmost camera = bottom-left tile; views run left to
 right, then bottom to top; the last view is top-right. Arrays are (H, W, C) with row 0 at the top,
 so tile ``(c, r)`` (column c, row r counted from the bottom) of a quilt ``Hq x Wq`` with tiles
 ``th = Hq // rows``, ``tw = Wq // cols`` occupies rows ``[Hq - (r+1) th, Hq - r th)`` and columns
@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..images import to_uint8  # the one converter (re-exported here for its users)
 
 __all__ = ["tile_quilt", "split_quilt", "quilt_filename", "parse_quilt_filename", "tile_slices",
            "format_aspect", "to_uint8"]
@@ -34,30 +35,6 @@ def _check_layout(cols: int, rows: int) -> None:
     for name, v in (("cols", cols), ("rows", rows)):
         if isinstance(v, bool) or int(v) != v or v < 1:
             raise InputError(f"{name}: expected a positive integer, found {v!r}")
-
-
-def to_uint8(images: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """Float images in [0, 1] -> uint8 (x 255, rounded half to even, clipped); uint8 passes through.
-
-    ``out``: a uint8 array of the same shape to write into (it may be a strided view, such as a
-    quilt tile); returned.
-    """
-    a = np.asarray(images)
-    if out is not None and out.shape != a.shape:
-        raise InputError(f"out: expected shape {a.shape}, found {out.shape}")
-    if a.dtype == np.uint8:
-        if out is None:
-            return a
-        np.copyto(out, a)
-        return out
-    dtype = np.result_type(a.dtype, np.float32)  # float32 stays float32, float64 stays float64
-    x = np.multiply(a, dtype.type(255.0), dtype=dtype)  # one temporary, updated in place
-    np.rint(x, out=x)
-    np.clip(x, 0, 255, out=x)
-    if out is None:
-        return x.astype(np.uint8)
-    np.copyto(out, x, casting="unsafe")
-    return out
 
 
 def tile_quilt(views: np.ndarray, cols: int, rows: int, *, as_uint8: bool = False) -> np.ndarray:
@@ -93,7 +70,7 @@ def tile_quilt(views: np.ndarray, cols: int, rows: int, *, as_uint8: bool = Fals
         if v >= V:
             quilt[ys, xs] = 0
         elif as_uint8:
-            to_uint8(views[v], out=quilt[ys, xs])
+            to_uint8(views[v], out=quilt[ys, xs], name=f"views[{v}]")
         else:
             quilt[ys, xs] = views[v]
     return quilt

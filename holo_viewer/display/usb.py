@@ -6,7 +6,7 @@ Two sources:
   ``LKG_calibration/visual.json``. :func:`find_volume_calibrations` searches mount roots (default
   :func:`default_volume_roots`; injectable for tests) up to two levels deep.
 * **HID** (older "HoloPlay" boards, USB ``04D8:EF7E``): calibration is read page by page with HID
-  feature reports (DESIGN.md): request = report id 0 + ``[cmd=0 (read), page_hi, page_lo, 64 x 0]``;
+  feature reports (docs/design.md): request = report id 0 + ``[cmd=0 (read), page_hi, page_lo, 64 x 0]``;
   reply = 68 bytes ``[buttons, cmd, page_hi, page_lo, 64 data bytes]``; page 0's data begins with a
   big-endian uint32 JSON length; pages are read until the JSON is complete.
   :func:`read_hid_calibration` takes any object with :class:`FeatureReportDevice`'s two methods,

@@ -147,7 +147,9 @@ class NativeWindow:
         if img.shape != (self.height, self.width, 3):
             raise InputError(f"native: expected shape ({self.height}, {self.width}, 3), found {img.shape}")
         if img.dtype != np.uint8:
-            img = np.clip(np.rint(np.asarray(img, dtype=np.float64) * 255.0), 0, 255).astype(np.uint8)
+            from ..images import to_uint8
+
+            img = to_uint8(np.asarray(img, dtype=np.float64), name="native")
         self._set_scalars(img)
         self.render_window.Render()
 

@@ -4,7 +4,7 @@ Exports (torch is imported only when one of them is first used)::
 
     FlameModel, FlameOutput          holo_viewer.flame.model
     load_flame_arrays, save_flame_npz holo_viewer.flame.io
-    rodrigues                         holo_viewer.flame.rotation
+    rodrigues                         holo_viewer.geometry (all rotations live there)
 
 ``default_head`` and ``expressions`` are submodules; import them directly
 (``from holo_viewer.flame import expressions``).
@@ -24,7 +24,7 @@ _EXPORTS = {
     "load_flame_arrays": "io",
     "save_flame_npz": "io",
     "validate_flame_arrays": "io",
-    "rodrigues": "rotation",
+    "rodrigues": "..geometry",
     "load_default_model": "default_head",
 }
 
@@ -33,7 +33,8 @@ def __getattr__(name: str) -> Any:
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'holo_viewer.flame' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    target = "holo_viewer.geometry" if module == "..geometry" else f"{__name__}.{module}"
+    value = getattr(importlib.import_module(target), name)
     globals()[name] = value
     return value
 

@@ -52,7 +52,7 @@ from ..fileio import atomic_write
 
 __all__ = ["AU_NAMES", "AU_MAX", "REACT_AUS", "AUMap", "default_au_map", "au_map_for", "expression_from_aus",
            "pain_aus", "pain_expression", "estimate_aus", "pspi", "pspi_from_aus", "named_expression",
-           "jaw_for_expression", "EXPRESSION_NAMES_KNOWN", "PAIN_PEAK"]
+           "jaw_for_expression", "EXPRESSION_NAMES_KNOWN", "NAMED_EXPRESSIONS", "PAIN_PEAK", "PAIN_RANGE"]
 
 AU_NAMES: tuple[str, ...] = ("AU1", "AU2", "AU4", "AU5", "AU6", "AU7", "AU9", "AU10", "AU12", "AU14", "AU15",
                              "AU16", "AU17", "AU18", "AU20", "AU23", "AU24", "AU25", "AU26", "AU43")
@@ -75,15 +75,22 @@ PAIN_PEAK = {"AU4": 4.0, "AU6": 3.5, "AU7": 4.0, "AU9": 3.0, "AU10": 4.0, "AU43"
              "AU20": 1.0, "AU25": 1.5, "AU26": 1.0}
 _PSPI_CORE = ("AU4", "AU43")
 
-_NAMED = {
-    "neutral": {},
-    "smile": {"AU6": 2.5, "AU12": 4.0, "AU25": 1.0},
-    "surprise": {"AU1": 4.0, "AU2": 4.0, "AU5": 3.0, "AU25": 2.5, "AU26": 2.0},
-    "frown": {"AU4": 4.0, "AU15": 3.0, "AU17": 2.5},
-    "mouth_open": {"AU25": 3.0, "AU26": 1.5},
+#: The named expressions, declared once: name -> (AU intensities at intensity 1, jaw opening in
+#: radians at intensity 1). "pain" is the canonical pain face of :func:`pain_aus` (None here) and
+#: opens no jaw beyond its AU25/AU26: pain has one meaning, ``pain_expression(p)``, whether it is
+#: asked for as ``FaceControls(pain=p)``, as the named expression "pain", or by ``--pain``.
+NAMED_EXPRESSIONS: dict[str, tuple[dict[str, float] | None, float]] = {
+    "neutral": ({}, 0.0),
+    "smile": ({"AU6": 2.5, "AU12": 4.0, "AU25": 1.0}, 0.03),
+    "pain": (None, 0.0),
+    "surprise": ({"AU1": 4.0, "AU2": 4.0, "AU5": 3.0, "AU25": 2.5, "AU26": 2.0}, 0.14),
+    "frown": ({"AU4": 4.0, "AU15": 3.0, "AU17": 2.5}, 0.0),
+    "mouth_open": ({"AU25": 3.0, "AU26": 1.5}, 0.30),
 }
-EXPRESSION_NAMES_KNOWN = ("neutral", "smile", "pain", "surprise", "frown", "mouth_open")
-_JAW = {"neutral": 0.0, "smile": 0.03, "pain": 0.06, "surprise": 0.14, "frown": 0.0, "mouth_open": 0.30}
+#: names of :data:`NAMED_EXPRESSIONS`
+EXPRESSION_NAMES_KNOWN: tuple[str, ...] = tuple(NAMED_EXPRESSIONS)
+#: pain intensities are in [PAIN_RANGE[0], PAIN_RANGE[1]]; named-expression intensities too
+PAIN_RANGE = (0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -207,7 +214,7 @@ class AUMap:
 
 
 def default_au_map(n_expr: int | None = None) -> AUMap:
-    """AU map of the embedded default head (expression order of ``head_blendshapes.EXPRESSION_NAMES``).
+    """AU map of the embedded default head (expression order of ``default_head.EXPRESSION_NAMES``).
 
     Parameters
     ----------
@@ -215,7 +222,7 @@ def default_au_map(n_expr: int | None = None) -> AUMap:
         Expression count of the loaded model (columns beyond the 24 named components are
         zero; a smaller count drops the components past it).
     """
-    from .head_blendshapes import EXPRESSION_NAMES
+    from .default_head import EXPRESSION_NAMES
 
     k = len(EXPRESSION_NAMES) if n_expr is None else int(n_expr)
     if k < 1:
@@ -241,7 +248,7 @@ def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None) -> AUMa
     if au_map_path is not None:
         return AUMap.load_json(au_map_path, n_expr=n_expr)
     if getattr(model, "is_default_head", False):
-        from .head_blendshapes import EXPRESSION_NAMES
+        from .default_head import EXPRESSION_NAMES
 
         names = model.expression_names
         if names is not None and list(names) != list(EXPRESSION_NAMES[:len(names)]):
@@ -280,13 +287,14 @@ def expression_from_aus(aus: Mapping[str, float], au_map: AUMap) -> np.ndarray:
 
 
 def _check_p(p: Any) -> np.ndarray:
+    lo, hi = PAIN_RANGE
     arr = np.asarray(p, dtype=np.float64) if not isinstance(p, str) else None
     if arr is None or arr.ndim > 1:
-        raise InputError(f"p: expected a pain intensity in [0, 1] or an array (T,), found {p!r:.60}")
+        raise InputError(f"p: expected a pain intensity in [{lo:g}, {hi:g}] or an array (T,), found {p!r:.60}")
     if not np.all(np.isfinite(arr)):
-        raise InputError(f"p: expected values in [0, 1], found NaN/inf in {arr!r:.60}")
-    if np.any(arr < 0) or np.any(arr > 1):
-        raise InputError(f"p: expected values in [0, 1], found range [{arr.min()}, {arr.max()}]")
+        raise InputError(f"p: expected values in [{lo:g}, {hi:g}], found NaN/inf in {arr!r:.60}")
+    if np.any(arr < lo) or np.any(arr > hi):
+        raise InputError(f"p: expected values in [{lo:g}, {hi:g}], found range [{arr.min()}, {arr.max()}]")
     return arr
 
 
@@ -297,7 +305,11 @@ def pain_aus(p: float) -> dict[str, float]:
     ``0.7 p^1.5`` (eyes narrow first, close late); AU20/AU25/AU26 grow linearly.
     PSPI(p) = 12 p + 0.7 p^1.5: 0 at p = 0, 12.7 at p = 1, strictly increasing.
     """
-    x = float(_check_p(p))
+    return _pain_aus(float(_check_p(p)))
+
+
+def _pain_aus(x: float) -> dict[str, float]:
+    """:func:`pain_aus` for an already validated ``x``."""
     out = {k: v * x for k, v in PAIN_PEAK.items()}
     out["AU43"] = PAIN_PEAK["AU43"] * x ** 1.5
     return out
@@ -314,8 +326,8 @@ def pain_expression(p: Any, au_map: AUMap) -> np.ndarray:
     if missing:
         raise InputError(f"AU map: pain needs {', '.join(missing)} (PSPI action units), which the map lacks")
 
-    def one(x: float) -> np.ndarray:
-        return expression_from_aus({k: v for k, v in pain_aus(x).items() if k in au_map.names}, au_map)
+    def one(x: float) -> np.ndarray:  # x was validated above, once
+        return expression_from_aus({k: v for k, v in _pain_aus(x).items() if k in au_map.names}, au_map)
 
     if arr.ndim == 0:
         return one(float(arr))
@@ -367,18 +379,19 @@ def _check_name(name: str) -> str:
 def named_expression(name: str, intensity: float, au_map: AUMap) -> np.ndarray:
     """Expression coefficients (n_expr,) of a named expression at ``intensity`` in [0, 1].
 
-    Names: neutral, smile, pain, surprise, frown, mouth_open (combine with
-    :func:`jaw_for_expression` for the jaw rotation).
+    Names: those of :data:`NAMED_EXPRESSIONS` (combine with :func:`jaw_for_expression` for the
+    jaw rotation). ``named_expression("pain", p)`` is ``pain_expression(p)``.
     """
     _check_name(name)
+    aus = NAMED_EXPRESSIONS[name][0]
+    if aus is None:
+        return pain_expression(intensity, au_map)
     x = float(np.asarray(_check_p(intensity)))
-    if name == "pain":
-        return pain_expression(x, au_map)
-    return expression_from_aus({k: v * x for k, v in _NAMED[name].items()}, au_map)
+    return expression_from_aus({k: v * x for k, v in aus.items()}, au_map)
 
 
 def jaw_for_expression(name: str, intensity: float) -> np.ndarray:
-    """Axis-angle jaw pose (3,) in radians for a named expression (positive x opens the mouth)."""
+    """Axis-angle jaw pose (3,) in radians for a named expression (positive x opens the mouth; 0 for pain)."""
     _check_name(name)
     x = float(np.asarray(_check_p(intensity)))
-    return np.array([_JAW[name] * x, 0.0, 0.0])
+    return np.array([NAMED_EXPRESSIONS[name][1] * x, 0.0, 0.0])

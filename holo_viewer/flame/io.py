@@ -1,6 +1,6 @@
 """Reading and writing FLAME-format model files (chumpy-free).
 
-Two formats hold the same keys (DESIGN.md section 4):
+Two formats hold the same keys (docs/design.md section 4):
 
 * FLAME 2020 / 2023 ``.pkl`` as distributed. FLAME 2020 stores ``shapedirs`` as a
   chumpy ``Ch`` object and ``J_regressor`` as a scipy sparse matrix. We unpickle

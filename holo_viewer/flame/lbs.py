@@ -1,4 +1,4 @@
-"""Linear blend skinning of FLAME (DESIGN.md section 4), torch fast path and numpy reference.
+"""Linear blend skinning of FLAME (docs/design.md section 4), torch fast path and numpy reference.
 
 Pure math, no I/O. With ``J`` joints (FLAME: 5; 0 global, 1 neck, 2 jaw, 3/4 eyes)
 and parents ``p(k)``::
@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .rotation import rodrigues, rodrigues_np
+from ..geometry import rodrigues, rodrigues_np
 
 __all__ = ["lbs", "lbs_reference_np", "pose_feature"]
 

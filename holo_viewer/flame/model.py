@@ -1,4 +1,4 @@
-"""FLAME head model in torch: blend shapes + linear blend skinning (DESIGN.md section 4).
+"""FLAME head model in torch: blend shapes + linear blend skinning (docs/design.md section 4).
 
 ``FlameModel`` wraps the pure functions of :mod:`holo_viewer.flame.lbs` around the
 arrays of a FLAME-format file (real FLAME 2020/2023 ``.pkl`` or our ``.npz``)::

@@ -1,9 +1,9 @@
 """Offscreen shaded renders of a triangle mesh (VTK), and the default head's demo renders.
 
 ``render_mesh`` is generic (any (V, 3) mesh with per-vertex colours) so the GUI
-snapshot can reuse it. VTK is imported lazily; with no ``DISPLAY`` and no choice
-made by the user, ``VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow`` (OSMesa)
-is set before the import. Views are named cameras around the FLAME frame
+snapshot can reuse it. VTK is imported lazily; its window comes from
+:func:`holo_viewer.offscreen.new_offscreen_window` (OSMesa without a display, the
+environment left as it was). Views are named cameras around the FLAME frame
 (+y up, the face looking along +z): ``front`` (on the +z axis), ``three_quarter``
 (40 degrees toward the subject's left, +x), ``side`` (on the +x axis), ``back``,
 ``top``, or ``(yaw_deg, pitch_deg)`` tuples.
@@ -37,8 +37,6 @@ REGION_COLORS = {
 
 
 def _import_vtk():
-    if not os.environ.get("DISPLAY") and "VTK_DEFAULT_OPENGL_WINDOW" not in os.environ:
-        os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = "vtkOSOpenGLRenderWindow"
     try:
         import vtk  # noqa: F401
         from vtk.util import numpy_support
@@ -206,9 +204,9 @@ def render_mesh(
     ren.AddActor(actor)
     ren.SetBackground(*background)
     ren.AutomaticLightCreationOff()
-    win = vtk.vtkRenderWindow()
-    win.SetOffScreenRendering(1)
-    win.SetSize(w, h)
+    from ..offscreen import new_offscreen_window
+
+    win = new_offscreen_window(vtk.vtkRenderWindow, w, h, multisamples=None, what="render_mesh")
     win.AddRenderer(ren)
     lo, hi = v.min(0), v.max(0)
     centre = 0.5 * (lo + hi) if target is None else np.asarray(target, dtype=np.float64)

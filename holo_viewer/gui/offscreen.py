@@ -9,26 +9,19 @@ interactive window opened later in the same process is unaffected.
 from __future__ import annotations
 
 import contextlib
-import os
 from typing import Any, Iterator
 
 __all__ = ["osmesa_window", "offscreen_viewer"]
 
-_VAR = "VTK_DEFAULT_OPENGL_WINDOW"
 
 
 @contextlib.contextmanager
 def osmesa_window() -> Iterator[None]:
-    """Within the block, new VTK render windows are OSMesa offscreen windows."""
-    old = os.environ.get(_VAR)
-    os.environ[_VAR] = "vtkOSOpenGLRenderWindow"
-    try:
+    """Within the block, new VTK render windows are OSMesa offscreen windows (:mod:`holo_viewer.offscreen`)."""
+    from ..offscreen import offscreen_window_class
+
+    with offscreen_window_class(force_osmesa=True):
         yield
-    finally:
-        if old is None:
-            os.environ.pop(_VAR, None)
-        else:
-            os.environ[_VAR] = old
 
 
 @contextlib.contextmanager

@@ -13,17 +13,19 @@ all the pipeline uses.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Mapping, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Mapping, Protocol, Union, runtime_checkable
 
 import numpy as np
 
 from ..errors import InputError
 
 if TYPE_CHECKING:  # pragma: no cover
+    from ..avatar.blendshape import BlendshapeAvatar
     from ..avatar.gaussians import Gaussians
+    from ..avatar.rigged import RiggedAvatar
     from ..flame.model import FlameModel
 
-__all__ = ["PipelineAvatar", "RiggedStage", "BlendshapeStage", "StaticAvatar", "as_pipeline_avatar"]
+__all__ = ["PipelineAvatar", "RiggedStage", "BlendshapeStage", "StaticAvatar", "as_pipeline_avatar", "AvatarLike"]
 
 
 @runtime_checkable
@@ -57,6 +59,10 @@ class PipelineAvatar(Protocol):
             ``rotation``, ``neck_pose``, ``translation`` (3,), ``eyes_pose`` (6,), ``shape``.
         """
         ...
+
+
+#: what :class:`~holo_viewer.pipeline.Pipeline` and :func:`as_pipeline_avatar` accept
+AvatarLike = Union["RiggedAvatar", "BlendshapeAvatar", "StaticAvatar", PipelineAvatar]
 
 
 def _identity_of(avatar: Any) -> dict[str, np.ndarray]:
@@ -132,7 +138,7 @@ class StaticAvatar:
         return self.gaussians_
 
 
-def as_pipeline_avatar(avatar: Any, flame_model: Any = None) -> PipelineAvatar:
+def as_pipeline_avatar(avatar: AvatarLike, flame_model: "FlameModel | None" = None) -> PipelineAvatar:
     """Wrap ``avatar`` in the :class:`PipelineAvatar` protocol.
 
     Parameters

@@ -36,10 +36,10 @@ import numpy as np
 
 from ..errors import InputError
 from ..validation import check_array, check_finite_scalar
-from .avatars import PipelineAvatar, as_pipeline_avatar
+from .avatars import AvatarLike, PipelineAvatar, as_pipeline_avatar
 from .rendering import render_images, tile_views
-from .settings import FaceControls, FrameResult, StreamReport, ViewSettings, apply_frame
-from .stages import STAGE_TABLE, STAGES, Stage, StageTimings
+from .settings import FaceControls, FlameFrame, FrameResult, StreamReport, ViewSettings, apply_frame
+from .stages import STAGE_TABLE, STAGES, STREAM_OUTPUTS, Stage, StageTimings
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..avatar.gaussians import Gaussians
@@ -157,7 +157,7 @@ class Pipeline:
         Action-unit map for named expressions and pain; None = ``au_map_for(model)``.
     """
 
-    def __init__(self, model: "FlameModel | None" = None, avatar: Any = None,
+    def __init__(self, model: "FlameModel | None" = None, avatar: "AvatarLike | Literal[False] | None" = None,
                  calibration: "DisplayCalibration | None" = None, *, face: FaceControls | None = None,
                  view: ViewSettings | None = None, backend: str = "fast",
                  render_config: "RenderConfig | None" = None, au_map: "AUMap | None" = None) -> None:
@@ -214,11 +214,11 @@ class Pipeline:
         self._au_map = au_map
         self._au_map_version += 1
 
-    def set_face(self, face: FaceControls | None = None, **changes: Any) -> None:
+    def set_face(self, face: FaceControls | None = None, **changes: object) -> None:
         """Replace the face controls (or some of their fields)."""
         self.face = (face or self.face).replace(**changes) if changes else (face or self.face)
 
-    def set_view(self, view: ViewSettings | None = None, **changes: Any) -> None:
+    def set_view(self, view: ViewSettings | None = None, **changes: object) -> None:
         """Replace the view settings (or some of their fields)."""
         base = view or self.view
         self.view = dataclasses.replace(base, **changes) if changes else base
@@ -442,7 +442,7 @@ class Pipeline:
         return self._interleaver(quilt)
 
     # ---------------------------------------------------------------- streaming
-    def stream(self, frames: Iterable[Mapping[str, Any]], *, fps: float = 25.0, output: str = "quilt",
+    def stream(self, frames: Iterable[FlameFrame], *, fps: float = 25.0, output: str = "quilt",
                policy: Literal["drop", "all"] = "drop", sink: Callable[[FrameResult], None] | None = None,
                base: FaceControls | None = None, clock: Callable[[], float] = time.perf_counter,
                progress: bool = False) -> StreamReport:
@@ -481,7 +481,7 @@ class Pipeline:
                 sink(res)
         return report
 
-    def iter_stream(self, frames: Iterable[Mapping[str, Any]], *, fps: float = 25.0, output: str = "quilt",
+    def iter_stream(self, frames: Iterable[FlameFrame], *, fps: float = 25.0, output: str = "quilt",
                     policy: Literal["drop", "all"] = "drop", base: FaceControls | None = None,
                     clock: Callable[[], float] = time.perf_counter, report: StreamReport | None = None,
                     progress: bool = False) -> Iterator[FrameResult]:
@@ -491,8 +491,8 @@ class Pipeline:
         fps = check_finite_scalar(fps, "fps", low=0.0, low_open=True)
         if policy not in ("drop", "all"):
             raise InputError(f"policy: expected 'drop' or 'all', found {policy!r}")
-        if output not in STAGES or output in ("params", "framing", "cameras"):
-            raise InputError(f"output: expected one of mesh, gaussians, views, quilt, native, found {output!r}")
+        if output not in STREAM_OUTPUTS:
+            raise InputError(f"output: expected one of {', '.join(STREAM_OUTPUTS)}, found {output!r}")
         frames = list(frames)
         budget = 1.0 / fps
         if report is None:

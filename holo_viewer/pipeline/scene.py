@@ -13,7 +13,6 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -109,7 +108,7 @@ def load_scene(avatar: str | os.PathLike | None = "default", flame_model: str | 
             from ..avatar import load_flame_params
 
             params = load_flame_params(flame_params)
-        frames = flame_sequence_frames(_params_dict(params), source=str(flame_params))
+        frames = flame_sequence_frames(params, source=str(flame_params))
     pipe = Pipeline(model=model, avatar=av, calibration=cal, backend=backend, face=face)
     if frames:
         pipe.set_face(_first_frame(pipe.face, frames[0]))
@@ -121,19 +120,6 @@ def _ply_has_binding(path: Path) -> bool:
         head = fh.read(65536)
     end = head.find(b"end_header")
     return b"binding_0" in (head[:end] if end >= 0 else head)
-
-
-def _params_dict(params: Any) -> dict[str, np.ndarray]:
-    if isinstance(params, dict):
-        return params
-    out = {}
-    for key in ("shape", "expr", "rotation", "neck_pose", "jaw_pose", "eyes_pose", "translation"):
-        v = getattr(params, key, None)
-        if v is not None:
-            out[key] = np.asarray(v)
-    if getattr(params, "dynamic_offset", None) is not None:
-        out["dynamic_offset"] = np.asarray(params.dynamic_offset)
-    return out
 
 
 def _first_frame(face: FaceControls, frame: dict[str, np.ndarray]) -> FaceControls:

@@ -7,29 +7,34 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
+import numpy.typing as npt
 
+from ..display.cameras import VIEWER_ANGLE_LIMIT_DEG
 from ..errors import InputError
+from ..flame.expressions import EXPRESSION_NAMES_KNOWN, PAIN_RANGE
+from ..flame.params import FRAME_KEYS, FlameParams, check_expr, check_jaw_pose
 from ..validation import check_array, check_finite_scalar
 from .stages import StageTimings
 
-__all__ = ["FLAME_KEYS", "FaceControls", "ViewSettings", "FrameResult", "StreamReport", "apply_frame",
+__all__ = ["FLAME_KEYS", "FlameFrame", "FaceControls", "ViewSettings", "FrameResult", "StreamReport", "apply_frame",
            "flame_sequence_frames"]
 
-#: FLAME parameter keys of GaussianAvatars' flame_param.npz, with their per-frame widths
-FLAME_KEYS: dict[str, int | None] = {"expr": None, "rotation": 3, "neck_pose": 3, "jaw_pose": 3,
-                                     "eyes_pose": 6, "translation": 3}
+#: per-frame FLAME parameter keys and widths (:data:`holo_viewer.flame.params.FRAME_KEYS`)
+FLAME_KEYS = FRAME_KEYS
 
-_NAMED = ("smile", "pain", "surprise", "frown", "mouth_open", "neutral")
+#: one frame of a FLAME sequence: keys of :data:`FLAME_KEYS` (+ ``shape``, ``pain``, ``dynamic_offset``)
+#: to 1-D arrays (``expr`` (n_expr,), poses (3,) / (6,), ``dynamic_offset`` (V, 3))
+FlameFrame = Mapping[str, npt.ArrayLike]
 
 
 # =============================================================================== settings
 
 
-def _vec(x: Any, name: str, n: int | None) -> np.ndarray:
-    a = np.asarray(x if x is not None else np.zeros(n or 0), dtype=np.float64).reshape(-1)
+def _vec(x: npt.ArrayLike, name: str, n: int | None) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float64).reshape(-1)
     if n is not None and a.shape[0] != n:
         raise InputError(f"{name}: expected {n} values, found {a.shape[0]}")
     check_array(a, name, ("N",))
@@ -37,43 +42,61 @@ def _vec(x: Any, name: str, n: int | None) -> np.ndarray:
     return a
 
 
+def _zeros(n: int) -> Callable[[], np.ndarray]:
+    return lambda: np.zeros(n)
+
+
 @dataclass(frozen=True, eq=False)
 class FaceControls:
     """What drives the face: FLAME parameters plus named expressions and pain.
 
-    The final FLAME parameters are ``expr = expr + sum_i named_expression(name_i, w_i)
-    + pain_expression(pain)`` and ``jaw_pose = jaw_pose + sum_i jaw_for_expression(name_i, w_i)``.
+    The final FLAME parameters (the pipeline's ``params`` stage) are::
+
+        expr     = expr + sum_i named_expression(name_i, w_i) + pain_expression(pain)
+        jaw_pose = jaw_pose + sum_i jaw_for_expression(name_i, w_i)
+
+    so named expressions and pain *add* to the base coefficients (``export-mesh --expr`` adds
+    the same way). Pain has one meaning: ``pain_expression(pain)``, the PSPI-calibrated pain
+    face, with no extra jaw rotation. ``named=(("pain", p),)`` is accepted as another
+    spelling of ``pain=p`` and stored as ``pain`` (giving both, with different values, is an
+    error). Arrays are given as any array-like and stored as read-only float64 numpy arrays.
 
     Attributes
     ----------
     expr : numpy.ndarray
-        (n_expr,) or shorter base expression coefficients (zero-padded to the model's n_expr).
+        (k,) base expression coefficients, k <= the model's n_expr (zero-padded), each within
+        ``+-flame.params.EXPR_LIMIT``.
     shape : numpy.ndarray
-        (n_shape,) or shorter identity coefficients (zero-padded); empty or all zero = the
-        avatar's own identity (``avatar.identity["shape"]``) when it has one.
-    jaw_pose, rotation, neck_pose, translation : numpy.ndarray
-        (3,) axis-angle (radians) / translation (metres).
+        (k,) identity coefficients (zero-padded); empty or all zero = the avatar's own
+        identity (``avatar.identity["shape"]``) when it has one.
+    jaw_pose : numpy.ndarray
+        (3,) axis-angle, radians; opening (x) in ``flame.params.JAW_LIMITS_DEG`` = [-45, 90] deg.
+    rotation, neck_pose : numpy.ndarray
+        (3,) axis-angle, radians.
+    translation : numpy.ndarray
+        (3,) metres.
     eyes_pose : numpy.ndarray
-        (6,) axis-angle of both eyes.
+        (6,) axis-angle of both eyes, radians.
     named : tuple of (str, float)
-        Named expressions and intensities in [0, 1], e.g. ``(("smile", 0.8),)``.
+        Named expressions (``flame.expressions.EXPRESSION_NAMES_KNOWN``) and intensities in
+        [0, 1], e.g. ``(("smile", 0.8),)``; never contains "pain" (see above).
     pain : float
-        Pain intensity in [0, 1] (PSPI-calibrated pain face of ``flame.expressions``).
+        Pain intensity in ``flame.expressions.PAIN_RANGE`` = [0, 1].
     dynamic_offset : numpy.ndarray or None
         (V, 3) per-frame vertex offsets in metres (GaussianAvatars ``dynamic_offset``), added to
         the avatar's ``static_offset``.
     """
 
-    expr: Any = None
-    shape: Any = None
-    jaw_pose: Any = None
-    rotation: Any = None
-    neck_pose: Any = None
-    eyes_pose: Any = None
-    translation: Any = None
+    expr: np.ndarray = field(default_factory=_zeros(0))
+    shape: np.ndarray = field(default_factory=_zeros(0))
+    jaw_pose: np.ndarray = field(default_factory=_zeros(3))
+    rotation: np.ndarray = field(default_factory=_zeros(3))
+    neck_pose: np.ndarray = field(default_factory=_zeros(3))
+    eyes_pose: np.ndarray = field(default_factory=_zeros(6))
+    translation: np.ndarray = field(default_factory=_zeros(3))
     named: tuple[tuple[str, float], ...] = ()
     pain: float = 0.0
-    dynamic_offset: Any = None
+    dynamic_offset: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.dynamic_offset is not None:
@@ -82,29 +105,45 @@ class FaceControls:
             check_array(off, "dynamic_offset", ("V", 3))
             off.setflags(write=False)
             object.__setattr__(self, "dynamic_offset", off)
-        object.__setattr__(self, "expr", _vec(self.expr, "expr", None))
-        object.__setattr__(self, "shape", _vec(self.shape, "shape", None))
-        for key in ("jaw_pose", "rotation", "neck_pose", "translation"):
-            object.__setattr__(self, key, _vec(getattr(self, key), key, 3))
-        object.__setattr__(self, "eyes_pose", _vec(self.eyes_pose, "eyes_pose", 6))
-        named = []
+        for key, width in (("expr", None), ("shape", None), ("jaw_pose", 3), ("rotation", 3), ("neck_pose", 3),
+                           ("translation", 3), ("eyes_pose", 6)):
+            value = getattr(self, key)
+            object.__setattr__(self, key, _vec(np.zeros(width or 0) if value is None else value, key, width))
+        check_expr(self.expr, "expr")
+        check_jaw_pose(self.jaw_pose, "jaw_pose")
+        lo, hi = PAIN_RANGE
+        pain = check_finite_scalar(self.pain, "pain", low=lo, high=hi)
+        named, named_pain = [], None
         for item in self.named:
             try:
                 name, w = item
             except (TypeError, ValueError) as exc:
                 raise InputError(f"named: expected (name, intensity) pairs, found {item!r}") from exc
-            if name not in _NAMED:
-                raise InputError(f"named: expected an expression in {_NAMED}, found {name!r}")
-            named.append((str(name), check_finite_scalar(w, f"named[{name!r}]", low=0.0, high=1.0)))
+            if name not in EXPRESSION_NAMES_KNOWN:
+                raise InputError(f"named: expected an expression in {EXPRESSION_NAMES_KNOWN}, found {name!r}")
+            w = check_finite_scalar(w, f"named[{name!r}]", low=lo, high=hi)
+            if name == "pain":
+                if named_pain is not None and named_pain != w:
+                    raise InputError(f"named: 'pain' given twice ({named_pain} and {w})")
+                named_pain = w
+            else:
+                named.append((str(name), w))
+        if named_pain is not None:
+            if pain not in (0.0, named_pain):
+                raise InputError(f"pain: given twice with different values, pain={pain} and named pain {named_pain} "
+                                 "(they mean the same; give one)")
+            pain = named_pain
         object.__setattr__(self, "named", tuple(named))
-        object.__setattr__(self, "pain", check_finite_scalar(self.pain, "pain", low=0.0, high=1.0))
+        object.__setattr__(self, "pain", pain)
 
-    def replace(self, **changes: Any) -> "FaceControls":
+    def replace(self, **changes: object) -> "FaceControls":
         """A copy with some fields replaced."""
-        return dataclasses.replace(self, **changes)
+        return dataclasses.replace(self, **changes)  # type: ignore[arg-type]
 
     def with_named(self, name: str, intensity: float) -> "FaceControls":
-        """A copy with the named expression ``name`` set to ``intensity`` (0 removes it)."""
+        """A copy with the named expression ``name`` set to ``intensity`` (0 removes it; "pain" sets ``pain``)."""
+        if name == "pain":
+            return self.replace(pain=float(intensity))
         rest = tuple((n, w) for n, w in self.named if n != name)
         return self.replace(named=rest + (((name, float(intensity)),) if intensity > 0 else ()))
 
@@ -130,7 +169,8 @@ class ViewSettings:
     view_cone : float or None
         Total view cone in degrees; None = the calibration's ``viewCone``.
     viewer_angle : float
-        Horizontal angle (degrees) of a tracked viewer; shifts the cone centre.
+        Horizontal angle (degrees) of a tracked viewer, within +-``display.cameras.VIEWER_ANGLE_LIMIT_DEG``
+        (60); shifts the cone centre.
     tile_scale : float
         Tile size relative to the calibration's quilt tile (e.g. 0.25 for a quick thumbnail quilt).
     framing_margin : float
@@ -151,7 +191,8 @@ class ViewSettings:
             check_finite_scalar(self.viewer_distance, "viewer_distance", low=0.05, high=20.0)
         if self.view_cone is not None:
             check_finite_scalar(self.view_cone, "view_cone", low=0.0, high=120.0, low_open=True)
-        check_finite_scalar(self.viewer_angle, "viewer_angle", low=-60.0, high=60.0)
+        lim = VIEWER_ANGLE_LIMIT_DEG  # the cameras' own limit (display/cameras.py)
+        check_finite_scalar(self.viewer_angle, "viewer_angle", low=-lim, high=lim)
         check_finite_scalar(self.tile_scale, "tile_scale", low=0.02, high=4.0)
         check_finite_scalar(self.framing_margin, "framing_margin", low=0.2, high=5.0)
 
@@ -221,7 +262,7 @@ class StreamReport:
 # =============================================================================== sequences
 
 
-def apply_frame(base: FaceControls, frame: Mapping[str, Any], index: int = 0) -> FaceControls:
+def apply_frame(base: FaceControls, frame: FlameFrame, index: int = 0) -> FaceControls:
     """``base`` with the FLAME parameters of one sequence frame (see :func:`flame_sequence_frames`)."""
     changes: dict[str, Any] = {}
     for key, value in frame.items():
@@ -237,13 +278,20 @@ def apply_frame(base: FaceControls, frame: Mapping[str, Any], index: int = 0) ->
     return base.replace(**changes)
 
 
-def flame_sequence_frames(params: Mapping[str, Any], *, source: str = "flame params") -> list[dict[str, np.ndarray]]:
-    """Split a FLAME sequence (flame_param.npz layout: per-frame keys with T rows) into frames.
+def flame_sequence_frames(params: FlameParams | Mapping[str, Any], *,
+                          source: str = "flame params") -> list[dict[str, np.ndarray]]:
+    """Split a FLAME sequence into frames (dicts of 1-D arrays, as :func:`apply_frame` takes).
 
-    Per-frame keys are those of :data:`FLAME_KEYS` (and ``pain`` (T,) when present); ``shape``
-    ((n,) or (1, n)) and ``static_offset`` are per sequence. Raises InputError naming the key
-    when the frame counts disagree, a value is not a number, or there are no frames.
+    ``params`` is a :class:`~holo_viewer.flame.params.FlameParams` or its npz form (a mapping in
+    the flame_param.npz layout: per-frame keys with T rows). Per-frame keys are those of
+    :data:`FLAME_KEYS` (and ``pain`` (T,) when present); keys left out keep the controls' values
+    when the frames are applied. ``shape`` ((n,) or (1, n)) and ``static_offset`` are per
+    sequence. Raises InputError naming the key when the frame counts disagree, a value is not a
+    number, or there are no frames.
     """
+    if isinstance(params, FlameParams):
+        params = params.as_dict()
+
     def floats(key: str) -> np.ndarray:
         a = np.asarray(params[key])
         if a.dtype.kind not in "biuf":

@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-__all__ = ["Stage", "STAGE_TABLE", "STAGES", "StageTimings"]
+__all__ = ["Stage", "STAGE_TABLE", "STAGES", "STREAM_OUTPUTS", "StageTimings"]
 
 
 @dataclass(frozen=True)
@@ -73,6 +73,8 @@ STAGE_TABLE: tuple[Stage, ...] = (
 
 #: stage names in data-flow order
 STAGES: tuple[str, ...] = tuple(s.name for s in STAGE_TABLE)
+#: stages a stream can stop at, once per frame (the others do not change from frame to frame)
+STREAM_OUTPUTS: tuple[str, ...] = tuple(s for s in STAGES if s not in ("params", "framing", "cameras"))
 
 
 def _check_table() -> None:

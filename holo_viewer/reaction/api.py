@@ -117,14 +117,16 @@ def load_speaker_npz(path: str | os.PathLike, au_map) -> np.ndarray:
 
 
 def flame_params_from_states(states: np.ndarray, au_map, n_shape: int | None = None) -> dict[str, np.ndarray]:
-    """GaussianAvatars ``flame_param.npz`` arrays (float32) of listener face states (T, S)."""
+    """GaussianAvatars ``flame_param.npz`` arrays (float32) of listener face states (T, S).
+
+    The npz form of :class:`holo_viewer.flame.params.FlameParams`: every per-frame key (zeros where
+    the model predicts nothing) and ``shape`` (n_shape,) zeros, the default head's identity.
+    """
+    from ..flame.params import FlameParams
+
     fl = flame_from_state(states, au_map)
-    T = fl["expr"].shape[0]
     n_shape = _default_n_shape() if n_shape is None else int(n_shape)
-    z3 = np.zeros((T, 3), np.float32)
-    return {"expr": fl["expr"], "jaw_pose": fl["jaw_pose"], "rotation": fl["rotation"], "neck_pose": z3.copy(),
-            "eyes_pose": np.zeros((T, 6), np.float32), "translation": z3.copy(),
-            "shape": np.zeros(n_shape, np.float32)}
+    return FlameParams.from_frames(shape=np.zeros(n_shape, np.float32), **fl).as_dict()
 
 
 def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_state: np.ndarray,

@@ -1,4 +1,4 @@
-"""REACT 2023/2024 challenge metrics (DESIGN.md, "REACT metrics"), vectorised.
+"""REACT 2023/2024 challenge metrics (docs/design.md, "REACT metrics"), vectorised.
 
 Shapes: ``preds`` (N, K, T, D) with K generated reactions per speaker clip, ``listener_gt`` and
 ``speaker_gt`` (N, T, D), ``neighbour`` (N, N) 0/1 with ``neighbour[n, j] = 1`` when listener j's

@@ -101,7 +101,7 @@ def render_views(gaussians: Gaussians, cameras: Cameras, backend: BackendName = 
         backend in 0.42-0.45 s on its 16 cores, the pure-torch backend on CUDA in 6 s:
         bench/render_gpu.py.)
     config : RenderConfig, optional
-        Knobs (defaults: DESIGN.md's forward pass).
+        Knobs (defaults: docs/design.md's forward pass).
 
     Returns
     -------

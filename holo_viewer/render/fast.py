@@ -1,7 +1,7 @@
 """Fast multi-view CPU splat rasterizer (float32, tile-based, compiled).
 
 Same forward pass as :mod:`holo_viewer.render.reference` (tested against it), organised for
-a quilt of V views that share one orientation (DESIGN.md "Multi-view cameras"):
+a quilt of V views that share one orientation (docs/design.md "Multi-view cameras"):
 
 1. **preprocess** (once per orientation group): camera-frame centres and covariances
    ``W R S S^T R^T W^T`` (float64), culling of splats behind the near plane of every view;

@@ -1,4 +1,4 @@
-"""Per-Gaussian float64 projection helpers (EWA splatting, DESIGN.md "3DGS forward pass").
+"""Per-Gaussian float64 projection helpers (EWA splatting, docs/design.md "3DGS forward pass").
 
 Pure numpy, used by the reference renderer and usable by the other backends.
 

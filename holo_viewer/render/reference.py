@@ -1,7 +1,7 @@
 """Float64 reference splat renderer: the oracle every other backend is tested against.
 
 Plain and slow on purpose: one view at a time, one Gaussian at a time (numpy over the
-Gaussian's pixel box), exactly DESIGN.md's 3DGS forward pass:
+Gaussian's pixel box), exactly docs/design.md's 3DGS forward pass:
 
 1. colour: SH of degree <= 3 with ``dir = normalise(mean - cam_pos)``, ``rgb = max(sh + 0.5, 0)``
    (``config.shared_sh``: one direction from the mean camera position for every view);

@@ -1,7 +1,7 @@
 """Real spherical harmonics up to degree 3 (3DGS convention), float64 numpy reference.
 
 Colour of a Gaussian seen along the unit direction ``dir = normalise(mean - cam_pos)``
-(DESIGN.md, 3DGS forward pass)::
+(docs/design.md, 3DGS forward pass)::
 
     rgb = max(sum_k basis_k(dir) * sh[k] + 0.5, 0)
 

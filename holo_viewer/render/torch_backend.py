@@ -1,6 +1,6 @@
 """Pure-torch multi-view 3DGS rasterizer (CPU or CUDA), memory-bounded.
 
-The same forward pass as the float64 reference (DESIGN.md "3DGS forward pass",
+The same forward pass as the float64 reference (docs/design.md "3DGS forward pass",
 :mod:`holo_viewer.render.projection`), written with torch tensor ops so that it runs
 wherever torch runs: on the CPU (a portable, slower cousin of the numba/C++ ``fast``
 backend) and on CUDA, where it is the GPU path of :func:`render_views` when gsplat is

@@ -4,7 +4,7 @@ A second, independent implementation of the 3DGS forward pass, done by OpenGL
 through VTK (>= 9.4), that needs no display: the render window is an offscreen
 OSMesa window (``VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow``) when no
 ``DISPLAY`` is in use. It is the slow baseline the fast CPU rasterizer is measured
-against (DESIGN.md, "What this machine can do").
+against (docs/design.md, "What this machine can do").
 
 How the 3DGS pass maps onto VTK (and where it differs from the float64 reference)
 ---------------------------------------------------------------------------------
@@ -44,7 +44,6 @@ How the 3DGS pass maps onto VTK (and where it differs from the float64 reference
 
 from __future__ import annotations
 
-import os
 import time
 from typing import Any
 
@@ -57,15 +56,6 @@ from .config import RenderConfig, RenderResult
 __all__ = ["render", "is_available", "offscreen_available", "splat_colors", "BACKEND_NAME"]
 
 BACKEND_NAME = "vtk"
-
-#: environment variable that picks VTK's OpenGL window class at ``vtkRenderWindow()``
-_WINDOW_ENV = "VTK_DEFAULT_OPENGL_WINDOW"
-
-
-def _uses_display() -> bool:
-    """True when an X11 or Wayland display is in use (then VTK's default window is fine)."""
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-
 
 def _import_vtk() -> dict[str, Any]:
     """Import the VTK classes this backend needs (lazily: ``import holo_viewer`` never loads VTK)."""
@@ -89,29 +79,11 @@ def _import_vtk() -> dict[str, Any]:
                 vtkRenderWindow=vtkRenderWindow)
 
 
-def _select_offscreen_window() -> None:
-    """Without a display, make VTK's ``vtkRenderWindow()`` an OSMesa window (unless the user chose one)."""
-    if not _uses_display():
-        os.environ.setdefault(_WINDOW_ENV, "vtkOSOpenGLRenderWindow")
-
-
 def _new_offscreen_window(vtk: dict[str, Any], width: int, height: int) -> Any:
-    """An offscreen render window of ``width`` x ``height``; RenderError when OpenGL is unusable.
+    """An offscreen render window of ``width`` x ``height`` (:func:`holo_viewer.offscreen.new_offscreen_window`)."""
+    from ..offscreen import new_offscreen_window
 
-    Without a display the OSMesa window is selected through ``VTK_DEFAULT_OPENGL_WINDOW``
-    (only when the variable is unset, so a user's choice, e.g. EGL, wins). This is done
-    here only, never for the interactive GUI.
-    """
-    _select_offscreen_window()
-    rw = vtk["vtkRenderWindow"]()
-    rw.SetOffScreenRendering(1)
-    rw.SetMultiSamples(0)
-    rw.SetSize(int(width), int(height))
-    if not rw.SupportsOpenGL():
-        where = os.environ.get(_WINDOW_ENV) or rw.GetClassName()
-        raise RenderError(f"vtk backend: no usable offscreen OpenGL context ({where}); install OSMesa "
-                          "(apt-get install libosmesa6) or set VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow")
-    return rw
+    return new_offscreen_window(vtk["vtkRenderWindow"], width, height, what="vtk backend")
 
 
 _AVAILABLE: tuple[bool, str] | None = None

@@ -24,14 +24,12 @@ from typing import Callable
 
 import numpy as np
 
+from ..default_head import EXPRESSION_NAMES  # noqa: F401 - the order the components are built in
 from .head_sculpt import EYE_CENTRES, HINGE, REGION_NAMES, HeadMesh, smoothstep
 
 __all__ = ["EXPRESSION_NAMES", "SHAPE_NAMES", "shape_basis", "expression_basis", "N_GENERIC_SHAPE",
            "MOUTH_COMPONENTS", "LID_FLOOR_Y"]
 
-EXPRESSION_NAMES = ("AU1_L", "AU1_R", "AU2_L", "AU2_R", "AU4", "AU5", "AU6", "AU7", "AU9", "AU10",
-                    "AU12_L", "AU12_R", "AU14", "AU15", "AU16", "AU17", "AU18", "AU20", "AU23", "AU24",
-                    "AU25", "AU26", "AU43_L", "AU43_R")
 SHAPE_NAMES = ("head_width", "head_depth", "head_height", "face_length", "face_width", "jaw_width",
                "chin_protrusion", "chin_height", "nose_length", "nose_width", "nose_projection",
                "nose_bridge", "cheekbones", "brow_ridge", "eye_spacing", "eye_height", "mouth_width",
