@@ -15,7 +15,7 @@ import numpy as np
 
 
 def main() -> int:
-    from holo_viewer.live.talking_head import HeadRenderer, webcam_camera
+    from holo_viewer.pipeline.live_support import HeadRenderer, webcam_camera
     from holo_viewer.tracking.head_model import LandmarkEmbedding, default_embedding_path, embed_landmarks
     from holo_viewer.tracking.landmarks import LandmarkDetector
 

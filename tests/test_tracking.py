@@ -232,7 +232,7 @@ def test_closed_loop_on_renders(au_map, cam_yaw, cam_pitch):
     """Render the default avatar driven by a known sequence, track it, compare (can fail)."""
     from scipy.spatial.transform import Rotation
 
-    from holo_viewer.live.talking_head import HeadRenderer, webcam_camera
+    from holo_viewer.pipeline.live_support import HeadRenderer, webcam_camera
     from holo_viewer.reaction.features import flame_from_state
     from holo_viewer.tracking.tracker import FaceTracker, TrackerConfig
 
@@ -272,7 +272,7 @@ def test_closed_loop_on_renders(au_map, cam_yaw, cam_pitch):
 def test_track_command_feeds_react(tmp_path):
     """`track` on a rendered clip writes what `react` reads (end to end through the CLI)."""
     from holo_viewer.cli import main
-    from holo_viewer.live.talking_head import write_talking_head_clip
+    from holo_viewer.pipeline.live_support import write_talking_head_clip
 
     files = write_talking_head_clip(tmp_path / "clip", seconds=1.2, n_gaussians=20_000)
     out = tmp_path / "speaker.npz"

@@ -45,9 +45,10 @@ def run(args: argparse.Namespace) -> int:
     """Run the session; returns 0 (1 through HoloViewerError for a missing device or bad input)."""
     from ..errors import InputError
     from ..live.controls import Scenario
-    from ..live.loop import LiveConfig, LiveSession, SyntheticSpeaker
+    from ..live.loop import LiveConfig, LiveSession
     from ..live.render import LiveRenderer
     from ..live import sources
+    from ..pipeline.live_support import SyntheticSpeaker
     from ..tracking.viewer import WebcamMount
 
     if args.synthetic and (args.audio or args.video):

@@ -30,7 +30,7 @@ from ..errors import HoloViewerError
 from .controls import Controls, Scenario
 from .session import SessionRecorder
 
-__all__ = ["LiveConfig", "LiveSession", "SyntheticSpeaker"]
+__all__ = ["LiveConfig", "LiveSession"]
 
 FPS = 25
 
@@ -61,26 +61,6 @@ class LiveConfig:
     settings: dict = field(default_factory=dict)
 
 
-class SyntheticSpeaker:
-    """A synthetic speaker (voice + face states at 25 fps) and a slowly moving synthetic viewer."""
-
-    def __init__(self, seconds: float, seed: int = 0) -> None:
-        from ..flame.expressions import default_au_map, jaw_for_expression
-        from ..reaction.data import SyntheticConfig, synth_speaker
-
-        au = default_au_map()
-        cfg = SyntheticConfig(seconds=max(float(seconds), 10.0))
-        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 16]))
-        sp = synth_speaker(rng, cfg, au.names, np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64))
-        T = int(round(seconds * FPS))
-        self.states = sp.state[:T]
-        self.waveform = sp.waveform[: T * 640]
-
-    def viewer(self, t: float) -> tuple[float, float]:
-        """(angle deg, distance m): a viewer walking slowly across the cone."""
-        return 12.0 * math.sin(2 * math.pi * t / 8.0), 0.6 + 0.1 * math.sin(2 * math.pi * t / 11.0)
-
-
 class _Slot:
     """Newest value wins (no queue)."""
 
@@ -105,13 +85,13 @@ class LiveSession:
     config : LiveConfig
     audio : audio source (``sources.ArrayAudio`` / ``WavReplay`` / ``Microphone``)
     video : video source (``sources.VideoReplay`` / ``Webcam``) or None (synthetic speaker / audio only)
-    synthetic : SyntheticSpeaker or None
+    synthetic : holo_viewer.pipeline.live_support.SyntheticSpeaker or None
         Gives the speaker states and viewer pose directly (no tracker).
     clock : callable
         Seconds (``time.perf_counter``).
     """
 
-    def __init__(self, config: LiveConfig, audio: Any, video: Any = None, synthetic: SyntheticSpeaker | None = None,
+    def __init__(self, config: LiveConfig, audio: Any, video: Any = None, synthetic: Any = None,
                  clock: Callable[[], float] = time.perf_counter) -> None:
         self.config = config
         self.audio = audio
@@ -152,12 +132,10 @@ class LiveSession:
 
     # ------------------------------------------------------------------ tracker thread
     def _tracker_loop(self) -> None:
-        from ..tracking.tracker import FaceTracker, TrackerConfig
-        from ..tracking.viewer import ViewerTracker, ViewerTrackerConfig, WebcamMount
+        from ..tracking.viewer import ViewerTracker, ViewerTrackerConfig
 
-        mount = self.config.mount or WebcamMount(hfov_deg=self.config.hfov_deg)
-        tracker = FaceTracker(TrackerConfig(hfov_deg=mount.hfov_deg))
-        viewer = ViewerTracker(mount, ViewerTrackerConfig(mode=self.config.viewer_mode))
+        tracker = self._face_tracker
+        viewer = ViewerTracker(self._mount, ViewerTrackerConfig(mode=self.config.viewer_mode))
         last_t = None
         try:
             while not self._stop.is_set():
@@ -185,15 +163,13 @@ class LiveSession:
 
     # ------------------------------------------------------------------ reaction thread
     def _reaction_loop(self) -> None:
-        from ..flame.expressions import default_au_map
-        from ..reaction.api import flame_params_from_states
-        from ..reaction.features import flame_from_state
+        from ..pipeline.live_support import FaceStates
 
         import torch
 
         torch.set_num_threads(1)  # one model step is tiny; a thread pool only adds wake-up latency
         try:
-            au = default_au_map()
+            faces = FaceStates()
             stream = self._stream
             S = stream.S
             n_au = S - 6
@@ -242,14 +218,14 @@ class LiveSession:
                     self.window_ms.append(1000 * dt)
                     if self.now() > (t + 2) / FPS:  # the next frame's slot has passed: the window is late
                         self.late_windows += 1
-                lf = flame_params_from_states(listener[None].astype(np.float64), au)
-                sf = flame_from_state(last_state[None], au)
+                lf = faces.listener(listener)
+                sf = faces.speaker(last_state)
                 _, ang, dist, tracked = self._viewer.get()
                 self.recorder.add_frame(
                     time_s=t / FPS, viewer_angle_deg=ang, viewer_distance_m=dist, pain=pain, speaker_found=found,
-                    window=window, **{f"speaker_{k_}": v[0] for k_, v in sf.items()},
-                    **{f"listener_{k_}": v[0] for k_, v in lf.items() if k_ != "shape"})
-                self._listener.put((t, {k_: v[0] for k_, v in lf.items() if k_ != "shape"}, pain, named, self.now()))
+                    window=window, **{f"speaker_{k_}": v for k_, v in sf.items()},
+                    **{f"listener_{k_}": v for k_, v in lf.items()})
+                self._listener.put((t, lf, pain, named, self.now()))
                 t += 1
                 if t % int(self.config.flush_s * FPS) == 0:
                     self._flush()
@@ -299,14 +275,20 @@ class LiveSession:
         tmp_video = out / ".native.partial.mp4"
         # load and warm up everything before the clock starts, so the first frames are not late
         from ..reaction.api import load_default_bundle
-        from .reaction_stream import ReactionStream
+        from ..reaction.stream import ReactionStream
 
         self._stream = ReactionStream(load_default_bundle(), temperature=cfg.temperature,
                                       top_k=20 if cfg.temperature else None, seed=cfg.seed)
         if renderer is not None:
             renderer.render({"expr": np.zeros(1)}, cfg.pain, (), 0.0, 0.6)
         if self.video is not None and self.synthetic is None:
-            from ..tracking.tracker import FaceTracker  # noqa: F401  (imports dlib and the model now)
+            from ..tracking.tracker import FaceTracker, TrackerConfig
+            from ..tracking.viewer import WebcamMount
+
+            self._mount = cfg.mount or WebcamMount(hfov_deg=cfg.hfov_deg)
+            self._face_tracker = FaceTracker(TrackerConfig(hfov_deg=self._mount.hfov_deg))
+            self._face_tracker(np.zeros((64, 64, 3), np.uint8), 0.0)  # warm up (first calls are slow)
+            self._face_tracker.reset()
         self.audio.start()
         if self.video is not None:
             self.video.start()

@@ -1,4 +1,5 @@
-"""Webcam-like renders of the project's own head: test inputs for the tracker and the live loop.
+"""What the live session needs from the chain: renders of the project's own head through a webcam,
+a synthetic speaker, and face-state <-> FLAME conversions (so ``live/`` never wires stages itself).
 
 :class:`HeadRenderer` poses the default Gaussian avatar with FLAME parameters and renders it
 with the fast splat renderer through a pinhole "webcam" (:func:`webcam_camera`), so a tracker
@@ -19,7 +20,8 @@ from ..camera import Cameras, intrinsics, look_at
 from ..errors import InputError
 from ..validation import check_finite_scalar
 
-__all__ = ["webcam_camera", "HeadRenderer", "write_talking_head_clip", "HEAD_CENTRE"]
+__all__ = ["webcam_camera", "HeadRenderer", "write_talking_head_clip", "HEAD_CENTRE", "SyntheticSpeaker",
+           "FaceStates"]
 
 #: a point between the default head's eyes (FLAME frame, metres): the webcam's look-at target
 HEAD_CENTRE = np.array([0.0, 0.02, 0.06])
@@ -141,3 +143,52 @@ def write_talking_head_clip(out_dir: str | os.PathLike, seconds: float = 4.0, se
     save_npz(truth, expr=fl["expr"], jaw_pose=fl["jaw_pose"], rotation=fl["rotation"], state=state,
              fps=np.array(fps))
     return {"wav": wav, "video": video, "truth": truth}
+
+
+class SyntheticSpeaker:
+    """A synthetic speaker (voice + face states at 25 fps) and a slowly moving synthetic viewer.
+
+    ``states`` (T, n_au + 6) and ``waveform`` (T * 640,) float32 at 16 kHz, from the reaction
+    module's conversation generator (at least 10 s are synthesized and cut, see
+    :func:`write_talking_head_clip`).
+    """
+
+    def __init__(self, seconds: float, seed: int = 0) -> None:
+        from ..flame.expressions import default_au_map, jaw_for_expression
+        from ..reaction.data import SyntheticConfig, synth_speaker
+
+        seconds = check_finite_scalar(seconds, "seconds", low=0.04, high=3600.0)
+        au = default_au_map()
+        cfg = SyntheticConfig(seconds=max(float(seconds), 10.0))
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 16]))
+        sp = synth_speaker(rng, cfg, au.names, np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64))
+        T = int(round(seconds * 25))
+        self.states = sp.state[:T]
+        self.waveform = sp.waveform[: T * cfg.audio.hop]
+
+    @staticmethod
+    def viewer(t: float) -> tuple[float, float]:
+        """(angle deg, distance m) at ``t`` s: a viewer walking slowly across the cone."""
+        return 12.0 * math.sin(2 * math.pi * t / 8.0), 0.6 + 0.1 * math.sin(2 * math.pi * t / 11.0)
+
+
+class FaceStates:
+    """Face states of the reaction model (n_au + 6,) -> GaussianAvatars FLAME arrays of the default head."""
+
+    def __init__(self) -> None:
+        from ..flame.expressions import default_au_map
+
+        self.au_map = default_au_map()
+
+    def speaker(self, state: np.ndarray) -> dict[str, np.ndarray]:
+        """``expr``, ``jaw_pose``, ``rotation`` (one frame each) of a speaker state."""
+        from ..reaction.features import flame_from_state
+
+        return {k: v[0] for k, v in flame_from_state(np.asarray(state, np.float64)[None], self.au_map).items()}
+
+    def listener(self, state: np.ndarray) -> dict[str, np.ndarray]:
+        """The six per-frame flame_param arrays (``expr`` ... ``translation``) of a listener state."""
+        from ..reaction.api import flame_params_from_states
+
+        fl = flame_params_from_states(np.asarray(state, np.float64)[None], self.au_map, n_shape=0)
+        return {k: v[0] for k, v in fl.items() if k != "shape"}

@@ -6,8 +6,8 @@ Whenever ``t + 1`` is a multiple of ``k``, one model step predicts listener fram
 ``listener_window`` frames, exactly the step of :func:`holo_viewer.reaction.model.generate`
 (the first window, frames ``0 .. k-1``, is predicted from the padding alone, as offline).
 Log-mel frames come from the last window of audio only (a rolling buffer), so memory stays
-flat in long sessions; the window's first and last frames see reflect padding where the offline
-path saw neighbouring audio. Output is smoothed causally (:func:`~holo_viewer.reaction.api.smooth_states`).
+flat in long sessions; each frame sees the same samples as offline (frame ``t`` needs audio up to
+sample ``640 t + 512``, delivered with the frame). Output is smoothed causally (:func:`~holo_viewer.reaction.api.smooth_states`).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ class ReactionStream:
                  smoothing: float = 0.12) -> None:
         import torch
 
-        from .. reaction.audio import AudioConfig
+        from .audio import AudioConfig
 
         self.bundle = bundle
         self.model = bundle.model.eval()
@@ -70,7 +70,6 @@ class ReactionStream:
         self._smoothed: np.ndarray | None = None
         self.t = -1  # last speaker frame received
         self.windows: list[WindowInfo] = []
-        self._step(pain=0.0)  # frames 0 .. k-1 from the padding, as generate() does
 
     @property
     def audio_samples(self) -> int:
@@ -90,32 +89,46 @@ class ReactionStream:
             self._audio_start += drop
 
     def _log_mel_window(self) -> np.ndarray:
-        """(Ws, n_mels) log-mel of speaker frames t-Ws+1 .. t, padded with the training mean before 0."""
+        """(Ws, n_mels) log-mel of speaker frames t-Ws+1 .. t, padded with the training mean before 0.
+
+        Frame ``i`` is the spectrum of samples ``[640 i - 512, 640 i + 512)``, as in
+        :func:`~holo_viewer.reaction.audio.log_mel` (reflect padding before the first sample).
+        """
         import torch
 
-        from ..reaction.audio import log_mel
+        from .audio import mel_filter_bank
 
         n = min(self.t + 1, self.Ws)
         out = self.model.audio_mean.expand(self.Ws, -1).clone()
         if n <= 0:
             return out
-        first = self.t + 1 - n  # first frame of the window
-        s0 = first * self.hop - self._audio_start
-        seg = self._audio[max(0, s0): max(0, s0) + n * self.hop]
-        if len(seg) < n * self.hop:  # audio not (yet) delivered: silence
-            seg = np.concatenate([seg, np.zeros(n * self.hop - len(seg), np.float32)])
-        if len(seg) <= self.audio_config.n_fft // 2:
-            seg = np.concatenate([seg, np.zeros(self.audio_config.n_fft // 2 + 1 - len(seg), np.float32)])
-            feats = log_mel(torch.from_numpy(seg), self.audio_config.sample_rate, None, self.audio_config)[:n]
+        c = self.audio_config
+        half = c.n_fft // 2
+        first = self.t + 1 - n
+        lo, hi = first * self.hop - half, self.t * self.hop + half  # global sample range
+        buf = self._audio
+        need_hi = hi - self._audio_start
+        if need_hi > len(buf):  # audio not (yet) delivered: silence
+            buf = np.concatenate([buf, np.zeros(need_hi - len(buf), np.float32)])
+        if lo < 0:  # the clip start: reflect padding, as torch.stft(center=True) does offline
+            head = buf[1:1 - lo][::-1] if self._audio_start == 0 else np.zeros(-lo, np.float32)
+            seg = np.concatenate([head, buf[:need_hi]])
         else:
-            feats = log_mel(torch.from_numpy(seg), self.audio_config.sample_rate, n, self.audio_config)
-        out[self.Ws - n:] = feats
+            seg = buf[lo - self._audio_start:need_hi]
+        if not hasattr(self, "_fb"):
+            self._fb = torch.from_numpy(mel_filter_bank(c).astype(np.float32))
+            self._win = torch.hann_window(c.n_fft, periodic=True, dtype=torch.float32)
+        spec = torch.stft(torch.from_numpy(np.ascontiguousarray(seg, dtype=np.float32)), n_fft=c.n_fft,
+                          hop_length=self.hop, win_length=c.n_fft, window=self._win, center=False,
+                          return_complex=True)  # (F, n)
+        power = spec.real ** 2 + spec.imag ** 2
+        out[self.Ws - n:] = torch.log(power[:, :n].T @ self._fb + c.eps)
         return out
 
     def _step(self, pain: float) -> None:
         import torch
 
-        from ..reaction.model import sample_tokens
+        from .model import sample_tokens
 
         t0 = time.perf_counter()
         a = self._log_mel_window()[None]
@@ -136,6 +149,8 @@ class ReactionStream:
         if st.shape[0] != self.S:
             raise ReactionError(f"speaker_state: expected {self.S} values, found {st.shape[0]}")
         pain = check_finite_scalar(pain, "pain", low=0.0, high=1.0)
+        if self.t == -1:  # frames 0 .. k-1 from the padding alone, as generate() does
+            self._step(pain)
         self.t += 1
         self._speaker = np.concatenate([self._speaker[1:], np.nan_to_num(st)[None]])
         raw = self._pending.pop(0)
