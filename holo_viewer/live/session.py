@@ -33,6 +33,7 @@ __all__ = ["SessionRecorder", "TRACK_KEYS", "load_session"]
 
 LISTENER_KEYS = ("expr", "jaw_pose", "rotation", "neck_pose", "eyes_pose", "translation")
 SPEAKER_KEYS = ("expr", "jaw_pose", "rotation")
+_CHUNK = 250
 TRACK_KEYS = ("time_s", "viewer_angle_deg", "viewer_distance_m", "pain", "speaker_found", "window") + tuple(
     f"speaker_{k}" for k in SPEAKER_KEYS) + tuple(f"listener_{k}" for k in LISTENER_KEYS)
 
@@ -45,6 +46,8 @@ class SessionRecorder:
         self.folder.mkdir(parents=True, exist_ok=True)
         self.settings = dict(settings)
         self._rows: dict[str, list] = {k: [] for k in TRACK_KEYS}
+        self._chunks: dict[str, list] = {k: [] for k in TRACK_KEYS}
+        self._n = 0
         self._display: dict[str, list] = {"display_time_s": [], "display_frame": [], "render_ms": []}
         self._audio: list[np.ndarray] = []
         self._lock = threading.Lock()
@@ -55,6 +58,11 @@ class SessionRecorder:
         with self._lock:
             for k in TRACK_KEYS:
                 self._rows[k].append(np.asarray(row[k], dtype=np.float32))
+            self._n += 1
+            if len(self._rows["time_s"]) >= _CHUNK:  # pack small per-frame arrays: memory stays flat
+                for k in TRACK_KEYS:
+                    self._chunks[k].append(np.stack(self._rows[k]))
+                    self._rows[k] = []
 
     def add_display(self, time_s: float, frame: int, render_ms: float) -> None:
         with self._lock:
@@ -69,15 +77,18 @@ class SessionRecorder:
 
     @property
     def n_frames(self) -> int:
-        return len(self._rows["time_s"])
+        return self._n
 
     def flush(self) -> None:
         """Write tracks.npz, audio.wav and session.json (atomically)."""
         import wave
 
         with self._lock:
-            n = len(self._rows["time_s"])
-            arrays = {k: (np.stack(v) if v else np.zeros((0,), np.float32)) for k, v in self._rows.items()}
+            n = self._n
+            arrays = {}
+            for k in TRACK_KEYS:
+                parts = self._chunks[k] + ([np.stack(self._rows[k])] if self._rows[k] else [])
+                arrays[k] = np.concatenate(parts) if parts else np.zeros((0,), np.float32)
             disp = {k: np.asarray(v) for k, v in self._display.items()}
             audio = np.concatenate(self._audio) if self._audio else np.zeros(0, np.int16)
             if len(self._audio) > 1:
