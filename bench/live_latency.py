@@ -93,6 +93,7 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float) -> dict
         "tracked_frames": len(session.tracker_ms),
         "reaction_ms_per_window_median": pct(session.window_ms, 50), "reaction_ms_per_window_p95": pct(session.window_ms, 95),
         "reaction_windows": len(session.window_ms), "late_reaction_windows": summary["late_reaction_windows"],
+        "late_window_max_ms": summary["late_reaction_window_max_ms"],
         "render_ms_median": pct(session.render_ms, 50), "render_ms_p95": pct(session.render_ms, 95),
         "displayed_frames": shown, "frames_not_displayed": n - shown if render else None,
     }
@@ -151,7 +152,7 @@ def main() -> int:
     ratio = (full["reaction_ms_per_window_median"] or 0) / max(base["reaction_ms_per_window_median"] or 1e-9, 1e-9)
     keys = ["onset_to_display_ms_median", "onset_to_display_ms_p95", "tracker_ms_median", "tracker_ms_p95",
             "tracked_frames", "reaction_ms_per_window_median", "reaction_ms_per_window_p95", "reaction_windows",
-            "late_reaction_windows", "render_ms_median", "render_ms_p95", "displayed_frames", "frames_not_displayed"]
+            "late_reaction_windows", "late_window_max_ms", "render_ms_median", "render_ms_p95", "displayed_frames", "frames_not_displayed"]
     print(f"\nlive latency, {args.seconds:g} s replayed clip, tile scale {args.tile_scale} "
           f"(load average {load[0]:.2f} {load[1]:.2f} on {os.cpu_count()} cores)")
     print(f"{'':34s} {'no render':>12s} {'render':>12s}")

@@ -108,6 +108,7 @@ class LiveSession:
         self.tracker_ms: list[float] = []
         self.window_ms: list[float] = []
         self.late_windows = 0
+        self.late_ms_max = 0.0
         self.late_ticks = 0
         self.render_ms: list[float] = []
         self.status: dict[str, str] = {}
@@ -216,8 +217,10 @@ class LiveSession:
                 if len(stream.windows) > n_windows:
                     dt = time.perf_counter() - t0
                     self.window_ms.append(1000 * dt)
-                    if self.now() > (t + 2) / FPS:  # the next frame's slot has passed: the window is late
-                        self.late_windows += 1
+                    late = self.now() - (t + 2) / FPS
+                    if late > 0:  # the next frame's slot has passed: the window is late (its frames are still
+                        self.late_windows += 1  # generated and recorded, only published late)
+                        self.late_ms_max = max(self.late_ms_max, 1000 * late)
                 lf = faces.listener(listener)
                 sf = faces.speaker(last_state)
                 _, ang, dist, tracked = self._viewer.get()
@@ -254,6 +257,7 @@ class LiveSession:
 
         return {"tracker_ms": stats(self.tracker_ms), "reaction_window_ms": stats(self.window_ms),
                 "render_ms": stats(self.render_ms), "late_reaction_windows": self.late_windows,
+                "late_reaction_window_max_ms": round(self.late_ms_max, 1),
                 "late_reaction_ticks": self.late_ticks, "reaction_windows": len(self.window_ms),
                 "displayed_frames": len(self.render_ms), "status": dict(self.status)}
 
