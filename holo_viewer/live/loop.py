@@ -362,7 +362,8 @@ class LiveSession:
                 tmp = out / ".webcam.partial.mp4"
                 if tmp.exists() and tmp.stat().st_size > 0:
                     os.replace(tmp, out / "webcam.mp4")
-            self._flush()
+            self.recorder.summary = self.summary()
+            self.recorder.close()
         if self.errors:
             raise self.errors[0]
         return self.summary()

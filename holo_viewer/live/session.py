@@ -8,11 +8,11 @@
                      speaker_found, speaker_{expr,jaw_pose,rotation}, listener_{expr,jaw_pose,rotation,
                      neck_pose,eyes_pose,translation} (GaussianAvatars flame_param keys), window;
                      per displayed frame: display_time_s, display_frame, render_ms
-      audio.wav      the input audio (16 kHz mono)
+      audio.wav      the input audio (16 kHz mono; appended at each flush, valid up to the last one)
       native.mp4     the native images shown (at --video-fps, one per displayed frame)
       webcam.mp4     only with --record-video (faces are private by default)
 
-Every file is written atomically (temp + rename) at each flush (every ``flush_s`` seconds) and at
+tracks.npz and session.json are written atomically (temp + rename) at each flush (every ``flush_s`` seconds) and at
 the end, so an interrupted session keeps everything up to its last flush, and ``Ctrl-C`` (which
 ends the loop through ``finally``) keeps everything.
 """
@@ -52,6 +52,16 @@ class SessionRecorder:
         self._audio: list[np.ndarray] = []
         self._lock = threading.Lock()
         self.summary: dict[str, Any] = {}
+        self._wav: Any = None
+        self._audio_samples = 0
+
+    def close(self) -> None:
+        """Flush and close the audio file (call once, at the end)."""
+        self.flush()
+        if self._wav is not None:
+            self._wav.close()
+            self._wav_file.close()
+            self._wav = None
 
     def add_frame(self, **row: Any) -> None:
         """One 25 fps frame; keys of :data:`TRACK_KEYS`."""
@@ -91,8 +101,7 @@ class SessionRecorder:
                 arrays[k] = np.concatenate(parts) if parts else np.zeros((0,), np.float32)
             disp = {k: np.asarray(v) for k, v in self._display.items()}
             audio = np.concatenate(self._audio) if self._audio else np.zeros(0, np.int16)
-            if len(self._audio) > 1:
-                self._audio = [audio]
+            self._audio = []
         arrays["speaker_found"] = arrays["speaker_found"].astype(bool) if n else np.zeros(0, bool)
         arrays["window"] = arrays["window"].astype(np.int32) if n else np.zeros(0, np.int32)
         arrays["display_time_s"] = disp["display_time_s"].astype(np.float64)
@@ -100,14 +109,19 @@ class SessionRecorder:
         arrays["render_ms"] = disp["render_ms"].astype(np.float32)
         arrays["fps"] = np.array(25)
         save_npz(self.folder / "tracks.npz", **arrays)
-        with atomic_write(self.folder / "audio.wav") as fh:
-            with wave.open(fh, "wb") as w:
-                w.setnchannels(1)
-                w.setsampwidth(2)
-                w.setframerate(16000)
-                w.writeframes(audio.tobytes())
+        # audio.wav is appended (memory stays flat in long sessions); the wave module patches the
+        # header's lengths after every write, so the file is a valid WAV up to the last flush
+        if self._wav is None:
+            self._wav_file = open(self.folder / "audio.wav", "wb")
+            self._wav = wave.open(self._wav_file, "wb")
+            self._wav.setnchannels(1)
+            self._wav.setsampwidth(2)
+            self._wav.setframerate(16000)
+        self._wav.writeframes(audio.tobytes())
+        self._wav_file.flush()
+        self._audio_samples += len(audio)
         doc = {"settings": self.settings, "frames": n, "displayed_frames": int(len(disp["display_time_s"])),
-               "audio_seconds": round(len(audio) / 16000, 3), "summary": self.summary}
+               "audio_seconds": round(self._audio_samples / 16000, 3), "summary": self.summary}
         with atomic_write(self.folder / "session.json", "w") as fh:
             json.dump(doc, fh, indent=2, default=_json_default)
 
