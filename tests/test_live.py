@@ -231,3 +231,36 @@ def test_preview_window_updates_and_keys_work(tmp_path):
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+@pytest.mark.slow
+def test_webcam_lost_mid_session_degrades(clip, tmp_path):
+    """The video stops after 0.4 s (a webcam unplugged): the session goes on with the audio, the face
+    is marked lost and the status says so."""
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveConfig, LiveSession
+    from holo_viewer.tracking.video import iter_video_frames
+
+    frames = [(t, f) for t, f in iter_video_frames(clip["video"]) if t < 0.4]
+
+    class Unplugged:
+        name, status, finished = "webcam:test", "ok", False
+
+        def start(self):
+            pass
+
+        def stop(self):
+            pass
+
+        def latest(self, t):
+            seen = [x for x in frames if x[0] <= t]
+            if t >= 0.4:
+                self.status = "webcam lost"
+            return seen[-1] if seen else None
+
+    session = LiveSession(LiveConfig(out=str(tmp_path / "s")), sources.WavReplay(clip["wav"]), Unplugged())
+    summary = session.run(None)
+    s = _check_session(tmp_path / "s", n_frames=40)
+    found = s["tracks"]["speaker_found"]
+    assert found[:8].any() and not found[-10:].any()
+    assert "no new video frames" in summary["status"]["video"]

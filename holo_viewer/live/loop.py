@@ -33,6 +33,8 @@ from .session import SessionRecorder
 __all__ = ["LiveConfig", "LiveSession"]
 
 FPS = 25
+#: seconds without a new tracked frame after which the speaker face decays to neutral
+STALE_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -201,8 +203,12 @@ class LiveSession:
                     ang, dist = self.synthetic.viewer(t / FPS)
                     self._viewer.put((t / FPS, ang, dist, True))
                 else:
-                    _, st, found = self._speaker.get()
+                    ts, st, found = self._speaker.get()
                     state = last_state if st is None else st
+                    if st is not None and t / FPS - ts > STALE_S:  # no new video frames (webcam unplugged,
+                        found = False  # video over): keep reacting to the audio, the face decays to neutral
+                        state = last_state * math.exp(-1.0 / (FPS * STALE_S))
+                        self.status["video"] = "no new video frames"
                 last_state = np.asarray(state, dtype=np.float64)
                 # pain: scenario events, then keys on top
                 if self.scenario is not None:
