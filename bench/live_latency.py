@@ -99,6 +99,37 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float) -> dict
     }
 
 
+def fit_speed(n: int = 60) -> dict:
+    """ms per landmark fit (warm start and cold start) on exact model landmarks + 1 px noise."""
+    from holo_viewer.flame.default_head import load_default_model
+    from holo_viewer.flame.expressions import default_au_map
+    from holo_viewer.tracking.fit import FitConfig, fit_landmarks, reduction
+    from holo_viewer.tracking.head_model import LandmarkHeadModel
+
+    hm = LandmarkHeadModel(load_default_model(), default_au_map())
+    K = np.array([[554.0, 0, 320], [0, 554, 240], [0, 0, 1]])
+    M = reduction(hm, FitConfig())
+    rng = np.random.default_rng(0)
+    warm, cold = [], []
+    for _ in range(n):
+        q = np.zeros(M.shape[1])
+        na = M.shape[1] - 7
+        q[:na] = rng.uniform(0, 0.5, na)
+        q[na] = rng.uniform(0, 0.3)
+        q[na + 1:na + 4] = np.radians(rng.uniform(-15, 15, 3))
+        q[na + 4:] = [0, 0.03, 0.5]
+        lm = hm.project(M @ q, K)[0] + rng.normal(0, 1, (68, 2))
+        t = time.perf_counter()
+        r = fit_landmarks(hm, lm, K)
+        cold.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        fit_landmarks(hm, lm + rng.normal(0, 0.5, (68, 2)), K, prev=r.params)
+        warm.append(time.perf_counter() - t)
+    return {"fit_ms_warm_median": round(1000 * float(np.median(warm)), 2),
+            "fit_ms_warm_p95": round(1000 * float(np.percentile(warm, 95)), 2),
+            "fit_ms_cold_median": round(1000 * float(np.median(cold)), 2)}
+
+
 def rss_run(seconds: float, out: Path) -> dict:
     from holo_viewer.live import sources
     from holo_viewer.live.loop import LiveConfig, LiveSession
@@ -143,6 +174,7 @@ def main() -> int:
         print(f"rendering a {args.seconds:g} s clip of the default head speaking into {cache} ...")
         write_talking_head_clip(cache, seconds=args.seconds, n_gaussians=30_000)
     load = os.getloadavg()
+    fit = fit_speed()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for render in (False, True):
@@ -159,11 +191,13 @@ def main() -> int:
     for k in keys:
         print(f"{k:34s} {str(base[k]):>12s} {str(full[k]):>12s}")
     print(f"reaction ms/window, render vs no-render: x{ratio:.2f}")
+    print(f"landmark fit ms (warm median / p95, cold median): {fit['fit_ms_warm_median']} / {fit['fit_ms_warm_p95']}, "
+          f"{fit['fit_ms_cold_median']}")
     if rss:
         print(f"RSS over a {rss['seconds']:g} s synthetic session: {rss['rss_mb_after_10s']} -> {rss['rss_mb_end']} MB "
               f"(growth {rss['rss_growth_mb']} MB), late windows {rss['late_reaction_windows']}/{rss['reaction_windows']}")
     result = {"config": vars(args), "load_average": load, "cores": os.cpu_count(), "no_render": base, "render": full,
-              "reaction_window_ratio_render_vs_baseline": round(ratio, 2), "rss": rss}
+              "reaction_window_ratio_render_vs_baseline": round(ratio, 2), "fit": fit, "rss": rss}
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(result, indent=2))

@@ -214,6 +214,7 @@ class LandmarkHeadModel:
             raise TrackingError(f"landmark model: expected FLAME's kinematic tree (root, neck, jaw, eyes), found "
                                 f"parents {self._parents}")
         self._posedirs_jaw = self._posedirs[:, :, 9:18]  # pose feature block of joint 2 (the jaw)
+        self._posedirs_jaw_flat = np.ascontiguousarray(self._posedirs_jaw.transpose(2, 0, 1).reshape(9, -1))
         self._w_jaw = self._weights[:, 2]
         self.weights = emb.weights.copy()
 
@@ -246,17 +247,18 @@ class LandmarkHeadModel:
         ``v = v' + w_jaw (R_jaw - I)(v' - J_jaw)`` with ``v' = v_shaped + posedirs_jaw vec(R_jaw - I)``.
         """
         aus, jaw, _, _ = self.split(p)
-        v = self._v0[None] + np.einsum("ba,avc->bvc", aus, self._v_au)  # (B, Vs, 3)
-        joints = self._j0[None] + np.einsum("ba,ajc->bjc", aus, self._j_au)  # (B, J, 3)
+        b = p.shape[0]
+        n_vs = self._v0.shape[0]
+        # matmuls rather than einsum: this runs n_params + 1 times per Gauss-Newton step
+        v = (self._v0.reshape(1, -1) + aus @ self._v_au.reshape(self.n_au, -1)).reshape(b, n_vs, 3)
+        joints = (self._j0.reshape(1, -1) + aus @ self._j_au.reshape(self.n_au, -1)).reshape(b, -1, 3)
         c, s = np.cos(jaw), np.sin(jaw)
-        rj = np.zeros((p.shape[0], 3, 3))  # rotation about x by the jaw pitch
-        rj[:, 0, 0] = 1.0
-        rj[:, 1, 1], rj[:, 1, 2], rj[:, 2, 1], rj[:, 2, 2] = c, -s, s, c
-        d = rj - np.eye(3)
-        v = v + np.einsum("vcp,bp->bvc", self._posedirs_jaw, d.reshape(-1, 9))
+        d = np.zeros((b, 3, 3))  # R_jaw - I for a rotation about x by the jaw pitch
+        d[:, 1, 1], d[:, 1, 2], d[:, 2, 1], d[:, 2, 2] = c - 1.0, -s, s, c - 1.0
+        v = v + (d.reshape(b, 9) @ self._posedirs_jaw_flat).reshape(b, n_vs, 3)
         rel = v - joints[:, None, 2]
-        v = v + self._w_jaw[None, :, None] * np.einsum("bij,bvj->bvi", d, rel)
-        pts = np.einsum("blkc,lk->blc", v[:, self._tri_local], self.embedding.bary)
+        v = v + self._w_jaw[None, :, None] * (rel @ d.transpose(0, 2, 1))
+        pts = (v[:, self._tri_local] * self.embedding.bary[None, :, :, None]).sum(axis=2)
         return pts, joints[:, 0]
 
     def points_flame(self, params: np.ndarray) -> np.ndarray:
@@ -271,7 +273,7 @@ class LandmarkHeadModel:
         p = np.atleast_2d(np.asarray(params, dtype=np.float64))
         pts, root = self._local(p)
         R = rodrigues_np(self.split(p)[2])  # (B, 3, 3)
-        return np.einsum("bij,blj->bli", R, pts - root[:, None]) + root[:, None]
+        return (pts - root[:, None]) @ R.transpose(0, 2, 1) + root[:, None]
 
     def points_camera(self, params: np.ndarray) -> np.ndarray:
         """(B, 68, 3) landmarks in OpenCV camera coordinates: ``F R (X - J_root) + T``."""
@@ -280,7 +282,7 @@ class LandmarkHeadModel:
         p = np.atleast_2d(np.asarray(params, dtype=np.float64))
         pts, root = self._local(p)
         M = CAMERA_FROM_FLAME[None] @ rodrigues_np(self.split(p)[2])
-        return np.einsum("bij,blj->bli", M, pts - root[:, None]) + self.split(p)[3][:, None, :]
+        return (pts - root[:, None]) @ M.transpose(0, 2, 1) + self.split(p)[3][:, None, :]
 
     def project(self, params: np.ndarray, K: np.ndarray) -> np.ndarray:
         """(B, 68, 2) pixel coordinates for ``params`` (B, n_params) and intrinsics ``K`` (3, 3)."""
