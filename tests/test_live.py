@@ -264,3 +264,29 @@ def test_webcam_lost_mid_session_degrades(clip, tmp_path):
     found = s["tracks"]["speaker_found"]
     assert found[:8].any() and not found[-10:].any()
     assert "no new video frames" in summary["status"]["video"]
+
+
+@pytest.mark.slow
+def test_sigint_keeps_the_session_folder(tmp_path):
+    """A real Ctrl-C (SIGINT) to `holo-viewer live`: exit 130, the session folder complete up to then."""
+    import signal
+
+    out = tmp_path / "s"
+    proc = subprocess.Popen([sys.executable, "-m", "holo_viewer", "live", "--synthetic", "--seconds", "30",
+                             "--headless", "--tile-scale", "0.1", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=str(Path(__file__).resolve().parents[1]))
+    deadline = time.time() + 120
+    while time.time() < deadline and not (out / "tracks.npz").exists():  # the first flush (5 s of session)
+        time.sleep(0.2)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr[-2000:]
+    assert "Traceback" not in stderr
+    s = _check_session(out)
+    n = len(s["tracks"]["time_s"])
+    assert 125 <= n < 750  # past the first flush, before the end: written at the interruption
+    assert s["meta"]["summary"]["status"]["end"] == "interrupted (Ctrl-C)"
+    with np.load(out / "tracks.npz") as z:
+        assert z["display_time_s"].size >= 1

@@ -42,7 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the session; returns 0 (1 through HoloViewerError for a missing device or bad input)."""
+    """Run the session; returns 0, 130 after Ctrl-C (the session folder is complete up to then), or 1
+    (through HoloViewerError) for a missing device or bad input."""
     from ..errors import InputError
     from ..live.controls import Scenario
     from ..live.loop import LiveConfig, LiveSession
@@ -88,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
 
         preview = open_preview()
     summary = session.run(renderer, panel=panel, preview=preview)
+    interrupted = str(summary["status"].get("end", "")).startswith("interrupted")
     print(f"session written to {args.out}: {session.recorder.n_frames} frames at 25 fps, "
           f"{summary['displayed_frames']} displayed; reaction windows {summary['reaction_windows']} "
           f"({summary['late_reaction_windows']} late); render {summary['render_ms']}")
-    return 0
+    return 130 if interrupted else 0
