@@ -290,3 +290,34 @@ def test_sigint_keeps_the_session_folder(tmp_path):
     assert s["meta"]["summary"]["status"]["end"] == "interrupted (Ctrl-C)"
     with np.load(out / "tracks.npz") as z:
         assert z["display_time_s"].size >= 1
+
+
+@pytest.mark.gui
+@pytest.mark.slow
+def test_panel_window_under_xvfb(tmp_path):
+    """--panel opens the borderless native-image window on a Portrait-sized screen (the show machinery)."""
+    if shutil.which("Xvfb") is None:
+        pytest.skip("needs Xvfb")
+    num = 600 + os.getpid() % 300
+    proc = subprocess.Popen(["Xvfb", f":{num}", "-screen", "0", "1536x2048x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(100):
+            if os.path.exists(f"/tmp/.X11-unix/X{num}") or proc.poll() is not None:
+                break
+            time.sleep(0.1)
+        if proc.poll() is not None:
+            pytest.skip("Xvfb failed to start")
+        env = {k: v for k, v in os.environ.items() if k != "VTK_DEFAULT_OPENGL_WINDOW"}
+        env["DISPLAY"] = f":{num}"
+        out = tmp_path / "s"
+        r = subprocess.run([sys.executable, "-m", "holo_viewer", "live", "--synthetic", "--seconds", "2", "--panel",
+                            "--no-preview", "--frames", "2", "--tile-scale", "0.1", "--out", str(out)], env=env,
+                           capture_output=True, text=True, timeout=300, cwd=str(Path(__file__).resolve().parents[1]))
+        if "no monitor" in r.stderr and "found none" in r.stderr:
+            pytest.skip("no xrandr/xdpyinfo to list the virtual monitor")
+        assert r.returncode == 0, r.stderr[-2000:]
+        assert _check_session(out)["meta"]["displayed_frames"] == 2
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
