@@ -69,7 +69,7 @@ def test_live_headless_from_replayed_files(clip, tmp_path):
 def test_live_synthetic_frames_and_replay_command(tmp_path):
     out = tmp_path / "s"
     assert main(["live", "--synthetic", "--seconds", "1.0", "--headless", "--frames", "2", "--out", str(out),
-                 "--tile-scale", "0.1", "--pain", "0.4"]) == 0
+                 "--tile-scale", "0.1", "--pain", "0.4", "--render-mode", "tracked"]) == 0
     s = _check_session(out)
     assert s["meta"]["displayed_frames"] == 2
     assert np.allclose(s["tracks"]["pain"], 0.4)

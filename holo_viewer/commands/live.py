@@ -29,6 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--no-preview", action="store_true", help="no desktop preview window")
     out.add_argument("--tile-scale", type=float, default=1.0, help="quilt tile size relative to the calibration's "
                      "(e.g. 0.5 renders 4x fewer pixels; default 1)")
+    out.add_argument("--render-mode", choices=("cone", "tracked", "all_views"), default="cone",
+                     help="cone: the 48 cameras follow the tracked viewer (Algorithm 1's viewer angle and distance; "
+                     "default); tracked: default cone, only what the tracked eyes see is re-rendered (faster); "
+                     "all_views: default cone, every view")
     out.add_argument("--video-fps", type=float, default=10.0, help="frame rate written into native.mp4 (one frame "
                      "per displayed frame; default 10)")
     out.add_argument("--record-video", action="store_true", help="also keep the webcam video (off by default: "
@@ -78,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
                         viewer_mode="group" if args.group else "nearest", scenario=scenario,
                         max_seconds=args.seconds, settings=settings)
     session = LiveSession(config, audio, video, synthetic)
-    renderer = LiveRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview)
+    renderer = LiveRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview, mode=args.render_mode)
     panel = preview = None
     if config.panel:
         from ..live.windows import open_panel

@@ -1,4 +1,8 @@
-"""Re-render a recorded session (the same renderer, the recorded inputs: deterministic)."""
+"""Re-render a recorded session (the same renderer, the recorded inputs: deterministic).
+
+A session recorded with ``--render-mode tracked`` is replayed with every view of the same default
+cone (``all_views``: what the tracked frames converge to, without depending on earlier frames).
+"""
 
 from __future__ import annotations
 
@@ -19,7 +23,8 @@ def replay_frames(session: str | os.PathLike, tile_scale: float | None = None, e
 
     meta, tr = load_session(session)
     scale = float(tile_scale if tile_scale is not None else meta.get("settings", {}).get("tile_scale", 1.0))
-    renderer = LiveRenderer(tile_scale=scale, native=True, preview=False)
+    mode = str(meta.get("settings", {}).get("render_mode", "cone"))
+    renderer = LiveRenderer(tile_scale=scale, native=True, preview=False, mode="all_views" if mode == "tracked" else mode)
     scenario = None
     sc = meta.get("settings", {}).get("scenario")
     if sc:
