@@ -1,6 +1,6 @@
 """The live session loop: sources -> tracker and reaction threads -> renderer (latest wins).
 
-Threads (DESIGN.md "A live loop that never waits")::
+Threads (docs/design.md "A live loop that never waits")::
 
     tracker thread   newest video frame -> FaceTracker -> latest speaker state + ViewerTracker pose
     reaction thread  25 fps clock: audio up to the frame + latest speaker state -> ReactionStream

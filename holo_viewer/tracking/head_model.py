@@ -268,7 +268,7 @@ class LandmarkHeadModel:
         about the root joint (exact: FLAME's pose correctives exclude the root). Tested against
         :meth:`points_flame_reference`.
         """
-        from ..flame.rotation import rodrigues_np
+        from ..geometry import rodrigues_np
 
         p = np.atleast_2d(np.asarray(params, dtype=np.float64))
         pts, root = self._local(p)
@@ -277,7 +277,7 @@ class LandmarkHeadModel:
 
     def points_camera(self, params: np.ndarray) -> np.ndarray:
         """(B, 68, 3) landmarks in OpenCV camera coordinates: ``F R (X - J_root) + T``."""
-        from ..flame.rotation import rodrigues_np
+        from ..geometry import rodrigues_np
 
         p = np.atleast_2d(np.asarray(params, dtype=np.float64))
         pts, root = self._local(p)

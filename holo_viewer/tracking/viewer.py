@@ -1,6 +1,6 @@
 """Webcam face position -> viewer angle and distance for Algorithm 1's cameras (pure math + one JSON).
 
-Frames (DESIGN.md "Webcam -> viewer angle and distance"):
+Frames (docs/design.md "Webcam → viewer angle and distance"):
 
 * **panel frame** = the display world frame: origin at the panel centre, +x to the right of a
   viewer facing the panel, +y up, +z from the panel toward the viewer (FLAME's frame, metres).
