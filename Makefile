@@ -29,6 +29,7 @@ bench: setup
 	$(PY) bench/lenticular_speed.py --json bench/results/lenticular_speed.json
 	$(PY) bench/reaction_latency.py --json bench/results/reaction_latency.json
 	$(PY) bench/react_metrics_speed.py --json bench/results/react_metrics_speed.json
+	$(PY) bench/live_latency.py --json bench/results/live_latency.json
 
 bench-quick: setup
 	mkdir -p bench/results

@@ -39,6 +39,9 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "evaluate-reactions": ("evaluate_reactions", "REACT metrics of the model and baselines on the test split"),
     "react": ("react", "generate listener FLAME parameters from speaker audio and features"),
     "render-batch": ("render_batch", "render many clips from a manifest to quilt/native videos (Ray or in-process)"),
+    "track": ("track", "track a speaker's face in a video: speaker.npz (25 fps FLAME parameters) for react"),
+    "live": ("live", "live session: microphone + webcam (or replayed files) -> reacting, viewer-tracked hologram"),
+    "replay": ("replay", "re-render a recorded live session to a native-image video, deterministically"),
 }
 
 

@@ -26,6 +26,7 @@ __all__ = [
     "ExportError",
     "MissingDependencyError",
     "ManifestError",
+    "TrackingError",
 ]
 
 
@@ -75,6 +76,10 @@ class ExportError(HoloViewerError):
 
 class ManifestError(InputError):
     """A batch manifest row is malformed: its message names the file, line, field, expected and found."""
+
+
+class TrackingError(HoloViewerError):
+    """Face tracking failed or got bad frames, landmarks or tracking settings."""
 
 
 class MissingDependencyError(HoloViewerError, ImportError):

@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV="${VENV:-.venv}"
 PYTHON="${PYTHON:-python3}"
-APT_PKGS="libosmesa6 xvfb xdotool libusb-1.0-0 libgl1 libegl1 libxrender1"
+APT_PKGS="libosmesa6 xvfb xdotool libusb-1.0-0 libgl1 libegl1 libxrender1 libportaudio2"
 
 have_lib() { ldconfig -p 2>/dev/null | grep -q "$1"; }
 missing=""
@@ -18,6 +18,7 @@ have_lib libusb-1.0.so || missing="$missing libusb-1.0-0"
 have_lib libGL.so.1 || missing="$missing libgl1"
 have_lib libEGL.so.1 || missing="$missing libegl1"
 have_lib libXrender.so.1 || missing="$missing libxrender1"
+have_lib libportaudio.so.2 || missing="$missing libportaudio2"
 if [ -n "$missing" ]; then
   if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
     echo "setup: installing system packages:$missing"
@@ -28,6 +29,7 @@ if [ -n "$missing" ]; then
     echo "setup: WARNING: missing system packages:$missing" >&2
     echo "setup: install them with: sudo apt-get install$missing" >&2
     echo "setup: (offscreen rendering needs libosmesa6, GUI tests need xvfb and xdotool (real key presses / mouse drags), USB needs libusb-1.0-0;" >&2
+    echo "        the live microphone needs libportaudio2;" >&2
     echo "        tests that need them are skipped with a message)" >&2
   fi
 fi

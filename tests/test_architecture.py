@@ -3,9 +3,9 @@
 ::
 
     entry      cli, __main__                      -> commands (lazily), base
-    front      commands/, gui/, batch/, apps/     -> pipeline, stage packages, base (apps: never gui/)
+    front      commands/, gui/, batch/, live/, apps/  -> pipeline, stage packages, base (apps: never gui/)
     pipeline   pipeline/, testing.py              -> stage packages, base
-    stages     flame/ avatar/ render/ display/ reaction/  -> base (+ the few edges in STAGE_EDGES)
+    stages     flame/ avatar/ render/ display/ reaction/ tracking/  -> base (+ the few edges in STAGE_EDGES)
     base       errors validation fileio geometry camera images cache offscreen
 
 No import runs back up the layers, and only ``pipeline/`` chains the stages: no other module
@@ -24,10 +24,12 @@ ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "holo_viewer"
 
 BASE = {"errors", "validation", "fileio", "geometry", "camera", "images", "cache", "offscreen", "__init__"}
-STAGE_PKGS = {"flame", "avatar", "render", "display", "reaction"}
+STAGE_PKGS = {"flame", "avatar", "render", "display", "reaction", "tracking"}
 #: stage -> stages it may import: the rigged avatar is bound to FLAME triangles, the reaction model
-#: speaks FLAME expressions (AU map), and the renderer reads the Gaussians container
-STAGE_EDGES = {"avatar": {"flame"}, "reaction": {"flame"}, "render": {"avatar"}, "flame": set(), "display": set()}
+#: speaks FLAME expressions (AU map), the renderer reads the Gaussians container, and the face tracker
+#: fits the FLAME head to landmarks and reports the reaction model's face states
+STAGE_EDGES = {"avatar": {"flame"}, "reaction": {"flame"}, "render": {"avatar"}, "flame": set(), "display": set(),
+               "tracking": {"flame", "reaction"}}
 #: avatar modules that are plain data / I/O of Gaussians, not the avatar stage (the renderer's input type)
 AVATAR_DATA = {"holo_viewer.avatar.gaussians", "holo_viewer.avatar.ply"}
 AVATAR_DATA_NAMES = {"Gaussians", "SH_C0", "sh_degree_from_count", "load_ply", "save_ply"}
@@ -81,7 +83,7 @@ def _layer(area: str) -> str:
         return "stages"
     if area in ("pipeline", "testing"):  # testing.py builds small stage objects for tests
         return "pipeline"
-    if area in ("gui", "commands", "batch", "apps"):
+    if area in ("gui", "commands", "batch", "live", "apps"):
         return "front"
     if area in ("cli", "__main__"):
         return "entry"

@@ -1,0 +1,209 @@
+"""Live session latency on replayed inputs: speech onset -> first displayed frame reflecting it.
+
+Renders (once, cached) a clip of the default head speaking (wav + mp4 from the synthetic speaker),
+then replays it through ``LiveSession`` twice in one process:
+
+* ``no-render``: tracker + reaction threads only (the baseline: what the stream costs alone);
+* ``render``: the same plus the renderer at ``--tile-scale`` (today's fast CPU path) in the main thread.
+
+Reported per run: speech-onset -> display latency (median, p95; an onset is the first 25 fps frame
+whose RMS exceeds -35 dBFS after >= 0.3 s below it; a displayed frame reflects it when the reaction
+window that predicted the frame had seen the onset frame), tracker ms/frame, reaction ms/window,
+render ms/frame, late reaction windows (finished after their first frame was due = dropped), and
+25 fps frames never displayed. ``--rss-seconds S`` adds a synthetic session of S seconds without
+rendering that samples the process RSS (the 10-minute memory check: ``--rss-seconds 600``).
+
+    python bench/live_latency.py [--seconds 8] [--tile-scale 0.5] [--json bench/results/live_latency.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def rss_mb() -> float:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def speech_onsets(wave: np.ndarray, fps: int = 25, sr: int = 16000, thresh_db: float = -35.0,
+                  min_gap_s: float = 0.3) -> list[int]:
+    hop = sr // fps
+    n = len(wave) // hop
+    rms = np.sqrt(np.mean(wave[: n * hop].reshape(n, hop).astype(np.float64) ** 2, axis=1) + 1e-12)
+    loud = 20 * np.log10(rms) > thresh_db
+    gap = int(min_gap_s * fps)
+    return [t for t in range(gap, n) if loud[t] and not loud[t - gap:t].any()]
+
+
+def onset_latency(tracks: dict, onsets: list[int], k: int) -> list[float]:
+    """Seconds from each onset frame's time to the first displayed frame whose window saw it."""
+    disp_t = tracks["display_time_s"]
+    disp_f = tracks["display_frame"]
+    out = []
+    for o in onsets:
+        ok = (disp_f // k) * k - 1 >= o
+        if ok.any():
+            out.append(float(disp_t[np.argmax(ok)] - o / 25.0))
+    return out
+
+
+def run_session(files: dict, out: Path, render: bool, tile_scale: float) -> dict:
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveConfig, LiveSession
+    from holo_viewer.live.render import LiveRenderer
+    from holo_viewer.reaction.audio import read_wav
+
+    cfg = LiveConfig(out=str(out), tile_scale=tile_scale, write_native_video=False, flush_s=60.0)
+    session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
+    renderer = LiveRenderer(tile_scale=tile_scale) if render else None
+    t0 = time.perf_counter()
+    summary = session.run(renderer)
+    wall = time.perf_counter() - t0
+    with np.load(out / "tracks.npz") as z:
+        tracks = {k: z[k] for k in z.files}
+    wave, _ = read_wav(files["wav"])
+    onsets = speech_onsets(wave)
+    lat = onset_latency(tracks, onsets, k=8)
+    n = len(tracks["time_s"])
+    shown = len(set(tracks["display_frame"].tolist()))
+
+    def pct(x, q):
+        return None if not len(x) else round(float(np.percentile(x, q)), 1)
+
+    return {
+        "render": render, "tile_scale": tile_scale, "wall_s": round(wall, 2), "frames": n,
+        "onsets": len(onsets), "onsets_reflected": len(lat),
+        "onset_to_display_ms_median": pct(1000 * np.array(lat), 50), "onset_to_display_ms_p95": pct(1000 * np.array(lat), 95),
+        "tracker_ms_median": pct(session.tracker_ms, 50), "tracker_ms_p95": pct(session.tracker_ms, 95),
+        "tracked_frames": len(session.tracker_ms),
+        "reaction_ms_per_window_median": pct(session.window_ms, 50), "reaction_ms_per_window_p95": pct(session.window_ms, 95),
+        "reaction_windows": len(session.window_ms), "late_reaction_windows": summary["late_reaction_windows"],
+        "late_window_max_ms": summary["late_reaction_window_max_ms"],
+        "render_ms_median": pct(session.render_ms, 50), "render_ms_p95": pct(session.render_ms, 95),
+        "displayed_frames": shown, "frames_not_displayed": n - shown if render else None,
+    }
+
+
+def fit_speed(n: int = 60) -> dict:
+    """ms per landmark fit (warm start and cold start) on exact model landmarks + 1 px noise."""
+    from holo_viewer.flame.default_head import load_default_model
+    from holo_viewer.flame.expressions import default_au_map
+    from holo_viewer.tracking.fit import FitConfig, fit_landmarks, reduction
+    from holo_viewer.tracking.head_model import LandmarkHeadModel
+
+    hm = LandmarkHeadModel(load_default_model(), default_au_map())
+    K = np.array([[554.0, 0, 320], [0, 554, 240], [0, 0, 1]])
+    M = reduction(hm, FitConfig())
+    rng = np.random.default_rng(0)
+    warm, cold = [], []
+    for _ in range(n):
+        q = np.zeros(M.shape[1])
+        na = M.shape[1] - 7
+        q[:na] = rng.uniform(0, 0.5, na)
+        q[na] = rng.uniform(0, 0.3)
+        q[na + 1:na + 4] = np.radians(rng.uniform(-15, 15, 3))
+        q[na + 4:] = [0, 0.03, 0.5]
+        lm = hm.project(M @ q, K)[0] + rng.normal(0, 1, (68, 2))
+        t = time.perf_counter()
+        r = fit_landmarks(hm, lm, K)
+        cold.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        fit_landmarks(hm, lm + rng.normal(0, 0.5, (68, 2)), K, prev=r.params)
+        warm.append(time.perf_counter() - t)
+    return {"fit_ms_warm_median": round(1000 * float(np.median(warm)), 2),
+            "fit_ms_warm_p95": round(1000 * float(np.percentile(warm, 95)), 2),
+            "fit_ms_cold_median": round(1000 * float(np.median(cold)), 2)}
+
+
+def rss_run(seconds: float, out: Path) -> dict:
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveConfig, LiveSession
+    from holo_viewer.pipeline.live_support import SyntheticSpeaker
+
+    syn = SyntheticSpeaker(seconds)
+    session = LiveSession(LiveConfig(out=str(out), flush_s=5.0), sources.ArrayAudio(syn.waveform), None, syn)
+    samples = []
+    stop = threading.Event()
+
+    def sample():
+        while not stop.is_set():
+            samples.append((time.perf_counter(), rss_mb()))
+            stop.wait(1.0)
+
+    th = threading.Thread(target=sample, daemon=True)
+    th.start()
+    session.run(None)
+    stop.set()
+    th.join()
+    r = np.array([s[1] for s in samples])
+    settle = min(len(r) - 1, 10)  # after 10 s (the first flushes, imports)
+    return {"seconds": seconds, "rss_mb_after_10s": round(float(r[settle]), 1), "rss_mb_end": round(float(r[-1]), 1),
+            "rss_growth_mb": round(float(r[-1] - r[settle]), 1), "rss_max_mb": round(float(r.max()), 1),
+            "late_reaction_windows": session.late_windows, "reaction_windows": len(session.window_ms)}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=8.0, help="clip length")
+    ap.add_argument("--tile-scale", type=float, default=0.5)
+    ap.add_argument("--rss-seconds", type=float, default=0.0, help="also run a synthetic session this long for RSS")
+    ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "holo_viewer_live_bench"))
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args()
+
+    from holo_viewer.pipeline.live_support import write_talking_head_clip
+
+    cache = Path(args.cache) / f"clip_{args.seconds:g}s"
+    files = {"wav": cache / "speaker.wav", "video": cache / "speaker.mp4"}
+    if not all(p.exists() for p in files.values()):
+        print(f"rendering a {args.seconds:g} s clip of the default head speaking into {cache} ...")
+        write_talking_head_clip(cache, seconds=args.seconds, n_gaussians=30_000)
+    load = os.getloadavg()
+    fit = fit_speed()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for render in (False, True):
+            rows.append(run_session(files, Path(tmp) / f"s{int(render)}", render, args.tile_scale))
+        rss = rss_run(args.rss_seconds, Path(tmp) / "rss") if args.rss_seconds > 0 else None
+    base, full = rows
+    ratio = (full["reaction_ms_per_window_median"] or 0) / max(base["reaction_ms_per_window_median"] or 1e-9, 1e-9)
+    keys = ["onset_to_display_ms_median", "onset_to_display_ms_p95", "tracker_ms_median", "tracker_ms_p95",
+            "tracked_frames", "reaction_ms_per_window_median", "reaction_ms_per_window_p95", "reaction_windows",
+            "late_reaction_windows", "late_window_max_ms", "render_ms_median", "render_ms_p95", "displayed_frames", "frames_not_displayed"]
+    print(f"\nlive latency, {args.seconds:g} s replayed clip, tile scale {args.tile_scale} "
+          f"(load average {load[0]:.2f} {load[1]:.2f} on {os.cpu_count()} cores)")
+    print(f"{'':34s} {'no render':>12s} {'render':>12s}")
+    for k in keys:
+        print(f"{k:34s} {str(base[k]):>12s} {str(full[k]):>12s}")
+    print(f"reaction ms/window, render vs no-render: x{ratio:.2f}")
+    print(f"landmark fit ms (warm median / p95, cold median): {fit['fit_ms_warm_median']} / {fit['fit_ms_warm_p95']}, "
+          f"{fit['fit_ms_cold_median']}")
+    if rss:
+        print(f"RSS over a {rss['seconds']:g} s synthetic session: {rss['rss_mb_after_10s']} -> {rss['rss_mb_end']} MB "
+              f"(growth {rss['rss_growth_mb']} MB), late windows {rss['late_reaction_windows']}/{rss['reaction_windows']}")
+    result = {"config": vars(args), "load_average": load, "cores": os.cpu_count(), "no_render": base, "render": full,
+              "reaction_window_ratio_render_vs_baseline": round(ratio, 2), "fit": fit, "rss": rss}
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(result, indent=2))
+        print(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,100 @@
+"""``holo-viewer live``: the trainee talks, the hologram reacts and follows their viewpoint."""
+
+from __future__ import annotations
+
+import argparse
+
+__all__ = ["add_arguments", "run"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``live``."""
+    src = parser.add_argument_group("sources (default: microphone + webcam)")
+    src.add_argument("--audio", metavar="F.wav", help="replay this 16 kHz WAV in real time instead of the microphone")
+    src.add_argument("--video", metavar="F.mp4", help="replay this video in real time instead of the webcam "
+                     "(speaker face and viewer tracking)")
+    src.add_argument("--synthetic", action="store_true", help="a synthetic speaker and viewer (no devices, no files)")
+    src.add_argument("--seconds", type=float, default=None, help="stop after this many seconds (default: when the "
+                     "replayed files end; --synthetic: 20 s)")
+    src.add_argument("--camera", type=int, default=0, help="webcam index (default 0)")
+    src.add_argument("--mount", metavar="MOUNT.json", help="webcam-to-panel offset JSON (docs/live.md)")
+    src.add_argument("--hfov", type=float, default=60.0, help="webcam horizontal field of view in degrees (default 60)")
+    out = parser.add_argument_group("output")
+    out.add_argument("--out", default="session", metavar="DIR", help="session folder (default ./session)")
+    out.add_argument("--headless", action="store_true", help="no windows (CI); the session folder and native.mp4 "
+                     "are still written")
+    out.add_argument("--frames", type=int, default=None, help="stop after N displayed frames")
+    out.add_argument("--panel", action="store_true", help="fullscreen native image on the Looking Glass monitor")
+    out.add_argument("--monitor", type=int, default=None, help="monitor index for --panel")
+    out.add_argument("--no-preview", action="store_true", help="no desktop preview window")
+    out.add_argument("--tile-scale", type=float, default=1.0, help="quilt tile size relative to the calibration's "
+                     "(e.g. 0.5 renders 4x fewer pixels; default 1)")
+    out.add_argument("--render-mode", choices=("cone", "tracked", "all_views"), default="cone",
+                     help="cone: the 48 cameras follow the tracked viewer (Algorithm 1's viewer angle and distance; "
+                     "default); tracked: default cone, only what the tracked eyes see is re-rendered (faster); "
+                     "all_views: default cone, every view")
+    out.add_argument("--video-fps", type=float, default=10.0, help="frame rate written into native.mp4 (one frame "
+                     "per displayed frame; default 10)")
+    out.add_argument("--record-video", action="store_true", help="also keep the webcam video (off by default: "
+                     "trainees' faces are private)")
+    ctl = parser.add_argument_group("patient")
+    ctl.add_argument("--pain", type=float, default=0.0, help="initial pain level in [0, 1] (keys Up/Down change it)")
+    ctl.add_argument("--scenario", metavar="FILE.json", help="timeline of pain levels and named expressions")
+    ctl.add_argument("--group", action="store_true", help="centre the view cone on all faces instead of the nearest")
+    ctl.add_argument("--temperature", type=float, default=0.0, help="reaction sampling temperature (0 = argmax)")
+    ctl.add_argument("--seed", type=int, default=0)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the session; returns 0, 130 after Ctrl-C (the session folder is complete up to then), or 1
+    (through HoloViewerError) for a missing device or bad input."""
+    from ..errors import InputError
+    from ..live.controls import Scenario
+    from ..live.loop import LiveConfig, LiveSession
+    from ..live.render import LiveRenderer
+    from ..live import sources
+    from ..pipeline.live_support import SyntheticSpeaker
+    from ..tracking.viewer import WebcamMount
+
+    if args.synthetic and (args.audio or args.video):
+        raise InputError("--synthetic replaces --audio/--video; give one or the other")
+    if args.frames is not None and args.frames < 1:
+        raise InputError(f"--frames: expected >= 1, found {args.frames}")
+    if not 0.0 <= args.pain <= 1.0:
+        raise InputError(f"--pain: expected a value in [0, 1], found {args.pain}")
+    mount = WebcamMount.load(args.mount) if args.mount else WebcamMount(hfov_deg=args.hfov)
+    scenario = Scenario.load(args.scenario) if args.scenario else None
+    synthetic = None
+    video = None
+    if args.synthetic:
+        synthetic = SyntheticSpeaker(args.seconds or 20.0, seed=args.seed)
+        audio = sources.ArrayAudio(synthetic.waveform, name="synthetic")
+    else:
+        # open every device before starting, so a missing one is reported at once
+        audio = sources.WavReplay(args.audio) if args.audio else sources.Microphone()
+        video = sources.VideoReplay(args.video) if args.video else sources.Webcam(args.camera)
+    settings = {k: v for k, v in vars(args).items() if not k.startswith("_") and k != "command"}
+    settings["sources"] = {"audio": audio.name, "video": None if video is None else video.name}
+    config = LiveConfig(out=args.out, frames=args.frames, tile_scale=args.tile_scale, preview=not args.headless and
+                        not args.no_preview, panel=args.panel and not args.headless, monitor=args.monitor,
+                        video_fps=args.video_fps, record_video=args.record_video, pain=args.pain,
+                        temperature=args.temperature, seed=args.seed, hfov_deg=mount.hfov_deg, mount=mount,
+                        viewer_mode="group" if args.group else "nearest", scenario=scenario,
+                        max_seconds=args.seconds, settings=settings)
+    session = LiveSession(config, audio, video, synthetic)
+    renderer = LiveRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview, mode=args.render_mode)
+    panel = preview = None
+    if config.panel:
+        from ..live.windows import open_panel
+
+        panel = open_panel(renderer.pipeline.calibration, args.monitor)
+    if config.preview:
+        from ..live.windows import open_preview
+
+        preview = open_preview()
+    summary = session.run(renderer, panel=panel, preview=preview)
+    interrupted = str(summary["status"].get("end", "")).startswith("interrupted")
+    print(f"session written to {args.out}: {session.recorder.n_frames} frames at 25 fps, "
+          f"{summary['displayed_frames']} displayed; reaction windows {summary['reaction_windows']} "
+          f"({summary['late_reaction_windows']} late); render {summary['render_ms']}")
+    return 130 if interrupted else 0

@@ -1,0 +1,145 @@
+"""Instructor controls (keys) and the standardized-patient scenario timeline (pure, thread-safe)."""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import InputError
+
+__all__ = ["Controls", "Scenario", "ScenarioEvent", "KEYS"]
+
+#: key symbol (VTK / X11 names) -> action
+KEYS = {"Up": "pain_up", "plus": "pain_up", "equal": "pain_up", "Down": "pain_down", "minus": "pain_down",
+        "space": "pause", "p": "pause", "r": "recentre", "c": "recentre", "q": "quit", "Escape": "quit"}
+PAIN_STEP = 0.1
+
+
+class Controls:
+    """What the instructor set: pain, pause, recentre request, quit (shared by the loop's threads)."""
+
+    def __init__(self, pain: float = 0.0) -> None:
+        self._lock = threading.Lock()
+        self.pain = float(pain)
+        self.paused = False
+        self.quit = False
+        self._recentre = False
+        #: key actions applied, oldest first (for the session record and tests)
+        self.log: list[str] = []
+
+    def key(self, keysym: str) -> str | None:
+        """Apply a key (see :data:`KEYS`); returns the action or None for other keys."""
+        action = KEYS.get(keysym)
+        if action is None:
+            return None
+        with self._lock:
+            if action == "pain_up":
+                self.pain = min(1.0, round(self.pain + PAIN_STEP, 6))
+            elif action == "pain_down":
+                self.pain = max(0.0, round(self.pain - PAIN_STEP, 6))
+            elif action == "pause":
+                self.paused = not self.paused
+            elif action == "recentre":
+                self._recentre = True
+            elif action == "quit":
+                self.quit = True
+            self.log.append(action)
+        return action
+
+    def set_pain(self, pain: float) -> None:
+        with self._lock:
+            self.pain = min(1.0, max(0.0, float(pain)))
+
+    def take_recentre(self) -> bool:
+        """True once after a recentre key."""
+        with self._lock:
+            r, self._recentre = self._recentre, False
+            return r
+
+
+@dataclass(frozen=True)
+class ScenarioEvent:
+    """At ``t`` seconds: set ``pain`` (if given) and/or show ``expression`` at ``intensity`` for ``duration`` s."""
+
+    t: float
+    pain: float | None = None
+    expression: str | None = None
+    intensity: float = 1.0
+    duration: float = 2.0
+
+
+class Scenario:
+    """A timeline of pain levels and named expressions (the standardized-patient script).
+
+    JSON::
+
+        {"events": [{"t": 0, "pain": 0.1},
+                    {"t": 4, "pain": 0.7, "expression": "frown", "intensity": 0.6, "duration": 3},
+                    {"t": 10, "expression": "smile", "intensity": 0.8}]}
+
+    ``expression`` is one of the pipeline's named expressions (smile, pain, surprise, frown,
+    mouth_open, neutral).
+    """
+
+    def __init__(self, events: list[ScenarioEvent]) -> None:
+        self.events = sorted(events, key=lambda e: e.t)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Scenario":
+        p = Path(path)
+        try:
+            data = json.loads(p.read_text())
+        except FileNotFoundError as exc:
+            raise InputError(f"{p}: scenario file not found") from exc
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"{p}: expected a JSON scenario ({exc})") from exc
+        if not isinstance(data, dict) or not isinstance(data.get("events"), list):
+            raise InputError(f'{p}: expected {{"events": [...]}}, found {type(data).__name__}')
+        names = ("smile", "pain", "surprise", "frown", "mouth_open", "neutral")
+        events = []
+        for i, e in enumerate(data["events"]):
+            if not isinstance(e, dict) or "t" not in e:
+                raise InputError(f"{p}: events[{i}]: expected an object with 't', found {e!r}")
+            unknown = set(e) - {"t", "pain", "expression", "intensity", "duration"}
+            if unknown:
+                raise InputError(f"{p}: events[{i}]: unknown keys {sorted(unknown)}")
+            try:
+                ev = ScenarioEvent(float(e["t"]), None if e.get("pain") is None else float(e["pain"]),
+                                   e.get("expression"), float(e.get("intensity", 1.0)), float(e.get("duration", 2.0)))
+            except (TypeError, ValueError) as exc:
+                raise InputError(f"{p}: events[{i}]: {exc}") from exc
+            if ev.pain is not None and not 0.0 <= ev.pain <= 1.0:
+                raise InputError(f"{p}: events[{i}].pain: expected a value in [0, 1], found {ev.pain}")
+            if ev.expression is not None and ev.expression not in names:
+                raise InputError(f"{p}: events[{i}].expression: expected one of {names}, found {ev.expression!r}")
+            if not 0.0 <= ev.intensity <= 1.0 or ev.duration <= 0 or ev.t < 0:
+                raise InputError(f"{p}: events[{i}]: expected t >= 0, intensity in [0, 1], duration > 0")
+            events.append(ev)
+        return cls(events)
+
+    def pain_at(self, t: float) -> float | None:
+        """Pain of the last event with a pain value at or before ``t`` (None: no such event)."""
+        val = None
+        for e in self.events:
+            if e.t <= t and e.pain is not None:
+                val = e.pain
+        return val
+
+    def pain_changes(self, t0: float, t1: float) -> float | None:
+        """The pain set by an event in (t0, t1] (None when no event sets pain there)."""
+        val = None
+        for e in self.events:
+            if t0 < e.t <= t1 and e.pain is not None:
+                val = e.pain
+        return val
+
+    def named_at(self, t: float) -> tuple[tuple[str, float], ...]:
+        """Named expressions active at ``t`` (later events win for the same name)."""
+        active: dict[str, float] = {}
+        for e in self.events:
+            if e.expression is not None and e.t <= t < e.t + e.duration:
+                active[e.expression] = e.intensity
+        return tuple(sorted(active.items()))

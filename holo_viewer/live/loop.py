@@ -1,0 +1,406 @@
+"""The live session loop: sources -> tracker and reaction threads -> renderer (latest wins).
+
+Threads (docs/design.md "A live loop that never waits")::
+
+    tracker thread   newest video frame -> FaceTracker -> latest speaker state + ViewerTracker pose
+    reaction thread  25 fps clock: audio up to the frame + latest speaker state -> ReactionStream
+                     (one model step every k frames) -> listener frame t, recorded in the session
+    main thread      latest listener frame + viewer pose + pain -> LiveRenderer -> panel window /
+                     preview window / native.mp4; keys; stops when the sources end, at --frames,
+                     on q/Esc or Ctrl-C
+
+Nothing queues between them: each publishes its newest result into a slot and the consumer takes
+whatever is newest when it is free, so a slow renderer shows fewer frames but never delays the
+reaction stream. Every result carries its media time, so latency is measured end to end.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import HoloViewerError
+from .controls import Controls, Scenario
+from .session import SessionRecorder
+
+__all__ = ["LiveConfig", "LiveSession"]
+
+FPS = 25
+#: seconds without a new tracked frame after which the speaker face decays to neutral
+STALE_S = 0.5
+
+
+@dataclass(frozen=True)
+class LiveConfig:
+    """Settings of a live session (see ``holo-viewer live --help``)."""
+
+    out: str = "session"
+    frames: int | None = None
+    tile_scale: float = 1.0
+    native: bool = True
+    preview: bool = False
+    panel: bool = False
+    monitor: int | None = None
+    video_fps: float = 10.0
+    write_native_video: bool = True
+    record_video: bool = False
+    flush_s: float = 5.0
+    pain: float = 0.0
+    temperature: float = 0.0
+    seed: int = 0
+    hfov_deg: float = 60.0
+    mount: Any = None
+    viewer_mode: str = "nearest"
+    scenario: Any = None
+    max_seconds: float | None = None
+    settings: dict = field(default_factory=dict)
+
+
+class _Slot:
+    """Newest value wins (no queue)."""
+
+    def __init__(self, value: Any = None) -> None:
+        self._lock = threading.Lock()
+        self._v = value
+
+    def put(self, v: Any) -> None:
+        with self._lock:
+            self._v = v
+
+    def get(self) -> Any:
+        with self._lock:
+            return self._v
+
+
+class LiveSession:
+    """Run one session; see the module docstring.
+
+    Parameters
+    ----------
+    config : LiveConfig
+    audio : audio source (``sources.ArrayAudio`` / ``WavReplay`` / ``Microphone``)
+    video : video source (``sources.VideoReplay`` / ``Webcam``) or None (synthetic speaker / audio only)
+    synthetic : holo_viewer.pipeline.live_support.SyntheticSpeaker or None
+        Gives the speaker states and viewer pose directly (no tracker).
+    clock : callable
+        Seconds (``time.perf_counter``).
+    """
+
+    def __init__(self, config: LiveConfig, audio: Any, video: Any = None, synthetic: Any = None,
+                 clock: Callable[[], float] = time.perf_counter) -> None:
+        self.config = config
+        self.audio = audio
+        self.video = video
+        self.synthetic = synthetic
+        self.clock = clock
+        self.controls = Controls(pain=config.pain)
+        self.scenario: Scenario | None = config.scenario
+        self._speaker = _Slot((0.0, None, False))  # (media time, state or None, found)
+        self._viewer = _Slot((0.0, 0.0, 0.6, False))  # (media time, angle, distance, tracked)
+        self._listener = _Slot(None)  # (frame, flame dict, pain, named, media time ready)
+        self._stop = threading.Event()
+        self._media_done = threading.Event()
+        self.tracker_ms: list[float] = []
+        self.window_ms: list[float] = []
+        self.late_windows = 0
+        self.late_ms_max = 0.0
+        self.late_ticks = 0
+        self.render_ms: list[float] = []
+        self.status: dict[str, str] = {}
+        self.errors: list[BaseException] = []
+        self.recorder = SessionRecorder(config.out, {**config.settings})
+        self._start = 0.0
+        self._pause_offset = 0.0
+        self._webcam_writer = None
+
+    # ------------------------------------------------------------------ time
+    def now(self) -> float:
+        """Media time in seconds since the session started."""
+        return self.clock() - self._start
+
+    def _sleep_until(self, media_t: float) -> bool:
+        while not self._stop.is_set():
+            d = media_t - self.now()
+            if d <= 0:
+                return True
+            time.sleep(min(d, 0.01))
+        return False
+
+    # ------------------------------------------------------------------ tracker thread
+    def _tracker_loop(self) -> None:
+        from ..tracking.viewer import ViewerTracker, ViewerTrackerConfig
+
+        tracker = self._face_tracker
+        viewer = ViewerTracker(self._mount, ViewerTrackerConfig(mode=self.config.viewer_mode))
+        last_t = None
+        try:
+            while not self._stop.is_set():
+                if self.controls.take_recentre():
+                    viewer.recentre()
+                item = self.video.latest(self.now())
+                if item is None or item[0] == last_t:
+                    if self.video.finished and item is not None and item[0] == last_t:
+                        break
+                    time.sleep(0.003)
+                    continue
+                last_t, frame = item
+                t0 = time.perf_counter()
+                tf = tracker(frame, last_t)
+                self.tracker_ms.append(1000 * (time.perf_counter() - t0))
+                self._speaker.put((last_t, tf.state, tf.found))
+                pose = viewer.update(tf.eye_positions, last_t)
+                self._viewer.put((last_t, pose.angle_deg, pose.distance_m, pose.tracked))
+                if self.config.record_video:
+                    self._record_webcam(frame)
+                self.status["video"] = self.video.status if tf.found else f"{self.video.status}; no face"
+        except BaseException as exc:  # noqa: BLE001 - reported by run()
+            self.errors.append(exc)
+            self._stop.set()
+
+    # ------------------------------------------------------------------ reaction thread
+    def _reaction_loop(self) -> None:
+        from ..pipeline.live_support import FaceStates
+
+        import torch
+
+        torch.set_num_threads(1)  # one model step is tiny; a thread pool only adds wake-up latency
+        try:
+            faces = FaceStates()
+            stream = self._stream
+            S = stream.S
+            n_au = S - 6
+            k = stream.k
+            end_frames = None
+            if self.audio.finished is False and hasattr(self.audio, "duration_s"):
+                end_frames = int(math.floor(self.audio.duration_s * FPS + 1e-9))
+            if self.config.max_seconds is not None:
+                cap = int(self.config.max_seconds * FPS)
+                end_frames = cap if end_frames is None else min(end_frames, cap)
+            t = 0
+            last_state = np.zeros(S)
+            while not self._stop.is_set() and (end_frames is None or t < end_frames):
+                due = (t + 1) / FPS  # audio of frame t is complete (centre + half a window) by then
+                if not self._sleep_until(due):
+                    break
+                if self.now() > due + 1.0 / FPS:
+                    self.late_ticks += 1
+                samples = self.audio.read(due)
+                stream.push_audio(samples)
+                self.recorder.add_audio(samples)
+                if self.audio.status != "ok":
+                    self.status["audio"] = self.audio.status
+                # speaker state for frame t
+                if self.synthetic is not None:
+                    state = self.synthetic.states[min(t, len(self.synthetic.states) - 1)]
+                    found = True
+                    ang, dist = self.synthetic.viewer(t / FPS)
+                    self._viewer.put((t / FPS, ang, dist, True))
+                else:
+                    ts, st, found = self._speaker.get()
+                    state = last_state if st is None else st
+                    if st is not None and t / FPS - ts > STALE_S:  # no new video frames (webcam unplugged,
+                        found = False  # video over): keep reacting to the audio, the face decays to neutral
+                        state = last_state * math.exp(-1.0 / (FPS * STALE_S))
+                        self.status["video"] = "no new video frames"
+                last_state = np.asarray(state, dtype=np.float64)
+                # pain: scenario events, then keys on top
+                if self.scenario is not None:
+                    p = self.scenario.pain_changes((t - 1) / FPS, t / FPS) if t else self.scenario.pain_at(0.0)
+                    if p is not None:
+                        self.controls.set_pain(p)
+                pain = self.controls.pain
+                named = self.scenario.named_at(t / FPS) if self.scenario is not None else ()
+                t0 = time.perf_counter()
+                n_windows = len(stream.windows)
+                listener, window = stream.push_frame(last_state, pain)
+                if len(stream.windows) > n_windows:
+                    dt = time.perf_counter() - t0
+                    self.window_ms.append(1000 * dt)
+                    late = self.now() - (t + 2) / FPS
+                    if late > 0:  # the next frame's slot has passed: the window is late (its frames are still
+                        self.late_windows += 1  # generated and recorded, only published late)
+                        self.late_ms_max = max(self.late_ms_max, 1000 * late)
+                lf = faces.listener(listener)
+                sf = faces.speaker(last_state)
+                _, ang, dist, tracked = self._viewer.get()
+                self.recorder.add_frame(
+                    time_s=t / FPS, viewer_angle_deg=ang, viewer_distance_m=dist, pain=pain, speaker_found=found,
+                    window=window, **{f"speaker_{k_}": v for k_, v in sf.items()},
+                    **{f"listener_{k_}": v for k_, v in lf.items()})
+                self._listener.put((t, lf, pain, named, self.now()))
+                t += 1
+                if t % int(self.config.flush_s * FPS) == 0:
+                    self._flush()
+                if self.audio.finished and (self.video is None or self.video.finished) and end_frames is None:
+                    break
+        except BaseException as exc:  # noqa: BLE001 - reported by run()
+            self.errors.append(exc)
+            self._stop.set()
+        finally:
+            self._media_done.set()
+
+    # ------------------------------------------------------------------ main (render) loop
+    def _flush(self) -> None:
+        self.recorder.summary = self.summary()
+        try:
+            self.recorder.flush()
+        except HoloViewerError as exc:  # a full disk etc.: keep running, say so
+            self.status["record"] = f"recording failed: {exc}"
+
+    def summary(self) -> dict:
+        def stats(x):
+            a = np.asarray(list(x), dtype=np.float64)
+            if not a.size:
+                return None
+            return {"n": int(a.size), "median": round(float(np.median(a)), 2), "p95": round(float(np.percentile(a, 95)), 2)}
+
+        return {"tracker_ms": stats(self.tracker_ms), "reaction_window_ms": stats(self.window_ms),
+                "render_ms": stats(self.render_ms), "late_reaction_windows": self.late_windows,
+                "late_reaction_window_max_ms": round(self.late_ms_max, 1),
+                "late_reaction_ticks": self.late_ticks, "reaction_windows": len(self.window_ms),
+                "displayed_frames": len(self.render_ms), "status": dict(self.status)}
+
+    def run(self, renderer: Any = None, panel: Any = None, preview: Any = None,
+            on_frame: Callable[[Any], None] | None = None) -> dict:
+        """Run until the sources end, ``frames`` are displayed, quit, or Ctrl-C; returns the summary.
+
+        ``renderer``: a :class:`~holo_viewer.live.render.LiveRenderer` (None: no rendering, the
+        session is still recorded); ``panel``/``preview``: objects with ``show(image)`` (and an
+        optional ``poll()`` returning key symbols).
+        """
+        import imageio.v2 as imageio
+
+        cfg = self.config
+        out = Path(cfg.out)
+        out.mkdir(parents=True, exist_ok=True)
+        self._webcam_writer = None
+        writer = None
+        tmp_video = out / ".native.partial.mp4"
+        # load and warm up everything before the clock starts, so the first frames are not late
+        from ..reaction.api import load_default_bundle
+        from ..reaction.stream import ReactionStream
+
+        self._stream = ReactionStream(load_default_bundle(), temperature=cfg.temperature,
+                                      top_k=20 if cfg.temperature else None, seed=cfg.seed)
+        if renderer is not None:
+            renderer.render({"expr": np.zeros(1)}, cfg.pain, (), 0.0, 0.6)
+        if self.video is not None and self.synthetic is None:
+            from ..tracking.tracker import FaceTracker, TrackerConfig
+            from ..tracking.viewer import WebcamMount
+
+            self._mount = cfg.mount or WebcamMount(hfov_deg=cfg.hfov_deg)
+            self._face_tracker = FaceTracker(TrackerConfig(hfov_deg=self._mount.hfov_deg))
+            self._face_tracker(np.zeros((64, 64, 3), np.uint8), 0.0)  # warm up (first calls are slow)
+            self._face_tracker.reset()
+        self.audio.start()
+        if self.video is not None:
+            self.video.start()
+        self._start = self.clock()
+        threads = [threading.Thread(target=self._reaction_loop, name="reaction", daemon=True)]
+        if self.video is not None and self.synthetic is None:
+            threads.append(threading.Thread(target=self._tracker_loop, name="tracker", daemon=True))
+        for th in threads:
+            th.start()
+        shown = -1
+        frames_shown = 0
+        last_render = self.clock()
+        try:
+            while not self._stop.is_set():
+                for src in (panel, preview):
+                    if src is not None and hasattr(src, "poll"):
+                        for key in src.poll():
+                            self.controls.key(key)
+                if self.controls.quit:
+                    break
+                item = self._listener.get()
+                if item is None or item[0] == shown or self.controls.paused:
+                    if self._media_done.is_set() and (item is None or item[0] == shown or self.controls.paused):
+                        break
+                    time.sleep(0.005)
+                    continue
+                frame, lf, pain, named, _ready = item
+                _, ang, dist, tracked = self._viewer.get()
+                if renderer is not None:
+                    res = renderer.render(lf, pain, named, ang, dist)
+                    self.render_ms.append(1000 * res.seconds)
+                    if res.native is not None and cfg.write_native_video:
+                        if writer is None:
+                            writer = imageio.get_writer(os.fspath(tmp_video), fps=cfg.video_fps, codec="libx264",
+                                                        quality=7, macro_block_size=8, format="FFMPEG",
+                                                        ffmpeg_log_level="error")
+                        writer.append_data(res.native)
+                    if panel is not None and res.native is not None:
+                        panel.show(res.native)
+                    if preview is not None and res.preview is not None:
+                        now = self.clock()
+                        fps = 1.0 / max(now - last_render, 1e-6)
+                        last_render = now
+                        preview.show(self._overlay(res.preview, fps, pain, ang, dist, tracked))
+                    if on_frame is not None:
+                        on_frame(res)
+                shown = frame
+                frames_shown += 1
+                self.recorder.add_display(self.now(), frame, self.render_ms[-1] if self.render_ms else 0.0)
+                if cfg.frames is not None and frames_shown >= cfg.frames:
+                    break
+        except KeyboardInterrupt:
+            self.status["end"] = "interrupted (Ctrl-C)"
+        finally:
+            self._stop.set()
+            for th in threads:
+                th.join(timeout=5.0)
+            self.audio.stop()
+            if self.video is not None:
+                self.video.stop()
+            if writer is not None:
+                writer.close()
+                if tmp_video.exists() and tmp_video.stat().st_size > 0:
+                    os.replace(tmp_video, out / "native.mp4")
+            if self._webcam_writer is not None:
+                self._webcam_writer.close()
+                tmp = out / ".webcam.partial.mp4"
+                if tmp.exists() and tmp.stat().st_size > 0:
+                    os.replace(tmp, out / "webcam.mp4")
+            self.recorder.summary = self.summary()
+            self.recorder.close()
+        if self.errors:
+            raise self.errors[0]
+        return self.summary()
+
+    def _record_webcam(self, frame: np.ndarray) -> None:
+        """Append a webcam frame to webcam.mp4 (streamed to disk: memory stays flat)."""
+        import imageio.v2 as imageio
+
+        if self._webcam_writer is None:
+            self._webcam_writer = imageio.get_writer(os.fspath(Path(self.config.out) / ".webcam.partial.mp4"), fps=FPS,
+                                                     codec="libx264", quality=7, macro_block_size=8, format="FFMPEG",
+                                                     ffmpeg_log_level="error")
+        self._webcam_writer.append_data(frame)
+
+    def _overlay(self, view: np.ndarray, fps: float, pain: float, ang: float, dist: float, tracked: bool) -> np.ndarray:
+        """The preview view with fps, per-stage latency, pain and device status drawn on it."""
+        from PIL import Image, ImageDraw
+
+        img = Image.fromarray((np.clip(view, 0, 1) * 255).astype(np.uint8) if view.dtype != np.uint8 else view)
+        d = ImageDraw.Draw(img)
+        s = self.summary()
+
+        def med(key):
+            v = s.get(key)
+            return "-" if not v else f"{v['median']:.0f}"
+
+        lines = [f"{fps:4.1f} fps  render {med('render_ms')} ms  track {med('tracker_ms')} ms  react {med('reaction_window_ms')} ms",
+                 f"pain {pain:.1f}  viewer {ang:+.0f} deg {dist:.2f} m {'tracked' if tracked else 'default'}"]
+        lines += [f"{k}: {v}" for k, v in self.status.items() if v and v != "ok"]
+        if self.controls.paused:
+            lines.append("PAUSED")
+        for i, line in enumerate(lines):
+            d.text((4, 4 + 12 * i), line, fill=(255, 255, 0))
+        return np.asarray(img)

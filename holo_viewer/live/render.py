@@ -1,0 +1,113 @@
+"""The one place the live loop touches the render pipeline (an adapter, so a new pipeline API is a
+one-function change): face + viewer pose in, native image (and a preview view) out.
+
+Modes:
+
+``cone``
+    Algorithm 1's cameras follow the tracked viewer (``ViewSettings.viewer_angle/viewer_distance``):
+    the whole 48-view quilt is re-rendered for the viewer's cone (``Pipeline.native``).
+``tracked``
+    The cone stays at the panel's default; only the tile columns of the views whose light reaches
+    the tracked eyes are re-rendered (:mod:`holo_viewer.pipeline.live`, the "live frame rate" work);
+    the eyes receive exactly what ``full_quilt`` would give them.
+``all_views``
+    Every view of the default cone each frame (untracked).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import numpy as np
+
+__all__ = ["LiveRenderer", "RenderedFrame"]
+
+
+@dataclass
+class RenderedFrame:
+    """``native`` (H, W, 3) uint8 or None, ``preview`` (h, w, 3) float32 or None, ``seconds``."""
+
+    native: np.ndarray | None
+    preview: np.ndarray | None
+    seconds: float
+
+
+class LiveRenderer:
+    """Render the default avatar for the live loop through :class:`holo_viewer.pipeline.Pipeline`.
+
+    Parameters
+    ----------
+    tile_scale : float
+        Quilt tile size relative to the calibration's (1 = full 420x560 tiles; smaller is faster).
+    native : bool
+        Compute the native (lenticular) image (the panel and the recorded video need it).
+    preview : bool
+        Render the one view that faces the tracked viewer (the desktop preview).
+    backend : str
+        Renderer backend.
+    mode : {"cone", "tracked", "all_views"}
+        See the module docstring.
+    calibration : DisplayCalibration, optional
+    render_threads : int, optional
+        Renderer threads (default: all cores but one).
+    """
+
+    def __init__(self, tile_scale: float = 1.0, native: bool = True, preview: bool = False, backend: str = "fast",
+                 calibration: Any = None, render_threads: int | None = None, mode: str = "cone") -> None:
+        import os
+
+        from ..pipeline import Pipeline, ViewSettings
+        from ..render.config import RenderConfig
+
+        # leave one core to the tracker and reaction threads: rendering must never starve the stream
+        threads = max(1, (os.cpu_count() or 2) - 1) if render_threads is None else int(render_threads)
+        self.pipeline = Pipeline(calibration=calibration, view=ViewSettings(tile_scale=tile_scale), backend=backend,
+                                 render_config=RenderConfig(num_threads=threads))
+        self.native_enabled = bool(native)
+        self.preview_enabled = bool(preview)
+        if mode not in ("cone", "tracked", "all_views"):
+            from ..errors import InputError
+
+            raise InputError(f"mode: expected 'cone', 'tracked' or 'all_views', found {mode!r}")
+        self.mode = mode
+        self._live = None
+        if mode != "cone":
+            from ..pipeline.live import LiveConfig, LiveRenderer as FrameRenderer
+
+            self._live = FrameRenderer(self.pipeline.calibration, self.pipeline.cameras(),
+                                       LiveConfig(render=RenderConfig(num_threads=threads)))
+
+    def render(self, listener: Mapping[str, np.ndarray], pain: float, named: tuple[tuple[str, float], ...],
+               viewer_angle_deg: float, viewer_distance_m: float) -> RenderedFrame:
+        """One frame: FLAME arrays of one listener frame (``expr``, ``jaw_pose``, ``rotation``, ...)."""
+        import time
+
+        from ..pipeline import FaceControls
+
+        t0 = time.perf_counter()
+        p = self.pipeline
+        n_expr = int(p.model.n_expr)
+        expr = np.asarray(listener["expr"], dtype=np.float64)[:n_expr]
+        p.set_face(FaceControls(expr=expr, jaw_pose=listener.get("jaw_pose"), rotation=listener.get("rotation"),
+                                named=named, pain=float(pain)))
+        angle = float(np.clip(viewer_angle_deg, -60, 60))
+        distance = float(np.clip(viewer_distance_m, 0.05, 20.0))
+        native = None
+        if self._live is not None:  # fixed default cone: render what the viewer's eyes see
+            from ..display.eyes import TrackedViewer
+
+            if self.native_enabled:
+                viewer = TrackedViewer(angle_deg=angle, distance_m=distance) if self.mode == "tracked" else None
+                native = self._live.frame(p.gaussians(), viewer, self.mode).native.copy()
+        else:
+            p.set_view(viewer_angle=angle, viewer_distance=distance)
+            native = p.native() if self.native_enabled else None
+        preview = None
+        if self.preview_enabled:
+            # a view from the viewer's angle: the centre view of a cone centred on the viewer
+            if self._live is not None:
+                p.set_view(viewer_angle=angle, viewer_distance=distance)
+            n = len(p.cameras())
+            preview = p.get("views")[n // 2] if self.native_enabled and self._live is None else p.render_view(n // 2)
+        return RenderedFrame(native=native, preview=preview, seconds=time.perf_counter() - t0)

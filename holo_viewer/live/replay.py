@@ -1,0 +1,62 @@
+"""Re-render a recorded session (the same renderer, the recorded inputs: deterministic).
+
+A session recorded with ``--render-mode tracked`` is replayed with every view of the same default
+cone (``all_views``: what the tracked frames converge to, without depending on earlier frames).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .session import LISTENER_KEYS, load_session
+
+__all__ = ["replay_frames", "replay_session"]
+
+
+def replay_frames(session: str | os.PathLike, tile_scale: float | None = None, every: int = 1) -> Iterator[np.ndarray]:
+    """Native images (H, W, 3) uint8 of every ``every``-th recorded 25 fps frame."""
+    from .render import LiveRenderer
+
+    meta, tr = load_session(session)
+    scale = float(tile_scale if tile_scale is not None else meta.get("settings", {}).get("tile_scale", 1.0))
+    mode = str(meta.get("settings", {}).get("render_mode", "cone"))
+    renderer = LiveRenderer(tile_scale=scale, native=True, preview=False, mode="all_views" if mode == "tracked" else mode)
+    scenario = None
+    sc = meta.get("settings", {}).get("scenario")
+    if sc:
+        from .controls import Scenario
+
+        try:
+            scenario = Scenario.load(sc)
+        except Exception:  # noqa: BLE001 - the scenario file may be gone: named expressions are then skipped
+            scenario = None
+    for t in range(0, len(tr["time_s"]), int(every)):
+        lf = {k: tr[f"listener_{k}"][t] for k in LISTENER_KEYS}
+        named = scenario.named_at(float(tr["time_s"][t])) if scenario is not None else ()
+        yield renderer.render(lf, float(tr["pain"][t]), named, float(tr["viewer_angle_deg"][t]),
+                              float(tr["viewer_distance_m"][t])).native
+
+
+def replay_session(session: str | os.PathLike, out: str | os.PathLike, tile_scale: float | None = None,
+                   every: int = 1) -> int:
+    """Write the re-rendered session to ``out`` (mp4, 25 / every fps); returns the frame count."""
+    import imageio.v2 as imageio
+    from tqdm import tqdm
+
+    from ..fileio import atomic_path
+
+    n = 0
+    with atomic_path(Path(out)) as tmp:
+        writer = imageio.get_writer(os.fspath(tmp), fps=25.0 / every, codec="libx264", quality=7, macro_block_size=8,
+                                    format="FFMPEG", ffmpeg_log_level="error")
+        try:
+            for img in tqdm(replay_frames(session, tile_scale, every), desc="replay", unit="frame"):
+                writer.append_data(img)
+                n += 1
+        finally:
+            writer.close()
+    return n

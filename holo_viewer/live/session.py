@@ -1,0 +1,155 @@
+"""The session folder of a live run: written as it goes, complete up to any interruption.
+
+::
+
+    SESSION/
+      session.json   settings, sources, timings summary (rewritten at every flush and at the end)
+      tracks.npz     per 25 fps frame: time_s, viewer_angle_deg, viewer_distance_m, pain,
+                     speaker_found, speaker_{expr,jaw_pose,rotation}, listener_{expr,jaw_pose,rotation,
+                     neck_pose,eyes_pose,translation} (GaussianAvatars flame_param keys), window;
+                     per displayed frame: display_time_s, display_frame, render_ms
+      audio.wav      the input audio (16 kHz mono; appended at each flush, valid up to the last one)
+      native.mp4     the native images shown (at --video-fps, one per displayed frame)
+      webcam.mp4     only with --record-video (faces are private by default)
+
+tracks.npz and session.json are written atomically (temp + rename) at each flush (every ``flush_s`` seconds) and at
+the end, so an interrupted session keeps everything up to its last flush, and ``Ctrl-C`` (which
+ends the loop through ``finally``) keeps everything.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..fileio import atomic_write, save_npz
+
+__all__ = ["SessionRecorder", "TRACK_KEYS", "load_session"]
+
+LISTENER_KEYS = ("expr", "jaw_pose", "rotation", "neck_pose", "eyes_pose", "translation")
+SPEAKER_KEYS = ("expr", "jaw_pose", "rotation")
+_CHUNK = 250
+TRACK_KEYS = ("time_s", "viewer_angle_deg", "viewer_distance_m", "pain", "speaker_found", "window") + tuple(
+    f"speaker_{k}" for k in SPEAKER_KEYS) + tuple(f"listener_{k}" for k in LISTENER_KEYS)
+
+
+class SessionRecorder:
+    """Collect per-frame rows and flush them to the session folder (thread-safe appends)."""
+
+    def __init__(self, folder: str | os.PathLike, settings: dict[str, Any]) -> None:
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.settings = dict(settings)
+        self._rows: dict[str, list] = {k: [] for k in TRACK_KEYS}
+        self._chunks: dict[str, list] = {k: [] for k in TRACK_KEYS}
+        self._n = 0
+        self._display: dict[str, list] = {"display_time_s": [], "display_frame": [], "render_ms": []}
+        self._audio: list[np.ndarray] = []
+        self._lock = threading.Lock()
+        self.summary: dict[str, Any] = {}
+        self._wav: Any = None
+        self._audio_samples = 0
+
+    def close(self) -> None:
+        """Flush and close the audio file (call once, at the end)."""
+        self.flush()
+        if self._wav is not None:
+            self._wav.close()
+            self._wav_file.close()
+            self._wav = None
+
+    def add_frame(self, **row: Any) -> None:
+        """One 25 fps frame; keys of :data:`TRACK_KEYS`."""
+        with self._lock:
+            for k in TRACK_KEYS:
+                self._rows[k].append(np.asarray(row[k], dtype=np.float32))
+            self._n += 1
+            if len(self._rows["time_s"]) >= _CHUNK:  # pack small per-frame arrays: memory stays flat
+                for k in TRACK_KEYS:
+                    self._chunks[k].append(np.stack(self._rows[k]))
+                    self._rows[k] = []
+
+    def add_display(self, time_s: float, frame: int, render_ms: float) -> None:
+        with self._lock:
+            self._display["display_time_s"].append(float(time_s))
+            self._display["display_frame"].append(int(frame))
+            self._display["render_ms"].append(float(render_ms))
+
+    def add_audio(self, samples: np.ndarray) -> None:
+        if len(samples):
+            with self._lock:
+                self._audio.append((np.clip(samples, -1, 1) * 32767).astype(np.int16))
+
+    @property
+    def n_frames(self) -> int:
+        return self._n
+
+    def flush(self) -> None:
+        """Write tracks.npz, audio.wav and session.json (atomically)."""
+        import wave
+
+        with self._lock:
+            n = self._n
+            arrays = {}
+            for k in TRACK_KEYS:
+                parts = self._chunks[k] + ([np.stack(self._rows[k])] if self._rows[k] else [])
+                arrays[k] = np.concatenate(parts) if parts else np.zeros((0,), np.float32)
+            disp = {k: np.asarray(v) for k, v in self._display.items()}
+            audio = np.concatenate(self._audio) if self._audio else np.zeros(0, np.int16)
+            self._audio = []
+        arrays["speaker_found"] = arrays["speaker_found"].astype(bool) if n else np.zeros(0, bool)
+        arrays["window"] = arrays["window"].astype(np.int32) if n else np.zeros(0, np.int32)
+        arrays["display_time_s"] = disp["display_time_s"].astype(np.float64)
+        arrays["display_frame"] = disp["display_frame"].astype(np.int64)
+        arrays["render_ms"] = disp["render_ms"].astype(np.float32)
+        arrays["fps"] = np.array(25)
+        save_npz(self.folder / "tracks.npz", **arrays)
+        # audio.wav is appended (memory stays flat in long sessions); the wave module patches the
+        # header's lengths after every write, so the file is a valid WAV up to the last flush
+        if self._wav is None:
+            self._wav_file = open(self.folder / "audio.wav", "wb")
+            self._wav = wave.open(self._wav_file, "wb")
+            self._wav.setnchannels(1)
+            self._wav.setsampwidth(2)
+            self._wav.setframerate(16000)
+        self._wav.writeframes(audio.tobytes())
+        self._wav_file.flush()
+        self._audio_samples += len(audio)
+        doc = {"settings": self.settings, "frames": n, "displayed_frames": int(len(disp["display_time_s"])),
+               "audio_seconds": round(self._audio_samples / 16000, 3), "summary": self.summary}
+        with atomic_write(self.folder / "session.json", "w") as fh:
+            json.dump(doc, fh, indent=2, default=_json_default)
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    return str(o)
+
+
+def load_session(folder: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
+    """(session.json dict, tracks.npz arrays) of a session folder."""
+    from ..errors import InputError
+    from ..fileio import read_npz
+
+    p = Path(folder)
+    if not (p / "session.json").is_file() or not (p / "tracks.npz").is_file():
+        raise InputError(f"{p}: expected a live session folder with session.json and tracks.npz")
+    try:
+        meta = json.loads((p / "session.json").read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise InputError(f"{p / 'session.json'}: cannot read it ({exc})") from exc
+    tracks = read_npz(p / "tracks.npz", InputError, "session tracks")
+    missing = [k for k in TRACK_KEYS if k not in tracks]
+    if missing:
+        raise InputError(f"{p / 'tracks.npz'}: missing keys {missing}")
+    return meta, tracks

@@ -1,0 +1,194 @@
+"""What the live session needs from the chain: renders of the project's own head through a webcam,
+a synthetic speaker, and face-state <-> FLAME conversions (so ``live/`` never wires stages itself).
+
+:class:`HeadRenderer` poses the default Gaussian avatar with FLAME parameters and renders it
+with the fast splat renderer through a pinhole "webcam" (:func:`webcam_camera`), so a tracker
+can be checked against the parameters that drove it (closed loop), and `live` can be run end
+to end from a rendered video of the head speaking (:func:`write_talking_head_clip`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..camera import Cameras, intrinsics, look_at
+from ..errors import InputError
+from ..validation import check_finite_scalar
+
+__all__ = ["webcam_camera", "HeadRenderer", "write_talking_head_clip", "HEAD_CENTRE", "SyntheticSpeaker",
+           "FaceStates"]
+
+#: a point between the default head's eyes (FLAME frame, metres): the webcam's look-at target
+HEAD_CENTRE = np.array([0.0, 0.02, 0.06])
+
+
+def webcam_camera(width: int = 640, height: int = 480, hfov_deg: float = 60.0, distance: float = 0.5,
+                  yaw_deg: float = 0.0, pitch_deg: float = 0.0, target: Any = None) -> Cameras:
+    """A pinhole webcam at ``distance`` metres from ``target``, seen from yaw/pitch (degrees).
+
+    Yaw 0, pitch 0 looks straight at the face (FLAME +z toward the camera); positive yaw moves
+    the camera toward the head's +x (its left), positive pitch moves it up. Intrinsics from the
+    horizontal field of view: ``fx = fy = (width / 2) / tan(hfov / 2)``, principal point at the
+    image centre.
+    """
+    hfov = check_finite_scalar(hfov_deg, "hfov_deg", low=1.0, high=170.0)
+    d = check_finite_scalar(distance, "distance", low=0.05, high=20.0)
+    tgt = HEAD_CENTRE if target is None else np.asarray(target, dtype=np.float64)
+    yaw, pitch = math.radians(float(yaw_deg)), math.radians(float(pitch_deg))
+    direction = np.array([math.sin(yaw) * math.cos(pitch), math.sin(pitch), math.cos(yaw) * math.cos(pitch)])
+    f = 0.5 * width / math.tan(math.radians(hfov) / 2)
+    K = intrinsics(f, f, width / 2.0, height / 2.0)
+    return Cameras(look_at(tgt + d * direction, tgt), K, int(width), int(height), near=0.02, far=20.0)
+
+
+class HeadRenderer:
+    """Render the default avatar posed by FLAME parameters into webcam images.
+
+    Parameters
+    ----------
+    n_gaussians : int
+        Avatar size (fewer Gaussians render faster; 100k is the shipped default).
+    background : (float, float, float)
+        Background RGB in [0, 1].
+    backend : str
+        Renderer backend (``holo_viewer.render.render_views``).
+    """
+
+    def __init__(self, n_gaussians: int = 100_000, background: tuple[float, float, float] = (0.35, 0.38, 0.42),
+                 backend: str = "fast") -> None:
+        from ..avatar.default_avatar import default_avatar  # the submodule shares the name
+        from ..render.config import RenderConfig
+
+        self.avatar = default_avatar(n_gaussians=n_gaussians)
+        self.model = self.avatar.flame_model
+        self.backend = backend
+        self.config = RenderConfig(background=tuple(float(c) for c in background))
+
+    def vertices(self, params: Mapping[str, Any]) -> np.ndarray:
+        """(V, 3) posed vertices (with teeth) for one frame of FLAME parameters."""
+        import torch
+
+        kw = {k: torch.as_tensor(np.asarray(v, dtype=np.float64)[None], dtype=self.model.dtype)
+              for k, v in params.items() if k in ("expr", "jaw_pose", "rotation", "neck_pose", "eyes_pose",
+                                                  "translation")}
+        with torch.no_grad():
+            return self.model(**kw).vertices[0].numpy().astype(np.float64)
+
+    def render(self, params: Mapping[str, Any], camera: Cameras, noise_std: float = 0.0,
+               rng: np.random.Generator | None = None) -> np.ndarray:
+        """(H, W, 3) uint8 image of the head posed by ``params`` (keys ``expr``, ``jaw_pose``,
+        ``rotation``, ... one frame each), with optional Gaussian pixel noise (std in [0, 1] units)."""
+        from ..render.api import render_views
+
+        g = self.avatar.deform(self.vertices(params))
+        img = render_views(g, camera, backend=self.backend, config=self.config).images[0]
+        if noise_std > 0:
+            rng = rng or np.random.default_rng(0)
+            img = img + rng.normal(0.0, float(noise_std), img.shape).astype(np.float32)
+        return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def write_talking_head_clip(out_dir: str | os.PathLike, seconds: float = 4.0, seed: int = 0,
+                            width: int = 480, height: int = 360, hfov_deg: float = 60.0, distance: float = 0.45,
+                            n_gaussians: int = 30_000, fps: int = 25) -> dict[str, Path]:
+    """Write ``speaker.wav`` (16 kHz) + ``speaker.mp4`` (the head speaking) + ``truth.npz``.
+
+    The speaker comes from the reaction module's synthetic conversation generator (voice and
+    face move together: mouth with the syllable envelope, brows on pitch accents, smiles,
+    nods); the head is rendered frame by frame at 25 fps. ``truth.npz`` holds the driving
+    FLAME parameters (``expr``, ``jaw_pose``, ``rotation``) and the states.
+    """
+    import imageio.v2 as imageio
+
+    from ..fileio import atomic_path, save_npz
+    from ..flame.expressions import default_au_map, jaw_for_expression
+    from ..reaction.audio import write_wav
+    from ..reaction.data import SyntheticConfig, synth_speaker
+    from ..reaction.features import flame_from_state
+
+    seconds = check_finite_scalar(seconds, "seconds", low=0.2, high=600.0)
+    if fps != 25:
+        raise InputError(f"fps: expected 25 (the reaction model's rate), found {fps}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    au_map = default_au_map()
+    # synthesize at least 10 s and cut: the generator's slow head sway is normalised per clip, which
+    # blows up on clips of a second or two
+    cfg = SyntheticConfig(seconds=max(float(seconds), 10.0))
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 15]))
+    sp = synth_speaker(rng, cfg, au_map.names, np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64))
+    T = int(round(seconds * fps))
+    state = sp.state[:T]
+    waveform = sp.waveform[: T * cfg.audio.hop]
+    fl = flame_from_state(state, au_map)
+    renderer = HeadRenderer(n_gaussians=n_gaussians)
+    cam = webcam_camera(width, height, hfov_deg, distance)
+    wav = out / "speaker.wav"
+    write_wav(wav, waveform, cfg.audio.sample_rate)
+    video = out / "speaker.mp4"
+    with atomic_path(video) as tmp:
+        writer = imageio.get_writer(os.fspath(tmp), fps=fps, codec="libx264", quality=8, macro_block_size=8,
+                                    format="FFMPEG", ffmpeg_log_level="error")
+        try:
+            for t in range(fl["expr"].shape[0]):
+                writer.append_data(renderer.render({k: fl[k][t] for k in fl}, cam))
+        finally:
+            writer.close()
+    truth = out / "truth.npz"
+    save_npz(truth, expr=fl["expr"], jaw_pose=fl["jaw_pose"], rotation=fl["rotation"], state=state,
+             fps=np.array(fps))
+    return {"wav": wav, "video": video, "truth": truth}
+
+
+class SyntheticSpeaker:
+    """A synthetic speaker (voice + face states at 25 fps) and a slowly moving synthetic viewer.
+
+    ``states`` (T, n_au + 6) and ``waveform`` (T * 640,) float32 at 16 kHz, from the reaction
+    module's conversation generator (at least 10 s are synthesized and cut, see
+    :func:`write_talking_head_clip`).
+    """
+
+    def __init__(self, seconds: float, seed: int = 0) -> None:
+        from ..flame.expressions import default_au_map, jaw_for_expression
+        from ..reaction.data import SyntheticConfig, synth_speaker
+
+        seconds = check_finite_scalar(seconds, "seconds", low=0.04, high=3600.0)
+        au = default_au_map()
+        cfg = SyntheticConfig(seconds=max(float(seconds), 10.0))
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 16]))
+        sp = synth_speaker(rng, cfg, au.names, np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64))
+        T = int(round(seconds * 25))
+        self.states = sp.state[:T]
+        self.waveform = sp.waveform[: T * cfg.audio.hop]
+
+    @staticmethod
+    def viewer(t: float) -> tuple[float, float]:
+        """(angle deg, distance m) at ``t`` s: a viewer walking slowly across the cone."""
+        return 12.0 * math.sin(2 * math.pi * t / 8.0), 0.6 + 0.1 * math.sin(2 * math.pi * t / 11.0)
+
+
+class FaceStates:
+    """Face states of the reaction model (n_au + 6,) -> GaussianAvatars FLAME arrays of the default head."""
+
+    def __init__(self) -> None:
+        from ..flame.expressions import default_au_map
+
+        self.au_map = default_au_map()
+
+    def speaker(self, state: np.ndarray) -> dict[str, np.ndarray]:
+        """``expr``, ``jaw_pose``, ``rotation`` (one frame each) of a speaker state."""
+        from ..reaction.features import flame_from_state
+
+        return {k: v[0] for k, v in flame_from_state(np.asarray(state, np.float64)[None], self.au_map).items()}
+
+    def listener(self, state: np.ndarray) -> dict[str, np.ndarray]:
+        """The six per-frame flame_param arrays (``expr`` ... ``translation``) of a listener state."""
+        from ..reaction.api import flame_params_from_states
+
+        fl = flame_params_from_states(np.asarray(state, np.float64)[None], self.au_map, n_shape=0)
+        return {k: v[0] for k, v in fl.items() if k != "shape"}

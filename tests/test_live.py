@@ -1,0 +1,323 @@
+"""Live sessions: headless end to end from replayed files, missing devices, Ctrl-C, replay, streaming, keys."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from holo_viewer.cli import main
+from holo_viewer.live.session import TRACK_KEYS
+
+pytest.importorskip("dlib", reason="live sessions need the [live] extra (dlib-bin)")
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    from holo_viewer.pipeline.live_support import write_talking_head_clip
+
+    return write_talking_head_clip(tmp_path_factory.mktemp("clip"), seconds=1.6, n_gaussians=20_000)
+
+
+def _check_session(folder: Path, n_frames: int | None = None) -> dict:
+    meta = json.loads((folder / "session.json").read_text())
+    with np.load(folder / "tracks.npz") as z:
+        tr = {k: z[k] for k in z.files}
+    for k in TRACK_KEYS:
+        assert k in tr, k
+        assert np.isfinite(tr[k].astype(np.float64)).all(), k
+    T = len(tr["time_s"])
+    if n_frames is not None:
+        assert T == n_frames
+    assert tr["listener_expr"].shape[0] == T and tr["listener_eyes_pose"].shape == (T, 6)
+    assert tr["speaker_rotation"].shape == (T, 3)
+    np.testing.assert_allclose(tr["time_s"], np.arange(T) / 25, atol=1e-6)
+    assert (folder / "audio.wav").stat().st_size > 44
+    return {"meta": meta, "tracks": tr}
+
+
+@pytest.mark.slow
+def test_live_headless_from_replayed_files(clip, tmp_path):
+    """CI: replayed wav + mp4, no devices or display: runs end to end, ends when the files end."""
+    out = tmp_path / "session"
+    code = main(["live", "--audio", str(clip["wav"]), "--video", str(clip["video"]), "--headless", "--out", str(out),
+                 "--tile-scale", "0.2"])
+    assert code == 0
+    s = _check_session(out, n_frames=40)
+    assert s["tracks"]["speaker_found"].mean() > 0.5  # the tracker saw the rendered head
+    assert s["meta"]["settings"]["sources"]["video"].startswith("file:")
+    assert s["meta"]["summary"]["reaction_windows"] >= 40 // 8
+    assert (out / "native.mp4").stat().st_size > 0
+    assert not (out / "webcam.mp4").exists()  # faces are private unless --record-video
+    # the session replays deterministically
+    from holo_viewer.live.replay import replay_frames
+
+    a = [f for _, f in zip(range(2), replay_frames(out, tile_scale=0.1, every=13))]
+    b = [f for _, f in zip(range(2), replay_frames(out, tile_scale=0.1, every=13))]
+    assert len(a) == 2 and all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert a[0].shape == (2048, 1536, 3)
+
+
+@pytest.mark.slow
+def test_live_synthetic_frames_and_replay_command(tmp_path):
+    out = tmp_path / "s"
+    assert main(["live", "--synthetic", "--seconds", "1.0", "--headless", "--frames", "2", "--out", str(out),
+                 "--tile-scale", "0.1", "--pain", "0.4", "--render-mode", "tracked"]) == 0
+    s = _check_session(out)
+    assert s["meta"]["displayed_frames"] == 2
+    assert np.allclose(s["tracks"]["pain"], 0.4)
+    video = tmp_path / "replay.mp4"
+    assert main(["replay", str(out), "--out", str(video), "--every", "12", "--tile-scale", "0.1"]) == 0
+    assert video.stat().st_size > 0
+
+
+def test_missing_devices_are_named(tmp_path, capsys, monkeypatch):
+    """No microphone / webcam here: exit 1 with the device named, no traceback."""
+    monkeypatch.setenv("SD_ENABLE_ASIO", "0")
+    code = main(["live", "--headless", "--out", str(tmp_path / "s")])
+    err = capsys.readouterr().err
+    assert code == 1 and "Traceback" not in err
+    assert "microphone" in err or "webcam" in err
+    wav = tmp_path / "a.wav"
+    from holo_viewer.reaction.audio import write_wav
+
+    write_wav(wav, np.zeros(16000, np.float32), 16000)
+    code = main(["live", "--audio", str(wav), "--camera", "97", "--headless", "--out", str(tmp_path / "s")])
+    err = capsys.readouterr().err
+    assert code == 1 and "webcam" in err and "97" in err
+    assert main(["live", "--audio", str(tmp_path / "none.wav"), "--video", "x.mp4", "--headless"]) == 1
+    assert "audio file not found" in capsys.readouterr().err
+
+
+def test_ctrl_c_keeps_the_session(tmp_path):
+    """An interruption mid-session leaves a complete folder up to that point."""
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveConfig, LiveSession
+    from holo_viewer.pipeline.live_support import SyntheticSpeaker
+
+    syn = SyntheticSpeaker(3.0)
+    session = LiveSession(LiveConfig(out=str(tmp_path / "s")), sources.ArrayAudio(syn.waveform), None, syn)
+
+    class Interrupting:  # a renderer that is interrupted on its second real frame (the first is the warm-up)
+        calls = 0
+
+        def render(self, *args):
+            from holo_viewer.live.render import RenderedFrame
+
+            self.calls += 1
+            if self.calls > 2:
+                raise KeyboardInterrupt
+            time.sleep(0.3)
+            return RenderedFrame(native=None, preview=None, seconds=0.3)
+
+    summary = session.run(Interrupting())
+    assert summary["status"]["end"] == "interrupted (Ctrl-C)"
+    s = _check_session(tmp_path / "s")
+    assert 0 < len(s["tracks"]["time_s"]) < 75
+    assert s["meta"]["frames"] == len(s["tracks"]["time_s"])
+
+
+def test_reaction_stream_matches_offline_generation():
+    """Streaming k-frame windows from a rolling audio buffer = the offline model on the whole clip
+    (argmax, raw tokens: identical frames)."""
+    from holo_viewer.pipeline.live_support import SyntheticSpeaker
+    from holo_viewer.reaction.api import load_default_bundle, react
+    from holo_viewer.reaction.stream import ReactionStream
+
+    syn = SyntheticSpeaker(6.0, seed=3)
+    bundle = load_default_bundle()
+    offline = react(bundle, syn.waveform, 16000, syn.states, pain=0.3, smoothing=0.0)
+    stream = ReactionStream(bundle, smoothing=0.0)
+    out = []
+    for t in range(len(syn.states)):
+        stream.push_audio(syn.waveform[t * 640:(t + 1) * 640])
+        out.append(stream.push_frame(syn.states[t], 0.3)[0])
+    out = np.array(out)
+    same = np.all(np.isclose(out, offline, atol=1e-5), axis=1).mean()
+    assert same == 1.0, same
+    assert len(stream._audio) <= (stream.Ws + 2) * 640  # memory stays flat
+
+
+def test_controls_and_scenario(tmp_path):
+    from holo_viewer.errors import InputError
+    from holo_viewer.live.controls import Controls, Scenario
+
+    c = Controls(pain=0.5)
+    for k in ("Up", "Up", "Down", "space", "r", "x"):
+        c.key(k)
+    assert c.pain == pytest.approx(0.6) and c.paused and c.take_recentre() and not c.take_recentre()
+    c.key("q")
+    assert c.quit
+    p = tmp_path / "sc.json"
+    p.write_text(json.dumps({"events": [{"t": 0, "pain": 0.1}, {"t": 2, "pain": 0.8, "expression": "frown",
+                                                                 "intensity": 0.5, "duration": 1}]}))
+    sc = Scenario.load(p)
+    assert sc.pain_at(1.0) == 0.1 and sc.pain_at(2.5) == 0.8 and sc.pain_changes(1.9, 2.1) == 0.8
+    assert sc.named_at(2.5) == (("frown", 0.5),) and sc.named_at(3.5) == ()
+    p.write_text(json.dumps({"events": [{"t": 0, "expression": "grin"}]}))
+    with pytest.raises(InputError, match="expression"):
+        Scenario.load(p)
+
+
+# ----------------------------------------------------------------------------- preview window under Xvfb
+
+_PREVIEW_SCRIPT = r"""
+import sys, subprocess, time, threading
+import numpy as np
+from holo_viewer.live import sources
+from holo_viewer.live.loop import LiveConfig, LiveSession
+from holo_viewer.live.render import LiveRenderer
+from holo_viewer.live.windows import open_preview
+from holo_viewer.pipeline.live_support import SyntheticSpeaker
+
+syn = SyntheticSpeaker(4.0)
+preview = open_preview(210, 280)
+session = LiveSession(LiveConfig(out=sys.argv[1], tile_scale=0.1, preview=True, pain=0.2),
+                      sources.ArrayAudio(syn.waveform), None, syn)
+renderer = LiveRenderer(tile_scale=0.1, native=False, preview=True)
+pressed = []
+def press(keys):
+    time.sleep(1.5)
+    subprocess.run(["xdotool", "mousemove", "60", "60"], check=False)
+    for k in keys:
+        subprocess.run(["xdotool", "key", k], check=True)
+        time.sleep(0.3)
+    pressed.append(True)
+th = threading.Thread(target=press, args=(["Up", "Up", "r", "q"],), daemon=True)
+th.start()
+summary = session.run(renderer, preview=preview)
+shot = preview.window.screenshot()
+print("SHOWN", preview.shown, "LOG", ",".join(session.controls.log), "PAIN", session.controls.pain,
+      "BRIGHT", float(shot.mean()))
+"""
+
+
+@pytest.mark.gui
+@pytest.mark.slow
+def test_preview_window_updates_and_keys_work(tmp_path):
+    if shutil.which("Xvfb") is None or shutil.which("xdotool") is None:
+        pytest.skip("needs Xvfb and xdotool (apt-get install xvfb xdotool)")
+    num = 300 + os.getpid() % 300
+    proc = subprocess.Popen(["Xvfb", f":{num}", "-screen", "0", "800x600x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(100):
+            if os.path.exists(f"/tmp/.X11-unix/X{num}") or proc.poll() is not None:
+                break
+            time.sleep(0.1)
+        if proc.poll() is not None:
+            pytest.skip("Xvfb failed to start")
+        env = {k: v for k, v in os.environ.items() if k != "VTK_DEFAULT_OPENGL_WINDOW"}
+        env["DISPLAY"] = f":{num}"
+        script = tmp_path / "preview.py"
+        script.write_text(_PREVIEW_SCRIPT)
+        r = subprocess.run([sys.executable, str(script), str(tmp_path / "s")], env=env, capture_output=True,
+                           text=True, timeout=300, cwd=str(Path(__file__).resolve().parents[1]))
+        assert r.returncode == 0, r.stderr[-3000:]
+        line = [x for x in r.stdout.splitlines() if x.startswith("SHOWN")][-1].split()
+        shown, log, pain = int(line[1]), line[3], float(line[5])
+        assert shown >= 2  # the window updates
+        assert log == "pain_up,pain_up,recentre,quit"  # real X key presses reached the loop
+        assert pain == pytest.approx(0.4)
+        assert float(line[7]) > 5  # something was drawn
+        _check_session(tmp_path / "s")  # quit still writes the session
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+@pytest.mark.slow
+def test_webcam_lost_mid_session_degrades(clip, tmp_path):
+    """The video stops after 0.4 s (a webcam unplugged): the session goes on with the audio, the face
+    is marked lost and the status says so."""
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveConfig, LiveSession
+    from holo_viewer.tracking.video import iter_video_frames
+
+    frames = [(t, f) for t, f in iter_video_frames(clip["video"]) if t < 0.4]
+
+    class Unplugged:
+        name, status, finished = "webcam:test", "ok", False
+
+        def start(self):
+            pass
+
+        def stop(self):
+            pass
+
+        def latest(self, t):
+            seen = [x for x in frames if x[0] <= t]
+            if t >= 0.4:
+                self.status = "webcam lost"
+            return seen[-1] if seen else None
+
+    session = LiveSession(LiveConfig(out=str(tmp_path / "s")), sources.WavReplay(clip["wav"]), Unplugged())
+    summary = session.run(None)
+    s = _check_session(tmp_path / "s", n_frames=40)
+    found = s["tracks"]["speaker_found"]
+    assert found[:8].any() and not found[-10:].any()
+    assert "no new video frames" in summary["status"]["video"]
+
+
+@pytest.mark.slow
+def test_sigint_keeps_the_session_folder(tmp_path):
+    """A real Ctrl-C (SIGINT) to `holo-viewer live`: exit 130, the session folder complete up to then."""
+    import signal
+
+    out = tmp_path / "s"
+    proc = subprocess.Popen([sys.executable, "-m", "holo_viewer", "live", "--synthetic", "--seconds", "30",
+                             "--headless", "--tile-scale", "0.1", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=str(Path(__file__).resolve().parents[1]))
+    deadline = time.time() + 120
+    while time.time() < deadline and not (out / "tracks.npz").exists():  # the first flush (5 s of session)
+        time.sleep(0.2)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr[-2000:]
+    assert "Traceback" not in stderr
+    s = _check_session(out)
+    n = len(s["tracks"]["time_s"])
+    assert 125 <= n < 750  # past the first flush, before the end: written at the interruption
+    assert s["meta"]["summary"]["status"]["end"] == "interrupted (Ctrl-C)"
+    with np.load(out / "tracks.npz") as z:
+        assert z["display_time_s"].size >= 1
+
+
+@pytest.mark.gui
+@pytest.mark.slow
+def test_panel_window_under_xvfb(tmp_path):
+    """--panel opens the borderless native-image window on a Portrait-sized screen (the show machinery)."""
+    if shutil.which("Xvfb") is None:
+        pytest.skip("needs Xvfb")
+    num = 600 + os.getpid() % 300
+    proc = subprocess.Popen(["Xvfb", f":{num}", "-screen", "0", "1536x2048x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(100):
+            if os.path.exists(f"/tmp/.X11-unix/X{num}") or proc.poll() is not None:
+                break
+            time.sleep(0.1)
+        if proc.poll() is not None:
+            pytest.skip("Xvfb failed to start")
+        env = {k: v for k, v in os.environ.items() if k != "VTK_DEFAULT_OPENGL_WINDOW"}
+        env["DISPLAY"] = f":{num}"
+        out = tmp_path / "s"
+        r = subprocess.run([sys.executable, "-m", "holo_viewer", "live", "--synthetic", "--seconds", "2", "--panel",
+                            "--no-preview", "--frames", "2", "--tile-scale", "0.1", "--out", str(out)], env=env,
+                           capture_output=True, text=True, timeout=300, cwd=str(Path(__file__).resolve().parents[1]))
+        if "no monitor" in r.stderr and "found none" in r.stderr:
+            pytest.skip("no xrandr/xdpyinfo to list the virtual monitor")
+        assert r.returncode == 0, r.stderr[-2000:]
+        assert _check_session(out)["meta"]["displayed_frames"] == 2
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
