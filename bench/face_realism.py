@@ -32,7 +32,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
 import platform
@@ -46,8 +45,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from holo_viewer.errors import MissingDependencyError  # noqa: E402
-
-PREDICTOR = "shape_predictor_68_face_landmarks.dat"
+from holo_viewer.tracking.landmarks import predictor_path  # noqa: E402
 
 #: 68-point (iBUG 300-W, 0-based) index groups; "right" = the subject's right (image left)
 RIGHT_EYE = list(range(36, 42))
@@ -157,20 +155,6 @@ def nearest_views(angles: np.ndarray, targets: Sequence[float]) -> list[int]:
 # =============================================================================== detector
 
 
-def predictor_path() -> Path:
-    """The 68-point model inside ``face_recognition_models``, found without importing the package
-    (its ``__init__`` needs ``pkg_resources``)."""
-    spec = importlib.util.find_spec("face_recognition_models")
-    if spec is None or not spec.submodule_search_locations:
-        raise MissingDependencyError("face_recognition_models", "the face realism measurement", extra="realism")
-    for loc in spec.submodule_search_locations:
-        p = Path(loc) / "models" / PREDICTOR
-        if p.is_file():
-            return p
-    raise MissingDependencyError("face_recognition_models (models/" + PREDICTOR + ")",
-                                 "the face realism measurement", extra="realism")
-
-
 class Detector:
     """dlib HOG face detector (1x upsampling) + 68-point shape predictor on RGB images."""
 
@@ -178,9 +162,9 @@ class Detector:
         try:
             import dlib
         except ImportError as exc:
-            raise MissingDependencyError("dlib-bin", "the face realism measurement", extra="realism") from exc
+            raise MissingDependencyError("dlib-bin", "the face realism measurement", extra="live") from exc
         self._det = dlib.get_frontal_face_detector()
-        self._sp = dlib.shape_predictor(str(predictor_path()))
+        self._sp = dlib.shape_predictor(str(predictor_path()))  # the tracker's model file (the [live] extra)
         self._rect = dlib.rectangle
         self.upsample = int(upsample)
 
@@ -224,47 +208,14 @@ def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, colors: np.ndar
     (numpy.ndarray, numpy.ndarray)
         (N, H, W, 3) float32 images in [0, 1] and (N, H, W) bool masks (depth < far).
     """
-    from holo_viewer.flame.preview import _import_vtk
+    from holo_viewer.flame.preview import _import_vtk, add_key_lights, mesh_renderer
 
     vtk, nps = _import_vtk()
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
+    from holo_viewer.offscreen import new_offscreen_window
+
     W, H = int(cameras.width), int(cameras.height)
-    pts = vtk.vtkPoints()
-    pts.SetData(nps.numpy_to_vtk(np.ascontiguousarray(v), deep=True))
-    polys = vtk.vtkCellArray()
-    polys.SetData(nps.numpy_to_vtkIdTypeArray(np.arange(0, 3 * len(f) + 1, 3, dtype=np.int64), deep=True),
-                  nps.numpy_to_vtkIdTypeArray(np.ascontiguousarray(f).ravel(), deep=True))
-    poly = vtk.vtkPolyData()
-    poly.SetPoints(pts)
-    poly.SetPolys(polys)
-    rgb = nps.numpy_to_vtk(np.ascontiguousarray(np.clip(colors, 0, 1) * 255).astype(np.uint8), deep=True)
-    rgb.SetName("rgb")
-    poly.GetPointData().SetScalars(rgb)
-    normals = vtk.vtkPolyDataNormals()
-    normals.SetInputData(poly)
-    normals.SetFeatureAngle(60.0)
-    normals.SplittingOff()
-    normals.ConsistencyOff()
-    normals.AutoOrientNormalsOff()
-    mapper = vtk.vtkPolyDataMapper()
-    mapper.SetInputConnection(normals.GetOutputPort())
-    mapper.SetColorModeToDirectScalars()
-    actor = vtk.vtkActor()
-    actor.SetMapper(mapper)
-    prop = actor.GetProperty()
-    prop.SetInterpolationToPhong()
-    prop.SetAmbient(0.25)
-    prop.SetDiffuse(0.8)
-    prop.SetSpecular(0.12)
-    prop.SetSpecularPower(20)
-    ren = vtk.vtkRenderer()
-    ren.AddActor(actor)
-    ren.SetBackground(*background)
-    ren.AutomaticLightCreationOff()
-    win = vtk.vtkRenderWindow()
-    win.SetOffScreenRendering(1)
-    win.SetSize(W, H)
+    ren = mesh_renderer(vtk, nps, np.asarray(vertices, np.float64), np.asarray(faces, np.int64), colors, background)
+    win = new_offscreen_window(vtk.vtkRenderWindow, W, H, multisamples=None, what="face_realism mesh render")
     win.AddRenderer(ren)
     images, masks = [], []
     try:
@@ -280,18 +231,7 @@ def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, colors: np.ndar
             cam.SetViewAngle(float(np.degrees(2 * np.arctan(0.5 * H / K[1, 1]))))
             cam.SetWindowCenter(float(1 - 2 * K[0, 2] / W), float(2 * K[1, 2] / H - 1))  # optical axis at (cx, cy)
             cam.SetClippingRange(cameras.near, cameras.far)
-            ren.RemoveAllLights()
-            d = -fwd
-            right = np.cross(d, up)
-            right /= np.linalg.norm(right)
-            for offset, intensity in ((0.6 * up + 0.5 * right, 0.75), (-0.4 * right + 0.1 * up, 0.35),
-                                      (np.zeros(3), 0.25)):
-                light = vtk.vtkLight()
-                light.SetLightTypeToSceneLight()
-                light.SetPosition(*(centre + focal_distance * (d + offset)))
-                light.SetFocalPoint(*centre)
-                light.SetIntensity(intensity)
-                ren.AddLight(light)
+            add_key_lights(vtk, ren, centre, focal_distance, -fwd, up)
             win.Render()
             out = []
             for kind in ("rgb", "z"):

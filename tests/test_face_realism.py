@@ -128,7 +128,7 @@ have_dlib = importlib.util.find_spec("dlib") is not None and importlib.util.find
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not have_dlib, reason="needs dlib-bin and face_recognition_models (the [realism] extra)")
+@pytest.mark.skipif(not have_dlib, reason="needs dlib-bin and face_recognition_models (the [live] extra)")
 def test_detector_finds_the_face_on_a_neutral_front_render():
     from bench.face_realism import Detector, camera_angles
     from holo_viewer.pipeline import Pipeline, ViewSettings

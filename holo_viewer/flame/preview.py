@@ -170,40 +170,7 @@ def render_mesh(
     cam_dirs = [_camera_dir(view)[0] for view in views]  # validate names before any GL work
     vtk, nps = _import_vtk()
 
-    pts = vtk.vtkPoints()
-    pts.SetData(nps.numpy_to_vtk(np.ascontiguousarray(v), deep=True))
-    polys = vtk.vtkCellArray()
-    offsets = np.arange(0, 3 * len(f) + 1, 3, dtype=np.int64)
-    polys.SetData(nps.numpy_to_vtkIdTypeArray(offsets, deep=True),
-                  nps.numpy_to_vtkIdTypeArray(np.ascontiguousarray(f, dtype=np.int64).ravel(), deep=True))
-    poly = vtk.vtkPolyData()
-    poly.SetPoints(pts)
-    poly.SetPolys(polys)
-    rgb = nps.numpy_to_vtk(np.ascontiguousarray(np.clip(colors, 0, 1) * 255).astype(np.uint8), deep=True)
-    rgb.SetName("rgb")
-    poly.GetPointData().SetScalars(rgb)
-    normals = vtk.vtkPolyDataNormals()
-    normals.SetInputData(poly)
-    normals.SetFeatureAngle(60.0)
-    normals.SplittingOff()
-    normals.ConsistencyOff()
-    normals.AutoOrientNormalsOff()
-    mapper = vtk.vtkPolyDataMapper()
-    mapper.SetInputConnection(normals.GetOutputPort())
-    mapper.SetColorModeToDirectScalars()
-    actor = vtk.vtkActor()
-    actor.SetMapper(mapper)
-    prop = actor.GetProperty()
-    prop.SetInterpolationToPhong()
-    prop.SetAmbient(0.25)
-    prop.SetDiffuse(0.8)
-    prop.SetSpecular(0.12)
-    prop.SetSpecularPower(20)
-
-    ren = vtk.vtkRenderer()
-    ren.AddActor(actor)
-    ren.SetBackground(*background)
-    ren.AutomaticLightCreationOff()
+    ren = mesh_renderer(vtk, nps, v, f, colors, background)
     from ..offscreen import new_offscreen_window
 
     win = new_offscreen_window(vtk.vtkRenderWindow, w, h, multisamples=None, what="render_mesh")
@@ -223,17 +190,7 @@ def render_mesh(
             cam.SetViewUp(*up)
             cam.SetViewAngle(fov_deg)
             cam.SetClippingRange(max(dist - 3 * radius, 1e-3), dist + 3 * radius)
-            ren.RemoveAllLights()
-            right = np.cross(d, up)
-            right /= np.linalg.norm(right)
-            for offset, intensity in ((0.6 * up + 0.5 * right, 0.75), (-0.4 * right + 0.1 * up, 0.35),
-                                      (np.zeros(3), 0.25)):
-                light = vtk.vtkLight()
-                light.SetLightTypeToSceneLight()
-                light.SetPosition(*(centre + dist * (d + offset)))
-                light.SetFocalPoint(*centre)
-                light.SetIntensity(intensity)
-                ren.AddLight(light)
+            add_key_lights(vtk, ren, centre, dist, d, up)
             win.Render()
             grab = vtk.vtkWindowToImageFilter()
             grab.SetInput(win)
@@ -336,3 +293,65 @@ def write_head_renders(out_dir: str | os.PathLike, model: Any,
     if verbose:
         print(f"wrote {sheet}  (rows: {', '.join(n for n, _ in HEAD_POSES)}; columns: {', '.join(views)})")
     return written
+
+
+def mesh_renderer(vtk: Any, nps: Any, vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray,
+                  background: tuple[float, float, float]) -> Any:
+    """A vtkRenderer holding the shaded, vertex-coloured mesh (no lights; see :func:`add_key_lights`).
+
+    ``vertices`` (V, 3) float64, ``faces`` (F, 3) integer, ``colors`` (V, 3) RGB in [0, 1]; the one
+    material and normal set-up of every mesh render (the previews and the face-realism benchmark).
+    """
+    pts = vtk.vtkPoints()
+    pts.SetData(nps.numpy_to_vtk(np.ascontiguousarray(vertices, dtype=np.float64), deep=True))
+    polys = vtk.vtkCellArray()
+    offsets = np.arange(0, 3 * len(faces) + 1, 3, dtype=np.int64)
+    polys.SetData(nps.numpy_to_vtkIdTypeArray(offsets, deep=True),
+                  nps.numpy_to_vtkIdTypeArray(np.ascontiguousarray(faces, dtype=np.int64).ravel(), deep=True))
+    poly = vtk.vtkPolyData()
+    poly.SetPoints(pts)
+    poly.SetPolys(polys)
+    rgb = nps.numpy_to_vtk(np.ascontiguousarray(np.clip(colors, 0, 1) * 255).astype(np.uint8), deep=True)
+    rgb.SetName("rgb")
+    poly.GetPointData().SetScalars(rgb)
+    normals = vtk.vtkPolyDataNormals()
+    normals.SetInputData(poly)
+    normals.SetFeatureAngle(60.0)
+    normals.SplittingOff()
+    normals.ConsistencyOff()
+    normals.AutoOrientNormalsOff()
+    mapper = vtk.vtkPolyDataMapper()
+    mapper.SetInputConnection(normals.GetOutputPort())
+    mapper.SetColorModeToDirectScalars()
+    actor = vtk.vtkActor()
+    actor.SetMapper(mapper)
+    prop = actor.GetProperty()
+    prop.SetInterpolationToPhong()
+    prop.SetAmbient(0.25)
+    prop.SetDiffuse(0.8)
+    prop.SetSpecular(0.12)
+    prop.SetSpecularPower(20)
+
+    ren = vtk.vtkRenderer()
+    ren.AddActor(actor)
+    ren.SetBackground(*background)
+    ren.AutomaticLightCreationOff()
+    return ren
+
+
+def add_key_lights(vtk: Any, ren: Any, centre: np.ndarray, dist: float, d: np.ndarray, up: np.ndarray) -> None:
+    """Replace ``ren``'s lights by the previews' key, fill and head lights.
+
+    ``centre`` the look-at point, ``dist`` the camera distance, ``d`` (3,) the unit direction from
+    ``centre`` toward the camera, ``up`` (3,) the camera's up vector.
+    """
+    ren.RemoveAllLights()
+    right = np.cross(d, up)
+    right /= np.linalg.norm(right)
+    for offset, intensity in ((0.6 * up + 0.5 * right, 0.75), (-0.4 * right + 0.1 * up, 0.35), (np.zeros(3), 0.25)):
+        light = vtk.vtkLight()
+        light.SetLightTypeToSceneLight()
+        light.SetPosition(*(centre + dist * (d + offset)))
+        light.SetFocalPoint(*centre)
+        light.SetIntensity(intensity)
+        ren.AddLight(light)
