@@ -5,8 +5,15 @@ The small random objects come from :mod:`holo_viewer.testing`; every fixture her
 
 from __future__ import annotations
 
+import contextlib
+import os
+import select
+import shutil
+import subprocess
 import sys
+import time
 from pathlib import Path
+from typing import Iterator
 
 import pytest
 
@@ -29,3 +36,49 @@ def small_avatar(small_model):
     from holo_viewer.testing import random_rigged_avatar
 
     return random_rigged_avatar(small_model, n=400)
+
+
+@contextlib.contextmanager
+def _xvfb(screen: str = "1920x1080x24") -> Iterator[str]:
+    """Run ``Xvfb`` on a free display with one ``screen`` (WxHxDEPTH); yields ``":N"``.
+
+    Skips the test when Xvfb is missing or does not start. ``-displayfd``: Xvfb picks the display
+    and writes its number once it accepts connections, so parallel runs never collide.
+    """
+    exe = shutil.which("Xvfb")
+    if exe is None:
+        pytest.skip("Xvfb is not installed (apt-get install xvfb); this test needs an X server")
+    rfd, wfd = os.pipe()
+    proc = subprocess.Popen([exe, "-displayfd", str(wfd), "-screen", "0", screen, "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, pass_fds=(wfd,))
+    os.close(wfd)
+    buf = b""
+    deadline = time.time() + 20
+    while time.time() < deadline and not buf.endswith(b"\n"):
+        ready, _, _ = select.select([rfd], [], [], 0.2)
+        if ready:
+            chunk = os.read(rfd, 64)
+            if not chunk:
+                break
+            buf += chunk
+        if proc.poll() is not None:
+            break
+    os.close(rfd)
+    if not buf.strip().isdigit():
+        proc.kill()
+        pytest.skip(f"Xvfb did not start (exit code {proc.poll()})")
+    try:
+        yield f":{int(buf.strip())}"
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+@pytest.fixture(scope="session")
+def xvfb_server():
+    """``with xvfb_server("1536x2048x24") as display:`` runs a virtual X server for that block."""
+    return _xvfb
+

@@ -1,10 +1,8 @@
 """Fullscreen window under Xvfb: a screenshot of the window equals the expected native image."""
 
 import os
-import shutil
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -21,22 +19,9 @@ pytestmark = pytest.mark.gui
 
 
 @pytest.fixture(scope="module")
-def xvfb():
-    if shutil.which("Xvfb") is None:
-        pytest.skip("Xvfb is not installed (apt-get install xvfb); the fullscreen window needs an X display")
-    num = 90 + os.getpid() % 400
-    proc = subprocess.Popen(["Xvfb", f":{num}", "-screen", "0", "1536x2048x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    sock = f"/tmp/.X11-unix/X{num}"
-    for _ in range(100):
-        if os.path.exists(sock) or proc.poll() is not None:
-            break
-        time.sleep(0.1)
-    if proc.poll() is not None:
-        pytest.skip(f"Xvfb :{num} failed to start")
-    yield f":{num}"
-    proc.terminate()
-    proc.wait(timeout=10)
+def xvfb(xvfb_server):
+    with xvfb_server("1536x2048x24") as display:  # the Portrait's screen
+        yield display
 
 
 def _show(display, *args):

@@ -51,51 +51,21 @@ def _small_scene(tile_scale: float = 0.25):
 
 
 @pytest.fixture(scope="module")
-def xvfb():
-    """Start ``Xvfb :N`` for this module and point DISPLAY at it; skip when Xvfb is missing."""
-    exe = shutil.which("Xvfb")
-    if exe is None:
-        pytest.skip("Xvfb is not installed (apt-get install xvfb); the interactive-window tests need an X server")
-    # -displayfd: Xvfb picks a free display and writes its number once it accepts connections
-    rfd, wfd = os.pipe()
-    proc = subprocess.Popen([exe, "-displayfd", str(wfd), "-screen", "0", "1920x1080x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, pass_fds=(wfd,))
-    os.close(wfd)
-    buf = b""
-    deadline = time.time() + 20
-    import select
-
-    while time.time() < deadline and not buf.endswith(b"\n"):
-        ready, _, _ = select.select([rfd], [], [], 0.2)
-        if ready:
-            chunk = os.read(rfd, 64)
-            if not chunk:
-                break
-            buf += chunk
-        if proc.poll() is not None:
-            break
-    os.close(rfd)
-    if not buf.strip().isdigit():
-        proc.kill()
-        pytest.skip(f"Xvfb did not start (exit code {proc.poll()})")
-    num = int(buf.strip())
-    old = os.environ.get("DISPLAY")
-    old_win = os.environ.pop("VTK_DEFAULT_OPENGL_WINDOW", None)
-    os.environ["DISPLAY"] = f":{num}"
-    try:
-        yield f":{num}"
-    finally:
-        if old is None:
-            os.environ.pop("DISPLAY", None)
-        else:
-            os.environ["DISPLAY"] = old
-        if old_win is not None:
-            os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = old_win
-        proc.terminate()
+def xvfb(xvfb_server):
+    """An Xvfb display for this module, DISPLAY pointed at it (VTK's offscreen override removed)."""
+    with xvfb_server("1920x1080x24") as display:
+        old = os.environ.get("DISPLAY")
+        old_win = os.environ.pop("VTK_DEFAULT_OPENGL_WINDOW", None)
+        os.environ["DISPLAY"] = display
         try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+            yield display
+        finally:
+            if old is None:
+                os.environ.pop("DISPLAY", None)
+            else:
+                os.environ["DISPLAY"] = old
+            if old_win is not None:
+                os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = old_win
 
 
 @pytest.fixture()

@@ -201,21 +201,12 @@ print("SHOWN", preview.shown, "LOG", ",".join(session.controls.log), "PAIN", ses
 
 @pytest.mark.gui
 @pytest.mark.slow
-def test_preview_window_updates_and_keys_work(tmp_path):
-    if shutil.which("Xvfb") is None or shutil.which("xdotool") is None:
-        pytest.skip("needs Xvfb and xdotool (apt-get install xvfb xdotool)")
-    num = 300 + os.getpid() % 300
-    proc = subprocess.Popen(["Xvfb", f":{num}", "-screen", "0", "800x600x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        for _ in range(100):
-            if os.path.exists(f"/tmp/.X11-unix/X{num}") or proc.poll() is not None:
-                break
-            time.sleep(0.1)
-        if proc.poll() is not None:
-            pytest.skip("Xvfb failed to start")
+def test_preview_window_updates_and_keys_work(tmp_path, xvfb_server):
+    if shutil.which("xdotool") is None:
+        pytest.skip("needs xdotool (apt-get install xdotool)")
+    with xvfb_server("800x600x24") as display:
         env = {k: v for k, v in os.environ.items() if k != "VTK_DEFAULT_OPENGL_WINDOW"}
-        env["DISPLAY"] = f":{num}"
+        env["DISPLAY"] = display
         script = tmp_path / "preview.py"
         script.write_text(_PREVIEW_SCRIPT)
         r = subprocess.run([sys.executable, str(script), str(tmp_path / "s")], env=env, capture_output=True,
@@ -228,9 +219,6 @@ def test_preview_window_updates_and_keys_work(tmp_path):
         assert pain == pytest.approx(0.4)
         assert float(line[7]) > 5  # something was drawn
         _check_session(tmp_path / "s")  # quit still writes the session
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
 
 
 @pytest.mark.slow
@@ -294,22 +282,11 @@ def test_sigint_keeps_the_session_folder(tmp_path):
 
 @pytest.mark.gui
 @pytest.mark.slow
-def test_panel_window_under_xvfb(tmp_path):
+def test_panel_window_under_xvfb(tmp_path, xvfb_server):
     """--panel opens the borderless native-image window on a Portrait-sized screen (the show machinery)."""
-    if shutil.which("Xvfb") is None:
-        pytest.skip("needs Xvfb")
-    num = 600 + os.getpid() % 300
-    proc = subprocess.Popen(["Xvfb", f":{num}", "-screen", "0", "1536x2048x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        for _ in range(100):
-            if os.path.exists(f"/tmp/.X11-unix/X{num}") or proc.poll() is not None:
-                break
-            time.sleep(0.1)
-        if proc.poll() is not None:
-            pytest.skip("Xvfb failed to start")
+    with xvfb_server("1536x2048x24") as display:
         env = {k: v for k, v in os.environ.items() if k != "VTK_DEFAULT_OPENGL_WINDOW"}
-        env["DISPLAY"] = f":{num}"
+        env["DISPLAY"] = display
         out = tmp_path / "s"
         r = subprocess.run([sys.executable, "-m", "holo_viewer", "live", "--synthetic", "--seconds", "2", "--panel",
                             "--no-preview", "--frames", "2", "--tile-scale", "0.1", "--out", str(out)], env=env,
@@ -318,6 +295,3 @@ def test_panel_window_under_xvfb(tmp_path):
             pytest.skip("no xrandr/xdpyinfo to list the virtual monitor")
         assert r.returncode == 0, r.stderr[-2000:]
         assert _check_session(out)["meta"]["displayed_frames"] == 2
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
