@@ -321,6 +321,22 @@ def _reading(path: Path, error: type[HoloViewerError], what: str) -> Iterator[No
         raise error(f"{path}: cannot read {what} ({exc})") from None
 
 
+def read_json(path: str | os.PathLike, error: type[HoloViewerError] = HoloViewerError, what: str = "JSON file"):
+    """The parsed content of a UTF-8 JSON file.
+
+    Raises
+    ------
+    error
+        ``"{path}: {what} not found"`` or ``"{path}: cannot read {what} (...)"`` for a missing,
+        unreadable, non-UTF-8 or malformed file (the caller checks the structure it expects).
+    """
+    import json
+
+    p = Path(path)
+    with _reading(p, error, what):  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        return json.loads(p.read_text(encoding="utf-8"))
+
+
 def read_npz(path: str | os.PathLike, error: type[HoloViewerError] = HoloViewerError,
              what: str = "file") -> dict[str, np.ndarray]:
     """Every array of an ``.npz`` file, read eagerly (no pickles).

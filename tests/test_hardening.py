@@ -770,3 +770,26 @@ def test_render_batch_bad_out_and_disk_full(tmp_path: Path, disk_full, capsys) -
     assert rc == 1 and "Traceback" not in captured.err + captured.out
     assert "no space left on the device" in captured.err + captured.out
     assert [p for p in out.rglob("*") if p.is_file()] == []
+
+
+@pytest.mark.parametrize("case", ["missing", "malformed", "not_utf8", "directory"])
+def test_read_json_errors_name_the_file(tmp_path, case):
+    """fileio.read_json (training config, webcam mount, scenario, session metadata): every way a
+    JSON file can be unreadable is the caller's error class naming the file and what it is."""
+    from holo_viewer.errors import TrackingError
+
+    p = tmp_path / "mount.json"
+    if case == "malformed":
+        p.write_text("{oops")
+    elif case == "not_utf8":
+        p.write_bytes(b"\xff\xfe{}")
+    elif case == "directory":
+        p.mkdir()
+    with pytest.raises(TrackingError, match=r"mount\.json.*webcam mount JSON"):
+        fileio.read_json(p, TrackingError, "webcam mount JSON")
+
+
+def test_read_json_returns_the_content(tmp_path):
+    p = tmp_path / "x.json"
+    p.write_text(json.dumps({"a": [1, 2.5, None]}), encoding="utf-8")
+    assert fileio.read_json(p) == {"a": [1, 2.5, None]}

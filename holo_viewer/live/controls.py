@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import os
 import threading
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import InputError
+from ..fileio import read_json
 
 __all__ = ["Controls", "Scenario", "ScenarioEvent", "KEYS"]
 
@@ -90,12 +90,7 @@ class Scenario:
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Scenario":
         p = Path(path)
-        try:
-            data = json.loads(p.read_text())
-        except FileNotFoundError as exc:
-            raise InputError(f"{p}: scenario file not found") from exc
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"{p}: expected a JSON scenario ({exc})") from exc
+        data = read_json(p, InputError, "scenario JSON")
         if not isinstance(data, dict) or not isinstance(data.get("events"), list):
             raise InputError(f'{p}: expected {{"events": [...]}}, found {type(data).__name__}')
         names = ("smile", "pain", "surprise", "frown", "mouth_open", "neutral")

@@ -139,15 +139,12 @@ def _json_default(o: Any) -> Any:
 def load_session(folder: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
     """(session.json dict, tracks.npz arrays) of a session folder."""
     from ..errors import InputError
-    from ..fileio import read_npz
+    from ..fileio import read_json, read_npz
 
     p = Path(folder)
     if not (p / "session.json").is_file() or not (p / "tracks.npz").is_file():
         raise InputError(f"{p}: expected a live session folder with session.json and tracks.npz")
-    try:
-        meta = json.loads((p / "session.json").read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"{p / 'session.json'}: cannot read it ({exc})") from exc
+    meta = read_json(p / "session.json", InputError, "session metadata")
     tracks = read_npz(p / "tracks.npz", InputError, "session tracks")
     missing = [k for k in TRACK_KEYS if k not in tracks]
     if missing:

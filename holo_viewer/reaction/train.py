@@ -14,7 +14,6 @@ evaluation and removed at the end. ``resume=True`` continues from it.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 import time
@@ -26,7 +25,7 @@ import numpy as np
 import torch
 
 from ..errors import ReactionError
-from ..fileio import atomic_path, check_writable
+from ..fileio import atomic_path, check_writable, read_json
 from .audio import AudioConfig
 from .data import ReactionSplit, SyntheticConfig, make_synthetic_split
 from .model import ModelConfig, ReactionModel
@@ -181,15 +180,7 @@ def validate_train_config(cfg: TrainConfig, source: str = "config") -> TrainConf
 def load_train_config(path: str | os.PathLike) -> TrainConfig:
     """Read a training config JSON (any subset of :class:`TrainConfig`'s nested fields)."""
     p = Path(path)
-    try:
-        d = json.loads(p.read_text())
-    except FileNotFoundError as exc:
-        raise ReactionError(f"{p}: config file not found") from exc
-    except json.JSONDecodeError as exc:
-        raise ReactionError(f"{p}: not valid JSON ({exc})") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ReactionError(f"{p}: cannot read the config ({exc})") from exc
-    return train_config_from_dict(d, source=str(p))
+    return train_config_from_dict(read_json(p, ReactionError, "training config JSON"), source=str(p))
 
 
 @dataclass

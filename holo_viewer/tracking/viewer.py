@@ -21,7 +21,6 @@ then eases back to the default pose.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -31,6 +30,7 @@ from typing import Literal, Sequence
 import numpy as np
 
 from ..errors import InputError, TrackingError
+from ..fileio import read_json
 from ..validation import check_array, check_finite_scalar
 from .filters import OneEuroConfig, OneEuroFilter
 
@@ -99,12 +99,7 @@ class WebcamMount:
     def load(cls, path: str | os.PathLike) -> "WebcamMount":
         """Read the JSON described in the class docstring."""
         p = Path(path)
-        try:
-            data = json.loads(p.read_text())
-        except FileNotFoundError as exc:
-            raise TrackingError(f"{p}: webcam mount file not found") from exc
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise TrackingError(f"{p}: expected a JSON object (webcam mount), cannot read it: {exc}") from exc
+        data = read_json(p, TrackingError, "webcam mount JSON")
         if not isinstance(data, dict):
             raise TrackingError(f"{p}: expected a JSON object, found {type(data).__name__}")
         unknown = sorted(set(data) - {"position_m", "rotation_deg", "hfov_deg", "mirrored"})
