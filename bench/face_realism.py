@@ -11,7 +11,7 @@ trained on real photographs (packages ``dlib-bin`` and ``face_recognition_models
   :func:`face_measures` and docs/face_realism.md);
 * monotonicity of every measure as pain goes 0 -> 0.25 -> 0.5 -> 1 (same three windows);
 * fidelity: PSNR of the Gaussian view against the mesh render with the *same* quilt camera
-  (VTK, exact intrinsics including the off-axis principal point, :func:`render_mesh_cameras`)
+  (VTK, exact intrinsics including the off-axis principal point, `holo_viewer.flame.preview.render_mesh_cameras`)
   over the mesh's mask, at the views nearest to 0 and +-20 degrees.
 
 Renderers: ``gaussians`` = ``Pipeline.views()`` (the quilt's 48 views, 420x560); ``mesh`` =
@@ -194,61 +194,6 @@ def camera_angles(cameras: Any, focal_center: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(rel[:, 0], rel[:, 2]))
 
 
-def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray, cameras: Any,
-                        indices: Sequence[int], focal_distance: float,
-                        background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
-    """Render a vertex-coloured mesh through quilt cameras with their exact OpenCV intrinsics (VTK).
-
-    Lighting, material and normals are those of :func:`holo_viewer.flame.preview.render_mesh`;
-    the camera is the quilt camera: centre, orientation, vertical view angle ``2 atan(H / 2 fy)``
-    and the principal point (cx, cy) as VTK's window centre (off-axis frustum).
-
-    Returns
-    -------
-    (numpy.ndarray, numpy.ndarray)
-        (N, H, W, 3) float32 images in [0, 1] and (N, H, W) bool masks (depth < far).
-    """
-    from holo_viewer.flame.preview import _import_vtk, add_key_lights, mesh_renderer
-
-    vtk, nps = _import_vtk()
-    from holo_viewer.offscreen import new_offscreen_window
-
-    W, H = int(cameras.width), int(cameras.height)
-    ren = mesh_renderer(vtk, nps, np.asarray(vertices, np.float64), np.asarray(faces, np.int64), colors, background)
-    win = new_offscreen_window(vtk.vtkRenderWindow, W, H, multisamples=None, what="face_realism mesh render")
-    win.AddRenderer(ren)
-    images, masks = [], []
-    try:
-        for i in indices:
-            R, t, K = cameras.world_to_cam[i, :3, :3], cameras.world_to_cam[i, :3, 3], cameras.K[i]
-            C = -R.T @ t
-            fwd, up = R[2], -R[1]  # OpenCV +z forward, +y down
-            centre = C + focal_distance * fwd
-            cam = ren.GetActiveCamera()
-            cam.SetPosition(*C)
-            cam.SetFocalPoint(*centre)
-            cam.SetViewUp(*up)
-            cam.SetViewAngle(float(np.degrees(2 * np.arctan(0.5 * H / K[1, 1]))))
-            cam.SetWindowCenter(float(1 - 2 * K[0, 2] / W), float(2 * K[1, 2] / H - 1))  # optical axis at (cx, cy)
-            cam.SetClippingRange(cameras.near, cameras.far)
-            add_key_lights(vtk, ren, centre, focal_distance, -fwd, up)
-            win.Render()
-            out = []
-            for kind in ("rgb", "z"):
-                grab = vtk.vtkWindowToImageFilter()
-                grab.SetInput(win)
-                grab.SetInputBufferTypeToRGB() if kind == "rgb" else grab.SetInputBufferTypeToZBuffer()
-                grab.ReadFrontBufferOff()
-                grab.Update()
-                arr = nps.vtk_to_numpy(grab.GetOutput().GetPointData().GetScalars())
-                out.append(np.ascontiguousarray(arr.reshape(H, W, -1)[::-1]))
-            images.append(out[0].astype(np.float32) / 255.0)
-            masks.append(out[1][..., 0] < 1.0)
-    finally:
-        win.Finalize()
-    return np.stack(images), np.stack(masks)
-
-
 def mesh_colors(model: Any) -> np.ndarray:
     """Per-vertex region colours of the default head, smoothed once (as ``write_head_renders``)."""
     from holo_viewer.flame.preview import region_colors, smooth_vertex_colors
@@ -310,7 +255,7 @@ def median_measures(per_view: Sequence[dict | None]) -> dict[str, float] | None:
 
 def run(images_dir: Path | None = None) -> dict[str, Any]:
     from holo_viewer.fileio import save_image
-    from holo_viewer.flame.preview import render_mesh
+    from holo_viewer.flame.preview import render_mesh, render_mesh_cameras
     from holo_viewer.pipeline import Pipeline
 
     det = Detector()
@@ -324,8 +269,6 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
     (framing,), _ = pipe.compute("framing")
     centre = np.asarray(framing[0])
     angles = camera_angles(cams, centre)
-    R0, t0 = cams.world_to_cam[0, :3, :3], cams.world_to_cam[0, :3, 3]
-    focal_distance = float(abs((-R0.T @ t0 - centre)[2]))
     windows = {f"{t:+g} deg": view_window(angles, t) for t in LANDMARK_ANGLES}
     lm_views = sorted({i for w in windows.values() for i in w})
     fid_views = nearest_views(angles, FIDELITY_ANGLES)
@@ -346,7 +289,7 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
                 if i in lm_views:
                     meas[i] = face_measures(r[0])
                     marks[("g", i)] = r[0]
-        mimg, mmask = render_mesh_cameras(verts, faces, colors, cams, mesh_views, focal_distance)
+        mimg, mmask = render_mesh_cameras(verts, faces, cams, mesh_views, colors=colors)
         mesh_meas = {}
         for k, i in enumerate(mesh_views):
             r = det(mimg[k])

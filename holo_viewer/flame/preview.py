@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import InputError, MissingDependencyError, RenderError
 from ..validation import check_array
 
-__all__ = ["render_mesh", "region_colors", "smooth_vertex_colors", "REGION_COLORS", "contact_sheet", "write_head_renders",
+__all__ = ["render_mesh", "render_mesh_cameras", "region_colors", "smooth_vertex_colors", "REGION_COLORS", "contact_sheet", "write_head_renders",
            "HEAD_POSES"]
 
 _VIEWS = {"front": (0.0, 0.0), "three_quarter": (40.0, 5.0), "side": (90.0, 0.0), "back": (180.0, 0.0),
@@ -205,6 +205,87 @@ def render_mesh(
     finally:
         win.Finalize()
     return images
+
+
+def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, indices: Sequence[int] | None = None,
+                        colors: np.ndarray | None = None,
+                        background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Render a vertex-coloured mesh through pinhole cameras with their exact OpenCV intrinsics (VTK).
+
+    Lighting, material and normals are those of :func:`render_mesh`; the camera is the given
+    camera: centre, orientation, vertical view angle ``2 atan(H / 2 fy)`` and the principal point
+    (cx, cy) as VTK's window centre (an off-axis frustum, as the quilt cameras). The lights are
+    directional and set from each camera's orientation only, so cameras sharing one orientation
+    (every quilt camera) see the mesh under the same world-fixed lights.
+
+    Parameters
+    ----------
+    vertices, faces : numpy.ndarray
+        (V, 3) positions (metres) and (F, 3) triangles.
+    cameras : holo_viewer.camera.Cameras
+        ``world_to_cam`` (N, 4, 4), ``K`` (N, 3, 3), ``width``, ``height``, ``near``, ``far``.
+    indices : sequence of int, optional
+        Cameras to render (default all).
+    colors : numpy.ndarray, optional
+        (V, 3) per-vertex RGB in [0, 1]; default a uniform skin tone.
+    background : (float, float, float)
+        Background RGB.
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        (n, H, W, 3) float32 images in [0, 1] and (n, H, W) bool masks (depth buffer < 1).
+    """
+    v = np.asarray(check_array(vertices, "vertices", ("V", 3)), dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if colors is None:
+        colors = np.tile(np.asarray(REGION_COLORS["skin"]), (len(v), 1))
+    colors = np.asarray(check_array(colors, "colors", (len(v), 3)), dtype=np.float64)
+    idx = list(range(len(cameras))) if indices is None else [int(i) for i in indices]
+    for i in idx:
+        if not 0 <= i < len(cameras):
+            raise InputError(f"indices: expected camera indices in [0, {len(cameras)}), found {i}")
+    vtk, nps = _import_vtk()
+    from ..offscreen import new_offscreen_window
+
+    W, H = int(cameras.width), int(cameras.height)
+    ren = mesh_renderer(vtk, nps, v, f, colors, background)
+    win = new_offscreen_window(vtk.vtkRenderWindow, W, H, multisamples=None, what="render_mesh_cameras")
+    win.AddRenderer(ren)
+    images, masks = [], []
+    try:
+        for i in idx:
+            R, t, K = cameras.world_to_cam[i, :3, :3], cameras.world_to_cam[i, :3, 3], cameras.K[i]
+            C = -R.T @ t
+            fwd, up = R[2], -R[1]  # OpenCV +z forward, +y down
+            centre = C + fwd
+            cam = ren.GetActiveCamera()
+            cam.SetPosition(*C)
+            cam.SetFocalPoint(*centre)
+            cam.SetViewUp(*up)
+            cam.SetViewAngle(float(np.degrees(2 * np.arctan(0.5 * H / K[1, 1]))))
+            cam.SetWindowCenter(float(1 - 2 * K[0, 2] / W), float(2 * K[1, 2] / H - 1))  # optical axis at (cx, cy)
+            cam.SetClippingRange(cameras.near, cameras.far)
+            add_key_lights(vtk, ren, centre, 1.0, -fwd, up)
+            win.Render()
+            out = []
+            for kind in ("rgb", "z"):
+                grab = vtk.vtkWindowToImageFilter()
+                grab.SetInput(win)
+                grab.SetInputBufferTypeToRGB() if kind == "rgb" else grab.SetInputBufferTypeToZBuffer()
+                grab.ReadFrontBufferOff()
+                grab.Update()
+                arr = nps.vtk_to_numpy(grab.GetOutput().GetPointData().GetScalars())
+                out.append(np.ascontiguousarray(arr.reshape(H, W, -1)[::-1]))
+            images.append(out[0].astype(np.float32) / 255.0)
+            masks.append(out[1][..., 0] < 1.0)
+    except (RuntimeError, ValueError, TypeError, AttributeError) as exc:  # VTK/GL failures
+        raise RenderError(f"render_mesh_cameras: offscreen VTK rendering failed ({exc})") from exc
+    finally:
+        win.Finalize()
+    if not images:
+        return np.zeros((0, H, W, 3), np.float32), np.zeros((0, H, W), bool)
+    return np.stack(images), np.stack(masks)
 
 
 def contact_sheet(rows: Sequence[Sequence[np.ndarray]], pad: int = 4,
