@@ -26,7 +26,7 @@ Expressions (``FaceControls``): neutral; smile = named ``smile`` 1.0; pain 0.25 
 
 Usage::
 
-    python bench/face_realism.py [--json bench/results/face_realism.json] [--images DIR]
+    python bench/face_realism.py [--json bench/results/face_realism.json] [--images DIR] [--sheet FILE]
 """
 
 from __future__ import annotations
@@ -253,6 +253,54 @@ def median_measures(per_view: Sequence[dict | None]) -> dict[str, float] | None:
     return {k: float(np.median([m[k] for m in got])) for k in MEASURES}
 
 
+#: rows of the contact sheet (``--sheet``): expression keys of :func:`expressions` and their labels
+SHEET_ROWS = (("neutral", "neutral"), ("smile", "smile"), ("pain_05", "pain 0.5"), ("pain_1", "pain 1.0"),
+              ("mouth_open", "mouth open"))
+
+
+def head_box(masks: Sequence[np.ndarray], margin: int = 12) -> tuple[int, int, int, int]:
+    """(top, bottom, left, right) pixel box around the union of ``masks``, grown by ``margin`` and clipped."""
+    union = np.any(np.stack([np.asarray(m, bool) for m in masks]), axis=0)
+    if not union.any():
+        return 0, union.shape[0], 0, union.shape[1]
+    rows, cols = np.nonzero(union)
+    h, w = union.shape
+    return (max(int(rows.min()) - margin, 0), min(int(rows.max()) + 1 + margin, h),
+            max(int(cols.min()) - margin, 0), min(int(cols.max()) + 1 + margin, w))
+
+
+def contact_sheet_image(res: dict[str, Any], scale: float = 1.0) -> np.ndarray:
+    """Labelled sheet: a row per :data:`SHEET_ROWS` expression, *mesh | Gaussians* per fidelity view, PSNR under each pair."""
+    from PIL import Image, ImageDraw
+
+    pairs, fid = res["sheet_pairs"], list(res["fid_views"])
+    names = [(k, label) for k, label in SHEET_ROWS if k in pairs]
+    top, bottom, left, right = head_box([pairs[k][i][2] for k, _ in names for i in fid])
+    tile_h, tile_w = bottom - top, right - left
+    head_w, label_h, pad = 92, 16, 4
+    cols = [(i, which) for i in fid for which in (1, 0)]  # mesh then Gaussians per view
+    H = label_h + len(names) * (tile_h + label_h + pad)
+    W = head_w + len(cols) * (tile_w + pad)
+    sheet = Image.new("RGB", (W, H), (255, 255, 255))
+    draw = ImageDraw.Draw(sheet)
+    for c, (i, which) in enumerate(cols):
+        x = head_w + c * (tile_w + pad)
+        draw.text((x + 2, 2), f"{'mesh' if which else 'Gaussians'} v{i} ({res['angles'][i]:+.0f} deg)", fill=(0, 0, 0))
+    for r, (key, label) in enumerate(names):
+        y = label_h + r * (tile_h + label_h + pad)
+        draw.text((4, y + tile_h // 2), label, fill=(0, 0, 0))
+        for c, (i, which) in enumerate(cols):
+            x = head_w + c * (tile_w + pad)
+            img = np.clip(pairs[key][i][which][top:bottom, left:right], 0, 1)
+            sheet.paste(Image.fromarray((img * 255 + 0.5).astype(np.uint8)), (x, y))
+            if which == 0:
+                psnr = res["per_expression"][key]["psnr_db"][int(i)]
+                draw.text((x - tile_w // 2 - 30, y + tile_h + 2), f"PSNR {psnr:.1f} dB", fill=(0, 0, 0))
+    if scale != 1.0:
+        sheet = sheet.resize((int(W * scale), int(H * scale)), Image.LANCZOS)
+    return np.asarray(sheet)
+
+
 def run(images_dir: Path | None = None) -> dict[str, Any]:
     from holo_viewer.fileio import save_image
     from holo_viewer.flame.preview import render_mesh, render_mesh_cameras
@@ -276,6 +324,7 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
     preview_yaws = [float(angles[i]) for i in windows[f"{LANDMARK_ANGLES[0]:+g} deg"]]
 
     per: dict[str, Any] = {}
+    sheet_pairs: dict[str, dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
     for name, face in expressions().items():
         pipe.set_face(face)
         views = pipe.views()
@@ -314,6 +363,8 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
                                        "median": median_measures(prev_meas)}
         entry["psnr_db"] = psnr
         per[name] = entry
+        sheet_pairs[name] = {int(i): (views[i], mimg[mesh_views.index(i)], mmask[mesh_views.index(i)])
+                             for i in fid_views}
         if images_dir is not None:
             images_dir.mkdir(parents=True, exist_ok=True)
             for i in mesh_views:
@@ -328,7 +379,7 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
         print(f"  {name}: found {found}/48, PSNR " + ", ".join(f"v{i} {p:.1f}" for i, p in psnr.items()),
               flush=True)
     seconds = time.perf_counter() - t_start
-    return {"per_expression": per, "angles": angles, "windows": windows, "fid_views": fid_views,
+    return {"per_expression": per, "sheet_pairs": sheet_pairs, "angles": angles, "windows": windows, "fid_views": fid_views,
             "preview_yaws": preview_yaws, "seconds": seconds, "load_before": load_before,
             "load_after": os.getloadavg()[0], "n_gaussians": len(pipe.avatar), "tile": [cams.width, cams.height]}
 
@@ -387,8 +438,14 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "face_realism.json"))
     ap.add_argument("--images", default=None, help="write the measured views (Gaussians | mesh) here")
+    ap.add_argument("--sheet", default=None, help="write a labelled contact sheet (mesh | Gaussians per "
+                    "expression and fidelity view, PSNR under each pair) to this image file (.png/.jpg)")
     args = ap.parse_args(argv)
     res = run(Path(args.images) if args.images else None)
+    if args.sheet:
+        from holo_viewer.fileio import save_image
+
+        print(f"wrote {save_image(args.sheet, contact_sheet_image(res))}")
     rows = evaluate(res)
     print(f"\n{'measure':<32} {'renderer':<19} {'expr':<10} {'view':<24} {'value':<34} {'target':<15} pass")
     for r in rows:

@@ -185,3 +185,26 @@ def test_render_mesh_cameras_rejects_bad_indices():
     pipe = Pipeline()
     with pytest.raises(InputError, match="indices"):
         render_mesh_cameras(pipe.mesh(), pipe.model.faces.cpu().numpy(), pipe.cameras(), [48])
+
+
+def test_contact_sheet_layout_and_head_box():
+    from bench.face_realism import SHEET_ROWS, contact_sheet_image, head_box
+
+    h, w = 60, 40
+    mask = np.zeros((h, w), bool)
+    mask[20:30, 10:25] = True
+    assert head_box([mask], margin=2) == (18, 32, 8, 27)
+    assert head_box([np.zeros((h, w), bool)]) == (0, h, 0, w)
+    rng = np.random.default_rng(0)
+    fid = [24, 0, 47]
+    pairs, per = {}, {}
+    for key, _ in SHEET_ROWS:
+        pairs[key] = {i: (rng.uniform(size=(h, w, 3)), np.full((h, w, 3), 0.5), mask) for i in fid}
+        per[key] = {"psnr_db": {i: 20.0 + i for i in fid}}
+    res = {"sheet_pairs": pairs, "fid_views": fid, "per_expression": per, "angles": np.linspace(-20, 20, 48)}
+    sheet = contact_sheet_image(res)
+    tile_h, tile_w = 34, 37  # the mask box (rows 20-29, cols 10-24) grown by the default 12 px, clipped to 40 wide
+    assert sheet.ndim == 3 and sheet.shape[2] == 3 and sheet.dtype == np.uint8
+    assert sheet.shape == (16 + len(SHEET_ROWS) * (tile_h + 16 + 4), 92 + 6 * (tile_w + 4), 3)
+    # the mesh tile of the first row sits right of the label column: grey 0.5 -> 128
+    assert (sheet[16 + 5, 92 + 5] == 128).all()
