@@ -263,11 +263,15 @@ def test_jaw_opens_the_mouth_and_carries_teeth_and_tongue(head):
     assert np.abs(d0 - d1).max() < 1e-6
     tongue = _region(head, "tongue")
     assert np.mean(np.linalg.norm(opened[tongue] - rest[tongue], axis=1) > 0.003) > 0.5
-    # the eyes do not move; the brows, lids, lashes and hair hardly (ICT's jawOpen stretches the skin a bit)
+    # the eyes, lids, lashes, brows and hair do not move (ICT's jawOpen moves the temples and the upper
+    # cheeks below the lids by < 1 mm)
+    v = head["v_template"]
+    lids_up = (v[:, 1] > -0.012) & (v[:, 2] > 0.03) & (np.abs(v[:, 0]) < 0.06)
     eyes = _region(head, "eyeball_left", "eyeball_right", "iris", "pupil")
+    eyes[head["landmark_vertices"][36:48]] = True  # the lid landmarks
     assert np.abs(opened[eyes] - rest[eyes]).max() == 0.0
-    still = _region(head, "brows", "hair", "lashes")
-    assert np.abs(opened[still] - rest[still]).max() < 5e-4
+    still = _region(head, "brows", "hair", "lashes") | lids_up
+    assert np.abs(opened[still] - rest[still]).max() < 3e-4
 
 
 def test_neck_and_eyes_rotate(head):
@@ -304,8 +308,12 @@ def test_jaw_rotation_reproduces_ict_jaw_open(built):
     target = h.v + h.expr["jawOpen"]
     ball = _region(built, "eyeball_left", "eyeball_right", "iris", "pupil")[:n0]
     teeth = _region(built, "teeth")[:n0]  # rigid: within the residual of the rigid fit
-    assert np.abs(posed[~ball & ~teeth] - target[~ball & ~teeth]).max() < 1e-9
+    faded = (built["weights"][:n0, 2] == 0) & (np.linalg.norm(h.expr["jawOpen"], axis=1) < ict.JAW_FADE[1])
+    exact = ~ball & ~teeth & ~faded
+    assert exact.sum() > 8000
+    assert np.abs(posed[exact] - target[exact]).max() < 1e-9
     assert np.abs(posed[teeth] - target[teeth]).max() < 5e-4
+    assert np.abs(posed[faded] - target[faded]).max() < ict.JAW_FADE[1]  # tiny motions faded out
     assert np.linalg.norm(h.expr["jawOpen"], axis=1).max() > 0.03
 
 

@@ -96,6 +96,8 @@ HAIR_PROFILE = ((-40.0, 0.003), (-10.0, 0.006), (15.0, 0.011), (45.0, 0.017), (9
 HAIR_RAMP_DEG = 14.0  # the shell grows from the hairline to full thickness over this elevation band
 HAIR_TUCK = 0.0006  # the rim lies this far under the skin (no gap)
 HAIR_EDGE_DEG = 1.5  # the shell leaves the skin this far (degrees) below the hairline, rising steeply
+#: jawOpen motions (metres) below which the jaw corrective fades out where the jaw weight is 0
+JAW_FADE = (0.0003, 0.001)
 #: AU26 (jaw drop) at coefficient 1 = ``jawOpen`` scaled to this jaw rotation (degrees).
 JAW_AU26_DEG = 12.0
 
@@ -173,23 +175,6 @@ def _point_in_polygon(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
             xi = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
         inside ^= cross & (x < xi)
     return inside
-
-
-def _dist_to_polyline(p: np.ndarray, line: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distance (N,) of 2-D points to a polyline and the arc parameter (0..1) of the closest point."""
-    best = np.full(len(p), np.inf)
-    par = np.zeros(len(p))
-    seg = np.linalg.norm(np.diff(line, axis=0), axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
-    for i in range(len(line) - 1):
-        a, b = line[i], line[i + 1]
-        ab = b - a
-        t = np.clip(((p - a) @ ab) / (ab @ ab), 0.0, 1.0)
-        d = np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
-        better = d < best
-        best[better] = d[better]
-        par[better] = (cum[i] + t[better] * seg[i]) / cum[-1]
-    return best, par
 
 
 @dataclass
@@ -346,17 +331,19 @@ def _regions(h: _Head, hair_cov: np.ndarray) -> np.ndarray:
         ear |= side & (q < 1.0) & (sgn * v[:, 0] > basis @ coef + 0.0025)
     reg[ear] = R["ears"]
     front = (p == po["face"]) & (v[:, 2] > 0.03)
-    # brows: a band from 7 mm below to 2.5 mm above the brow landmarks, tapering laterally
-    for ids, sgn in ((np.arange(17, 22), -1), (np.arange(22, 27), 1)):
-        line = lm[ids, :2]
-        d, t = _dist_to_polyline(v[:, :2], line)
-        inner = t if sgn > 0 else 1 - t  # 0 at the medial end
-        above = v[:, 1] - np.interp(v[:, 0], line[:, 0] if line[0, 0] < line[-1, 0] else line[::-1, 0],
-                                     line[:, 1] if line[0, 0] < line[-1, 0] else line[::-1, 1])
-        lo = -(0.0075 - 0.003 * inner)
-        hi = 0.0025 - 0.001 * inner
-        xr = (v[:, 0] - line[:, 0].min() > -0.002) & (line[:, 0].max() - v[:, 0] > -0.002)
-        reg[front & xr & (above > lo) & (above < hi) & (d < 0.012)] = R["brows"]
+    # brows: a tapered band along a quadratic fitted through the brow landmarks (17-21, 22-26), which
+    # lie on the brow's upper half: 9 mm tall at the head (medial), 3 mm at the tail, rounded ends
+    for ids in (np.arange(17, 22), np.arange(22, 27)):
+        bx, by = np.abs(lm[ids, 0]), lm[ids, 1]
+        coef = np.polyfit(bx, by, 2)
+        x_med, x_lat = bx.min() - 0.002, bx.max() + 0.002
+        ax = np.abs(v[:, 0])
+        t = (ax - x_med) / (x_lat - x_med)
+        cap = np.sqrt(np.clip(t / 0.08, 0, 1)) * np.sqrt(np.clip((1 - t) / 0.2, 0, 1))
+        half = (0.0045 * (1 - t) + 0.0015 * t) * cap
+        centre = np.polyval(coef, ax) - 0.0015 - 0.001 * (1 - t)
+        same_side = np.sign(v[:, 0]) == np.sign(lm[ids[0], 0])
+        reg[front & same_side & (t > 0) & (t < 1) & (np.abs(v[:, 1] - centre) < half)] = R["brows"]
     # lips: the face surface inside the outer lip contour (48..59)
     lips = (p == po["face"]) & _point_in_polygon(v[:, :2], lm[48:60, :2]) & (v[:, 2] > lm[48, 2] - 0.012)
     lips[h.landmarks[48:68]] = True  # the contour itself
@@ -368,8 +355,8 @@ def _regions(h: _Head, hair_cov: np.ndarray) -> np.ndarray:
     xc = 0.5 * (abs(lm[31, 0]) + abs(lm[32, 0]))
     inward = ((sx * v[:, 0] - xc) * sx * nrm[:, 0] < 0.0) | ((nrm[:, 1] < -0.3) & (np.abs(v[:, 0]) > 0.0035))
     nos = ((p == po["face"]) & (np.abs(v[:, 0]) < abs(lm[31, 0]) + 0.002) & (v[:, 1] > lm[33, 1] + 0.0015)
-           & (v[:, 1] < lm[33, 1] + 0.03) & (v[:, 2] < lm[30, 2] - 0.006) & (v[:, 2] > lm[31, 2] - 0.025)
-           & (nrm[:, 2] < 0.5) & inward)
+           & (v[:, 1] < lm[33, 1] + 0.014) & (v[:, 2] < lm[30, 2] - 0.006) & (v[:, 2] > lm[31, 2] - 0.025)
+           & (nrm[:, 2] < 0.35) & inward)
     reg[nos] = R["nostrils"]
     reg[p == po["mouth_socket"]] = R["mouth_interior"]
     reg[np.isin(p, [po["eye_socket_left"], po["eye_socket_right"]])] = R["eye_pocket"]
@@ -527,7 +514,10 @@ def build_from_ict(ict: dict[str, np.ndarray], n_identity: int = N_IDENTITY) -> 
     target = h.v + jaw_open
     corr = np.linalg.solve(a_mat, (target - b_vec)[:, :, None])[:, :, 0] - h.v
     corr[eyeball | teeth] = 0.0  # rigid parts (the lower teeth: residual of the rigid fit, < 0.3 mm)
-    # (where jw = 0, e.g. the throat, the corrective is jawOpen's own motion)
+    # where jw = 0 (e.g. the throat) the corrective is jawOpen's own motion, faded out below 1 mm so the
+    # jaw leaves the upper face alone (ICT's jawOpen stretches the skin up to the brows by < 0.3 mm)
+    move = np.linalg.norm(jaw_open, axis=1)
+    corr[jw == 0.0] *= smoothstep(move[jw == 0.0], JAW_FADE[0], JAW_FADE[1])[:, None]
     posedirs = np.zeros((n0, 3, 36))
     posedirs[:, :, 9 + 7] = 0.5 * corr / np.sin(ang)
     posedirs[:, :, 9 + 5] = -0.5 * corr / np.sin(ang)
