@@ -215,13 +215,15 @@ def _sequence(au_map, T):
 
 
 # Stated accuracy (docs/live.md). Measured with dlib's 68 points on renders of the default avatar
-# (640x480, 60 deg webcam at 0.5 m, pixel noise sigma 0.03): rotation error median 6-8 deg front and
-# (10, -5) deg, 13 deg at (-12, 5); jaw MAE 1.7-2.3 deg, jaw correlation 0.73-0.80. On this avatar dlib under-reports yaw
-# (fitted yaw ~0.7 x true: its regression-tree shape prior, not the fit, which recovers rotation
-# within 1 deg from exact landmarks), so off-axis cameras get wider bounds. Thresholds leave a margin.
+# (640x480, 60 deg webcam at 0.5 m, pixel noise sigma 0.03). On the ICT-based head (issue 17; landmarks =
+# ICT's landmarks68 vertices): rotation error median 1.7 / 2.8 / 2.2 deg at front / (-12, 5) / (10, -5)
+# (p90 2.9-5.7), jaw MAE 3.1-3.6 deg with correlation 0.55-0.87: dlib puts the lower lip and chin 3-4 px
+# (~2 mm) below ICT's landmark vertices on these renders, a bias of ~2 deg of jaw. (The sculpted head
+# before it, with a detector-fitted embedding: rotation 6-13 deg, jaw MAE 1.7-2.3 deg.) Off-axis cameras
+# keep their wider rotation bounds. Thresholds leave a margin.
 ROT_MEDIAN_DEG = {"front": 11.0, "off-axis": 16.0}
 ROT_P90_DEG = {"front": 18.0, "off-axis": 24.0}
-JAW_MAE_DEG = 3.5
+JAW_MAE_DEG = 4.5
 JAW_CORR = 0.3
 AU12_CORR = 0.3
 
