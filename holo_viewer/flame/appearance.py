@@ -31,7 +31,8 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["HeadAppearance", "generate_appearance", "rasterize_uv", "TEXTURE_SIZE", "EYE_TEXTURE_SIZE",
-           "MATERIALS", "MATERIAL_TEXTURE", "MATERIAL_SPECULAR", "APPEARANCE_VERSION", "face_frame"]
+           "LASH_TEXTURE_SIZE", "TEXTURE_TILE", "MATERIALS", "MATERIAL_TEXTURE", "MATERIAL_SPECULAR",
+           "APPEARANCE_VERSION", "face_frame", "eye_axis"]
 
 #: Bumped whenever the painting changes (cached appearances carry it).
 APPEARANCE_VERSION = 1
@@ -822,62 +823,29 @@ def _materials(p: _Painter, faces: np.ndarray, uv: np.ndarray, faces_uv: np.ndar
     return mat
 
 
-def generate_appearance(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, faces_uv: np.ndarray,
-                        vertex_region: np.ndarray, region_names: Sequence[str], landmarks: np.ndarray,
-                        seed: int = 0, size: int = TEXTURE_SIZE, eye_size: int = EYE_TEXTURE_SIZE) -> HeadAppearance:
-    """Paint the head's albedo (see the module docstring).
+def _check_textures(textures: Mapping[str, np.ndarray], alpha: Mapping[str, np.ndarray], size: int,
+                    eye_size: int) -> tuple[dict, dict]:
+    want = {"face": size, "head": size, "hair": size, "eye_left": eye_size, "eye_right": eye_size,
+            "lashes": LASH_TEXTURE_SIZE}
+    out = {}
+    for name, side in want.items():
+        if name not in textures:
+            raise InputError(f"textures: missing {name!r}; expected {sorted(want)}")
+        t = np.asarray(textures[name], dtype=np.float32)
+        if t.shape != (side, side, 3) or not np.isfinite(t).all() or t.min() < 0 or t.max() > 1:
+            raise InputError(f"textures[{name!r}]: expected ({side}, {side}, 3) values in [0, 1], found {t.shape}")
+        out[name] = t
+    a = {}
+    for name, t in alpha.items():
+        t = np.asarray(t, dtype=np.float32)
+        if t.shape != out[name].shape[:2]:
+            raise InputError(f"alpha[{name!r}]: expected {out[name].shape[:2]}, found {t.shape}")
+        a[name] = t
+    return out, a
 
-    Parameters
-    ----------
-    vertices : numpy.ndarray
-        (V, 3) rest positions (any unit; the face frame rescales to millimetres).
-    faces : numpy.ndarray
-        (F, 3) triangles.
-    uv, faces_uv : numpy.ndarray
-        (U, 2) UDIM texture coordinates (tile k = floor(u)) and (F, 3) indices into ``uv``.
-    vertex_region : numpy.ndarray
-        (V0,) region label per vertex (V0 <= V; vertices beyond are teeth), indices into ``region_names``.
-    region_names : sequence of str
-        Region names (skin, scalp, brows, lips, eyeball_left, eyeball_right, iris, pupil, ears,
-        mouth_interior, eye_pocket, neck, nostrils, teeth, hair, lashes, gums, tongue; others are skin).
-    landmarks : numpy.ndarray
-        (68, 3) landmark positions in dlib's 68-point order, same frame as ``vertices``.
-    seed : int
-        Noise and strand seed.
-    size, eye_size : int
-        Texture sides (skin/hair tiles, eyes).
 
-    Returns
-    -------
-    HeadAppearance
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    uvs = np.asarray(uv, dtype=np.float64)
-    fuv = np.asarray(faces_uv, dtype=np.int64)
-    lm = np.asarray(landmarks, dtype=np.float64)
-    if v.ndim != 2 or v.shape[1] != 3 or not np.isfinite(v).all():
-        raise InputError(f"vertices: expected finite (V, 3), found {v.shape}")
-    if f.ndim != 2 or f.shape[1] != 3 or (f.size and (f.min() < 0 or f.max() >= len(v))):
-        raise InputError(f"faces: expected (F, 3) indices into {len(v)} vertices, found {f.shape}")
-    if fuv.shape != f.shape or (fuv.size and (fuv.min() < 0 or fuv.max() >= len(uvs))):
-        raise InputError(f"faces_uv: expected {f.shape} indices into {len(uvs)} uv rows, found {fuv.shape}")
-    if uvs.ndim != 2 or uvs.shape[1] != 2:
-        raise InputError(f"uv: expected (U, 2), found {uvs.shape}")
-    if lm.shape != (68, 3):
-        raise InputError(f"landmarks: expected (68, 3) points, found {lm.shape}")
-    reg0 = np.asarray(vertex_region, dtype=np.int64).reshape(-1)
-    names = [str(s) for s in region_names]
-    if len(reg0) > len(v):
-        raise InputError(f"vertex_region: {len(reg0)} labels for {len(v)} vertices")
-    region = np.full(len(v), names.index("teeth") if "teeth" in names else len(names), dtype=np.int64)
-    region[: len(reg0)] = reg0
-    if "teeth" not in names:
-        names = names + ["teeth"]
-
-    p = _Painter(v, f, region, names, lm, seed)
-    mid_x = float(p.frame[0] @ p.frame[1][:, 0])
-    mat = _materials(p, f, uvs, fuv, mid_x)
+def _paint(p: "_Painter", v, f, uvs, fuv, region, mat, seed, size, eye_size) -> tuple[dict, dict]:
+    """Paint every texture (see the module docstring)."""
     brow = p.brow_map()
     has_scalp = p.rid("scalp") >= 0 and (region == p.rid("scalp")).any()
     soft_names = {"ears": ("ears",), "scalp": ("scalp",), "mouth_interior": ("mouth_interior",),
@@ -959,7 +927,78 @@ def generate_appearance(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray,
         jj = np.nonzero(mask)[1]
         ua[mask] = _lash_alpha((jj + 0.5) / LASH_TEXTURE_SIZE, t, lower, LASH_TEXTURE_SIZE, seed + 80)
         alpha["lashes"] = (np.round(ua * 255) / 255).astype(np.float32)
+    else:
+        textures["lashes"] = np.zeros((LASH_TEXTURE_SIZE, LASH_TEXTURE_SIZE, 3))
     textures = {k: (np.round(np.clip(t, 0, 1) * 255) / 255).astype(np.float32) for k, t in textures.items()}
+
+    return textures, alpha
+
+
+def generate_appearance(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, faces_uv: np.ndarray,
+                        vertex_region: np.ndarray, region_names: Sequence[str], landmarks: np.ndarray,
+                        seed: int = 0, size: int = TEXTURE_SIZE, eye_size: int = EYE_TEXTURE_SIZE,
+                        textures: Mapping[str, np.ndarray] | None = None,
+                        alpha: Mapping[str, np.ndarray] | None = None) -> HeadAppearance:
+    """Paint the head's albedo (see the module docstring).
+
+    Parameters
+    ----------
+    vertices : numpy.ndarray
+        (V, 3) rest positions (any unit; the face frame rescales to millimetres).
+    faces : numpy.ndarray
+        (F, 3) triangles.
+    uv, faces_uv : numpy.ndarray
+        (U, 2) UDIM texture coordinates (tile k = floor(u)) and (F, 3) indices into ``uv``.
+    vertex_region : numpy.ndarray
+        (V0,) region label per vertex (V0 <= V; vertices beyond are teeth), indices into ``region_names``.
+    region_names : sequence of str
+        Region names (skin, scalp, brows, lips, eyeball_left, eyeball_right, iris, pupil, ears,
+        mouth_interior, eye_pocket, neck, nostrils, teeth, hair, lashes, gums, tongue; others are skin).
+    landmarks : numpy.ndarray
+        (68, 3) landmark positions in dlib's 68-point order, same frame as ``vertices``.
+    seed : int
+        Noise and strand seed.
+    size, eye_size : int
+        Texture sides (skin/hair tiles, eyes).
+    textures, alpha : dict, optional
+        Textures painted before (e.g. loaded from the shipped PNGs): only the materials and the
+        vertex colours are computed (fast); shapes are checked against ``size`` / ``eye_size``.
+
+    Returns
+    -------
+    HeadAppearance
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    uvs = np.asarray(uv, dtype=np.float64)
+    fuv = np.asarray(faces_uv, dtype=np.int64)
+    lm = np.asarray(landmarks, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 3 or not np.isfinite(v).all():
+        raise InputError(f"vertices: expected finite (V, 3), found {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3 or (f.size and (f.min() < 0 or f.max() >= len(v))):
+        raise InputError(f"faces: expected (F, 3) indices into {len(v)} vertices, found {f.shape}")
+    if fuv.shape != f.shape or (fuv.size and (fuv.min() < 0 or fuv.max() >= len(uvs))):
+        raise InputError(f"faces_uv: expected {f.shape} indices into {len(uvs)} uv rows, found {fuv.shape}")
+    if uvs.ndim != 2 or uvs.shape[1] != 2:
+        raise InputError(f"uv: expected (U, 2), found {uvs.shape}")
+    if lm.shape != (68, 3):
+        raise InputError(f"landmarks: expected (68, 3) points, found {lm.shape}")
+    reg0 = np.asarray(vertex_region, dtype=np.int64).reshape(-1)
+    names = [str(s) for s in region_names]
+    if len(reg0) > len(v):
+        raise InputError(f"vertex_region: {len(reg0)} labels for {len(v)} vertices")
+    region = np.full(len(v), names.index("teeth") if "teeth" in names else len(names), dtype=np.int64)
+    region[: len(reg0)] = reg0
+    if "teeth" not in names:
+        names = names + ["teeth"]
+
+    p = _Painter(v, f, region, names, lm, seed)
+    mid_x = float(p.frame[0] @ p.frame[1][:, 0])
+    mat = _materials(p, f, uvs, fuv, mid_x)
+    if textures is not None:
+        textures, alpha = _check_textures(textures, alpha or {}, size, eye_size)
+    else:
+        textures, alpha = _paint(p, v, f, uvs, fuv, region, mat, seed, size, eye_size)
 
     # vertex colours: region colours, textured vertices sampled from their texture
     vcol = np.tile(_SKIN, (len(v), 1))

@@ -316,7 +316,8 @@ HEAD_POSES = (("neutral", 0.0), ("smile", 1.0), ("pain", 1.0), ("mouth_open", 1.
 
 def write_head_renders(out_dir: str | os.PathLike, model: Any,
                        views: Sequence[str] = ("front", "three_quarter", "side"),
-                       size: tuple[int, int] = (400, 480), verbose: bool = True) -> list[Path]:
+                       size: tuple[int, int] = (400, 480), verbose: bool = True,
+                       textured: bool = True) -> list[Path]:
     """Pose a FLAME-format model (neutral, smile, pain, mouth open), render and write PNGs.
 
     Writes ``{pose}_{view}.png`` for every pose and view and ``contact_sheet.png``
@@ -334,6 +335,10 @@ def write_head_renders(out_dir: str | os.PathLike, model: Any,
         (width, height) of each view.
     verbose : bool
         Print each written file.
+    textured : bool
+        Draw the model's generated textures (:func:`holo_viewer.flame.head_textures.head_appearance`)
+        when it carries texture coordinates (the default head); other models, or ``False``, get the
+        smoothed region colours.
 
     Returns
     -------
@@ -350,7 +355,14 @@ def write_head_renders(out_dir: str | os.PathLike, model: Any,
     faces = model.faces.cpu().numpy()
     meta = getattr(model, "metadata", {}) or {}
     n_v = int(model.n_vertices)
-    if "vertex_region" in meta and "region_names" in meta:
+    appearance = None
+    if textured:
+        from .head_textures import head_appearance
+
+        appearance = head_appearance(model, verbose=verbose)
+    if appearance is not None:
+        colors = None
+    elif "vertex_region" in meta and "region_names" in meta:
         colors = region_colors(meta["vertex_region"], [str(s) for s in meta["region_names"]], n_v)
         colors = smooth_vertex_colors(colors, faces, 1)
     else:
@@ -367,7 +379,7 @@ def write_head_renders(out_dir: str | os.PathLike, model: Any,
         rest_lo, rest_hi = verts.min(0), verts.max(0)
         target = 0.5 * (rest_lo + rest_hi)
         imgs = render_mesh(verts, faces, views=views, size=size, colors=colors, target=target,
-                           distance=0.95)
+                           distance=0.95, appearance=appearance)
         sheet_rows.append(imgs)
         for view, img in zip(views, imgs):
             path = save_image(out / f"{name}_{view}.png", img)
