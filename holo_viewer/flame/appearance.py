@@ -451,9 +451,9 @@ class _Painter:
         yy = q[:, 1] + 2.5 * _fbm(np.c_[cy[:, 0] / 25.0, q[:, 1] / 25.0, np.zeros(n)], s + 8, 2) * 2.0 + 0.0015 * cy[:, 0] ** 2
         ph = (yy - brow_top) / 8.5
         dist = (ph - np.round(ph)) * 8.5
-        seg = _smoothstep(0.5, 0.7, _vnoise(np.c_[cy[:, 0] / 14.0, np.round(ph), np.zeros(n)], s + 9))
-        lines = np.exp(-(dist / 0.45) ** 2) * fore * seg
-        col *= (1.0 - 0.06 * lines)[:, None]
+        seg = _smoothstep(0.3, 0.6, _vnoise(np.c_[cy[:, 0] / 22.0, np.round(ph), np.zeros(n)], s + 9))
+        lines = np.exp(-(dist / 0.8) ** 2) * fore * seg
+        col *= (1.0 - 0.045 * lines)[:, None]
         # crow's feet: radial lines from the lateral eye corners
         for k, sgn in ((36, -1.0), (45, 1.0)):
             c = cy[0:0]  # placeholder for shape
@@ -467,7 +467,7 @@ class _Painter:
             pa = (ang + 0.25 * _fbm(np.c_[r / 6.0, ang, np.zeros(n)], s + 10, 2)) / spacing
             dd = (pa - np.round(pa)) * spacing * r
             crow = np.exp(-(dd / 0.4) ** 2) * region
-            col *= (1.0 - 0.10 * crow)[:, None]
+            col *= (1.0 - 0.07 * crow)[:, None]
             del c
         # lips
         col = self.lips(q, col)
@@ -495,7 +495,7 @@ class _Painter:
         ph = xx / 1.6
         dist = (ph - np.round(ph)) * 1.6
         ll = np.exp(-(dist / 0.28) ** 2) * _smoothstep(0.4, 0.8, _vnoise(np.c_[np.round(ph), q[:, 1] / 3.0, np.zeros(n)], self.seed + 22))
-        lipc *= (1.0 - 0.16 * ll)[:, None]
+        lipc *= (1.0 - 0.10 * ll)[:, None]
         # white roll: a thin lighter band just outside the vermilion border
         roll = np.exp(-((d_outer - 0.7) / 0.45) ** 2) * near
         col = col * (1.0 + 0.07 * roll)[:, None]
@@ -584,27 +584,39 @@ class _Painter:
         return sample
 
     # ---------------------------------------------------------------- hair
-    def hair_color(self, q: np.ndarray, crown: np.ndarray, axis: np.ndarray) -> np.ndarray:
-        """Hair strands radiating from the crown: azimuth-indexed strands, per-strand colour."""
+    def hair_color(self, q: np.ndarray, crown: np.ndarray, axis: np.ndarray,
+                   uv: np.ndarray | None = None) -> np.ndarray:
+        """Hair strands combed away from the crown, per-strand colour, clumps, darker roots.
+
+        The strand index runs with the azimuth about the crown axis: from the hair shell's own
+        UVs when given (tile 7: u from the crown toward the hairline, v = |azimuth| / pi, so the
+        strands follow the shell's comb direction), else from the 3-D position (the scalp).
+        """
         s = self.seed
         n = len(q)
-        e1 = np.cross(axis, [1.0, 0.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(axis, e1)
-        d = q - crown
-        polar = np.linalg.norm(d - np.outer(d @ axis, axis), axis=1)
-        az = np.arctan2(d @ e2, d @ e1)
-        warp = 0.05 * _fbm(q / 30.0, s + 40, 3)
-        strand = (az + warp) / (2 * np.pi) * 2200.0
+        if uv is not None:
+            az = uv[:, 1] * np.pi
+            polar = 150.0 * uv[:, 0]  # ~mm from the crown along the comb direction
+        else:
+            e1 = np.cross(axis, [1.0, 0.0, 0.0])
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(axis, e1)
+            d = q - crown
+            polar = np.linalg.norm(d - np.outer(d @ axis, axis), axis=1)
+            az = np.abs(np.arctan2(d @ e2, d @ e1))
+        warp = 0.03 * _fbm(q / 30.0, s + 40, 3)
+        strand = (az + warp) / np.pi * 1300.0
         c1 = _noise1(strand, s + 41)
-        c2 = _noise1(strand * 0.37 + 11.0, s + 42)  # clumps
-        lum = 0.6 + 0.55 * c1 * (0.6 + 0.4 * c2)
+        c3 = _noise1(strand * 2.7 + 5.0, s + 46)
+        c2 = _noise1(strand * 0.09 + 11.0, s + 42)  # clumps of ~10 strands
+        lum = 0.55 + 0.35 * c1 + 0.2 * c3
+        lum *= 0.7 + 0.45 * c2
         lum *= 1.0 + 0.15 * _fbm(np.c_[strand / 40.0, polar / 20.0, np.zeros(n)], s + 43, 2)
         col = _HAIR[None, :] * lum[:, None]
         warm = _noise1(strand * 0.5 + 3.0, s + 44)
-        col *= (1.0 + 0.12 * (warm - 0.5))[:, None] * np.array([1.04, 1.0, 0.94])
-        # darker roots near the crown whorl and the parting
-        col *= (0.55 + 0.45 * _smoothstep(0.0, 35.0, polar))[:, None]
+        col *= (1.0 + 0.15 * (warm - 0.5))[:, None] * np.array([1.04, 1.0, 0.94])
+        # darker roots near the crown whorl
+        col *= (0.6 + 0.4 * _smoothstep(0.0, 30.0, polar))[:, None]
         return col
 
     def hair_coverage(self, q: np.ndarray, scalp_soft: np.ndarray | None) -> np.ndarray:
@@ -668,9 +680,9 @@ class _Painter:
 
 def _lash_alpha(u: np.ndarray, t: np.ndarray, lower: np.ndarray, size: int, seed: int) -> np.ndarray:
     """Coverage of individual lashes on a card: ``u`` along the lid (UV), ``t`` in [0, 1] from
-    root to tip, ``lower`` True on the lower lid (shorter, sparser lashes). Lashes every ~6
+    root to tip, ``lower`` True on the lower lid (shorter, sparser lashes). Lashes every ~5
     texels, jittered, curling, tapering, of random length."""
-    spacing = 6.0
+    spacing = 5.0
     xp = u * size / spacing
     out = np.zeros(len(u))
     t = np.where(lower, t / 0.45, t)
@@ -680,7 +692,7 @@ def _lash_alpha(u: np.ndarray, t: np.ndarray, lower: np.ndarray, size: int, seed
         h2 = _hash(k.astype(np.int64), np.full(len(k), layer), np.ones(len(k), np.int64), seed)
         centre = (k + 0.5 - shift + 0.6 * (h - 0.5)) * spacing + (h2 - 0.5) * 6.0 * t ** 1.5
         dist = np.abs(u * size - centre)
-        half = 0.9 * (1.0 - 0.65 * t)
+        half = 1.1 * (1.0 - 0.65 * t)
         length = 0.55 + 0.45 * h2
         a = np.clip(half + 0.5 - dist, 0.0, 1.0) * _smoothstep(length, length - 0.08, t)
         out = np.maximum(out, a * (0.85 if layer else 1.0) * np.where(lower & (h > 0.55), 0.0, 1.0))
@@ -869,7 +881,8 @@ def _paint(p: "_Painter", v, f, uvs, fuv, region, mat, seed, size, eye_size) -> 
         q = _to_local(pos, p.frame)
         soft = {k: np.einsum("nk,nk->n", b, sv[ft]) for k, sv in soft_v.items()}
         if tex == "hair":
-            col = p.hair_color(q, crown, axis)
+            ii, jj = np.nonzero(mask)
+            col = p.hair_color(q, crown, axis, np.c_[(jj + 0.5) / size, 1.0 - (ii + 0.5) / size])
         else:
             col = p.skin(q, soft, brow)
             hc = p.hair_coverage(q, soft["scalp"] if has_scalp else None)
