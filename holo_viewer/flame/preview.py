@@ -215,7 +215,8 @@ def render_mesh(
 
 def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, indices: Sequence[int] | None = None,
                         colors: np.ndarray | None = None,
-                        background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+                        background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                        appearance: Any = None) -> tuple[np.ndarray, np.ndarray]:
     """Render a vertex-coloured mesh through pinhole cameras with their exact OpenCV intrinsics (VTK).
 
     Lighting, material and normals are those of :func:`render_mesh`; the camera is the given
@@ -236,6 +237,8 @@ def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, i
         (V, 3) per-vertex RGB in [0, 1]; default a uniform skin tone.
     background : (float, float, float)
         Background RGB.
+    appearance : HeadAppearance, optional
+        Draw the textured head instead of ``colors`` (as :func:`render_mesh`).
 
     Returns
     -------
@@ -255,7 +258,7 @@ def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, i
     from ..offscreen import new_offscreen_window
 
     W, H = int(cameras.width), int(cameras.height)
-    ren = mesh_renderer(vtk, nps, v, f, colors, background)
+    ren = mesh_renderer(vtk, nps, v, f, colors, background, appearance=appearance)
     win = new_offscreen_window(vtk.vtkRenderWindow, W, H, multisamples=None, what="render_mesh_cameras")
     win.AddRenderer(ren)
     images, masks = [], []
