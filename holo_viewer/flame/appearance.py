@@ -35,7 +35,7 @@ __all__ = ["HeadAppearance", "generate_appearance", "rasterize_uv", "TEXTURE_SIZ
            "APPEARANCE_VERSION", "face_frame", "eye_axis"]
 
 #: Bumped whenever the painting changes (cached appearances carry it).
-APPEARANCE_VERSION = 1
+APPEARANCE_VERSION = 2
 #: Skin/hair tiles: the face tile spans ~0.3 m of surface per UV unit, so 1024 texels are ~0.3 mm,
 #: the pixel footprint of the 800x960 preview at 0.95 m (0.35 mm); brow strands stay 1 texel wide.
 TEXTURE_SIZE = 1024
@@ -48,7 +48,7 @@ MATERIAL_TEXTURE = {"face": "face", "lips": "face", "head": "head", "hair": "hai
 MATERIALS = tuple(MATERIAL_TEXTURE)
 #: (specular, specular power) per material: wet eyes and lips glossy, hair nearly matte.
 MATERIAL_SPECULAR = {"face": (0.07, 12.0), "lips": (0.25, 35.0), "head": (0.06, 12.0), "hair": (0.05, 10.0),
-                     "eye_left": (1.0, 90.0), "eye_right": (1.0, 90.0), "teeth": (0.35, 40.0),
+                     "eye_left": (1.0, 90.0), "eye_right": (1.0, 90.0), "teeth": (0.25, 30.0),
                      "mouth": (0.25, 25.0), "lashes": (0.05, 8.0), "other": (0.10, 14.0)}
 #: UDIM tile of each skin/hair texture (u in [k, k+1]); eyes use the tile-0 range of their own faces.
 TEXTURE_TILE = {"face": 0, "head": 1, "hair": 7, "eye_left": 0, "eye_right": 0, "lashes": 6}
@@ -61,7 +61,7 @@ _SKIN = np.array([0.84, 0.63, 0.52])
 _HAIR = np.array([0.20, 0.135, 0.09])
 _BROW = np.array([0.13, 0.085, 0.06])
 _LIP = np.array([0.72, 0.40, 0.40])
-_VERTEX_COLORS = {"teeth": (0.92, 0.89, 0.80), "gums": (0.80, 0.45, 0.45), "tongue": (0.76, 0.40, 0.40),
+_VERTEX_COLORS = {"teeth": (0.86, 0.83, 0.74), "gums": (0.80, 0.45, 0.45), "tongue": (0.76, 0.40, 0.40),
                   "mouth_interior": (0.42, 0.14, 0.14), "lashes": (0.06, 0.045, 0.04),
                   "eye_pocket": (0.74, 0.45, 0.42), "nostrils": (0.42, 0.24, 0.21), "hair": tuple(_HAIR),
                   "brows": tuple(_BROW), "lips": tuple(_LIP), "iris": (0.33, 0.22, 0.13), "pupil": (0.02, 0.02, 0.02),
