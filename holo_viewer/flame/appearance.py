@@ -35,7 +35,7 @@ __all__ = ["HeadAppearance", "generate_appearance", "rasterize_uv", "TEXTURE_SIZ
            "APPEARANCE_VERSION", "face_frame", "eye_axis"]
 
 #: Bumped whenever the painting changes (cached appearances carry it).
-APPEARANCE_VERSION = 2
+APPEARANCE_VERSION = 3
 #: Skin/hair tiles: the face tile spans ~0.3 m of surface per UV unit, so 1024 texels are ~0.3 mm,
 #: the pixel footprint of the 800x960 preview at 0.95 m (0.35 mm); brow strands stay 1 texel wide.
 TEXTURE_SIZE = 1024
@@ -605,12 +605,12 @@ class _Painter:
             polar = np.linalg.norm(d - np.outer(d @ axis, axis), axis=1)
             az = np.abs(np.arctan2(d @ e2, d @ e1))
         warp = 0.03 * _fbm(q / 30.0, s + 40, 3)
-        strand = (az + warp) / np.pi * 1300.0
+        strand = (az + warp) / np.pi * 2000.0
         c1 = _noise1(strand, s + 41)
         c3 = _noise1(strand * 2.7 + 5.0, s + 46)
-        c2 = _noise1(strand * 0.09 + 11.0, s + 42)  # clumps of ~10 strands
-        lum = 0.55 + 0.35 * c1 + 0.2 * c3
-        lum *= 0.7 + 0.45 * c2
+        c2 = _noise1(strand * 0.06 + 11.0, s + 42)  # clumps of ~15 strands
+        lum = 0.6 + 0.3 * c1 + 0.15 * c3
+        lum *= 0.82 + 0.3 * c2
         lum *= 1.0 + 0.15 * _fbm(np.c_[strand / 40.0, polar / 20.0, np.zeros(n)], s + 43, 2)
         col = _HAIR[None, :] * lum[:, None]
         warm = _noise1(strand * 0.5 + 3.0, s + 44)
