@@ -54,8 +54,10 @@ def appearance_inputs(model: Any) -> dict[str, np.ndarray] | None:
     if not all(k in meta for k in ("uv", "faces_uv", "vertex_region", "region_names")):
         return None
     faces = model.faces.cpu().numpy().astype(np.int64)
-    with torch.no_grad():
-        rest = model().vertices[0].cpu().numpy().astype(np.float64)
+    rest = model.v_template.detach().cpu().numpy().astype(np.float64)
+    if len(rest) != int(model.n_vertices):  # vertices appended at run time (FLAME-style teeth)
+        with torch.no_grad():
+            rest = model().vertices[0].cpu().numpy().astype(np.float64)
     uv = np.asarray(meta["uv"], dtype=np.float64)
     fuv = np.asarray(meta["faces_uv"], dtype=np.int64)
     if fuv.ndim != 2 or fuv.shape[1] != 3 or len(fuv) > len(faces) or uv.ndim != 2 or uv.shape[1] != 2:
