@@ -72,7 +72,8 @@ _VERTEX_COLORS = {"teeth": (0.86, 0.83, 0.74), "gums": (0.80, 0.45, 0.45), "tong
 def _hash(ix: np.ndarray, iy: np.ndarray, iz: np.ndarray, seed: int) -> np.ndarray:
     """Uniform [0, 1) per integer lattice point (wrapping uint64 arithmetic)."""
     with np.errstate(over="ignore"):
-        h = (ix.astype(np.uint64) * np.uint64(0x9E3779B185EBCA87)) ^ (iy.astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F))
+        h = (ix.astype(np.uint64) * np.uint64(0x9E3779B185EBCA87)) ^ \
+            (iy.astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F))
         h ^= iz.astype(np.uint64) * np.uint64(0x165667B19E3779F9)
         h ^= np.uint64((seed * 0x27D4EB2F165667C5) & 0xFFFFFFFFFFFFFFFF)
         h ^= h >> np.uint64(29)
@@ -156,7 +157,8 @@ def _cyl(q: np.ndarray, radius: float = 75.0) -> np.ndarray:
     return np.stack([radius * np.arctan2(q[:, 0], q[:, 2] + radius), q[:, 1]], axis=1)
 
 
-def rasterize_uv(uv_corners: np.ndarray, size: int, offset: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+def rasterize_uv(uv_corners: np.ndarray, size: int,
+                 offset: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
     """Rasterise triangles given in UV into a ``size`` x ``size`` image.
 
     Texel (row i, col j) has its centre at u = offset_u + (j + 0.5) / size, v = offset_v + 1 - (i + 0.5) / size
@@ -216,7 +218,8 @@ def rasterize_uv(uv_corners: np.ndarray, size: int, offset: tuple[float, float] 
             b1 = (dx * e2y - dy * e2x) / a
             b2 = (e1x * dy - e1y * dx) / a
             b0 = 1.0 - b1 - b2
-            inside = (b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9) & (gx <= x1[s, None, None]) & (gy <= y1[s, None, None])
+            inside = (b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9)
+            inside &= (gx <= x1[s, None, None]) & (gy <= y1[s, None, None])
             k, r, c = np.nonzero(inside)
             cand_pix.append(gy[k, r, c] * size + gx[k, r, c])
             cand_tri.append(s[k])
@@ -428,7 +431,8 @@ class _Painter:
             w = np.exp(-(d[:, 0] ** 2 / (2 * 15.0 ** 2) + (d[:, 1] + 5.0) ** 2 / (2 * 9.0 ** 2)))
             col *= (1.0 - w[:, None] * np.array([0.10, 0.13, 0.10]))
         # subtle beard shadow on the upper lip, chin and jaw (below the mouth corners' level)
-        jaw = _smoothstep(lm[33, 1] + 2.0, lm[33, 1] - 6.0, q[:, 1]) * _smoothstep(lm[8, 1] - 25.0, lm[8, 1] - 5.0, q[:, 1])
+        jaw = _smoothstep(lm[33, 1] + 2.0, lm[33, 1] - 6.0, q[:, 1])
+        jaw = jaw * _smoothstep(lm[8, 1] - 25.0, lm[8, 1] - 5.0, q[:, 1])
         jaw *= _smoothstep(-40.0, -15.0, q[:, 2] - lm[8, 2] + 50.0) * _smoothstep(70.0, 50.0, np.abs(q[:, 0]))
         jaw *= 1.0 - soft.get("lips_mask", 0.0)
         col *= (1.0 - 0.06 * jaw[:, None] * np.array([1.0, 0.9, 0.75]))
@@ -446,9 +450,11 @@ class _Painter:
         cy = _cyl(q)
         # forehead lines (horizontal, broken)
         brow_top = max(lm[17:27, 1].max(), 0.0)
-        fore = _smoothstep(brow_top + 6.0, brow_top + 12.0, q[:, 1]) * _smoothstep(brow_top + 48.0, brow_top + 35.0, q[:, 1])
+        fore = _smoothstep(brow_top + 6.0, brow_top + 12.0, q[:, 1])
+        fore = fore * _smoothstep(brow_top + 48.0, brow_top + 35.0, q[:, 1])
         fore *= _smoothstep(55.0, 35.0, np.abs(cy[:, 0])) * _smoothstep(-40.0, -10.0, q[:, 2])
-        yy = q[:, 1] + 2.5 * _fbm(np.c_[cy[:, 0] / 25.0, q[:, 1] / 25.0, np.zeros(n)], s + 8, 2) * 2.0 + 0.0015 * cy[:, 0] ** 2
+        wob = _fbm(np.c_[cy[:, 0] / 25.0, q[:, 1] / 25.0, np.zeros(n)], s + 8, 2)
+        yy = q[:, 1] + 2.5 * wob * 2.0 + 0.0015 * cy[:, 0] ** 2
         ph = (yy - brow_top) / 8.5
         dist = (ph - np.round(ph)) * 8.5
         seg = _smoothstep(0.3, 0.6, _vnoise(np.c_[cy[:, 0] / 22.0, np.round(ph), np.zeros(n)], s + 9))
@@ -456,7 +462,6 @@ class _Painter:
         col *= (1.0 - 0.045 * lines)[:, None]
         # crow's feet: radial lines from the lateral eye corners
         for k, sgn in ((36, -1.0), (45, 1.0)):
-            c = cy[0:0]  # placeholder for shape
             corner = _cyl(lm[k:k + 1])[0] + [sgn * 4.0, 0.0]
             d = cy - corner
             r = np.hypot(d[:, 0], d[:, 1])
@@ -468,7 +473,6 @@ class _Painter:
             dd = (pa - np.round(pa)) * spacing * r
             crow = np.exp(-(dd / 0.4) ** 2) * region
             col *= (1.0 - 0.07 * crow)[:, None]
-            del c
         # lips
         col = self.lips(q, col)
         # brows: strands over a faint shadow
@@ -494,7 +498,8 @@ class _Painter:
         xx = q[:, 0] + 1.2 * _fbm(q / 4.0, self.seed + 21, 2)
         ph = xx / 1.6
         dist = (ph - np.round(ph)) * 1.6
-        ll = np.exp(-(dist / 0.28) ** 2) * _smoothstep(0.4, 0.8, _vnoise(np.c_[np.round(ph), q[:, 1] / 3.0, np.zeros(n)], self.seed + 22))
+        broken = _vnoise(np.c_[np.round(ph), q[:, 1] / 3.0, np.zeros(n)], self.seed + 22)
+        ll = np.exp(-(dist / 0.28) ** 2) * _smoothstep(0.4, 0.8, broken)
         lipc *= (1.0 - 0.10 * ll)[:, None]
         # white roll: a thin lighter band just outside the vermilion border
         roll = np.exp(-((d_outer - 0.7) / 0.45) ** 2) * near
@@ -542,7 +547,8 @@ class _Painter:
             root = curve(t) + nrm * ((s * half) - 2.0)[:, None]
             # growth angle from the lateral tangent (positive = upward)
             body = _smoothstep(0.08, 0.38, t)
-            ang = np.radians((1 - body) * 78.0 + body * (18.0 - 32.0 * np.clip(s, -1, 1) * 0.5 - 22.0 * _smoothstep(0.55, 1.0, t)))
+            lateral = 18.0 - 32.0 * np.clip(s, -1, 1) * 0.5 - 22.0 * _smoothstep(0.55, 1.0, t)
+            ang = np.radians((1 - body) * 78.0 + body * lateral)
             ang += np.radians(rng.normal(0.0, 7.0, n_strands))
             ln = (5.0 + 3.5 * body) * rng.uniform(0.75, 1.2, n_strands)
             bend = np.radians(rng.uniform(-30.0, -5.0, n_strands))  # curls toward the tail
@@ -640,7 +646,8 @@ class _Painter:
         return _smoothstep(0.5 - edge, 0.5 + edge, base + 0.35 * fray * (1 - np.abs(2 * base - 1)))
 
     # ---------------------------------------------------------------- eyes
-    def eye_color(self, q: np.ndarray, centre: np.ndarray, axis: np.ndarray, iris_angle: float, side: int) -> np.ndarray:
+    def eye_color(self, q: np.ndarray, centre: np.ndarray, axis: np.ndarray, iris_angle: float,
+                  side: int) -> np.ndarray:
         s = self.seed + 60 + side
         n = len(q)
         d = q - centre
@@ -711,7 +718,8 @@ def _signed_dist_polygon(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
         t = np.clip((w @ e) / max(float(e @ e), 1e-12), 0, 1)
         d = np.minimum(d, np.linalg.norm(w - t[:, None] * e, axis=1))
         cond = ((a[k, 1] > p[:, 1]) != (b[k, 1] > p[:, 1]))
-        xint = a[k, 0] + (p[:, 1] - a[k, 1]) * (b[k, 0] - a[k, 0]) / np.where(b[k, 1] - a[k, 1] == 0, 1e-12, b[k, 1] - a[k, 1])
+        dy = b[k, 1] - a[k, 1]
+        xint = a[k, 0] + (p[:, 1] - a[k, 1]) * (b[k, 0] - a[k, 0]) / (dy if dy != 0 else 1e-12)
         inside ^= cond & (p[:, 0] < xint)
     return np.where(inside, -d, d)
 
