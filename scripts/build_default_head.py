@@ -1,7 +1,11 @@
-"""Regenerate assets/default_head.npz (the embedded default head) and report its size.
+"""Regenerate assets/default_head.npz (the embedded default head) from ICT Face Model Light.
 
-Usage: python scripts/build_default_head.py [--out assets/default_head.npz] [--renders DIR]
-The build is deterministic: running it twice gives the same bytes.
+Usage: python scripts/build_default_head.py [--ict PATH] [--out assets/default_head.npz] [--renders DIR]
+
+The source is ``ict_facekit_light.npz`` (ICT-FaceKit, MIT): ``--ict``, else ``$HOLO_VIEWER_ICT_FACEKIT``,
+else ``../shared/assets/ICT-FaceKit/ict_facekit_light.npz`` beside the repository. The build is
+deterministic: running it twice gives the same bytes. Rebuild the landmark embedding afterwards
+(scripts/build_landmark_embedding.py).
 """
 
 from __future__ import annotations
@@ -19,11 +23,12 @@ from holo_viewer.flame.default_head import _repo_asset
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ict", type=Path, default=None, help="ict_facekit_light.npz (default: see the module docstring)")
     ap.add_argument("--out", type=Path, default=_repo_asset(), help="target .npz (default: the committed asset)")
     ap.add_argument("--renders", type=Path, default=None, help="also write demo renders of the head here")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    arrays = build_default_head()
+    arrays = build_default_head(args.ict)
     t1 = time.perf_counter()
     path = write_default_head(args.out, arrays)
     digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]

@@ -13,9 +13,9 @@ Generation (``GENERATOR_VERSION`` below; bump it when any of this changes):
    vertex of its face (teeth vertices are labelled ``teeth``).
 2. *Shape.* Flat disks in the tangent plane (in-plane sigma = 1.15 x the local sample
    spacing, normal sigma = 0.2 x that) with a random in-plane rotation, so the surface is
-   closed and opaque (opacity 0.99). Hair on the scalp: half the scalp Gaussians are
+   closed and opaque (opacity 0.99). Hair (the head's hair shell): half the hair Gaussians are
    strands (4 x longer along a down-and-back combing direction, lifted up to 2.5 mm off
-   the scalp); brows are short strands combed outward.
+   the shell); brows are short strands combed outward.
 3. *Colour.* Region albedo (skin with low-frequency tone variation, cheek and nose
    redness; lips; brows; hair with per-strand variation; eyes with sclera, a radial iris
    (limbal ring, radial streaks) and a pupil by angle from the eye's optical axis; mouth
@@ -47,19 +47,21 @@ from .gaussians import SH_C0, Gaussians
 
 __all__ = ["default_avatar", "generate_default_gaussians", "GENERATOR_VERSION", "REGION_DENSITY"]
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: the ICT-based default head (hair shell, lashes, own teeth; issue 17)
 SH_C1 = 0.4886025119029199
 
 #: Relative Gaussian density per area by region (default 1.0).
-REGION_DENSITY = {"skin": 1.0, "scalp": 1.4, "brows": 2.5, "lips": 3.0, "eyeball_left": 2.5,
-                  "eyeball_right": 2.5, "iris": 4.0, "pupil": 4.0, "ears": 0.8, "mouth_interior": 1.2,
-                  "eye_pocket": 0.0, "neck": 0.6, "nostrils": 1.0, "teeth": 1.6}
+REGION_DENSITY = {"skin": 1.0, "scalp": 0.1, "hair": 0.7, "lashes": 0.3, "tongue": 0.5, "gums": 0.3,
+                  "brows": 2.5, "lips": 3.0, "eyeball_left": 0.5, "eyeball_right": 0.5, "iris": 4.0, "pupil": 4.0,
+                  "ears": 0.8, "mouth_interior": 0.3, "eye_pocket": 0.0, "neck": 0.4, "nostrils": 1.0,
+                  "teeth": 0.5}
 
-_ALBEDO = {"skin": (0.80, 0.58, 0.47), "scalp": (0.16, 0.10, 0.065), "brows": (0.20, 0.13, 0.09),
+_ALBEDO = {"skin": (0.80, 0.58, 0.47), "scalp": (0.70, 0.52, 0.43), "hair": (0.16, 0.10, 0.065),
+           "lashes": (0.05, 0.04, 0.035), "tongue": (0.65, 0.30, 0.30), "gums": (0.70, 0.35, 0.36), "brows": (0.20, 0.13, 0.09),
            "lips": (0.70, 0.34, 0.34), "eyeball": (0.92, 0.90, 0.87), "ears": (0.80, 0.56, 0.46),
            "mouth_interior": (0.42, 0.12, 0.13), "eye_pocket": (0.25, 0.12, 0.12), "neck": (0.76, 0.55, 0.45),
            "nostrils": (0.38, 0.20, 0.18), "teeth": (0.93, 0.91, 0.84)}
-_SHEEN = {"lips": 0.06, "eyeball": 0.08, "teeth": 0.05, "scalp": 0.04}
+_SHEEN = {"lips": 0.06, "eyeball": 0.08, "teeth": 0.05, "hair": 0.04}
 _OPACITY = 0.99
 
 
@@ -164,7 +166,9 @@ def generate_default_gaussians(model: Any, n_gaussians: int = 100_000, sh_degree
     rng = np.random.default_rng(seed)
     v = model.v_template.detach().cpu().double().numpy()
     f = model.faces.cpu().numpy()
-    names = [str(s) for s in md["region_names"]] + ["teeth"]
+    names = [str(s) for s in md["region_names"]]
+    if "teeth" not in names:  # FLAME-style teeth appended by add_teeth
+        names.append("teeth")
     vregion = np.full(v.shape[0], len(names) - 1, np.int64)  # vertices beyond the labels: teeth
     vr = np.asarray(md["vertex_region"]).astype(np.int64)
     vregion[:vr.shape[0]] = vr
@@ -199,7 +203,7 @@ def generate_default_gaussians(model: Any, n_gaussians: int = 100_000, sh_degree
     t0, b0 = _tangent_frame(face_n, np.array([1.0, 0.0, 0.0]))
     t = np.cos(theta)[:, None] * t0 + np.sin(theta)[:, None] * b0
     rid = {nm: i for i, nm in enumerate(names)}
-    hair = (region == rid.get("scalp", -1)) & (rng.uniform(size=n) < 0.5)
+    hair = (region == rid.get("hair", rid.get("scalp", -1))) & (rng.uniform(size=n) < 0.5)
     if hair.any():
         comb = np.column_stack([np.zeros(n), -np.ones(n), -0.6 * np.ones(n)])
         comb[:, 0] = 0.25 * np.sign(p[:, 0])
@@ -235,7 +239,7 @@ def generate_default_gaussians(model: Any, n_gaussians: int = 100_000, sh_degree
     albedo[skin_like] += red[skin_like, None] * np.array([0.6, -0.25, -0.25])
     lips = region == rid.get("lips", -1)
     albedo[lips] *= (1.0 + 0.05 * rng.normal(size=int(lips.sum())))[:, None]
-    hairy = np.isin(region, [rid.get("scalp", -1), rid.get("brows", -1)])
+    hairy = np.isin(region, [rid.get("hair", -1), rid.get("brows", -1)])
     albedo[hairy] *= np.clip(1.0 + 0.25 * rng.normal(size=int(hairy.sum())), 0.5, 1.6)[:, None]
     eye_col, eye_mask = _eye_colours(p, region, names, v, vregion, rng)
     albedo[eye_mask] = eye_col
@@ -290,7 +294,8 @@ def _cached_local(n_gaussians: int, sh_degree: int, seed: int, use_disk_cache: b
                f"|head{_head_digest(default_head_path())}")
     key = hashlib.sha256(key_src.encode()).hexdigest()[:16]
     path = _cache_dir() / f"default_avatar_{key}.npz"
-    names = tuple(str(s) for s in model.metadata["region_names"]) + ("teeth",)
+    names = tuple(str(s) for s in model.metadata["region_names"])
+    names = names if "teeth" in names else names + ("teeth",)
     if use_disk_cache and path.exists():
         try:
             z = read_npz(path, AvatarError, "default avatar cache")

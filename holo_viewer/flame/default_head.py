@@ -18,12 +18,14 @@ Units and conventions: see :mod:`.builder.head_blendshapes` and docs/default_hea
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
 from ..errors import FlameError
 
-__all__ = ["default_head_path", "load_default_model", "ASSET_NAME", "EXPRESSION_NAMES"]
+__all__ = ["default_head_path", "load_default_model", "ict_facekit_path", "ASSET_NAME", "EXPRESSION_NAMES",
+           "ICT_ENV", "ICT_NAME"]
 
 ASSET_NAME = "default_head.npz"
 #: The default head's expression components, in the asset's order (coefficient 1 = full action-unit
@@ -32,8 +34,43 @@ EXPRESSION_NAMES: tuple[str, ...] = (
     "AU1_L", "AU1_R", "AU2_L", "AU2_R", "AU4", "AU5", "AU6", "AU7", "AU9", "AU10", "AU12_L", "AU12_R", "AU14",
     "AU15", "AU16", "AU17", "AU18", "AU20", "AU23", "AU24", "AU25", "AU26", "AU43_L", "AU43_R")
 
+#: Environment variable naming the ICT-FaceKit source npz, and its file name.
+ICT_ENV = "HOLO_VIEWER_ICT_FACEKIT"
+ICT_NAME = "ict_facekit_light.npz"
+
+
 def _repo_asset() -> Path:
     return Path(__file__).resolve().parents[2] / "assets" / ASSET_NAME
+
+
+def ict_facekit_path(required: bool = False) -> Path | None:
+    """The ICT-FaceKit source the head is built from: ``$HOLO_VIEWER_ICT_FACEKIT``, else
+    ``../shared/assets/ICT-FaceKit/ict_facekit_light.npz`` beside the checkout.
+
+    Parameters
+    ----------
+    required : bool
+        Raise :class:`FlameError` (saying where it was looked for) instead of returning None.
+    """
+    env = os.environ.get(ICT_ENV)
+    candidates = [Path(env)] if env else []
+    candidates.append(Path(__file__).resolve().parents[3] / "shared" / "assets" / "ICT-FaceKit" / ICT_NAME)
+    for c in candidates:
+        if c.is_file():
+            return c
+    if required:
+        raise FlameError(f"ICT-FaceKit source not found (looked for {', '.join(str(c) for c in candidates)}); "
+                         f"it is needed to build the default head. Point ${ICT_ENV} at {ICT_NAME} "
+                         f"(ICT Face Model Light, see docs/default_head.md) or restore assets/{ASSET_NAME}")
+    return None
+
+
+def _missing_source_message() -> str:
+    try:
+        ict_facekit_path(required=True)
+    except FlameError as exc:
+        return str(exc)
+    return ""
 
 
 def default_head_path(build_if_missing: bool = True) -> Path:
@@ -58,6 +95,9 @@ def default_head_path(build_if_missing: bool = True) -> Path:
     cache = cache_dir() / ASSET_NAME
     if cache.exists():
         return cache
+    if ict_facekit_path() is None:
+        raise FlameError(f"default head: {asset} is missing and cannot be rebuilt: "
+                         + str(_missing_source_message()))
     from .builder.head import build_default_head, write_default_head  # rebuild a missing asset (build time code)
 
     arrays = build_default_head()

@@ -105,6 +105,9 @@ class FlameModel(torch.nn.Module):
     ----------
     faces : Tensor
         (F, 3) int64 triangle indices (teeth faces appended when added).
+    has_own_teeth : bool
+        The mesh has its own teeth (``metadata["has_teeth"]``, e.g. the default head); ``add_teeth``
+        then adds nothing and ``teeth_upper`` / ``teeth_lower`` stay None.
     n_vertices : int
         V, including teeth.
     n_base_vertices : int
@@ -153,7 +156,8 @@ class FlameModel(torch.nn.Module):
         dirs = np.concatenate([shapedirs[:, :, :self.n_shape], shapedirs[:, :, fs:fs + self.n_expr]], axis=2)
 
         teeth_upper = teeth_lower = None
-        if add_teeth:
+        # a model with its own teeth (the default head: metadata ``has_teeth`` = 1) gets none added
+        if add_teeth and not self.has_own_teeth:
             up, lo = _teeth_anchors(self.metadata, self.n_base_vertices, source)
             t = _teeth.build_teeth(v_template, dirs, self.n_shape, N_JOINTS, up, lo)
             n_t = t.vertices.shape[0]
@@ -203,7 +207,8 @@ class FlameModel(torch.nn.Module):
         n_shape, n_expr : int or None
             Components to keep; fewer are kept if the file has fewer, ``None`` keeps all.
         add_teeth : bool
-            Append GaussianAvatars-style teeth (see :mod:`holo_viewer.flame.teeth`).
+            Append GaussianAvatars-style teeth (see :mod:`holo_viewer.flame.teeth`); ignored for a model
+            with its own teeth (``has_teeth`` in the file, e.g. the default head).
         dtype : torch.dtype
             ``torch.float32`` or ``torch.float64``.
         device : str or torch.device
@@ -244,6 +249,15 @@ class FlameModel(torch.nn.Module):
         if names is None:
             return None
         return [str(n) for n in np.asarray(names).reshape(-1)[: self.n_expr]]
+
+    @property
+    def has_own_teeth(self) -> bool:
+        """The file's mesh has teeth of its own (``metadata["has_teeth"]`` nonzero): ``add_teeth`` adds none."""
+        flag = self.metadata.get("has_teeth")
+        try:
+            return flag is not None and bool(int(np.asarray(flag).reshape(())))
+        except (TypeError, ValueError) as exc:
+            raise FlameError(f"{self.source}: has_teeth: expected a scalar integer flag, found {flag!r}") from exc
 
     @property
     def is_default_head(self) -> bool:

@@ -1,11 +1,10 @@
 """Build the embedded default head (build time: ``scripts/build_default_head.py``).
 
-:func:`build_default_head` generates our own FLAME-format head by deterministic code (geometry
-in :mod:`.head_sculpt`, skinning in :mod:`.head_rig`, blend shapes in :mod:`.head_blendshapes`);
-:func:`write_default_head` writes it as ``assets/default_head.npz`` (compressed float32, fixed
-zip timestamps, so a rebuild gives the same bytes). The run-time loader,
-:mod:`holo_viewer.flame.default_head`, only reads the asset (it calls this module only to
-rebuild a missing asset in a stripped checkout). Format: see that module's docstring.
+:func:`build_default_head` converts ICT Face Model Light (ICT-FaceKit, MIT; :mod:`.ict`) into our
+FLAME-format head; :func:`write_default_head` writes it as ``assets/default_head.npz`` (compressed,
+fixed zip timestamps, so a rebuild gives the same bytes). The run-time loader,
+:mod:`holo_viewer.flame.default_head`, only reads the asset (it calls this module only to rebuild a
+missing asset when the ICT source is present). Format: see that module's docstring.
 """
 
 from __future__ import annotations
@@ -18,87 +17,60 @@ from typing import Mapping
 
 import numpy as np
 
-from ...errors import InputError
 from ...fileio import atomic_write
-from ..default_head import EXPRESSION_NAMES
-from .head_blendshapes import N_GENERIC_SHAPE, SHAPE_NAMES, expression_basis, shape_basis
-from .head_rig import KINTREE, jaw_corrective_posedirs, joint_regressor, skin_weights
-from .head_sculpt import REGION_NAMES, sculpt_head
+from ..default_head import ict_facekit_path
+from .ict import N_IDENTITY, build_from_ict, load_ict
 
 __all__ = ["build_default_head", "write_default_head", "BUILDER_VERSION"]
 
 #: Bumped whenever the generated head changes (stored in the asset).
-BUILDER_VERSION = 2  # 2: jaw / mouth masks no longer catch the lower-lid rims (issue 2)
-_FLOAT_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights")
+BUILDER_VERSION = 3  # 3: converted from ICT Face Model Light (issue 17)
+_FLOAT32_KEYS = ("v_template", "J_regressor", "weights", "uv")
+_FLOAT16_KEYS = ("shapedirs", "posedirs")  # deltas of at most a few cm: float16 keeps them to < 0.01 mm
+_INT32_KEYS = ("f", "vertex_region", "faces_uv", "landmark_vertices")
 
 
-def _grid_size(n_vertices_target: int) -> tuple[int, int]:
-    if not isinstance(n_vertices_target, (int, np.integer)) or not 1500 <= n_vertices_target <= 40000:
-        raise InputError(f"n_vertices_target: expected an int in [1500, 40000], found {n_vertices_target!r}")
-    # ~1000 vertices live outside the grid (eyes, ears, mouth bag) at the default size
-    s = np.sqrt(max(n_vertices_target - 856, 500) / (56 * 74))
-    return max(int(round(56 * s)), 30), max(int(round(74 * s)), 40)
-
-
-def build_default_head(n_vertices_target: int = 5000, seed: int = 0) -> dict[str, np.ndarray]:
-    """Generate the default head in FLAME's format (deterministic for given arguments).
+def build_default_head(ict_path: str | os.PathLike | None = None, n_identity: int = N_IDENTITY
+                       ) -> dict[str, np.ndarray]:
+    """Convert ICT Face Model Light into the default head (deterministic).
 
     Parameters
     ----------
-    n_vertices_target : int
-        Approximate vertex count (the default gives 5006 vertices).
-    seed : int
-        Seed of the generic (unnamed) shape components.
+    ict_path : path, optional
+        ``ict_facekit_light.npz``; default :func:`holo_viewer.flame.default_head.ict_facekit_path`
+        (``$HOLO_VIEWER_ICT_FACEKIT``, else ``../shared/assets/ICT-FaceKit/`` beside the checkout).
+    n_identity : int
+        Identity (shape) components kept.
 
     Returns
     -------
     dict of str -> numpy.ndarray
-        FLAME keys in float64 / int64 plus the extra keys listed in the module docstring.
+        FLAME keys in float64 / int64 plus the extra keys listed in ``default_head``'s docstring.
     """
-    n_rows, n_cols = _grid_size(n_vertices_target)
-    head = sculpt_head(n_rows, n_cols)
-    weights = skin_weights(head)
-    j_reg = joint_regressor(head)
-    posedirs = jaw_corrective_posedirs(head, weights)
-    shape = shape_basis(head, seed=int(seed))
-    expr = expression_basis(head, weights[:, 2])
-    return {
-        "v_template": head.vertices.astype(np.float64),
-        "shapedirs": np.concatenate([shape, expr], axis=2),
-        "posedirs": posedirs,
-        "J_regressor": j_reg,
-        "weights": weights,
-        "kintree_table": KINTREE.copy(),
-        "f": head.faces.astype(np.int64),
-        "n_shape": np.array(shape.shape[2], dtype=np.int64),
-        "n_expr": np.array(expr.shape[2], dtype=np.int64),
-        "expression_names": np.array(EXPRESSION_NAMES),
-        "shape_names": np.array(list(SHAPE_NAMES) + [f"generic_{i}" for i in range(N_GENERIC_SHAPE)]),
-        "holo_viewer_default_head": np.array(1, dtype=np.int64),
-        "vertex_region": head.region.astype(np.int64),
-        "region_names": np.array(REGION_NAMES),
-        "teeth_anchor_upper": head.parts["teeth_anchor_upper"].astype(np.int64),
-        "teeth_anchor_lower": head.parts["teeth_anchor_lower"].astype(np.int64),
-        "builder_version": np.array(BUILDER_VERSION, dtype=np.int64),
-        "seed": np.array(int(seed), dtype=np.int64),
-    }
+    path = ict_facekit_path(required=True) if ict_path is None else Path(ict_path)
+    arrays = build_from_ict(load_ict(path), n_identity=int(n_identity))
+    arrays["builder_version"] = np.array(BUILDER_VERSION, dtype=np.int64)
+    return arrays
 
 
 def _storage_arrays(arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     out = {}
     for k in sorted(arrays):
         a = np.asarray(arrays[k])
-        if k in _FLOAT_KEYS:
+        if k in _FLOAT32_KEYS:
             a = a.astype(np.float32)
+        elif k in _FLOAT16_KEYS:
+            a = a.astype(np.float16)
+        elif np.issubdtype(a.dtype, np.floating):
+            a = a.astype(np.float64)
         elif np.issubdtype(a.dtype, np.integer):
-            a = a.astype(np.int32 if k in ("f", "vertex_region", "teeth_anchor_upper", "teeth_anchor_lower")
-                         else np.int64)
+            a = a.astype(np.int32 if k in _INT32_KEYS else np.int64)
         out[k] = np.array(a, order="C", copy=True)  # keeps 0-d scalars 0-d
     return out
 
 
 def write_default_head(path: str | os.PathLike, arrays: Mapping[str, np.ndarray]) -> Path:
-    """Write head arrays as a compressed float32 ``.npz`` with fixed zip metadata (same bytes every time).
+    """Write head arrays as a compressed ``.npz`` with fixed zip metadata (same bytes every time).
 
     Parameters
     ----------
