@@ -51,7 +51,7 @@ GENERATOR_VERSION = 2  # 2: the ICT-based default head (hair shell, lashes, own 
 SH_C1 = 0.4886025119029199
 
 #: Relative Gaussian density per area by region (default 1.0).
-REGION_DENSITY = {"skin": 1.0, "scalp": 0.1, "hair": 0.7, "lashes": 0.3, "tongue": 0.5, "gums": 0.3,
+REGION_DENSITY = {"skin": 1.0, "scalp": 0.1, "hair": 0.7, "lashes": 0.0, "tongue": 0.5, "gums": 0.3,
                   "brows": 2.5, "lips": 3.0, "eyeball_left": 0.5, "eyeball_right": 0.5, "iris": 4.0, "pupil": 4.0,
                   "ears": 0.8, "mouth_interior": 0.3, "eye_pocket": 0.0, "neck": 0.4, "nostrils": 1.0,
                   "teeth": 0.5}

@@ -333,11 +333,17 @@ def _regions(h: _Head, hair_cov: np.ndarray) -> np.ndarray:
                    | ((v[:, 2] <= 0.0) & (v[:, 1] < -0.07)))
     reg[neck] = R["neck"]
     reg[skin & (hair_cov > 0.0)] = R["scalp"]
-    # ears: the head-and-neck surface sticking out sideways behind the cheek
-    ear = skin & (np.abs(v[:, 0]) > 0.066) & (v[:, 1] > -0.06) & (v[:, 1] < 0.03) & (v[:, 2] < 0.02) \
-        & (v[:, 2] > -0.06)
-    hx = np.interp(v[:, 1], [-0.06, -0.03, 0.0, 0.03], [0.064, 0.070, 0.073, 0.072])
-    ear &= np.abs(v[:, 0]) > hx
+    # ears: the skin sticking out more than 2.5 mm from a quadratic fit of the side of the head
+    # around them (fitted to a ring of skin outside the ear's ellipse)
+    ear = np.zeros(len(v), bool)
+    for sgn in (1.0, -1.0):
+        side = skin & (sgn * v[:, 0] > 0.04)
+        q = ((v[:, 1] - EAR_CENTRE[1]) / EAR_RADII[0]) ** 2 + ((v[:, 2] - EAR_CENTRE[2]) / EAR_RADII[1]) ** 2
+        ring = side & (q > 1.0) & (q < 2.6) & (sgn * v[:, 0] > 0.055)
+        yy, zz = v[:, 1] - EAR_CENTRE[1], v[:, 2] - EAR_CENTRE[2]
+        basis = np.c_[np.ones(len(v)), yy, zz, yy * yy, zz * zz, yy * zz]
+        coef = np.linalg.lstsq(basis[ring], sgn * v[ring, 0], rcond=None)[0]
+        ear |= side & (q < 1.0) & (sgn * v[:, 0] > basis @ coef + 0.0025)
     reg[ear] = R["ears"]
     front = (p == po["face"]) & (v[:, 2] > 0.03)
     # brows: a band from 7 mm below to 2.5 mm above the brow landmarks, tapering laterally
@@ -354,11 +360,15 @@ def _regions(h: _Head, hair_cov: np.ndarray) -> np.ndarray:
     # lips: the face surface inside the outer lip contour (48..59)
     lips = (p == po["face"]) & _point_in_polygon(v[:, :2], lm[48:60, :2]) & (v[:, 2] > lm[48, 2] - 0.012)
     reg[lips] = R["lips"]
-    # nostrils: under the nose between the alar bases, facing down or tucked in
+    # nostrils: the walls of the openings: above the nose's underside (subnasale + 1.5 mm), between
+    # the alar bases, not facing forward, facing toward the nostril's axis (or down, beside the columella)
     nrm = vertex_normals(v, h.f)
-    x0, x1 = lm[31, 0] - 0.003, lm[35, 0] + 0.003
-    nos = ((p == po["face"]) & (v[:, 0] > x0) & (v[:, 0] < x1) & (v[:, 1] > lm[33, 1] - 0.002)
-           & (v[:, 1] < lm[33, 1] + 0.012) & (v[:, 2] > lm[31, 2] - 0.006) & (nrm[:, 1] < -0.35))
+    sx = np.sign(v[:, 0])
+    xc = 0.5 * (abs(lm[31, 0]) + abs(lm[32, 0]))
+    inward = ((sx * v[:, 0] - xc) * sx * nrm[:, 0] < 0.0) | ((nrm[:, 1] < -0.3) & (np.abs(v[:, 0]) > 0.0035))
+    nos = ((p == po["face"]) & (np.abs(v[:, 0]) < abs(lm[31, 0]) + 0.002) & (v[:, 1] > lm[33, 1] + 0.0015)
+           & (v[:, 1] < lm[33, 1] + 0.03) & (v[:, 2] < lm[30, 2] - 0.006) & (v[:, 2] > lm[31, 2] - 0.025)
+           & (nrm[:, 2] < 0.5) & inward)
     reg[nos] = R["nostrils"]
     reg[p == po["mouth_socket"]] = R["mouth_interior"]
     reg[np.isin(p, [po["eye_socket_left"], po["eye_socket_right"]])] = R["eye_pocket"]
@@ -379,25 +389,29 @@ def _regions(h: _Head, hair_cov: np.ndarray) -> np.ndarray:
     return reg
 
 
+EAR_CENTRE = np.array([0.072, -0.02, -0.03])  # (|x|, y, z) and the (y, z) radii of the ear's ellipse
+EAR_RADII = np.array([0.04, 0.03])
 IRIS_HALF_ANGLE = 23.0
 PUPIL_HALF_ANGLE = 8.5
 
 
 def _tongue_mask(h: _Head) -> np.ndarray:
-    """Gums-and-tongue vertices of the tongue: the component(s) lying between the lower teeth."""
-    po = PART_ORDER.index("gums_tongue")
-    gt = h.part == po
-    comp = _components(len(h.v), h.f[gt[h.f].all(1)])
+    """Gums-and-tongue vertices of the tongue (and the floor of the mouth under it).
+
+    That part is one connected mesh; its UV islands separate the pieces. The tongue's islands span
+    the midline, reach back behind the teeth (z < 2 cm) and move with ``jawOpen``; the gums' and the
+    palate's do not (the palate and the uvula stay with the skull, the gums hug the teeth).
+    """
+    gt = h.part == PART_ORDER.index("gums_tongue")
+    fsel = gt[h.f].all(1)
+    island = _components(len(h.uv), h.fuv[fsel])[h.fuv[fsel][:, 0]]
     out = np.zeros(len(h.v), bool)
-    ids = np.where(gt)[0]
-    cs = np.unique(comp[ids])
-    sizes = {c: int((comp[ids] == c).sum()) for c in cs}
-    # the tongue: the component with the smallest lateral extent among the big ones
-    big = [c for c in cs if sizes[c] > 100]
-    widths = {c: float(np.ptp(h.v[ids[comp[ids] == c], 0])) for c in big}
-    if len(big) >= 3:
-        t = min(widths, key=widths.get)
-        out[ids[comp[ids] == t]] = True
+    move = np.linalg.norm(h.expr["jawOpen"], axis=1)
+    for c in np.unique(island):
+        vids = np.unique(h.f[fsel][island == c])
+        p = h.v[vids]
+        if p[:, 0].min() < -0.01 and p[:, 0].max() > 0.01 and p[:, 2].min() < 0.02 and move[vids].mean() > 0.001:
+            out[vids] = True
     return out
 
 
@@ -511,8 +525,7 @@ def build_from_ict(ict: dict[str, np.ndarray], n_identity: int = N_IDENTITY) -> 
     b_vec = jw[:, None] * (pivot - rot @ pivot)[None]
     target = h.v + jaw_open
     corr = np.linalg.solve(a_mat, (target - b_vec)[:, :, None])[:, :, 0] - h.v
-    corr[eyeball] = 0.0
-    corr[jw == 0.0] = 0.0  # the non-jaw part of jawOpen (e.g. the throat) is left to AU26
+    corr[eyeball] = 0.0  # (where jw = 0, e.g. the throat, the corrective is jawOpen's own motion)
     posedirs = np.zeros((n0, 3, 36))
     posedirs[:, :, 9 + 7] = 0.5 * corr / np.sin(ang)
     posedirs[:, :, 9 + 5] = -0.5 * corr / np.sin(ang)
