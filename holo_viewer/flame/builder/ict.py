@@ -67,7 +67,7 @@ KINTREE = np.array([[-1, 0, 1, 1, 1], [0, 1, 2, 3, 4]], dtype=np.int64)
 AU_TO_ICT: dict[str, dict[str, float]] = {
     "AU1_L": {"browInnerUp_L": 1.0}, "AU1_R": {"browInnerUp_R": 1.0},
     "AU2_L": {"browOuterUp_L": 1.0}, "AU2_R": {"browOuterUp_R": 1.0},
-    "AU4": {"browDown_L": 1.0, "browDown_R": 1.0},
+    "AU4": {"browDown_L": 1.5, "browDown_R": 1.5},
     "AU5": {"eyeWide_L": 1.0, "eyeWide_R": 1.0},
     "AU6": {"cheekSquint_L": 1.0, "cheekSquint_R": 1.0},
     "AU7": {"eyeSquint_L": 1.0, "eyeSquint_R": 1.0},
@@ -359,6 +359,7 @@ def _regions(h: _Head, hair_cov: np.ndarray) -> np.ndarray:
         reg[front & xr & (above > lo) & (above < hi) & (d < 0.012)] = R["brows"]
     # lips: the face surface inside the outer lip contour (48..59)
     lips = (p == po["face"]) & _point_in_polygon(v[:, :2], lm[48:60, :2]) & (v[:, 2] > lm[48, 2] - 0.012)
+    lips[h.landmarks[48:68]] = True  # the contour itself
     reg[lips] = R["lips"]
     # nostrils: the walls of the openings: above the nose's underside (subnasale + 1.5 mm), between
     # the alar bases, not facing forward, facing toward the nostril's axis (or down, beside the columella)
@@ -525,7 +526,8 @@ def build_from_ict(ict: dict[str, np.ndarray], n_identity: int = N_IDENTITY) -> 
     b_vec = jw[:, None] * (pivot - rot @ pivot)[None]
     target = h.v + jaw_open
     corr = np.linalg.solve(a_mat, (target - b_vec)[:, :, None])[:, :, 0] - h.v
-    corr[eyeball] = 0.0  # (where jw = 0, e.g. the throat, the corrective is jawOpen's own motion)
+    corr[eyeball | teeth] = 0.0  # rigid parts (the lower teeth: residual of the rigid fit, < 0.3 mm)
+    # (where jw = 0, e.g. the throat, the corrective is jawOpen's own motion)
     posedirs = np.zeros((n0, 3, 36))
     posedirs[:, :, 9 + 7] = 0.5 * corr / np.sin(ang)
     posedirs[:, :, 9 + 5] = -0.5 * corr / np.sin(ang)
