@@ -446,6 +446,13 @@ def test_default_head_loads_and_skins(default_arrays: dict) -> None:
 
 
 def test_default_head_teeth(default_arrays: dict) -> None:
+    if int(np.asarray(default_arrays.get("has_teeth", 0))):  # the head has its own teeth: none added
+        model = FlameModel.load(DEFAULT_HEAD, add_teeth=True, dtype=torch.float64)
+        assert model.has_own_teeth and model.n_vertices == model.n_base_vertices and model.teeth_upper is None
+        arrays = {k: v for k, v in default_arrays.items() if k != "has_teeth"}
+        with pytest.raises(FlameError, match="teeth_anchor_upper"):  # without the flag: FLAME teeth need anchors
+            FlameModel.from_arrays(arrays, add_teeth=True)
+        return
     if "teeth_anchor_upper" not in default_arrays:
         with pytest.raises(FlameError, match="teeth_anchor_upper"):
             FlameModel.load(DEFAULT_HEAD, add_teeth=True)

@@ -69,7 +69,7 @@ AU_TO_ICT: dict[str, dict[str, float]] = {
     "AU2_L": {"browOuterUp_L": 1.0}, "AU2_R": {"browOuterUp_R": 1.0},
     "AU4": {"browDown_L": 1.5, "browDown_R": 1.5},
     "AU5": {"eyeWide_L": 1.0, "eyeWide_R": 1.0},
-    "AU6": {"cheekSquint_L": 1.0, "cheekSquint_R": 1.0},
+    "AU6": {"cheekRaiser_L": 1.0, "cheekRaiser_R": 1.0},
     "AU7": {"eyeSquint_L": 1.0, "eyeSquint_R": 1.0},
     "AU9": {"noseSneer_L": 1.0, "noseSneer_R": 1.0},
     "AU10": {"mouthUpperUp_L": 1.0, "mouthUpperUp_R": 1.0},
