@@ -15,8 +15,8 @@ trained on real photographs (packages ``dlib-bin`` and ``face_recognition_models
   over the mesh's mask, at the views nearest to 0 and +-20 degrees.
 
 Renderers: ``gaussians`` = ``Pipeline.views()`` (the quilt's 48 views, 420x560); ``mesh`` =
-the posed FLAME mesh from the same ``Pipeline.mesh()``, region colours and lights of
-``flame.preview`` (the "textured" head of ``make demo``'s ``out/head``), through the quilt
+the posed FLAME mesh from the same ``Pipeline.mesh()``, textured (``flame.head_textures``; region
+colours for a model without UVs) and lit as ``flame.preview`` (the head of ``make demo``'s ``out/head``), through the quilt
 cameras; ``mesh_preview_front`` = ``flame.preview.render_mesh`` at 400x480 framed exactly as
 ``out/head/*_front.png`` (the renders the issue's numbers came from), turned by the front
 window's camera angles.
@@ -313,6 +313,9 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
     model = pipe.model
     faces = model.faces.cpu().numpy()
     colors = mesh_colors(model)
+    from holo_viewer.flame.head_textures import head_appearance
+
+    appearance = head_appearance(model)  # the textured mesh (None: region colours)
     cams = pipe.cameras()
     (framing,), _ = pipe.compute("framing")
     centre = np.asarray(framing[0])
@@ -338,7 +341,7 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
                 if i in lm_views:
                     meas[i] = face_measures(r[0])
                     marks[("g", i)] = r[0]
-        mimg, mmask = render_mesh_cameras(verts, faces, cams, mesh_views, colors=colors)
+        mimg, mmask = render_mesh_cameras(verts, faces, cams, mesh_views, colors=colors, appearance=appearance)
         mesh_meas = {}
         for k, i in enumerate(mesh_views):
             r = det(mimg[k])
@@ -351,7 +354,7 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
         # the front window's camera angles
         lo, hi = verts.min(0), verts.max(0)
         prevs = render_mesh(verts, faces, views=[(y, 0.0) for y in preview_yaws], size=(400, 480), colors=colors,
-                            target=0.5 * (lo + hi), distance=0.95)
+                            target=0.5 * (lo + hi), distance=0.95, appearance=appearance)
         prev_det = [det(im) for im in prevs]
         prev_meas = [None if r is None else face_measures(r[0]) for r in prev_det]
         entry: dict[str, Any] = {"found": found, "score_median": float(np.median(scores)) if scores else None}

@@ -127,6 +127,7 @@ def render_mesh(
     fov_deg: float = 20.0,
     target: np.ndarray | None = None,
     distance: float | None = None,
+    appearance: Any = None,
 ) -> list[np.ndarray]:
     """Render a shaded triangle mesh offscreen from named views.
 
@@ -150,6 +151,10 @@ def render_mesh(
     target, distance : optional
         Look-at point (default: bounding-box centre) and camera distance (default:
         framing the bounding sphere).
+    appearance : HeadAppearance, optional
+        Textures and materials of the mesh (:mod:`holo_viewer.flame.appearance`); when given,
+        ``colors`` is ignored and each material is drawn textured (or vertex-coloured) with its
+        own specular.
 
     Returns
     -------
@@ -171,7 +176,7 @@ def render_mesh(
     cam_dirs = [_camera_dir(view)[0] for view in views]  # validate names before any GL work
     vtk, nps = _import_vtk()
 
-    ren = mesh_renderer(vtk, nps, v, f, colors, background)
+    ren = mesh_renderer(vtk, nps, v, f, colors, background, appearance=appearance)
     from ..offscreen import new_offscreen_window
 
     win = new_offscreen_window(vtk.vtkRenderWindow, w, h, multisamples=None, what="render_mesh")
@@ -210,7 +215,8 @@ def render_mesh(
 
 def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, indices: Sequence[int] | None = None,
                         colors: np.ndarray | None = None,
-                        background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+                        background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                        appearance: Any = None) -> tuple[np.ndarray, np.ndarray]:
     """Render a vertex-coloured mesh through pinhole cameras with their exact OpenCV intrinsics (VTK).
 
     Lighting, material and normals are those of :func:`render_mesh`; the camera is the given
@@ -231,6 +237,8 @@ def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, i
         (V, 3) per-vertex RGB in [0, 1]; default a uniform skin tone.
     background : (float, float, float)
         Background RGB.
+    appearance : HeadAppearance, optional
+        Draw the textured head instead of ``colors`` (as :func:`render_mesh`).
 
     Returns
     -------
@@ -250,7 +258,7 @@ def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, i
     from ..offscreen import new_offscreen_window
 
     W, H = int(cameras.width), int(cameras.height)
-    ren = mesh_renderer(vtk, nps, v, f, colors, background)
+    ren = mesh_renderer(vtk, nps, v, f, colors, background, appearance=appearance)
     win = new_offscreen_window(vtk.vtkRenderWindow, W, H, multisamples=None, what="render_mesh_cameras")
     win.AddRenderer(ren)
     images, masks = [], []
@@ -312,7 +320,8 @@ HEAD_POSES = (("neutral", 0.0), ("smile", 1.0), ("pain", 1.0), ("mouth_open", 1.
 
 def write_head_renders(out_dir: str | os.PathLike, model: Any,
                        views: Sequence[str] = ("front", "three_quarter", "side"),
-                       size: tuple[int, int] = (400, 480), verbose: bool = True) -> list[Path]:
+                       size: tuple[int, int] = (400, 480), verbose: bool = True,
+                       textured: bool = True) -> list[Path]:
     """Pose a FLAME-format model (neutral, smile, pain, mouth open), render and write PNGs.
 
     Writes ``{pose}_{view}.png`` for every pose and view and ``contact_sheet.png``
@@ -330,6 +339,10 @@ def write_head_renders(out_dir: str | os.PathLike, model: Any,
         (width, height) of each view.
     verbose : bool
         Print each written file.
+    textured : bool
+        Draw the model's generated textures (:func:`holo_viewer.flame.head_textures.head_appearance`)
+        when it carries texture coordinates (the default head); other models, or ``False``, get the
+        smoothed region colours.
 
     Returns
     -------
@@ -346,7 +359,14 @@ def write_head_renders(out_dir: str | os.PathLike, model: Any,
     faces = model.faces.cpu().numpy()
     meta = getattr(model, "metadata", {}) or {}
     n_v = int(model.n_vertices)
-    if "vertex_region" in meta and "region_names" in meta:
+    appearance = None
+    if textured:
+        from .head_textures import head_appearance
+
+        appearance = head_appearance(model, verbose=verbose)
+    if appearance is not None:
+        colors = None
+    elif "vertex_region" in meta and "region_names" in meta:
         colors = region_colors(meta["vertex_region"], [str(s) for s in meta["region_names"]], n_v)
         colors = smooth_vertex_colors(colors, faces, 1)
     else:
@@ -363,7 +383,7 @@ def write_head_renders(out_dir: str | os.PathLike, model: Any,
         rest_lo, rest_hi = verts.min(0), verts.max(0)
         target = 0.5 * (rest_lo + rest_hi)
         imgs = render_mesh(verts, faces, views=views, size=size, colors=colors, target=target,
-                           distance=0.95)
+                           distance=0.95, appearance=appearance)
         sheet_rows.append(imgs)
         for view, img in zip(views, imgs):
             path = save_image(out / f"{name}_{view}.png", img)
@@ -377,13 +397,22 @@ def write_head_renders(out_dir: str | os.PathLike, model: Any,
     return written
 
 
-def mesh_renderer(vtk: Any, nps: Any, vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray,
-                  background: tuple[float, float, float]) -> Any:
+def mesh_renderer(vtk: Any, nps: Any, vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None,
+                  background: tuple[float, float, float], appearance: Any = None) -> Any:
     """A vtkRenderer holding the shaded, vertex-coloured mesh (no lights; see :func:`add_key_lights`).
 
     ``vertices`` (V, 3) float64, ``faces`` (F, 3) integer, ``colors`` (V, 3) RGB in [0, 1]; the one
     material and normal set-up of every mesh render (the previews and the face-realism benchmark).
+    With ``appearance`` (a :class:`~holo_viewer.flame.appearance.HeadAppearance` of this mesh's
+    topology) the mesh is drawn textured instead: see :func:`textured_actors`.
     """
+    if appearance is not None:
+        ren = vtk.vtkRenderer()
+        for actor in textured_actors(vtk, nps, vertices, faces, appearance):
+            ren.AddActor(actor)
+        ren.SetBackground(*background)
+        ren.AutomaticLightCreationOff()
+        return ren
     pts = vtk.vtkPoints()
     pts.SetData(nps.numpy_to_vtk(np.ascontiguousarray(vertices, dtype=np.float64), deep=True))
     polys = vtk.vtkCellArray()
@@ -437,3 +466,111 @@ def add_key_lights(vtk: Any, ren: Any, centre: np.ndarray, dist: float, d: np.nd
         light.SetFocalPoint(*centre)
         light.SetIntensity(intensity)
         ren.AddLight(light)
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(V, 3) unit vertex normals: area-weighted sum of the incident triangles' normals."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    out = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(out, f[:, k], n)
+    return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-30)
+
+
+def textured_actors(vtk: Any, nps: Any, vertices: np.ndarray, faces: np.ndarray, appearance: Any) -> list:
+    """One vtkActor per material of ``appearance``: textured ones split at UV seams (a point per
+    (vertex, uv) corner pair), the rest vertex-coloured; normals from the whole mesh (no shading
+    seams), per-material specular (:data:`holo_viewer.flame.appearance.MATERIAL_SPECULAR`)."""
+    from .appearance import MATERIAL_TEXTURE, MATERIALS, TEXTURE_TILE
+
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if f.shape != appearance.faces.shape or not np.array_equal(f, appearance.faces):
+        raise InputError(f"appearance: made for {len(appearance.faces)} triangles of another topology; "
+                         f"the mesh has {len(f)}")
+    if len(v) != len(appearance.vertex_colors):
+        raise InputError(f"appearance: made for {len(appearance.vertex_colors)} vertices, the mesh has {len(v)}")
+    normals = vertex_normals(v, f)
+    textures = {}
+    actors = []
+    for mi, name in enumerate(MATERIALS):
+        sel = np.nonzero(appearance.face_material == mi)[0]
+        if len(sel) == 0:
+            continue
+        tex = MATERIAL_TEXTURE[name]
+        if tex is None or tex not in appearance.textures:
+            vi, tri = np.unique(f[sel].ravel(), return_inverse=True)
+            pts, nrm, tri = v[vi], normals[vi], tri.reshape(-1, 3)
+            rgb, tc = appearance.vertex_colors[vi], None
+        else:
+            pairs = np.stack([f[sel].ravel(), appearance.faces_uv[sel].ravel()], axis=1)
+            uniq, tri = np.unique(pairs, axis=0, return_inverse=True)
+            pts, nrm, tri = v[uniq[:, 0]], normals[uniq[:, 0]], tri.reshape(-1, 3)
+            tc = appearance.uv[uniq[:, 1]].astype(np.float64) - [TEXTURE_TILE[tex], 0.0]
+            rgb = None
+        poly = vtk.vtkPolyData()
+        vp = vtk.vtkPoints()
+        vp.SetData(nps.numpy_to_vtk(np.ascontiguousarray(pts), deep=True))
+        poly.SetPoints(vp)
+        cells = vtk.vtkCellArray()
+        cells.SetData(nps.numpy_to_vtkIdTypeArray(np.arange(0, 3 * len(tri) + 1, 3, dtype=np.int64), deep=True),
+                      nps.numpy_to_vtkIdTypeArray(np.ascontiguousarray(tri, dtype=np.int64).ravel(), deep=True))
+        poly.SetPolys(cells)
+        poly.GetPointData().SetNormals(nps.numpy_to_vtk(np.ascontiguousarray(nrm), deep=True))
+        mapper = vtk.vtkPolyDataMapper()
+        mapper.SetInputData(poly)
+        actor = vtk.vtkActor()
+        actor.SetMapper(mapper)
+        if tc is None:
+            arr = nps.numpy_to_vtk(np.ascontiguousarray(np.round(np.clip(rgb, 0, 1) * 255)).astype(np.uint8), deep=True)
+            arr.SetName("rgb")
+            poly.GetPointData().SetScalars(arr)
+            mapper.SetColorModeToDirectScalars()
+        else:
+            poly.GetPointData().SetTCoords(nps.numpy_to_vtk(np.ascontiguousarray(tc), deep=True))
+            mapper.ScalarVisibilityOff()
+            if tex not in textures:
+                textures[tex] = _vtk_texture(vtk, nps, appearance.textures[tex], appearance.alpha.get(tex))
+            actor.SetTexture(textures[tex])
+            # VTK's legacy texturing multiplies the whole lit colour (specular included) by the
+            # texel, which kills highlights on dark texels (the iris, the pupil): apply the albedo to
+            # the ambient + diffuse terms only and add the specular on top
+            actor.GetShaderProperty().AddFragmentShaderReplacement(
+                "//VTK::TCoord::Impl", True,
+                "vec4 tcolor = texture(actortexture, tcoordVCVSOutput);\n"
+                "  gl_FragData[0] = vec4((ambientColor + diffuse) * tcolor.rgb + specular, opacity * tcolor.a);\n",
+                False)
+        prop = actor.GetProperty()
+        prop.SetColor(1.0, 1.0, 1.0)
+        prop.SetInterpolationToPhong()
+        prop.SetAmbient(0.25)
+        prop.SetDiffuse(0.8)
+        spec, power = appearance.specular.get(name, (0.12, 20.0))
+        prop.SetSpecular(spec)
+        prop.SetSpecularPower(power)
+        prop.SetSpecularColor(1.0, 1.0, 1.0)
+        actors.append(actor)
+    return actors
+
+
+def _vtk_texture(vtk: Any, nps: Any, image: np.ndarray, alpha: np.ndarray | None = None) -> Any:
+    """A linear-filtered, mipmapped, edge-clamped vtkTexture of an (H, W, 3) float image (row 0 at the
+    top), RGBA when ``alpha`` (H, W) is given (the actor is then drawn blended)."""
+    h, w = image.shape[:2]
+    data = vtk.vtkImageData()
+    data.SetDimensions(w, h, 1)
+    img = image[..., :3] if alpha is None else np.concatenate([image[..., :3], alpha[..., None]], axis=-1)
+    pix = np.ascontiguousarray(np.round(np.clip(img[::-1], 0, 1) * 255).astype(np.uint8).reshape(h * w, -1))
+    arr = nps.numpy_to_vtk(pix, deep=True)
+    arr.SetName("albedo")
+    data.GetPointData().SetScalars(arr)
+    t = vtk.vtkTexture()
+    t.SetInputData(data)
+    t.InterpolateOn()
+    t.MipmapOn()
+    t.RepeatOff()
+    t.EdgeClampOn()
+    t.SetColorModeToDirectScalars()
+    return t
