@@ -4,8 +4,9 @@ Usage: python scripts/build_default_head.py [--ict PATH] [--out assets/default_h
 
 The source is ``ict_facekit_light.npz`` (ICT-FaceKit, MIT): ``--ict``, else ``$HOLO_VIEWER_ICT_FACEKIT``,
 else ``../shared/assets/ICT-FaceKit/ict_facekit_light.npz`` beside the repository. The build is
-deterministic: running it twice gives the same bytes. Rebuild the landmark embedding afterwards
-(scripts/build_landmark_embedding.py).
+deterministic: running it twice gives the same bytes. It then paints the head's albedo textures into
+the same folder (``default_head_albedo_*.png`` + ``.json``, as scripts/build_head_textures.py; skip with
+``--no-textures``). Rebuild the landmark embedding afterwards (scripts/build_landmark_embedding.py).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ def main() -> int:
     ap.add_argument("--ict", type=Path, default=None, help="ict_facekit_light.npz (default: see the module docstring)")
     ap.add_argument("--out", type=Path, default=_repo_asset(), help="target .npz (default: the committed asset)")
     ap.add_argument("--renders", type=Path, default=None, help="also write demo renders of the head here")
+    ap.add_argument("--no-textures", action="store_true", help="do not paint the albedo textures beside the head")
     args = ap.parse_args()
     t0 = time.perf_counter()
     arrays = build_default_head(args.ict)
@@ -36,11 +38,19 @@ def main() -> int:
     print(f"wrote {path}: {path.stat().st_size / 1e6:.2f} MB, sha256 {digest}, build {t1 - t0:.1f} s")
     print(f"  vertices {len(v)}, faces {len(f)}, shape {int(arrays['n_shape'])}, expression {int(arrays['n_expr'])}")
     print(f"  extent (m): x {np.ptp(v[:, 0]):.3f}  y {np.ptp(v[:, 1]):.3f}  z {np.ptp(v[:, 2]):.3f}")
+    from holo_viewer.flame.model import FlameModel
+
+    model = FlameModel.load(path, n_shape=None, n_expr=None)
+    if not args.no_textures:
+        from holo_viewer.flame.head_textures import build_head_textures
+
+        t2 = time.perf_counter()
+        written = build_head_textures(model, path.parent)
+        print(f"painted {len(written)} texture files in {path.parent} in {time.perf_counter() - t2:.1f} s")
     if args.renders is not None:
-        from holo_viewer.flame.model import FlameModel
         from holo_viewer.flame.preview import write_head_renders
 
-        write_head_renders(args.renders, FlameModel.load(path, n_shape=None, n_expr=None))
+        write_head_renders(args.renders, model)
     return 0
 
 
