@@ -32,8 +32,10 @@ Pain
 PSPI = AU4 + max(AU6, AU7) + max(AU9, AU10) + AU43 (0..16) [Prkachin & Solomon].
 :func:`pain_aus` maps pain p in [0, 1] to a canonical pain face dominated by the
 PSPI action units (brow lowering, orbital tightening, levator contraction, eye
-closure) with lighter AU20/AU25/AU26; PSPI(p = 1) = 12.7, PSPI(0) = 0, strictly
-increasing in p.
+closure) with lighter AU20/AU25/AU26; PSPI(p = 1) = 13.3, PSPI(0) = 0, strictly
+increasing in p. The eyes narrow to a slit (orbital tightening AU6/AU7, the most reliable pain
+sign) rather than shutting: full closure reads as sleep, and an independent landmark detector
+reads a squeezed slit as narrower than closed lids (docs/face_realism.md).
 """
 
 from __future__ import annotations
@@ -70,8 +72,8 @@ _DEFAULT_COMPONENTS = {
     "AU23": ("AU23",), "AU24": ("AU24",), "AU25": ("AU25",), "AU26": ("AU26",), "AU43": ("AU43_L", "AU43_R"),
 }
 
-#: Canonical pain face at p = 1 (PSPI = 4 + 4 + 4 + 0.7 = 12.7).
-PAIN_PEAK = {"AU4": 4.0, "AU6": 3.5, "AU7": 4.0, "AU9": 3.0, "AU10": 4.0, "AU43": 0.7,
+#: Canonical pain face at p = 1 (PSPI = 5 + 4 + 4 + 0.3 = 13.3).
+PAIN_PEAK = {"AU4": 5.0, "AU6": 3.5, "AU7": 4.0, "AU9": 3.0, "AU10": 4.0, "AU43": 0.3,
              "AU20": 1.0, "AU25": 1.5, "AU26": 1.0}
 _PSPI_CORE = ("AU4", "AU43")
 
@@ -302,8 +304,9 @@ def pain_aus(p: float) -> dict[str, float]:
     """AU intensities of the canonical pain face at pain ``p`` in [0, 1].
 
     The PSPI action units grow linearly with p; eye closure (AU43) follows
-    ``0.7 p^1.5`` (eyes narrow first, close late); AU20/AU25/AU26 grow linearly.
-    PSPI(p) = 12 p + 0.7 p^1.5: 0 at p = 0, 12.7 at p = 1, strictly increasing.
+    ``0.3 p^2`` (the lids narrow by AU6/AU7 first and only drop a little late);
+    AU20/AU25/AU26 grow linearly. PSPI(p) = 13 p + 0.3 p^2: 0 at p = 0, 13.3 at p = 1,
+    strictly increasing.
     """
     return _pain_aus(float(_check_p(p)))
 
@@ -311,7 +314,7 @@ def pain_aus(p: float) -> dict[str, float]:
 def _pain_aus(x: float) -> dict[str, float]:
     """:func:`pain_aus` for an already validated ``x``."""
     out = {k: v * x for k, v in PAIN_PEAK.items()}
-    out["AU43"] = PAIN_PEAK["AU43"] * x ** 1.5
+    out["AU43"] = PAIN_PEAK["AU43"] * x ** 2
     return out
 
 
