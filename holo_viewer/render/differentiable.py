@@ -10,7 +10,7 @@ The forward pass is exactly docs/design.md "3DGS forward pass" (the float64 refe
   ``sigmoid`` opacity. Depth order, radius and the pixel box are piecewise constant: computed
   without gradient.
 * **Per pixel, numba kernels** wrapped in a :class:`torch.autograd.Function` (:class:`Rasterize`):
-  tile binning (16x16 tiles; every Gaussian whose pixel box touches a tile, in depth order) and
+  tile binning (8x8 tiles; every Gaussian whose pixel box and alpha >= threshold ellipse reach a tile, in
   front-to-back compositing with the reference's rules (pixel box, ``power > 0`` skip,
   ``alpha = min(cap, o e^power)``, ``alpha < threshold`` skip, the ``t_min`` stop). The forward
   stores per pixel the final transmittance and the number of tile-list entries it walked (the last
@@ -42,7 +42,7 @@ __all__ = ["Rasterize", "rasterize", "project", "covariance", "sh_rgb", "render_
            "TILE"]
 
 #: tile edge (pixels) of the binning
-TILE = 16
+TILE = 8
 
 
 # ----------------------------------------------------------------------------- per Gaussian (torch)
@@ -133,36 +133,76 @@ def _boxes(uv, radius, order, width, height):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True)
-def _bin(box, tiles_x, tiles_y, tile):  # pragma: no cover - compiled
-    """Per tile the indices into ``box`` (depth order kept) of boxes touching it: offsets, ids."""
+def _span(rec, box, k, ya, yb, q):  # pragma: no cover - compiled
+    """Pixel columns [c0, c1) of splat ``k``'s alpha >= threshold ellipse (``d^T conic d <= q``) over
+    the pixel-centre rows ``ya..yb`` (inclusive), within its box; c0 >= c1 when it misses them."""
+    u, v, A, B, C = rec[k, 0], rec[k, 1], rec[k, 2], rec[k, 3], rec[k, 4]
+    det = A * C - B * B
+    if not (A > 0.0 and C > 0.0 and det > 0.0):
+        return box[k, 0], box[k, 1]  # degenerate: fall back to the box
+    ext = math.sqrt(q * C / det)  # half-width in x of the ellipse
+    dy_l = B * ext / C  # dy of the leftmost point (the rightmost is at -dy_l)
+    a, b = ya - v, yb - v
+    lo = 1e300
+    hi = -1e300
+    if a <= dy_l <= b:
+        lo = -ext
+    if a <= -dy_l <= b:
+        hi = ext
+    for dy in (a, b):
+        disc = B * B * dy * dy - A * (C * dy * dy - q)
+        if disc >= 0.0:
+            r = math.sqrt(disc)
+            lo = min(lo, (-B * dy - r) / A)
+            hi = max(hi, (-B * dy + r) / A)
+    if lo > hi:
+        return 0, 0
+    c0 = max(int(math.ceil(u + lo - 0.5)), box[k, 0])
+    c1 = min(int(math.floor(u + hi - 0.5)) + 1, box[k, 1])
+    return c0, c1
+
+
+@nb.njit(cache=True)
+def _bin(rec, box, tiles_x, tiles_y, tile, thr):  # pragma: no cover - compiled
+    """Per tile the indices into ``rec`` / ``box`` (depth order kept) of the splats that can have
+    alpha >= thr at one of its pixels (box AND the ellipse ``d^T conic d <= 2 ln(o / thr)``, with a
+    small margin): offsets (n_tiles + 1,), ids."""
     m = box.shape[0]
     nt = tiles_x * tiles_y
     count = np.zeros(nt + 1, np.int64)
-    for k in range(m):
-        x0, x1, y0, y1 = box[k, 0], box[k, 1], box[k, 2], box[k, 3]
-        if x0 >= x1 or y0 >= y1:
-            continue
-        for ty in range(y0 // tile, (y1 - 1) // tile + 1):
-            for tx in range(x0 // tile, (x1 - 1) // tile + 1):
-                count[ty * tiles_x + tx + 1] += 1
-    for t in range(nt):
-        count[t + 1] += count[t]
-    ids = np.empty(count[nt], np.int32)
-    fill = count[:nt].copy()
-    for k in range(m):
-        x0, x1, y0, y1 = box[k, 0], box[k, 1], box[k, 2], box[k, 3]
-        if x0 >= x1 or y0 >= y1:
-            continue
-        for ty in range(y0 // tile, (y1 - 1) // tile + 1):
-            for tx in range(x0 // tile, (x1 - 1) // tile + 1):
-                t = ty * tiles_x + tx
-                ids[fill[t]] = k
-                fill[t] += 1
+    for rnd in range(2):
+        if rnd == 1:
+            for t in range(nt):
+                count[t + 1] += count[t]
+            ids = np.empty(count[nt], np.int32)
+            fill = count[:nt].copy()
+        else:
+            ids = np.empty(0, np.int32)
+            fill = count[:nt]
+        for k in range(m):
+            x0, x1, y0, y1 = box[k, 0], box[k, 1], box[k, 2], box[k, 3]
+            o = rec[k, 5]
+            if x0 >= x1 or y0 >= y1 or not o >= thr:
+                continue
+            q = 2.0 * math.log(o / thr) * (1.0 + 1e-4) + 1e-4
+            for ty in range(y0 // tile, (y1 - 1) // tile + 1):
+                ra = max(ty * tile, y0)
+                rb = min((ty + 1) * tile, y1) - 1
+                c0, c1 = _span(rec, box, k, ra + 0.5 - 1e-3, rb + 0.5 + 1e-3, q)
+                if c0 >= c1:
+                    continue
+                for tx in range(c0 // tile, (c1 - 1) // tile + 1):
+                    t = ty * tiles_x + tx
+                    if rnd == 0:
+                        count[t + 1] += 1
+                    else:
+                        ids[fill[t]] = k
+                        fill[t] += 1
     return count, ids
 
 
 @nb.njit(parallel=True, cache=True)
-def _forward(uv, conic, opac, col, order, box, off, ids, width, height, tiles_x, tile, bg, thr, cap, t_min,
+def _forward(rec, box, off, ids, width, height, tiles_x, tile, bg, thr, cap, t_min,
              img, t_final, n_walk):  # pragma: no cover - compiled
     nt = off.shape[0] - 1
     for t in nb.prange(nt):
@@ -181,22 +221,21 @@ def _forward(uv, conic, opac, col, order, box, off, ids, width, height, tiles_x,
                     k = ids[j]
                     if px < box[k, 0] or px >= box[k, 1] or py < box[k, 2] or py >= box[k, 3]:
                         continue
-                    g = order[k]
-                    dx = fx - uv[g, 0]
-                    dy = fy - uv[g, 1]
-                    power = -0.5 * (conic[g, 0] * dx * dx + conic[g, 2] * dy * dy) - conic[g, 1] * dx * dy
+                    dx = fx - rec[k, 0]
+                    dy = fy - rec[k, 1]
+                    power = -0.5 * (rec[k, 2] * dx * dx + rec[k, 4] * dy * dy) - rec[k, 3] * dx * dy
                     if power > 0.0:
                         continue
-                    alpha = min(cap, opac[g] * math.exp(power))
+                    alpha = min(cap, rec[k, 5] * math.exp(power))
                     if alpha < thr:
                         continue
                     test_T = T * (1.0 - alpha)
                     if test_T < t_min:
                         break
                     w = alpha * T
-                    c0 += w * col[g, 0]
-                    c1 += w * col[g, 1]
-                    c2 += w * col[g, 2]
+                    c0 += w * rec[k, 6]
+                    c1 += w * rec[k, 7]
+                    c2 += w * rec[k, 8]
                     T = test_T
                     last = j + 1
                 img[py, px, 0] = c0 + T * bg[0]
@@ -207,9 +246,10 @@ def _forward(uv, conic, opac, col, order, box, off, ids, width, height, tiles_x,
 
 
 @nb.njit(parallel=True, cache=True)
-def _backward(uv, conic, opac, col, order, box, off, ids, width, height, tiles_x, tile, bg, thr, cap,
-              t_final, n_walk, dimg, n_threads, g_uv, g_conic, g_opac, g_col):  # pragma: no cover - compiled
-    """Gradients into per-thread buffers g_* (n_threads, N, ...)."""
+def _backward(rec, box, off, ids, width, height, tiles_x, tile, bg, thr, cap, t_final, n_walk, dimg,
+              n_threads, grad):  # pragma: no cover - compiled
+    """Gradients per depth-ordered splat into per-thread buffers grad (n_threads, M, 9):
+    u, v, A, B, C, opacity, r, g, b."""
     nt = off.shape[0] - 1
     chunk = (nt + n_threads - 1) // n_threads
     for th in nb.prange(n_threads):
@@ -239,40 +279,42 @@ def _backward(uv, conic, opac, col, order, box, off, ids, width, height, tiles_x
                         k = ids[j]
                         if px < box[k, 0] or px >= box[k, 1] or py < box[k, 2] or py >= box[k, 3]:
                             continue
-                        g = order[k]
-                        dx = fx - uv[g, 0]
-                        dy = fy - uv[g, 1]
-                        power = -0.5 * (conic[g, 0] * dx * dx + conic[g, 2] * dy * dy) - conic[g, 1] * dx * dy
+                        dx = fx - rec[k, 0]
+                        dy = fy - rec[k, 1]
+                        A = rec[k, 2]
+                        B = rec[k, 3]
+                        C = rec[k, 4]
+                        power = -0.5 * (A * dx * dx + C * dy * dy) - B * dx * dy
                         if power > 0.0:
                             continue
                         G = math.exp(power)
-                        raw = opac[g] * G
+                        raw = rec[k, 5] * G
                         alpha = min(cap, raw)
                         if alpha < thr:
                             continue
                         T = T / (1.0 - alpha)
                         w = alpha * T
-                        g_col[th, g, 0] += w * d0
-                        g_col[th, g, 1] += w * d1
-                        g_col[th, g, 2] += w * d2
+                        grad[th, k, 6] += w * d0
+                        grad[th, k, 7] += w * d1
+                        grad[th, k, 8] += w * d2
                         acc0 = la * lc0 + (1.0 - la) * acc0
                         acc1 = la * lc1 + (1.0 - la) * acc1
                         acc2 = la * lc2 + (1.0 - la) * acc2
                         la = alpha
-                        lc0 = col[g, 0]
-                        lc1 = col[g, 1]
-                        lc2 = col[g, 2]
+                        lc0 = rec[k, 6]
+                        lc1 = rec[k, 7]
+                        lc2 = rec[k, 8]
                         dalpha = T * ((lc0 - acc0) * d0 + (lc1 - acc1) * d1 + (lc2 - acc2) * d2)
                         dalpha -= T_fin / (1.0 - alpha) * dbg
                         if raw > cap:
                             continue
-                        g_opac[th, g] += G * dalpha
+                        grad[th, k, 5] += G * dalpha
                         dpow = raw * dalpha
-                        g_uv[th, g, 0] += dpow * (conic[g, 0] * dx + conic[g, 1] * dy)
-                        g_uv[th, g, 1] += dpow * (conic[g, 2] * dy + conic[g, 1] * dx)
-                        g_conic[th, g, 0] += -0.5 * dx * dx * dpow
-                        g_conic[th, g, 1] += -dx * dy * dpow
-                        g_conic[th, g, 2] += -0.5 * dy * dy * dpow
+                        grad[th, k, 0] += dpow * (A * dx + B * dy)
+                        grad[th, k, 1] += dpow * (C * dy + B * dx)
+                        grad[th, k, 2] += -0.5 * dx * dx * dpow
+                        grad[th, k, 3] += -dx * dy * dpow
+                        grad[th, k, 4] += -0.5 * dy * dy * dpow
 
 
 def _threads() -> int:
@@ -292,43 +334,40 @@ class Rasterize(torch.autograd.Function):
                 radius: np.ndarray, valid: np.ndarray, width: int, height: int, config: RenderConfig) -> Tensor:
         dt = uv.dtype
         npdt = np.float64 if dt == torch.float64 else np.float32
-        uv_n = uv.detach().cpu().numpy().astype(npdt)
-        con_n = conic.detach().cpu().numpy().astype(npdt)
-        op_n = opacity.detach().cpu().numpy().astype(npdt)
-        col_n = colors.detach().cpu().numpy().astype(npdt)
         idx = np.flatnonzero(valid)
         order = idx[np.argsort(depth[idx], kind="stable")].astype(np.int64)
-        box = _boxes(uv_n.astype(np.float64), np.asarray(radius, np.float64), order, width, height)
+        ot = torch.from_numpy(order)
+        with torch.no_grad():
+            rec = torch.cat([uv[ot], conic[ot], opacity[ot, None], colors[ot]], dim=1)
+        rec_n = np.ascontiguousarray(rec.cpu().numpy().astype(npdt))
+        box = _boxes(uv.detach().cpu().numpy().astype(np.float64), np.asarray(radius, np.float64), order,
+                     width, height)
         tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
-        off, ids = _bin(box, tiles_x, tiles_y, TILE)
+        off, ids = _bin(rec_n, box, tiles_x, tiles_y, TILE, float(config.alpha_threshold))
         bg = np.asarray(config.background, npdt)
         img = np.zeros((height, width, 3), npdt)
         t_final = np.ones((height, width), npdt)
         n_walk = np.zeros((height, width), np.int64)
-        _forward(uv_n, con_n, op_n, col_n, order, box, off, ids, width, height, tiles_x, TILE, bg,
-                 npdt(config.alpha_threshold), npdt(config.alpha_cap), npdt(config.t_min), img, t_final, n_walk)
-        ctx.saved = (uv_n, con_n, op_n, col_n, order, box, off, ids, width, height, tiles_x, bg, config,
-                     t_final, n_walk)
+        _forward(rec_n, box, off, ids, width, height, tiles_x, TILE, bg, npdt(config.alpha_threshold),
+                 npdt(config.alpha_cap), npdt(config.t_min), img, t_final, n_walk)
+        ctx.saved = (rec_n, order, box, off, ids, width, height, tiles_x, bg, config, t_final, n_walk,
+                     uv.shape[0])
         ctx.dt = dt
         return torch.from_numpy(img)
 
     @staticmethod
     def backward(ctx: Any, dimg: Tensor) -> tuple[Any, ...]:
-        (uv_n, con_n, op_n, col_n, order, box, off, ids, width, height, tiles_x, bg, config,
-         t_final, n_walk) = ctx.saved
-        npdt = uv_n.dtype.type
-        n = uv_n.shape[0]
+        rec_n, order, box, off, ids, width, height, tiles_x, bg, config, t_final, n_walk, n = ctx.saved
+        npdt = rec_n.dtype.type
         nth = _threads()
-        g_uv = np.zeros((nth, n, 2), npdt)
-        g_con = np.zeros((nth, n, 3), npdt)
-        g_op = np.zeros((nth, n), npdt)
-        g_col = np.zeros((nth, n, 3), npdt)
+        grad = np.zeros((nth, rec_n.shape[0], 9), npdt)
         d = np.ascontiguousarray(dimg.detach().cpu().numpy().astype(npdt))
-        _backward(uv_n, con_n, op_n, col_n, order, box, off, ids, width, height, tiles_x, TILE, bg,
-                  npdt(config.alpha_threshold), npdt(config.alpha_cap), t_final, n_walk, d, nth,
-                  g_uv, g_con, g_op, g_col)
-        out = [torch.from_numpy(a.sum(0)).to(ctx.dt) for a in (g_uv, g_con, g_op, g_col)]
-        return (*out, None, None, None, None, None, None)
+        _backward(rec_n, box, off, ids, width, height, tiles_x, TILE, bg, npdt(config.alpha_threshold),
+                  npdt(config.alpha_cap), t_final, n_walk, d, nth, grad)
+        gk = torch.from_numpy(grad.sum(0)).to(ctx.dt)
+        full = torch.zeros((n, 9), dtype=ctx.dt)
+        full[torch.from_numpy(order)] = gk
+        return (full[:, 0:2], full[:, 2:5], full[:, 5], full[:, 6:9], None, None, None, None, None, None)
 
 
 def rasterize(uv: Tensor, conic: Tensor, opacity: Tensor, colors: Tensor, depth: np.ndarray, radius: np.ndarray,
