@@ -23,12 +23,16 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from holo_viewer.avatar.default_avatar import (  # noqa: E402
-    DEFAULT_N_GAUSSIANS, fitted_asset_path, generate_default_gaussians, save_fitted_avatar)
+    DEFAULT_N_GAUSSIANS, fitted_asset_path, generate_default_gaussians, load_fitted_avatar, save_fitted_avatar)
 from holo_viewer.flame.default_head import load_default_model  # noqa: E402
 from holo_viewer.pipeline import FaceControls, Pipeline  # noqa: E402
 from holo_viewer.pipeline import fit_avatar as fa  # noqa: E402
 
 EVAL_VIEWS = (0, 24, 47)
+#: poses and views the fit never saw (held out): pain 0.6, a smile + surprise mix; quilt views 12 and 36
+HELDOUT_VIEWS = (12, 36)
+HELDOUT_FACES = {"pain_06": FaceControls(pain=0.6),
+                 "smile_surprise": FaceControls(named=(("smile", 0.5), ("surprise", 0.5)))}
 EVAL_FACES = {"neutral": FaceControls(), "smile": FaceControls(named=(("smile", 1.0),)),
               "pain_1": FaceControls(pain=1.0), "mouth_open": FaceControls(named=(("mouth_open", 1.0),))}
 
@@ -55,11 +59,10 @@ def main(argv: list[str] | None = None) -> int:
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     model = load_default_model(add_teeth=True)
-    source = fa.TargetSource.region_colors(model)
-    colors = source.vertex_colors
+    source = fa.TargetSource.for_model(model)
     cfg = fa.FitConfig(iterations=args.iterations, n_random_poses=args.random_poses)
     local, binding = generate_default_gaussians(model, DEFAULT_N_GAUSSIANS, sh_degree=1, seed=0)
-    init = fa.initial_with_surface_colors(local, binding, model, colors)
+    init = fa.initial_with_surface_colors(local, binding, model, source.albedo_at)
     pipe = Pipeline(model=model, avatar=False)
     poses = fa.training_poses(pipe.au_map, n_random=cfg.n_random_poses, seed=cfg.seed)
     t1 = time.perf_counter()
@@ -85,7 +88,8 @@ def main(argv: list[str] | None = None) -> int:
         from holo_viewer.fileio import save_image
 
         table = {}
-        for label, loc in (("generator", local), ("fitted", res.local)):
+        shipped, _, _ = load_fitted_avatar(path)  # evaluate what ships (float16)
+        for label, loc in (("generator", local), ("fitted", shipped)):
             av = RiggedAvatar(model, loc.replace(extra={}), binding=binding)
             pairs: dict[str, np.ndarray] = {}
             table[label] = fa.fidelity(av, EVAL_FACES, EVAL_VIEWS, source.render, pairs)
@@ -96,6 +100,20 @@ def main(argv: list[str] | None = None) -> int:
                 for name, stack in pairs.items():
                     for k, i in enumerate(EVAL_VIEWS):
                         save_image(args.images / f"{label}_{name}_view{i:02d}.png", stack[k])
+        av = RiggedAvatar(model, shipped.replace(extra={}), binding=binding)
+        table["fitted_heldout"] = fa.fidelity(av, {**HELDOUT_FACES, "neutral": FaceControls()}, HELDOUT_VIEWS + EVAL_VIEWS,
+                                              source.render)
+        for name, row in table["fitted_heldout"].items():
+            print(f"  held-out  {name:<14} " + "  ".join(f"v{i} {p:5.2f} dB" for i, p in row.items()), flush=True)
+        # float16 storage against the float32 fit: the same renderer, neutral, every fidelity view
+
+        p32 = Pipeline(avatar=RiggedAvatar(model, res.local.replace(extra={}), binding=binding))
+        p16 = Pipeline(avatar=av)
+        v32, v16 = p32.views(), p16.views()
+        full = np.ones(v32.shape[1:3], bool)
+        table["float16_vs_float32"] = {int(i): fa.masked_psnr(v16[i], v32[i], full) for i in EVAL_VIEWS}
+        print("  float16 vs float32 renders: " + "  ".join(f"v{i} {p:5.1f} dB"
+                                                           for i, p in table["float16_vs_float32"].items()))
         record["psnr_db"] = table
     if args.json is not None:
         from holo_viewer.fileio import atomic_write

@@ -347,9 +347,21 @@ def fitted_asset_path() -> Path:
     return Path(__file__).resolve().parents[2] / "assets" / FITTED_ASSET
 
 
+def _head_appearance(model: Any) -> Any:
+    """The head's textured appearance (``flame.head_textures``) or None (no textures / no UVs)."""
+    try:
+        from ..flame.head_textures import head_appearance
+    except ImportError:  # a head package without textures
+        return None
+    return head_appearance(model)
+
+
 def appearance_colors(model: Any) -> np.ndarray:
-    """(V, 3) per-vertex colours of a labelled head: region colours smoothed once (``flame.preview``),
-    the colouring of the mesh renders the shipped avatar is fitted to."""
+    """(V, 3) per-vertex colours of the head's mesh renders: the textured appearance's vertex colours
+    when the head has textures, else its region colours smoothed once (``flame.preview``)."""
+    app = _head_appearance(model)
+    if app is not None:
+        return np.asarray(app.vertex_colors, np.float64)
     from ..flame.preview import region_colors, smooth_vertex_colors
 
     md = getattr(model, "metadata", {}) or {}
@@ -360,7 +372,14 @@ def appearance_colors(model: Any) -> np.ndarray:
 
 
 def appearance_digest(model: Any) -> str:
-    """Hex SHA-256 (16 digits) naming the mesh colouring of :func:`appearance_colors` for ``model``."""
+    """A name for the colouring of the head's mesh renders (what the shipped avatar is fitted to):
+    ``textures:v<version>:<mesh key>:<seed>`` for a textured head (``flame.head_textures``), else
+    ``region-colours:<SHA-256 of the colours>``."""
+    app = _head_appearance(model)
+    if app is not None:
+        from ..flame.head_textures import appearance_inputs, mesh_key
+
+        return f"textures:v{app.version}:{mesh_key(appearance_inputs(model), app.seed)}:{app.seed}"
     c = np.ascontiguousarray(np.round(np.asarray(appearance_colors(model), np.float64), 6))
     return "region-colours:" + hashlib.sha256(c.tobytes()).hexdigest()[:16]
 

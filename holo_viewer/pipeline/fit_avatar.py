@@ -43,7 +43,7 @@ from ..render.config import RenderConfig
 from ..render.differentiable import render_view
 from .settings import FaceControls
 
-__all__ = ["FitConfig", "FitResult", "TrainingPose", "TargetSource", "Dataset", "initial_with_surface_colors", "training_poses", "region_mesh_colors", "surface_colors",
+__all__ = ["FitConfig", "FitResult", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "region_mesh_colors", "surface_colors",
            "orbit_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity", "masked_psnr"]
 
 #: (mesh vertices, faces, cameras, indices) -> ((n, H, W, 3) float images in [0, 1], (n, H, W) bool masks)
@@ -57,6 +57,8 @@ class FitConfig:
     iterations: int = 3000
     views_per_step: int = 1
     train_scale: float = 0.5
+    #: the last fraction of the iterations trains on full-resolution crops (train_scale x the tile)
+    crop_fraction: float = 0.5
     n_random_poses: int = 24
     quilt_views: tuple[int, ...] = (0, 4, 9, 14, 19, 24, 28, 33, 38, 43, 47)
     #: orbit cameras (yaw, pitch) in degrees about the framing centre, from quilt view 24
@@ -139,14 +141,43 @@ def region_mesh_colors(model: Any) -> np.ndarray:
     return appearance_colors(model)
 
 
+def _vertex_albedo(colors: np.ndarray, faces: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    colors = np.asarray(colors, np.float64)
+    faces = np.asarray(faces)
+
+    def albedo_at(face_idx: np.ndarray, bary: np.ndarray) -> np.ndarray:
+        return np.einsum("nk,nkc->nc", bary, colors[faces[face_idx]])
+
+    return albedo_at
+
+
 @dataclass(frozen=True)
 class TargetSource:
-    """What the avatar is fitted to: a name (stored in the asset's key), the per-vertex colours used
-    to initialise the Gaussians, and the target renderer."""
+    """What the avatar is fitted to: a name (stored in the asset's key), the albedo at surface points
+    ``albedo_at(face_idx (N,), bary (N, 3)) -> (N, 3)`` used to initialise the Gaussians' colours, and
+    the target renderer."""
 
     name: str
-    vertex_colors: np.ndarray
+    albedo_at: Callable[[np.ndarray, np.ndarray], np.ndarray]
     render: TargetRenderer
+
+    @classmethod
+    def for_model(cls, model: Any) -> "TargetSource":
+        """The head's own mesh renders: textured when it has an appearance (``flame.head_textures``),
+        else region colours (:meth:`region_colors`)."""
+        from ..avatar.default_avatar import _head_appearance, appearance_digest
+        from ..flame.preview import render_mesh_cameras
+
+        app = _head_appearance(model)
+        if app is None:
+            return cls.region_colors(model)
+        colors = np.asarray(app.vertex_colors, np.float64)
+
+        def render(vertices: np.ndarray, faces: np.ndarray, cameras: Cameras, indices: Sequence[int]
+                   ) -> tuple[np.ndarray, np.ndarray]:
+            return render_mesh_cameras(vertices, faces, cameras, indices, colors=colors, appearance=app)
+
+        return cls(appearance_digest(model), app.albedo_at, render)
 
     @classmethod
     def region_colors(cls, model: Any) -> "TargetSource":
@@ -160,13 +191,12 @@ class TargetSource:
                    ) -> tuple[np.ndarray, np.ndarray]:
             return render_mesh_cameras(vertices, faces, cameras, indices, colors=colors)
 
-        return cls(appearance_digest(model), colors, render)
+        return cls(appearance_digest(model), _vertex_albedo(colors, model.faces.cpu().numpy()), render)
 
 
-def surface_colors(local: Gaussians, binding: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
-                   vertex_colors: np.ndarray) -> np.ndarray:
-    """(N, 3) colour of each Gaussian's surface point: its centre projected onto its parent triangle,
-    vertex colours interpolated barycentrically (clamped into the triangle)."""
+def surface_points(local: Gaussians, binding: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(N, 3) barycentric coordinates in its parent triangle of each Gaussian's centre projected onto
+    the triangle's plane (clamped into the triangle)."""
     g = local.numpy(np.float64)
     means, _, _ = bind_to_world_np(g.means, g.quats, g.log_scales, binding, vertices, faces)
     tri = np.asarray(vertices, np.float64)[np.asarray(faces)[binding]]  # (N, 3, 3)
@@ -178,9 +208,15 @@ def surface_colors(local: Gaussians, binding: np.ndarray, vertices: np.ndarray, 
     w1 = (d11 * d20 - d01 * d21) / den
     w2 = (d00 * d21 - d01 * d20) / den
     bary = np.clip(np.column_stack([1 - w1 - w2, w1, w2]), 0.0, None)
-    bary /= np.maximum(bary.sum(1, keepdims=True), 1e-12)
-    col = np.asarray(vertex_colors, np.float64)[np.asarray(faces)[binding]]
-    return np.einsum("nk,nkc->nc", bary, col)
+    return bary / np.maximum(bary.sum(1, keepdims=True), 1e-12)
+
+
+def surface_colors(local: Gaussians, binding: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                   vertex_colors: np.ndarray) -> np.ndarray:
+    """(N, 3) colour of each Gaussian's surface point (:func:`surface_points`): vertex colours
+    interpolated barycentrically."""
+    bary = surface_points(local, binding, vertices, faces)
+    return _vertex_albedo(vertex_colors, faces)(np.asarray(binding), bary)
 
 
 # =============================================================================== cameras
@@ -231,19 +267,19 @@ def _downsample(images: np.ndarray, factor: int) -> np.ndarray:
 
 @dataclass
 class Dataset:
-    """Training images (uint8, training resolution) with their pose's face frames and cameras."""
+    """Training images (uint8, full resolution) with their pose's face frames and cameras."""
 
-    images: np.ndarray  # (P, C, h, w, 3) uint8
-    masks: np.ndarray  # (P, C, h, w) uint8 coverage 0..255
+    images: np.ndarray  # (P, C, H, W, 3) uint8
+    masks: np.ndarray  # (P, C, H, W) bool: the mesh covers the pixel
     frames: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]  # per pose: rot (1,F,3,3), scale, centre
-    cameras: Cameras  # C cameras at training resolution
+    cameras: Cameras  # C cameras at full resolution
     names: list[str]
     vertices: list[np.ndarray]
 
 
 def build_dataset(pipe: Any, poses: Sequence[TrainingPose], target_renderer: TargetRenderer,
                   config: FitConfig, progress: bool = True) -> Dataset:
-    """Render every pose through the training cameras (quilt subset + orbit) and downsample.
+    """Render every pose through the training cameras (quilt subset + orbit), full resolution.
 
     ``pipe`` is a mesh pipeline (``Pipeline(model, avatar=False)``) of the head the avatar is bound to.
     """
@@ -256,8 +292,7 @@ def build_dataset(pipe: Any, poses: Sequence[TrainingPose], target_renderer: Tar
     full = Cameras(np.concatenate([cams.world_to_cam[quilt_idx]] + ([orbit.world_to_cam] if orbit else [])),
                    np.concatenate([cams.K[quilt_idx]] + ([orbit.K] if orbit else [])), cams.width, cams.height,
                    near=cams.near, far=cams.far)
-    factor = int(round(1.0 / config.train_scale))
-    train_cams = scaled_cameras(full, config.train_scale)
+    scaled_cameras(full, config.train_scale)  # checks the factor
     faces = pipe.model.faces.cpu().numpy()
     imgs, masks, frames, verts_all = [], [], [], []
     dtype = getattr(torch, config.dtype)
@@ -265,13 +300,13 @@ def build_dataset(pipe: Any, poses: Sequence[TrainingPose], target_renderer: Tar
         pipe.set_face(pose.face)
         verts = np.asarray(pipe.mesh(), np.float64)
         im, mk = target_renderer(verts, faces, full, list(range(len(full))))
-        imgs.append(np.clip(_downsample(np.asarray(im, np.float64), factor) * 255 + 0.5, 0, 255).astype(np.uint8))
-        masks.append((_downsample(np.asarray(mk, np.float64), factor) * 255 + 0.5).astype(np.uint8))
+        imgs.append(np.clip(np.asarray(im, np.float64) * 255 + 0.5, 0, 255).astype(np.uint8))
+        masks.append(np.asarray(mk, bool))
         rot, scale, centre, _ = face_frames(torch.as_tensor(verts, dtype=torch.float64)[None],
                                             pipe.model.faces.cpu())
         frames.append((rot.to(dtype), scale.to(dtype), centre.to(dtype)))
         verts_all.append(verts)
-    return Dataset(np.stack(imgs), np.stack(masks), frames, train_cams, [p.name for p in poses], verts_all)
+    return Dataset(np.stack(imgs), np.stack(masks), frames, full, [p.name for p in poses], verts_all)
 
 
 # =============================================================================== loss
@@ -330,7 +365,11 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset, config: 
            "opacity": config.lr_opacity, "sh_dc": config.lr_sh_dc, "sh_rest": config.lr_sh_rest}
     opt = torch.optim.Adam([{"params": [p], "lr": lrs[k], "name": k} for k, p in params.items()], eps=1e-15)
     b = torch.as_tensor(np.asarray(binding, np.int64))
-    cams = data.cameras
+    full = data.cameras
+    factor = int(round(1.0 / config.train_scale))
+    small = scaled_cameras(full, config.train_scale)
+    crop_w, crop_h = small.width, small.height
+    crop_from = int(round(config.iterations * (1.0 - config.crop_fraction)))
     rc = render_config or RenderConfig()
     n_pose, n_cam = data.images.shape[:2]
     losses: list[float] = []
@@ -344,9 +383,23 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset, config: 
         sh = torch.cat([params["sh_dc"], params["sh_rest"]], dim=1)
         loss = torch.zeros((), dtype=dtype)
         for c in rng.choice(n_cam, size=min(config.views_per_step, n_cam), replace=False):
-            img = render_view(means[0], quats[0], log_scales[0], params["opacity"], sh, cams.world_to_cam[c],
-                              cams.K[c], cams.width, cams.height, cams.near, rc)
-            target = torch.from_numpy(data.images[p, c]).to(dtype) / 255.0
+            if it < crop_from:  # the whole image at train_scale (box-downsampled target)
+                w2c, K, W, H = small.world_to_cam[c], small.K[c], small.width, small.height
+                target = torch.from_numpy(_downsample(data.images[p, c][None].astype(np.float32), factor)[0])
+            else:  # a full-resolution crop of the same pixel count, centred on a random mesh pixel
+                ys, xs = np.nonzero(data.masks[p, c])
+                k = int(rng.integers(len(ys))) if len(ys) else 0
+                cy0 = int(ys[k]) if len(ys) else full.height // 2
+                cx0 = int(xs[k]) if len(xs) else full.width // 2
+                y0 = int(np.clip(cy0 - crop_h // 2, 0, full.height - crop_h))
+                x0 = int(np.clip(cx0 - crop_w // 2, 0, full.width - crop_w))
+                K = np.asarray(full.K[c], np.float64).copy()
+                K[0, 2] -= x0
+                K[1, 2] -= y0
+                w2c, W, H = full.world_to_cam[c], crop_w, crop_h
+                target = torch.from_numpy(data.images[p, c, y0:y0 + H, x0:x0 + W].astype(np.float32))
+            img = render_view(means[0], quats[0], log_scales[0], params["opacity"], sh, w2c, K, W, H, full.near, rc)
+            target = target.to(dtype) / 255.0
             l1 = (img - target).abs().mean()
             if config.ssim_weight > 0:
                 l1 = (1 - config.ssim_weight) * l1 + config.ssim_weight * (1 - _ssim(img, target))
@@ -373,11 +426,14 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset, config: 
     return FitResult(out, losses, {"fit": time.perf_counter() - t0}, int(n_pose * n_cam))
 
 
-def initial_with_surface_colors(local: Gaussians, binding: np.ndarray, model: Any, vertex_colors: np.ndarray,
+def initial_with_surface_colors(local: Gaussians, binding: np.ndarray, model: Any,
+                                albedo_at: Callable[[np.ndarray, np.ndarray], np.ndarray],
                                 sh_degree: int = 1) -> Gaussians:
-    """``local`` with SH DC set to the mesh colouring at each Gaussian's surface point, higher SH zero."""
+    """``local`` with SH DC set to ``albedo_at`` the Gaussian's surface point (:func:`surface_points` on
+    the rest mesh), higher SH zero."""
     v = model.v_template.detach().cpu().double().numpy()
-    col = surface_colors(local, binding, v, model.faces.cpu().numpy(), vertex_colors)
+    bary = surface_points(local, binding, v, model.faces.cpu().numpy())
+    col = np.clip(np.asarray(albedo_at(np.asarray(binding), bary), np.float64), 0.0, 1.0)
     k = (sh_degree + 1) ** 2
     sh = np.zeros((len(local), k, 3), np.float32)
     sh[:, 0] = (col - 0.5) / SH_C0
