@@ -33,10 +33,11 @@ a second or two for 100k Gaussians, so the cache only saves start-up time.
 Fitted Gaussians (shipped)
 --------------------------
 ``assets/default_avatar.npz`` holds the generator's Gaussians after a fit against renders of the
-head's own coloured mesh (``scripts/fit_default_avatar.py``, :mod:`holo_viewer.pipeline.fit_avatar`,
+head's own textured mesh (``scripts/fit_default_avatar.py``, :mod:`holo_viewer.pipeline.fit_avatar`,
 docs/avatar_fit.md): same count and binding, refined offsets, scales, rotations, opacities and SH
 (degree 1), stored as float16. It is keyed by the SHA-256 of the default head file and a digest of
-the mesh colouring it was fitted to (:func:`appearance_digest`). :func:`default_avatar` with the
+the mesh colouring it was fitted to (:func:`appearance_digest`: texture version, mesh key and seed
+of ``flame.head_textures`` for a textured head, else a hash of the region colours). :func:`default_avatar` with the
 defaults (``n_gaussians=DEFAULT_N_GAUSSIANS``, ``seed=0``) loads it when both keys match the
 current head; otherwise (asset missing, unreadable, or fitted to another head / colouring) it
 warns once, saying why, and falls back to the generator. Any other ``n_gaussians`` or ``seed``
@@ -457,48 +458,53 @@ def load_fitted_avatar(path: str | Path) -> tuple[Gaussians, np.ndarray, dict[st
     return local, binding, keys
 
 
-def fitted_asset_status(path: str | Path | None = None) -> tuple[bool, str]:
-    """(usable, reason): whether the fitted asset matches the current default head and its colouring."""
+def _check_fitted(path: Path) -> tuple[tuple[Gaussians, np.ndarray, dict[str, Any]] | None, str]:
+    """((local, binding, keys) or None, reason) for the fitted asset at ``path`` against the current head."""
     from ..flame.default_head import default_head_path, load_default_model
 
-    p = Path(path) if path is not None else fitted_asset_path()
-    if not p.exists():
-        return False, f"{p} does not exist (run scripts/fit_default_avatar.py)"
+    if not path.exists():
+        return None, f"{path} does not exist (run scripts/fit_default_avatar.py)"
     try:
-        _, binding, keys = load_fitted_avatar(p)
+        local, binding, keys = load_fitted_avatar(path)
     except AvatarError as exc:
-        return False, str(exc)
+        return None, str(exc)
     head = _head_digest(default_head_path())
     if keys["head_sha256"] != head:
-        return False, (f"{p} was fitted to another default head (sha256 {keys['head_sha256'][:12]}..., the current "
-                       f"head is {head[:12]}...); rerun scripts/fit_default_avatar.py")
+        return None, (f"{path} was fitted to another default head (sha256 {keys['head_sha256'][:12]}..., the "
+                      f"current head is {head[:12]}...); rerun scripts/fit_default_avatar.py")
     model = load_default_model(add_teeth=True)
     if keys["n_faces"] != int(model.faces.shape[0]) or (binding.size and binding.max() >= model.faces.shape[0]):
-        return False, f"{p}: binding does not fit the current head ({int(model.faces.shape[0])} faces)"
+        return None, f"{path}: binding does not fit the current head ({int(model.faces.shape[0])} faces)"
     colours = appearance_digest(model)
     if keys["colour_source"] != colours:
-        return False, (f"{p} was fitted to another mesh colouring ({keys['colour_source']}, the current one is "
-                       f"{colours}); rerun scripts/fit_default_avatar.py")
-    return True, "ok"
+        return None, (f"{path} was fitted to another mesh colouring ({keys['colour_source']}, the current one is "
+                      f"{colours}); rerun scripts/fit_default_avatar.py")
+    return (local, binding, keys), "ok"
+
+
+def fitted_asset_status(path: str | Path | None = None) -> tuple[bool, str]:
+    """(usable, reason): whether the fitted asset (default :func:`fitted_asset_path`) matches the current
+    default head and its colouring; the reason says why not."""
+    got, why = _check_fitted(Path(path) if path is not None else fitted_asset_path())
+    return got is not None, why
 
 
 _WARNED: set[str] = set()
 
 
 @functools.lru_cache(maxsize=2)
-def _fitted_local(path: str) -> tuple[Gaussians, np.ndarray, str] | None:
-    """The fitted asset's local Gaussians when usable, else None (warning once with the reason)."""
+def _fitted_local(path: str) -> tuple[Gaussians, np.ndarray] | None:
+    """The fitted asset's local Gaussians and binding when usable, else None (warning once with the reason)."""
     import warnings
 
-    ok, why = fitted_asset_status(path)
-    if not ok:
+    got, why = _check_fitted(Path(path))
+    if got is None:
         if why not in _WARNED:
             _WARNED.add(why)
             warnings.warn(f"default avatar: using the procedural generator, not the fitted Gaussians: {why}",
                           stacklevel=3)
         return None
-    local, binding, _ = load_fitted_avatar(path)
-    return local, binding, why
+    return got[0], got[1]
 
 
 def default_avatar(n_gaussians: int = DEFAULT_N_GAUSSIANS, sh_degree: int = 1, seed: int = 0, *,
@@ -542,7 +548,8 @@ def default_avatar(n_gaussians: int = DEFAULT_N_GAUSSIANS, sh_degree: int = 1, s
     if got is not None:
         local, binding = got[0], got[1]
         model = load_default_model(add_teeth=True)
-        names = tuple(str(s) for s in model.metadata["region_names"]) + ("teeth",)
+        names = tuple(str(s) for s in model.metadata["region_names"])
+        names = names if "teeth" in names else names + ("teeth",)
         local = local.replace(sh=_with_sh_degree(np.asarray(local.sh), int(sh_degree)))
     else:
         local, binding, names = _cached_local(int(n_gaussians), int(sh_degree), int(seed), bool(use_disk_cache))

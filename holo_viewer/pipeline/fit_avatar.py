@@ -59,6 +59,8 @@ class FitConfig:
     train_scale: float = 0.5
     #: the last fraction of the iterations trains on full-resolution crops (train_scale x the tile)
     crop_fraction: float = 0.5
+    #: a pose whose target render takes longer is skipped (None: render in-process, no limit)
+    render_timeout_s: float | None = 120.0
     n_random_poses: int = 24
     quilt_views: tuple[int, ...] = (0, 4, 9, 14, 19, 24, 28, 33, 38, 43, 47)
     #: orbit cameras (yaw, pitch) in degrees about the framing centre, from quilt view 24
@@ -275,6 +277,47 @@ class Dataset:
     cameras: Cameras  # C cameras at full resolution
     names: list[str]
     vertices: list[np.ndarray]
+    skipped: list[str] = dataclasses.field(default_factory=list)  # poses whose target render hung
+
+
+def _render_isolated(target_renderer: TargetRenderer, verts: np.ndarray, faces: np.ndarray, cameras: Cameras,
+                     timeout_s: float | None, indices: Sequence[int] | None = None
+                     ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(uint8 images, bool masks) of every camera, rendered in a forked child process that is killed
+    after ``timeout_s`` (None: in this process). Returns None on timeout or failure of the child.
+
+    Why: the offscreen Mesa rasterizer (llvmpipe) was seen to spin forever on one textured pose of the
+    ICT head (a jaw + expression combination, front view); one pose must not hang the fit."""
+    idx = list(range(len(cameras))) if indices is None else [int(i) for i in indices]
+
+    def run() -> tuple[np.ndarray, np.ndarray]:
+        im, mk = target_renderer(verts, faces, cameras, idx)
+        return np.clip(np.asarray(im, np.float64) * 255 + 0.5, 0, 255).astype(np.uint8), np.asarray(mk, bool)
+
+    if timeout_s is None:
+        return run()
+    import multiprocessing as mp
+    import queue as _queue
+
+    ctx = mp.get_context("fork")
+    q = ctx.Queue()
+
+    def child() -> None:
+        try:
+            q.put(run())
+        except Exception as exc:  # noqa: BLE001 - reported to the parent as a failed pose
+            q.put(exc)
+
+    proc = ctx.Process(target=child, daemon=True)
+    proc.start()
+    try:
+        out = q.get(timeout=timeout_s)
+    except _queue.Empty:
+        out = None
+    if proc.is_alive():
+        proc.kill()
+    proc.join()
+    return out if isinstance(out, tuple) else None
 
 
 def build_dataset(pipe: Any, poses: Sequence[TrainingPose], target_renderer: TargetRenderer,
@@ -294,19 +337,28 @@ def build_dataset(pipe: Any, poses: Sequence[TrainingPose], target_renderer: Tar
                    near=cams.near, far=cams.far)
     scaled_cameras(full, config.train_scale)  # checks the factor
     faces = pipe.model.faces.cpu().numpy()
-    imgs, masks, frames, verts_all = [], [], [], []
+    imgs, masks, frames, verts_all, names, skipped = [], [], [], [], [], []
     dtype = getattr(torch, config.dtype)
     for pose in tqdm(poses, desc="mesh renders", disable=not progress):
         pipe.set_face(pose.face)
         verts = np.asarray(pipe.mesh(), np.float64)
-        im, mk = target_renderer(verts, faces, full, list(range(len(full))))
-        imgs.append(np.clip(np.asarray(im, np.float64) * 255 + 0.5, 0, 255).astype(np.uint8))
-        masks.append(np.asarray(mk, bool))
+        got = _render_isolated(target_renderer, verts, faces, full, config.render_timeout_s)
+        if got is None:
+            skipped.append(pose.name)
+            if progress:
+                print(f"  {pose.name}: the target render did not finish in {config.render_timeout_s:g} s; pose skipped",
+                      flush=True)
+            continue
+        imgs.append(got[0])
+        masks.append(got[1])
+        names.append(pose.name)
         rot, scale, centre, _ = face_frames(torch.as_tensor(verts, dtype=torch.float64)[None],
                                             pipe.model.faces.cpu())
         frames.append((rot.to(dtype), scale.to(dtype), centre.to(dtype)))
         verts_all.append(verts)
-    return Dataset(np.stack(imgs), np.stack(masks), frames, full, [p.name for p in poses], verts_all)
+    if not imgs:
+        raise InputError(f"build_dataset: no pose could be rendered (skipped {skipped})")
+    return Dataset(np.stack(imgs), np.stack(masks), frames, full, names, verts_all, skipped)
 
 
 # =============================================================================== loss
@@ -454,9 +506,12 @@ def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
 
 
 def fidelity(avatar: Any, faces: dict[str, FaceControls], views: Sequence[int], target_renderer: TargetRenderer,
-             images: dict[str, np.ndarray] | None = None) -> dict[str, dict[int, float]]:
+             images: dict[str, np.ndarray] | None = None, timeout_s: float | None = 300.0
+             ) -> dict[str, dict[int, float]]:
     """PSNR of the avatar's quilt views (``Pipeline.views()``, full resolution) against the target render
-    of the same posed mesh and camera, over the mesh mask; ``images`` (optional) receives, per
+    of the same posed mesh and camera, over the mesh mask (the target's 8-bit VTK buffer, as in
+    bench/face_realism.py; NaN when it does not finish in ``timeout_s``, rendered in a child process);
+    ``images`` (optional) receives, per
     expression, the (len(views), H, 2W, 3) side-by-side pairs (Gaussians | mesh)."""
     from .core import Pipeline
 
@@ -467,7 +522,11 @@ def fidelity(avatar: Any, faces: dict[str, FaceControls], views: Sequence[int], 
     for name, face in faces.items():
         pipe.set_face(face)
         views_g = pipe.views()
-        mimg, mmask = target_renderer(np.asarray(pipe.mesh(), np.float64), f, cams, list(views))
+        got = _render_isolated(target_renderer, np.asarray(pipe.mesh(), np.float64), f, cams, timeout_s, views)
+        if got is None:  # the target render hung or failed: no number
+            out[name] = {int(i): float("nan") for i in views}
+            continue
+        mimg, mmask = got[0].astype(np.float32) / 255.0, got[1]
         out[name] = {int(i): masked_psnr(views_g[i], mimg[k], mmask[k]) for k, i in enumerate(views)}
         if images is not None:
             images[name] = np.stack([np.concatenate([views_g[i], mimg[k]], axis=1) for k, i in enumerate(views)])
