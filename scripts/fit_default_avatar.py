@@ -37,6 +37,35 @@ EVAL_FACES = {"neutral": FaceControls(), "smile": FaceControls(named=(("smile", 
               "pain_1": FaceControls(pain=1.0), "mouth_open": FaceControls(named=(("mouth_open", 1.0),))}
 
 
+def evaluate_only(asset: Path, images: Path | None, json_path: Path | None) -> int:
+    """Fidelity of a fitted asset on the current head: the issue's 4 expressions x views 0/24/47, and
+    the held-out poses and views."""
+    from holo_viewer.avatar import RiggedAvatar
+    from holo_viewer.fileio import atomic_write, save_image
+
+    model = load_default_model(add_teeth=True)
+    source = fa.TargetSource.for_model(model)
+    local, binding, keys = load_fitted_avatar(asset)
+    if keys["colour_source"] != source.name:
+        print(f"note: {asset} was fitted to {keys['colour_source']}, the head's colouring is {source.name}")
+    av = RiggedAvatar(model, local.replace(extra={}), binding=binding)
+    pairs: dict[str, np.ndarray] = {}
+    table = {"fitted": fa.fidelity(av, EVAL_FACES, EVAL_VIEWS, source.render, pairs),
+             "fitted_heldout": fa.fidelity(av, HELDOUT_FACES, HELDOUT_VIEWS + EVAL_VIEWS, source.render)}
+    for label, rows in table.items():
+        for name, row in rows.items():
+            print(f"  {label:<15} {name:<14} " + "  ".join(f"v{i} {p:5.2f} dB" for i, p in row.items()), flush=True)
+    if images is not None:
+        images.mkdir(parents=True, exist_ok=True)
+        for name, stack in pairs.items():
+            for k, i in enumerate(EVAL_VIEWS):
+                save_image(images / f"fitted_{name}_view{i:02d}.png", stack[k])
+    if json_path is not None:
+        with atomic_write(json_path, "w") as fh:
+            json.dump({"asset": str(asset), "keys": keys, "psnr_db": table}, fh, indent=1)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=fitted_asset_path())
@@ -47,7 +76,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, default=None, help="write the run's numbers here")
     ap.add_argument("--threads", type=int, default=1,
                     help="torch and numba threads (default 1: on a shared 2-core machine one thread is faster)")
+    ap.add_argument("--eval-only", type=Path, default=None, metavar="ASSET",
+                    help="no fit: measure this fitted asset (fidelity, both views' pictures with --images)")
     args = ap.parse_args(argv)
+    if args.eval_only is not None:
+        return evaluate_only(args.eval_only, args.images, args.json)
 
     import torch
 
@@ -68,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     t1 = time.perf_counter()
     data = fa.build_dataset(pipe, poses, source.render, cfg)
     t2 = time.perf_counter()
-    print(f"dataset: {len(poses)} poses x {data.images.shape[1]} cameras at {data.cameras.width}x"
+    print(f"dataset: {len(data.names)} poses (skipped {data.skipped}) x {data.images.shape[1]} cameras at {data.cameras.width}x"
           f"{data.cameras.height}, {t2 - t1:.0f} s", flush=True)
     res = fa.fit_gaussians(init, binding, data, cfg)
     t3 = time.perf_counter()
@@ -81,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{os.getloadavg()[0]:.1f}; final loss {np.mean(res.losses[-100:]):.4f}", flush=True)
     record = {"seconds": {"total": total, "setup": t1 - t0, "dataset": t2 - t1, "fit": t3 - t2, "write": t4 - t3},
               "load_1min": [load0, os.getloadavg()[0]], "iterations": cfg.iterations, "poses": len(poses),
-              "images": res.n_images, "loss_first_100": float(np.mean(res.losses[:100])),
+              "images": res.n_images, "skipped_poses": data.skipped, "loss_first_100": float(np.mean(res.losses[:100])),
               "loss_last_100": float(np.mean(res.losses[-100:]))}
     if not args.no_eval:
         from holo_viewer.avatar import RiggedAvatar

@@ -20,6 +20,7 @@ from holo_viewer.render.differentiable import render_view  # noqa: E402
 from holo_viewer.testing import random_flame_model, random_gaussians  # noqa: E402
 
 dav = importlib.import_module("holo_viewer.avatar.default_avatar")
+importlib.import_module("holo_viewer.avatar").default_avatar = dav.default_avatar  # the import shadowed the lazy name
 
 
 # ----------------------------------------------------------------------------- the fit on a tiny case
@@ -172,3 +173,31 @@ def test_the_shipped_asset_loads_and_matches_the_head():
         assert np.all(np.isfinite(a))
     assert dav.fitted_asset_status(path) == (True, "ok"), dav.fitted_asset_status(path)
     assert path.stat().st_size < 8e6
+
+
+def test_a_hanging_target_render_is_cut_off():
+    """A target renderer that never returns is killed after the timeout (the pose is skipped: None);
+    a working one gives uint8 images and bool masks; a failing one gives None too."""
+    import time
+
+    from holo_viewer.camera import Cameras, intrinsics, look_at
+
+    cams = Cameras(look_at([0, 0, 1.0], [0, 0, 0])[None], intrinsics(20.0, 20.0, 8, 6)[None], 16, 12)
+
+    def ok(v, f, c, idx):
+        return np.full((len(idx), 12, 16, 3), 0.5, np.float32), np.ones((len(idx), 12, 16), bool)
+
+    def hang(v, f, c, idx):
+        time.sleep(60)
+
+    def fail(v, f, c, idx):
+        raise RuntimeError("boom")
+
+    v, f = np.zeros((3, 3)), np.array([[0, 1, 2]])
+    im, mk = fa._render_isolated(ok, v, f, cams, 30.0)
+    assert im.dtype == np.uint8 and im.shape == (1, 12, 16, 3) and int(im[0, 0, 0, 0]) == 128 and mk.all()
+    t0 = time.perf_counter()
+    assert fa._render_isolated(hang, v, f, cams, 1.0) is None
+    assert time.perf_counter() - t0 < 20
+    assert fa._render_isolated(fail, v, f, cams, 30.0) is None
+    assert fa._render_isolated(ok, v, f, cams, None)[0].shape == (1, 12, 16, 3)

@@ -3,20 +3,25 @@
 The GaussianAvatars training recipe [Qian et al. CVPR'24] with the mesh renders as the dataset:
 
 1. *Dataset.* The head is posed in many expressions (named ones, pain 0.25..1, random AU mixes
-   from :mod:`holo_viewer.flame.expressions`, jaw and eye poses); each pose is rendered as a
-   vertex-coloured mesh (:func:`holo_viewer.flame.preview.render_mesh_cameras`, or any
-   ``target_renderer``) through a subset of the quilt cameras plus a few orbit cameras, at full
-   resolution, then box-downsampled to the training resolution (an anti-aliased target), on black.
-2. *Parameters.* Per Gaussian, in its parent triangle's frame (docs/design.md "GaussianAvatars
-   binding"): local offset ``mu``, local log-scale, local rotation, opacity logit and SH
-   coefficients (degree 1: the mesh renders' lights are world-fixed, so view dependence is small;
-   higher degrees cost 3x-5x the parameters for no measured gain). The binding (parent face) and
-   the Gaussian count are fixed: no densification or pruning.
-3. *Loss.* ``(1 - l) L1 + l (1 - SSIM)`` over the whole image (``l = config.ssim_weight``) plus
-   GaussianAvatars' regularisers ``w_pos mean(relu(|mu| - eps_pos))`` and
-   ``w_scale mean(relu(exp(log_s) - eps_scale))`` (local units: the face scale).
+   from :mod:`holo_viewer.flame.expressions`, jaw and eye poses); each pose is rendered as the
+   head's own mesh (textured when it has an appearance, else region colours:
+   :class:`TargetSource`, :func:`holo_viewer.flame.preview.render_mesh_cameras`) through a subset of
+   the quilt cameras plus a few orbit cameras, full resolution, black background, stored as uint8.
+   Each pose renders in a forked child with a time limit (a hung offscreen render skips the pose).
+2. *Parameters.* Per Gaussian, in its parent triangle's frame
+   (docs/design.md "GaussianAvatars binding"): local offset ``mu``, local log-scale, local
+   rotation, opacity logit and SH coefficients (degree 1: the mesh renders' lights are
+   world-fixed, so view dependence is small). The binding (parent face) and the Gaussian count
+   are fixed: no densification or pruning.
+3. *Loss.* L1 over the whole image (``(1 - l) L1 + l (1 - SSIM)`` with ``l = config.ssim_weight``,
+   0 by default: SSIM's convolutions cost as much as the render on this CPU) plus GaussianAvatars'
+   regularisers ``w_pos mean(relu(|mu| - eps_pos))`` and ``w_scale mean(relu(exp(log_s) -
+   eps_scale))`` (local units: the face scale).
 4. *Optimiser.* Adam, per-parameter learning rates (:class:`FitConfig`), position learning rate
-   decayed exponentially; rendering with :mod:`holo_viewer.render.differentiable`.
+   decayed exponentially; one (pose, camera) image per step; the first ``1 - crop_fraction`` of
+   the steps on the whole image at ``train_scale`` (box-downsampled target), the rest on
+   full-resolution crops of the same pixel count centred on a random mesh pixel. Rendering with
+   :mod:`holo_viewer.render.differentiable`.
 
 Initial Gaussians come from the caller (the default avatar's generator) with their colours replaced by
 the mesh colouring at each Gaussian's surface point (:func:`surface_colors`).
@@ -60,7 +65,7 @@ class FitConfig:
     #: the last fraction of the iterations trains on full-resolution crops (train_scale x the tile)
     crop_fraction: float = 0.5
     #: a pose whose target render takes longer is skipped (None: render in-process, no limit)
-    render_timeout_s: float | None = 120.0
+    render_timeout_s: float | None = 60.0
     n_random_poses: int = 24
     quilt_views: tuple[int, ...] = (0, 4, 9, 14, 19, 24, 28, 33, 38, 43, 47)
     #: orbit cameras (yaw, pitch) in degrees about the framing centre, from quilt view 24
