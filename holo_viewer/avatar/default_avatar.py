@@ -421,6 +421,22 @@ def save_fitted_avatar(path: str | Path, local: Gaussians, binding: np.ndarray, 
     return target
 
 
+def _unit_quats(q: np.ndarray) -> np.ndarray:
+    """(N, 4) float32 unit quaternions that float32 re-normalisation (``RiggedAvatar``, PLY round trips)
+    leaves unchanged: float16 storage is not unit length, and normalising a float32 vector again can
+    move it by one ulp."""
+    import torch
+
+    n = np.linalg.norm(q, axis=1, keepdims=True)
+    t = torch.from_numpy((q / np.where(n > 0, n, 1.0)).astype(np.float32))
+    for _ in range(4):
+        nxt = t / torch.linalg.norm(t, dim=-1, keepdim=True)
+        if torch.equal(nxt, t):
+            break
+        t = nxt
+    return t.numpy()
+
+
 def load_fitted_avatar(path: str | Path) -> tuple[Gaussians, np.ndarray, dict[str, Any]]:
     """Local Gaussians (float32), binding (N,) int64 and the keys (``head_sha256``, ``colour_source``,
     ``format``, ``n_faces``, ``info``) of a fitted-avatar file.
@@ -441,6 +457,7 @@ def load_fitted_avatar(path: str | Path) -> tuple[Gaussians, np.ndarray, dict[st
     if int(z["format"]) != FITTED_FORMAT:
         raise AvatarError(f"{path}: fitted default avatar: expected format {FITTED_FORMAT}, found {int(z['format'])}")
     arrays = {k: np.asarray(z[k], np.float32) for k in ("means", "quats", "log_scales", "opacity_logits", "sh")}
+    arrays["quats"] = _unit_quats(np.asarray(z["quats"], np.float64))
     for k, a in arrays.items():
         if not np.all(np.isfinite(a)):
             raise AvatarError(f"{path}: fitted default avatar: field {k!r} has non-finite values")
