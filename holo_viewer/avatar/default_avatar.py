@@ -29,6 +29,19 @@ The local Gaussians are cached in ``$HOLO_VIEWER_CACHE`` or ``$XDG_CACHE_HOME/ho
 (default ``~/.cache/holo_viewer``) as ``default_avatar_<key>.npz``, keyed by a hash of the
 generator version, this module's source, the parameters and the default head file; generation itself takes about
 a second or two for 100k Gaussians, so the cache only saves start-up time.
+
+Fitted Gaussians (shipped)
+--------------------------
+``assets/default_avatar.npz`` holds the generator's Gaussians after a fit against renders of the
+head's own textured mesh (``scripts/fit_default_avatar.py``, :mod:`holo_viewer.pipeline.fit_avatar`,
+docs/avatar_fit.md): same count and binding, refined offsets, scales, rotations, opacities and SH
+(degree 1), stored as float16. It is keyed by the SHA-256 of the default head file and a digest of
+the mesh colouring it was fitted to (:func:`appearance_digest`: texture version, mesh key and seed
+of ``flame.head_textures`` for a textured head, else a hash of the region colours). :func:`default_avatar` with the
+defaults (``n_gaussians=DEFAULT_N_GAUSSIANS``, ``seed=0``) loads it when both keys match the
+current head; otherwise (asset missing, unreadable, or fitted to another head / colouring) it
+warns once, saying why, and falls back to the generator. Any other ``n_gaussians`` or ``seed``
+asks for the generator explicitly (no warning): the fit is for one Gaussian set.
 """
 
 from __future__ import annotations
@@ -45,9 +58,15 @@ from ..fileio import read_npz, save_npz
 from .binding import world_to_local_np
 from .gaussians import SH_C0, Gaussians
 
-__all__ = ["default_avatar", "generate_default_gaussians", "GENERATOR_VERSION", "REGION_DENSITY"]
+__all__ = ["default_avatar", "generate_default_gaussians", "GENERATOR_VERSION", "REGION_DENSITY",
+           "DEFAULT_N_GAUSSIANS", "FITTED_ASSET", "FITTED_FORMAT", "fitted_asset_path", "appearance_colors",
+           "appearance_digest", "save_fitted_avatar", "load_fitted_avatar", "fitted_asset_status"]
 
 GENERATOR_VERSION = 2  # 2: the ICT-based default head (hair shell, lashes, own teeth; issue 17)
+#: the Gaussian count of the shipped, fitted avatar (and the default of :func:`default_avatar`)
+DEFAULT_N_GAUSSIANS = 100_000
+FITTED_ASSET = "default_avatar.npz"
+FITTED_FORMAT = 1
 SH_C1 = 0.4886025119029199
 
 #: Relative Gaussian density per area by region (default 1.0).
@@ -275,6 +294,14 @@ def generate_default_gaussians(model: Any, n_gaussians: int = 100_000, sh_degree
     return local, binding
 
 
+def _with_sh_degree(sh: np.ndarray, degree: int) -> np.ndarray:
+    """(N, (degree+1)^2, 3): truncated, or padded with zeros."""
+    k = (degree + 1) ** 2
+    if sh.shape[1] >= k:
+        return np.ascontiguousarray(sh[:, :k])
+    return np.concatenate([sh, np.zeros((sh.shape[0], k - sh.shape[1], 3), sh.dtype)], axis=1)
+
+
 def _head_digest(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as fh:
@@ -315,9 +342,196 @@ def _cached_local(n_gaussians: int, sh_degree: int, seed: int, use_disk_cache: b
     return local, binding, names
 
 
-def default_avatar(n_gaussians: int = 100_000, sh_degree: int = 1, seed: int = 0, *,
-                   use_disk_cache: bool = True) -> "RiggedAvatar":  # noqa: F821
+# ------------------------------------------------------------------------------ fitted asset
+def fitted_asset_path() -> Path:
+    """``assets/default_avatar.npz`` of the checkout."""
+    return Path(__file__).resolve().parents[2] / "assets" / FITTED_ASSET
+
+
+def _head_appearance(model: Any) -> Any:
+    """The head's textured appearance (``flame.head_textures``) or None (no textures / no UVs)."""
+    try:
+        from ..flame.head_textures import head_appearance
+    except ImportError:  # a head package without textures
+        return None
+    return head_appearance(model)
+
+
+def appearance_colors(model: Any) -> np.ndarray:
+    """(V, 3) per-vertex colours of the head's mesh renders: the textured appearance's vertex colours
+    when the head has textures, else its region colours smoothed once (``flame.preview``)."""
+    app = _head_appearance(model)
+    if app is not None:
+        return np.asarray(app.vertex_colors, np.float64)
+    from ..flame.preview import region_colors, smooth_vertex_colors
+
+    md = getattr(model, "metadata", {}) or {}
+    if "vertex_region" not in md or "region_names" not in md:
+        raise AvatarError("appearance: the head model lacks 'vertex_region' / 'region_names' metadata")
+    c = region_colors(md["vertex_region"], [str(x) for x in md["region_names"]], int(model.n_vertices))
+    return smooth_vertex_colors(c, model.faces.cpu().numpy(), 1)
+
+
+def appearance_digest(model: Any) -> str:
+    """A name for the colouring of the head's mesh renders (what the shipped avatar is fitted to):
+    ``textures:v<version>:<mesh key>:<seed>`` for a textured head (``flame.head_textures``), else
+    ``region-colours:<SHA-256 of the colours>``."""
+    app = _head_appearance(model)
+    if app is not None:
+        from ..flame.head_textures import appearance_inputs, mesh_key
+
+        return f"textures:v{app.version}:{mesh_key(appearance_inputs(model), app.seed)}:{app.seed}"
+    c = np.ascontiguousarray(np.round(np.asarray(appearance_colors(model), np.float64), 6))
+    return "region-colours:" + hashlib.sha256(c.tobytes()).hexdigest()[:16]
+
+
+def save_fitted_avatar(path: str | Path, local: Gaussians, binding: np.ndarray, model: Any, colour_source: str,
+                       head_path: str | Path | None = None, info: dict | None = None) -> Path:
+    """Write fitted local Gaussians (float16) + binding, keyed by the head file's digest and ``colour_source``."""
+    import json
+
+    from ..flame.default_head import default_head_path
+
+    g = local.numpy(np.float32)
+    b = np.asarray(binding)
+    if b.shape != (len(g),):
+        raise InputError(f"binding: expected ({len(g)},), found {b.shape}")
+    head = Path(head_path) if head_path is not None else default_head_path()
+    arrays = {"means": g.means, "quats": g.quats, "log_scales": g.log_scales, "opacity_logits": g.opacity_logits,
+              "sh": g.sh}
+    for k, a in arrays.items():
+        if not np.all(np.isfinite(a)):
+            raise AvatarError(f"fitted avatar: {k} has non-finite values")
+        if np.abs(a).max() > 6e4:
+            raise AvatarError(f"fitted avatar: {k} exceeds the float16 range ({np.abs(a).max():.3g})")
+    out = {k: a.astype(np.float16) for k, a in arrays.items()}
+    out["binding"] = b.astype(np.int32)
+    if "region" in local.extra:
+        out["region"] = np.asarray(local.extra["region"]).astype(np.int16)
+    out["format"] = np.array(FITTED_FORMAT)
+    out["head_sha256"] = np.array(_head_digest(head))
+    out["colour_source"] = np.array(str(colour_source))
+    out["n_faces"] = np.array(int(model.faces.shape[0]))
+    out["info"] = np.array(json.dumps(info or {}))
+    from ..fileio import atomic_write
+
+    target = Path(path)
+    with atomic_write(target) as fh:
+        np.savez_compressed(fh, **out)
+    return target
+
+
+def _unit_quats(q: np.ndarray) -> np.ndarray:
+    """(N, 4) float32 unit quaternions that float32 re-normalisation (``RiggedAvatar``, PLY round trips)
+    leaves unchanged: float16 storage is not unit length, and normalising a float32 vector again can
+    move it by one ulp."""
+    import torch
+
+    n = np.linalg.norm(q, axis=1, keepdims=True)
+    t = torch.from_numpy((q / np.where(n > 0, n, 1.0)).astype(np.float32))
+    for _ in range(4):
+        nxt = t / torch.linalg.norm(t, dim=-1, keepdim=True)
+        if torch.equal(nxt, t):
+            break
+        t = nxt
+    return t.numpy()
+
+
+def load_fitted_avatar(path: str | Path) -> tuple[Gaussians, np.ndarray, dict[str, Any]]:
+    """Local Gaussians (float32), binding (N,) int64 and the keys (``head_sha256``, ``colour_source``,
+    ``format``, ``n_faces``, ``info``) of a fitted-avatar file.
+
+    Raises
+    ------
+    AvatarError
+        Unreadable file, missing fields, wrong shapes or non-finite values (naming the file and field).
+    """
+    import json
+
+    z = read_npz(path, AvatarError, "fitted default avatar")
+    need = ("means", "quats", "log_scales", "opacity_logits", "sh", "binding", "format", "head_sha256",
+            "colour_source", "n_faces")
+    missing = [k for k in need if k not in z]
+    if missing:
+        raise AvatarError(f"{path}: fitted default avatar: expected fields {list(need)}, missing {missing}")
+    if int(z["format"]) != FITTED_FORMAT:
+        raise AvatarError(f"{path}: fitted default avatar: expected format {FITTED_FORMAT}, found {int(z['format'])}")
+    arrays = {k: np.asarray(z[k], np.float32) for k in ("means", "quats", "log_scales", "opacity_logits", "sh")}
+    arrays["quats"] = _unit_quats(np.asarray(z["quats"], np.float64))
+    for k, a in arrays.items():
+        if not np.all(np.isfinite(a)):
+            raise AvatarError(f"{path}: fitted default avatar: field {k!r} has non-finite values")
+    extra = {"region": np.asarray(z["region"]).astype(np.int16)} if "region" in z else {}
+    try:
+        local = Gaussians(**arrays, extra=extra)
+    except HoloViewerError as exc:
+        raise AvatarError(f"{path}: fitted default avatar: {exc}") from exc
+    binding = np.asarray(z["binding"]).astype(np.int64)
+    if binding.shape != (len(local),):
+        raise AvatarError(f"{path}: fitted default avatar: field 'binding': expected ({len(local)},), "
+                          f"found {binding.shape}")
+    keys = {"format": int(z["format"]), "head_sha256": str(z["head_sha256"]), "colour_source": str(z["colour_source"]),
+            "n_faces": int(z["n_faces"]), "info": json.loads(str(z["info"])) if "info" in z else {}}
+    return local, binding, keys
+
+
+def _check_fitted(path: Path) -> tuple[tuple[Gaussians, np.ndarray, dict[str, Any]] | None, str]:
+    """((local, binding, keys) or None, reason) for the fitted asset at ``path`` against the current head."""
+    from ..flame.default_head import default_head_path, load_default_model
+
+    if not path.exists():
+        return None, f"{path} does not exist (run scripts/fit_default_avatar.py)"
+    try:
+        local, binding, keys = load_fitted_avatar(path)
+    except AvatarError as exc:
+        return None, str(exc)
+    head = _head_digest(default_head_path())
+    if keys["head_sha256"] != head:
+        return None, (f"{path} was fitted to another default head (sha256 {keys['head_sha256'][:12]}..., the "
+                      f"current head is {head[:12]}...); rerun scripts/fit_default_avatar.py")
+    model = load_default_model(add_teeth=True)
+    if keys["n_faces"] != int(model.faces.shape[0]) or (binding.size and binding.max() >= model.faces.shape[0]):
+        return None, f"{path}: binding does not fit the current head ({int(model.faces.shape[0])} faces)"
+    colours = appearance_digest(model)
+    if keys["colour_source"] != colours:
+        return None, (f"{path} was fitted to another mesh colouring ({keys['colour_source']}, the current one is "
+                      f"{colours}); rerun scripts/fit_default_avatar.py")
+    return (local, binding, keys), "ok"
+
+
+def fitted_asset_status(path: str | Path | None = None) -> tuple[bool, str]:
+    """(usable, reason): whether the fitted asset (default :func:`fitted_asset_path`) matches the current
+    default head and its colouring; the reason says why not."""
+    got, why = _check_fitted(Path(path) if path is not None else fitted_asset_path())
+    return got is not None, why
+
+
+_WARNED: set[str] = set()
+
+
+@functools.lru_cache(maxsize=2)
+def _fitted_local(path: str) -> tuple[Gaussians, np.ndarray] | None:
+    """The fitted asset's local Gaussians and binding when usable, else None (warning once with the reason)."""
+    import warnings
+
+    got, why = _check_fitted(Path(path))
+    if got is None:
+        if why not in _WARNED:
+            _WARNED.add(why)
+            warnings.warn(f"default avatar: using the procedural generator, not the fitted Gaussians: {why}",
+                          stacklevel=3)
+        return None
+    return got[0], got[1]
+
+
+def default_avatar(n_gaussians: int = DEFAULT_N_GAUSSIANS, sh_degree: int = 1, seed: int = 0, *,
+                   use_disk_cache: bool = True, fitted: bool = True) -> "RiggedAvatar":  # noqa: F821
     """The default rigged avatar: about ``n_gaussians`` Gaussians on the default head (with teeth).
+
+    With the defaults (``n_gaussians == DEFAULT_N_GAUSSIANS``, ``seed == 0``, ``fitted``) these are the
+    shipped fitted Gaussians (``assets/default_avatar.npz``) when it matches the current head and
+    colouring, else the generator's (with one warning saying why). Other ``n_gaussians`` / ``seed``
+    values, or ``fitted=False``, give the generator's Gaussians (see the module docstring).
 
     Parameters
     ----------
@@ -329,6 +543,8 @@ def default_avatar(n_gaussians: int = 100_000, sh_degree: int = 1, seed: int = 0
         Random seed of the generator (deterministic).
     use_disk_cache : bool
         Read/write the generated Gaussians in the user cache dir (see module docstring).
+    fitted : bool
+        Use the fitted asset when it applies (default True).
 
     Returns
     -------
@@ -343,9 +559,19 @@ def default_avatar(n_gaussians: int = 100_000, sh_degree: int = 1, seed: int = 0
         raise InputError(f"n_gaussians: expected an integer >= 1000, found {n_gaussians!r}")
     if sh_degree not in (0, 1, 2, 3):
         raise InputError(f"sh_degree: expected 0..3, found {sh_degree!r}")
-    local, binding, names = _cached_local(int(n_gaussians), int(sh_degree), int(seed), bool(use_disk_cache))
-    model = load_default_model(add_teeth=True)
-    region = local.extra["region"]
+    got = None
+    if fitted and int(n_gaussians) == DEFAULT_N_GAUSSIANS and int(seed) == 0:
+        got = _fitted_local(str(fitted_asset_path()))
+    if got is not None:
+        local, binding = got[0], got[1]
+        model = load_default_model(add_teeth=True)
+        names = tuple(str(s) for s in model.metadata["region_names"])
+        names = names if "teeth" in names else names + ("teeth",)
+        local = local.replace(sh=_with_sh_degree(np.asarray(local.sh), int(sh_degree)))
+    else:
+        local, binding, names = _cached_local(int(n_gaussians), int(sh_degree), int(seed), bool(use_disk_cache))
+        model = load_default_model(add_teeth=True)
+    region = local.extra.get("region", np.zeros(len(local), np.int16))
     avatar = RiggedAvatar(model, local.replace(extra={}), binding=binding)
     avatar.region = np.asarray(region).astype(np.int64)
     avatar.region_names = names

@@ -1,0 +1,543 @@
+"""Fit a rigged Gaussian avatar to renders of its own textured mesh (issue 17; docs/avatar_fit.md).
+
+The GaussianAvatars training recipe [Qian et al. CVPR'24] with the mesh renders as the dataset:
+
+1. *Dataset.* The head is posed in many expressions (named ones, pain 0.25..1, random AU mixes
+   from :mod:`holo_viewer.flame.expressions`, jaw and eye poses); each pose is rendered as the
+   head's own mesh (textured when it has an appearance, else region colours:
+   :class:`TargetSource`, :func:`holo_viewer.flame.preview.render_mesh_cameras`) through a subset of
+   the quilt cameras plus a few orbit cameras, full resolution, black background, stored as uint8.
+   Each pose renders in a forked child with a time limit (a hung offscreen render skips the pose).
+2. *Parameters.* Per Gaussian, in its parent triangle's frame
+   (docs/design.md "GaussianAvatars binding"): local offset ``mu``, local log-scale, local
+   rotation, opacity logit and SH coefficients (degree 1: the mesh renders' lights are
+   world-fixed, so view dependence is small). The binding (parent face) and the Gaussian count
+   are fixed: no densification or pruning.
+3. *Loss.* L1 over the whole image (``(1 - l) L1 + l (1 - SSIM)`` with ``l = config.ssim_weight``,
+   0 by default: SSIM's convolutions cost as much as the render on this CPU) plus GaussianAvatars'
+   regularisers ``w_pos mean(relu(|mu| - eps_pos))`` and ``w_scale mean(relu(exp(log_s) -
+   eps_scale))`` (local units: the face scale).
+4. *Optimiser.* Adam, per-parameter learning rates (:class:`FitConfig`), position learning rate
+   decayed exponentially; one (pose, camera) image per step; the first ``1 - crop_fraction`` of
+   the steps on the whole image at ``train_scale`` (box-downsampled target), the rest on
+   full-resolution crops of the same pixel count centred on a random mesh pixel. Rendering with
+   :mod:`holo_viewer.render.differentiable`.
+
+Initial Gaussians come from the caller (the default avatar's generator) with their colours replaced by
+the mesh colouring at each Gaussian's surface point (:func:`surface_colors`).
+
+This module wires the face (flame, avatar) and the renderer together, so it lives in ``pipeline/``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import torch
+
+from ..avatar.binding import bind_to_world, bind_to_world_np, face_frames
+from ..avatar.gaussians import SH_C0, Gaussians
+from ..camera import Cameras
+from ..errors import InputError
+from ..render.config import RenderConfig
+from ..render.differentiable import render_view
+from .settings import FaceControls
+
+__all__ = ["FitConfig", "FitResult", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "region_mesh_colors", "surface_colors",
+           "orbit_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity", "masked_psnr"]
+
+#: (mesh vertices, faces, cameras, indices) -> ((n, H, W, 3) float images in [0, 1], (n, H, W) bool masks)
+TargetRenderer = Callable[[np.ndarray, np.ndarray, Cameras, Sequence[int]], "tuple[np.ndarray, np.ndarray]"]
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Fit settings (defaults: the shipped default avatar; see docs/avatar_fit.md)."""
+
+    iterations: int = 3000
+    views_per_step: int = 1
+    train_scale: float = 0.5
+    #: the last fraction of the iterations trains on full-resolution crops (train_scale x the tile)
+    crop_fraction: float = 0.5
+    #: a pose whose target render takes longer is skipped (None: render in-process, no limit)
+    render_timeout_s: float | None = 60.0
+    n_random_poses: int = 24
+    quilt_views: tuple[int, ...] = (0, 4, 9, 14, 19, 24, 28, 33, 38, 43, 47)
+    #: orbit cameras (yaw, pitch) in degrees about the framing centre, from quilt view 24
+    orbit: tuple[tuple[float, float], ...] = ((-30.0, 0.0), (30.0, 0.0), (0.0, 12.0), (0.0, -12.0))
+    lr_means: float = 2e-3
+    lr_means_final: float = 2e-4
+    lr_log_scales: float = 5e-3
+    lr_quats: float = 2e-3
+    lr_opacity: float = 2e-2
+    lr_sh_dc: float = 5e-3
+    lr_sh_rest: float = 2.5e-4
+    ssim_weight: float = 0.0
+    w_pos: float = 1e-2
+    eps_pos: float = 1.0
+    w_scale: float = 1.0
+    eps_scale: float = 0.6
+    seed: int = 0
+    dtype: str = "float32"
+
+
+@dataclass(frozen=True)
+class TrainingPose:
+    """One training expression: a name and its face controls."""
+
+    name: str
+    face: FaceControls
+
+
+@dataclass
+class FitResult:
+    """The fitted local Gaussians (numpy float32), the loss per iteration and the timings (s)."""
+
+    local: Gaussians
+    losses: list[float]
+    seconds: dict[str, float]
+    n_images: int
+
+
+# =============================================================================== poses and colours
+
+
+def training_poses(au_map: Any, n_random: int = 24, seed: int = 0) -> list[TrainingPose]:
+    """Named expressions, pain 0.25..1 and ``n_random`` random AU mixes with jaw and eye poses.
+
+    Parameters
+    ----------
+    au_map : flame.expressions.AUMap
+        Action-unit map of the head (``Pipeline.au_map``).
+    n_random : int
+        Random poses: 2-5 AUs at intensities U(0.5, AU max), jaw opening U(0, 0.25) rad with
+        probability 0.5, eye gaze U(+-0.25) rad.
+    """
+    from ..flame.expressions import AU_MAX, AU_NAMES, expression_from_aus
+
+    fixed: list[TrainingPose] = [TrainingPose("neutral", FaceControls())]
+    for name, w in (("smile", 0.5), ("smile", 1.0), ("mouth_open", 0.5), ("mouth_open", 1.0), ("surprise", 1.0),
+                    ("frown", 1.0)):
+        fixed.append(TrainingPose(f"{name}_{w:g}", FaceControls(named=((name, w),))))
+    for p in (0.25, 0.5, 0.75, 1.0):
+        fixed.append(TrainingPose(f"pain_{p:g}", FaceControls(pain=p)))
+    rng = np.random.default_rng(seed)
+    usable = [a for a in AU_NAMES if a in getattr(au_map, "names", AU_NAMES)]
+    for k in range(n_random):
+        aus = {a: float(rng.uniform(0.5, AU_MAX[a])) for a in rng.choice(usable, size=int(rng.integers(2, 6)),
+                                                                           replace=False)}
+        expr = expression_from_aus(aus, au_map)
+        jaw = np.array([rng.uniform(0.0, 0.25) if rng.uniform() < 0.5 else 0.0, 0.0, 0.0])
+        eye = rng.uniform(-0.25, 0.25, size=2)
+        eyes = np.array([eye[0], eye[1], 0.0, eye[0], eye[1], 0.0])
+        fixed.append(TrainingPose(f"random_{k:02d}", FaceControls(expr=np.clip(expr, -2.5, 2.5), jaw_pose=jaw,
+                                                                  eyes_pose=eyes)))
+    return fixed
+
+
+def region_mesh_colors(model: Any) -> np.ndarray:
+    """(V, 3) per-vertex region colours of a labelled head, smoothed once (``make demo``'s mesh renders;
+    :func:`holo_viewer.avatar.default_avatar.appearance_colors`)."""
+    from ..avatar.default_avatar import appearance_colors
+
+    return appearance_colors(model)
+
+
+def _vertex_albedo(colors: np.ndarray, faces: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    colors = np.asarray(colors, np.float64)
+    faces = np.asarray(faces)
+
+    def albedo_at(face_idx: np.ndarray, bary: np.ndarray) -> np.ndarray:
+        return np.einsum("nk,nkc->nc", bary, colors[faces[face_idx]])
+
+    return albedo_at
+
+
+@dataclass(frozen=True)
+class TargetSource:
+    """What the avatar is fitted to: a name (stored in the asset's key), the albedo at surface points
+    ``albedo_at(face_idx (N,), bary (N, 3)) -> (N, 3)`` used to initialise the Gaussians' colours, and
+    the target renderer."""
+
+    name: str
+    albedo_at: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    render: TargetRenderer
+
+    @classmethod
+    def for_model(cls, model: Any) -> "TargetSource":
+        """The head's own mesh renders: textured when it has an appearance (``flame.head_textures``),
+        else region colours (:meth:`region_colors`)."""
+        from ..avatar.default_avatar import _head_appearance, appearance_digest
+        from ..flame.preview import render_mesh_cameras
+
+        app = _head_appearance(model)
+        if app is None:
+            return cls.region_colors(model)
+        colors = np.asarray(app.vertex_colors, np.float64)
+
+        def render(vertices: np.ndarray, faces: np.ndarray, cameras: Cameras, indices: Sequence[int]
+                   ) -> tuple[np.ndarray, np.ndarray]:
+            return render_mesh_cameras(vertices, faces, cameras, indices, colors=colors, appearance=app)
+
+        return cls(appearance_digest(model), app.albedo_at, render)
+
+    @classmethod
+    def region_colors(cls, model: Any) -> "TargetSource":
+        """The head's region colours through :func:`holo_viewer.flame.preview.render_mesh_cameras` (VTK)."""
+        from ..avatar.default_avatar import appearance_digest
+        from ..flame.preview import render_mesh_cameras
+
+        colors = region_mesh_colors(model)
+
+        def render(vertices: np.ndarray, faces: np.ndarray, cameras: Cameras, indices: Sequence[int]
+                   ) -> tuple[np.ndarray, np.ndarray]:
+            return render_mesh_cameras(vertices, faces, cameras, indices, colors=colors)
+
+        return cls(appearance_digest(model), _vertex_albedo(colors, model.faces.cpu().numpy()), render)
+
+
+def surface_points(local: Gaussians, binding: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(N, 3) barycentric coordinates in its parent triangle of each Gaussian's centre projected onto
+    the triangle's plane (clamped into the triangle)."""
+    g = local.numpy(np.float64)
+    means, _, _ = bind_to_world_np(g.means, g.quats, g.log_scales, binding, vertices, faces)
+    tri = np.asarray(vertices, np.float64)[np.asarray(faces)[binding]]  # (N, 3, 3)
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    v0, v1, v2 = b - a, c - a, means - a
+    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+    den = np.where(np.abs(d00 * d11 - d01 * d01) > 1e-30, d00 * d11 - d01 * d01, 1.0)
+    w1 = (d11 * d20 - d01 * d21) / den
+    w2 = (d00 * d21 - d01 * d20) / den
+    bary = np.clip(np.column_stack([1 - w1 - w2, w1, w2]), 0.0, None)
+    return bary / np.maximum(bary.sum(1, keepdims=True), 1e-12)
+
+
+def surface_colors(local: Gaussians, binding: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                   vertex_colors: np.ndarray) -> np.ndarray:
+    """(N, 3) colour of each Gaussian's surface point (:func:`surface_points`): vertex colours
+    interpolated barycentrically."""
+    bary = surface_points(local, binding, vertices, faces)
+    return _vertex_albedo(vertex_colors, faces)(np.asarray(binding), bary)
+
+
+# =============================================================================== cameras
+
+
+def orbit_cameras(cameras: Cameras, index: int, angles: Sequence[tuple[float, float]], centre: np.ndarray) -> Cameras:
+    """Copies of camera ``index`` orbited about ``centre`` by (yaw, pitch) degrees (yaw about +y, then
+    pitch about the camera's x axis), intrinsics kept."""
+    from ..geometry import rodrigues_np
+
+    w2c0 = np.asarray(cameras.world_to_cam[index], np.float64)
+    c = np.asarray(centre, np.float64)
+    out = []
+    for yaw, pitch in angles:
+        R = (rodrigues_np(np.array([0.0, math.radians(yaw), 0.0]))
+             @ rodrigues_np(np.array([math.radians(pitch), 0.0, 0.0])))
+        T = np.eye(4)  # world motion that maps the orbited camera's view back onto the original
+        T[:3, :3] = R.T
+        T[:3, 3] = c - R.T @ c
+        out.append(w2c0 @ T)
+    K = np.repeat(np.asarray(cameras.K[index])[None], len(out), 0)
+    return Cameras(np.stack(out), K, cameras.width, cameras.height, near=cameras.near, far=cameras.far)
+
+
+def scaled_cameras(cameras: Cameras, scale: float) -> Cameras:
+    """The same cameras at ``scale`` x the resolution (an integer downsampling factor 1/scale): focal
+    lengths and principal points scaled (pixel edges line up with 1/scale x 1/scale blocks)."""
+    f = round(1.0 / scale) if scale > 0 else 0
+    if f < 1 or abs(f * scale - 1.0) > 1e-9 or cameras.width % f or cameras.height % f:
+        raise InputError(f"train_scale: expected 1/k for an integer k dividing the tile {cameras.width}x"
+                         f"{cameras.height}, found {scale}")
+    w, h = cameras.width // f, cameras.height // f
+    K = np.asarray(cameras.K, np.float64).copy()
+    K[:, :2, :] *= scale
+    return Cameras(np.asarray(cameras.world_to_cam), K, int(round(w)), int(round(h)), near=cameras.near,
+                   far=cameras.far)
+
+
+def _downsample(images: np.ndarray, factor: int) -> np.ndarray:
+    if factor == 1:
+        return images
+    n, H, W = images.shape[:3]
+    return images.reshape(n, H // factor, factor, W // factor, factor, *images.shape[3:]).mean(axis=(2, 4))
+
+
+# =============================================================================== dataset
+
+
+@dataclass
+class Dataset:
+    """Training images (uint8, full resolution) with their pose's face frames and cameras."""
+
+    images: np.ndarray  # (P, C, H, W, 3) uint8
+    masks: np.ndarray  # (P, C, H, W) bool: the mesh covers the pixel
+    frames: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]  # per pose: rot (1,F,3,3), scale, centre
+    cameras: Cameras  # C cameras at full resolution
+    names: list[str]
+    vertices: list[np.ndarray]
+    skipped: list[str] = dataclasses.field(default_factory=list)  # poses whose target render hung
+
+
+def _render_isolated(target_renderer: TargetRenderer, verts: np.ndarray, faces: np.ndarray, cameras: Cameras,
+                     timeout_s: float | None, indices: Sequence[int] | None = None
+                     ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(uint8 images, bool masks) of every camera, rendered in a forked child process that is killed
+    after ``timeout_s`` (None: in this process). Returns None on timeout or failure of the child.
+
+    Why: the offscreen Mesa rasterizer (llvmpipe) was seen to spin forever on one textured pose of the
+    ICT head (a jaw + expression combination, front view); one pose must not hang the fit."""
+    idx = list(range(len(cameras))) if indices is None else [int(i) for i in indices]
+
+    def run() -> tuple[np.ndarray, np.ndarray]:
+        im, mk = target_renderer(verts, faces, cameras, idx)
+        return np.clip(np.asarray(im, np.float64) * 255 + 0.5, 0, 255).astype(np.uint8), np.asarray(mk, bool)
+
+    if timeout_s is None:
+        return run()
+    import multiprocessing as mp
+    import queue as _queue
+
+    ctx = mp.get_context("fork")
+    q = ctx.Queue()
+
+    def child() -> None:
+        try:
+            q.put(run())
+        except Exception as exc:  # noqa: BLE001 - reported to the parent as a failed pose
+            q.put(exc)
+
+    proc = ctx.Process(target=child, daemon=True)
+    proc.start()
+    try:
+        out = q.get(timeout=timeout_s)
+    except _queue.Empty:
+        out = None
+    if proc.is_alive():
+        proc.kill()
+    proc.join()
+    return out if isinstance(out, tuple) else None
+
+
+def build_dataset(pipe: Any, poses: Sequence[TrainingPose], target_renderer: TargetRenderer,
+                  config: FitConfig, progress: bool = True) -> Dataset:
+    """Render every pose through the training cameras (quilt subset + orbit), full resolution.
+
+    ``pipe`` is a mesh pipeline (``Pipeline(model, avatar=False)``) of the head the avatar is bound to.
+    """
+    from tqdm import tqdm
+
+    cams = pipe.cameras()
+    (framing,), _ = pipe.compute("framing")
+    quilt_idx = [int(i) for i in config.quilt_views]
+    orbit = orbit_cameras(cams, len(cams) // 2, config.orbit, np.asarray(framing[0])) if config.orbit else None
+    full = Cameras(np.concatenate([cams.world_to_cam[quilt_idx]] + ([orbit.world_to_cam] if orbit else [])),
+                   np.concatenate([cams.K[quilt_idx]] + ([orbit.K] if orbit else [])), cams.width, cams.height,
+                   near=cams.near, far=cams.far)
+    scaled_cameras(full, config.train_scale)  # checks the factor
+    faces = pipe.model.faces.cpu().numpy()
+    imgs, masks, frames, verts_all, names, skipped = [], [], [], [], [], []
+    dtype = getattr(torch, config.dtype)
+    for pose in tqdm(poses, desc="mesh renders", disable=not progress):
+        pipe.set_face(pose.face)
+        verts = np.asarray(pipe.mesh(), np.float64)
+        got = _render_isolated(target_renderer, verts, faces, full, config.render_timeout_s)
+        if got is None:
+            skipped.append(pose.name)
+            if progress:
+                print(f"  {pose.name}: the target render did not finish in {config.render_timeout_s:g} s; pose skipped",
+                      flush=True)
+            continue
+        imgs.append(got[0])
+        masks.append(got[1])
+        names.append(pose.name)
+        rot, scale, centre, _ = face_frames(torch.as_tensor(verts, dtype=torch.float64)[None],
+                                            pipe.model.faces.cpu())
+        frames.append((rot.to(dtype), scale.to(dtype), centre.to(dtype)))
+        verts_all.append(verts)
+    if not imgs:
+        raise InputError(f"build_dataset: no pose could be rendered (skipped {skipped})")
+    return Dataset(np.stack(imgs), np.stack(masks), frames, full, names, verts_all, skipped)
+
+
+# =============================================================================== loss
+
+
+def _ssim(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Mean SSIM of two (H, W, 3) images (11x11 Gaussian window, sigma 1.5, as 3DGS)."""
+    x = a.permute(2, 0, 1)[None]
+    y = b.permute(2, 0, 1)[None]
+    k1d = torch.exp(-((torch.arange(11, dtype=a.dtype) - 5.0) ** 2) / (2 * 1.5 ** 2))
+    k1d = k1d / k1d.sum()
+    win = (k1d[:, None] * k1d[None, :]).expand(3, 1, 11, 11).contiguous()
+
+    def f(z: torch.Tensor) -> torch.Tensor:
+        return torch.nn.functional.conv2d(z, win, padding=5, groups=3)
+
+    mx, my = f(x), f(y)
+    sxx, syy, sxy = f(x * x) - mx * mx, f(y * y) - my * my, f(x * y) - mx * my
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    s = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx * mx + my * my + c1) * (sxx + syy + c2))
+    return s.mean()
+
+
+# =============================================================================== fit
+
+
+def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset, config: FitConfig = FitConfig(),
+                  progress: bool = True, render_config: RenderConfig | None = None) -> FitResult:
+    """Optimise the local Gaussians against ``data`` (see the module docstring).
+
+    Parameters
+    ----------
+    local : Gaussians
+        Initial local Gaussians (numpy), colours already set (e.g. :func:`surface_colors`).
+    binding : numpy.ndarray
+        (N,) parent faces (fixed).
+    data : Dataset
+        From :func:`build_dataset`.
+    """
+    from tqdm import tqdm
+
+    t0 = time.perf_counter()
+    dtype = getattr(torch, config.dtype)
+    rng = np.random.default_rng(config.seed)
+    g = local.numpy(np.float64)
+    q0 = g.quats / np.linalg.norm(g.quats, axis=1, keepdims=True)
+    params = {
+        "means": torch.tensor(g.means, dtype=dtype, requires_grad=True),
+        "quats": torch.tensor(q0, dtype=dtype, requires_grad=True),
+        "log_scales": torch.tensor(g.log_scales, dtype=dtype, requires_grad=True),
+        "opacity": torch.tensor(g.opacity_logits, dtype=dtype, requires_grad=True),
+        "sh_dc": torch.tensor(g.sh[:, :1], dtype=dtype, requires_grad=True),
+        "sh_rest": torch.tensor(g.sh[:, 1:], dtype=dtype, requires_grad=True),
+    }
+    lrs = {"means": config.lr_means, "quats": config.lr_quats, "log_scales": config.lr_log_scales,
+           "opacity": config.lr_opacity, "sh_dc": config.lr_sh_dc, "sh_rest": config.lr_sh_rest}
+    opt = torch.optim.Adam([{"params": [p], "lr": lrs[k], "name": k} for k, p in params.items()], eps=1e-15)
+    b = torch.as_tensor(np.asarray(binding, np.int64))
+    full = data.cameras
+    factor = int(round(1.0 / config.train_scale))
+    small = scaled_cameras(full, config.train_scale)
+    crop_w, crop_h = small.width, small.height
+    crop_from = int(round(config.iterations * (1.0 - config.crop_fraction)))
+    rc = render_config or RenderConfig()
+    n_pose, n_cam = data.images.shape[:2]
+    losses: list[float] = []
+    decay = (config.lr_means_final / config.lr_means) ** (1.0 / max(config.iterations - 1, 1))
+    bar = tqdm(range(config.iterations), desc="fit", disable=not progress, mininterval=5.0)
+    for it in bar:
+        p = int(rng.integers(n_pose))
+        rot, scale, centre = data.frames[p]
+        q = params["quats"] / torch.linalg.norm(params["quats"], dim=-1, keepdim=True)
+        means, quats, log_scales = bind_to_world(params["means"], q, params["log_scales"], b, rot, scale, centre)
+        sh = torch.cat([params["sh_dc"], params["sh_rest"]], dim=1)
+        loss = torch.zeros((), dtype=dtype)
+        for c in rng.choice(n_cam, size=min(config.views_per_step, n_cam), replace=False):
+            if it < crop_from:  # the whole image at train_scale (box-downsampled target)
+                w2c, K, W, H = small.world_to_cam[c], small.K[c], small.width, small.height
+                target = torch.from_numpy(_downsample(data.images[p, c][None].astype(np.float32), factor)[0])
+            else:  # a full-resolution crop of the same pixel count, centred on a random mesh pixel
+                ys, xs = np.nonzero(data.masks[p, c])
+                k = int(rng.integers(len(ys))) if len(ys) else 0
+                cy0 = int(ys[k]) if len(ys) else full.height // 2
+                cx0 = int(xs[k]) if len(xs) else full.width // 2
+                y0 = int(np.clip(cy0 - crop_h // 2, 0, full.height - crop_h))
+                x0 = int(np.clip(cx0 - crop_w // 2, 0, full.width - crop_w))
+                K = np.asarray(full.K[c], np.float64).copy()
+                K[0, 2] -= x0
+                K[1, 2] -= y0
+                w2c, W, H = full.world_to_cam[c], crop_w, crop_h
+                target = torch.from_numpy(data.images[p, c, y0:y0 + H, x0:x0 + W].astype(np.float32))
+            img = render_view(means[0], quats[0], log_scales[0], params["opacity"], sh, w2c, K, W, H, full.near, rc)
+            target = target.to(dtype) / 255.0
+            l1 = (img - target).abs().mean()
+            if config.ssim_weight > 0:
+                l1 = (1 - config.ssim_weight) * l1 + config.ssim_weight * (1 - _ssim(img, target))
+            loss = loss + l1 / config.views_per_step
+        reg = (config.w_pos * torch.relu(torch.linalg.norm(params["means"], dim=-1) - config.eps_pos).mean()
+               + config.w_scale * torch.relu(torch.exp(params["log_scales"]) - config.eps_scale).mean())
+        total = loss + reg
+        opt.zero_grad(set_to_none=True)
+        total.backward()
+        opt.step()
+        for grp in opt.param_groups:
+            if grp["name"] == "means":
+                grp["lr"] *= decay
+        losses.append(float(loss.detach()))
+        if progress and it % 50 == 0:
+            bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}")
+    with torch.no_grad():
+        sh = torch.cat([params["sh_dc"], params["sh_rest"]], dim=1)
+        q = params["quats"] / torch.linalg.norm(params["quats"], dim=-1, keepdim=True)
+        out = Gaussians(params["means"].numpy().astype(np.float32), q.numpy().astype(np.float32),
+                        params["log_scales"].numpy().astype(np.float32),
+                        params["opacity"].numpy().astype(np.float32), sh.numpy().astype(np.float32),
+                        extra=dict(local.extra))
+    return FitResult(out, losses, {"fit": time.perf_counter() - t0}, int(n_pose * n_cam))
+
+
+def initial_with_surface_colors(local: Gaussians, binding: np.ndarray, model: Any,
+                                albedo_at: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                                sh_degree: int = 1) -> Gaussians:
+    """``local`` with SH DC set to ``albedo_at`` the Gaussian's surface point (:func:`surface_points` on
+    the rest mesh), higher SH zero."""
+    v = model.v_template.detach().cpu().double().numpy()
+    bary = surface_points(local, binding, v, model.faces.cpu().numpy())
+    col = np.clip(np.asarray(albedo_at(np.asarray(binding), bary), np.float64), 0.0, 1.0)
+    k = (sh_degree + 1) ** 2
+    sh = np.zeros((len(local), k, 3), np.float32)
+    sh[:, 0] = (col - 0.5) / SH_C0
+    return local.replace(sh=sh)
+
+
+# =============================================================================== measurement
+
+
+def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
+    """PSNR (dB, peak 1) of two (H, W, 3) images over the pixels where ``mask`` (H, W) is true."""
+    m = np.asarray(mask, dtype=bool)
+    if not m.any():
+        raise InputError("mask: no pixel selected")
+    diff = np.asarray(a, np.float64)[m] - np.asarray(b, np.float64)[m]
+    mse = float(np.mean(diff * diff))
+    return float("inf") if mse == 0 else float(10.0 * np.log10(1.0 / mse))
+
+
+def fidelity(avatar: Any, faces: dict[str, FaceControls], views: Sequence[int], target_renderer: TargetRenderer,
+             images: dict[str, np.ndarray] | None = None, timeout_s: float | None = 300.0
+             ) -> dict[str, dict[int, float]]:
+    """PSNR of the avatar's quilt views (``Pipeline.views()``, full resolution) against the target render
+    of the same posed mesh and camera, over the mesh mask (the target's 8-bit VTK buffer, as in
+    bench/face_realism.py; NaN when it does not finish in ``timeout_s``, rendered in a child process);
+    ``images`` (optional) receives, per
+    expression, the (len(views), H, 2W, 3) side-by-side pairs (Gaussians | mesh)."""
+    from .core import Pipeline
+
+    pipe = Pipeline(avatar=avatar)
+    cams = pipe.cameras()
+    f = pipe.model.faces.cpu().numpy()
+    out: dict[str, dict[int, float]] = {}
+    for name, face in faces.items():
+        pipe.set_face(face)
+        views_g = pipe.views()
+        got = _render_isolated(target_renderer, np.asarray(pipe.mesh(), np.float64), f, cams, timeout_s, views)
+        if got is None:  # the target render hung or failed: no number
+            out[name] = {int(i): float("nan") for i in views}
+            continue
+        mimg, mmask = got[0].astype(np.float32) / 255.0, got[1]
+        out[name] = {int(i): masked_psnr(views_g[i], mimg[k], mmask[k]) for k, i in enumerate(views)}
+        if images is not None:
+            images[name] = np.stack([np.concatenate([views_g[i], mimg[k]], axis=1) for k, i in enumerate(views)])
+    return out
+
+
+def replace_config(config: FitConfig, **changes: Any) -> FitConfig:
+    """A copy of ``config`` with some fields replaced."""
+    return dataclasses.replace(config, **changes)

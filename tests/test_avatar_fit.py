@@ -1,0 +1,203 @@
+"""The Gaussian avatar fit (pipeline.fit_avatar) and the fitted default avatar asset (loader, digest check,
+fallback, the shipped file)."""
+
+from __future__ import annotations
+
+import importlib
+import warnings
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("numba")
+
+from holo_viewer.avatar import RiggedAvatar  # noqa: E402
+from holo_viewer.errors import AvatarError  # noqa: E402
+from holo_viewer.pipeline import FaceControls, Pipeline, ViewSettings  # noqa: E402
+from holo_viewer.pipeline import fit_avatar as fa  # noqa: E402
+from holo_viewer.render.differentiable import render_view  # noqa: E402
+from holo_viewer.testing import random_flame_model, random_gaussians  # noqa: E402
+
+dav = importlib.import_module("holo_viewer.avatar.default_avatar")
+importlib.import_module("holo_viewer.avatar").default_avatar = dav.default_avatar  # the import shadowed the lazy name
+
+
+# ----------------------------------------------------------------------------- the fit on a tiny case
+def test_fit_reduces_the_loss_on_a_tiny_synthetic_case():
+    """A few hundred Gaussians bound to a small random mesh learn the colours, opacities and shapes of a
+    'teacher' avatar (same binding) from its renders in 3 poses x 4 cameras: the L1 loss of the last
+    30 iterations is below 0.6 x that of the first 30, and the final renders are closer to the targets."""
+    model = random_flame_model(n_vertices=120, n_expr=4, seed=3)
+    n = 300
+    binding = np.random.default_rng(0).integers(0, int(model.faces.shape[0]), size=n)
+    teacher = random_gaussians(n, sh_degree=1, seed=1, scale=0.2)
+    teacher = teacher.replace(means=teacher.means * 0.05, log_scales=teacher.log_scales * 0 + np.log(0.4))
+    student = teacher.replace(sh=np.zeros_like(teacher.sh), opacity_logits=np.zeros_like(teacher.opacity_logits),
+                              log_scales=teacher.log_scales - 0.3)
+    t_av = RiggedAvatar(model, teacher.replace(extra={}), binding=binding)
+
+    def render(vertices, faces, cameras, indices):
+        g = t_av.deform(torch.as_tensor(vertices, dtype=torch.float32))
+        ims = []
+        with torch.no_grad():
+            for i in indices:
+                ims.append(render_view(g.means, g.quats, g.log_scales, g.opacity_logits, g.sh, cameras.world_to_cam[i],
+                                       cameras.K[i], cameras.width, cameras.height, cameras.near).numpy())
+        ims = np.clip(np.stack(ims), 0, 1)
+        return ims, ims.sum(-1) > 0
+
+    pipe = Pipeline(model=model, avatar=False, view=ViewSettings(tile_scale=0.1))
+    poses = [fa.TrainingPose("neutral", FaceControls()),
+             fa.TrainingPose("a", FaceControls(expr=np.array([1.0, -0.5, 0.0, 0.3]))),
+             fa.TrainingPose("b", FaceControls(expr=np.array([-0.8, 0.2, 0.6, 0.0]), jaw_pose=[0.2, 0, 0]))]
+    cfg = fa.FitConfig(iterations=150, views_per_step=2, train_scale=1.0, quilt_views=(0, 24, 47),
+                       orbit=((20.0, 0.0),), lr_sh_dc=0.05, lr_opacity=0.05, ssim_weight=0.0,
+                       render_timeout_s=None)
+    data = fa.build_dataset(pipe, poses, render, cfg, progress=False)
+    assert data.images.shape[:2] == (3, 4) and data.images.max() > 50
+    res = fa.fit_gaussians(student, binding, data, cfg, progress=False)
+    first, last = np.mean(res.losses[:30]), np.mean(res.losses[-30:])
+    assert last < 0.6 * first, (first, last)
+    assert np.all(np.isfinite(res.local.sh)) and len(res.local) == n
+
+
+def test_surface_colors_interpolate_the_vertex_colours():
+    """A Gaussian at a triangle vertex takes that vertex's colour; at the centroid, the mean."""
+    model = random_flame_model(n_vertices=60, seed=2)
+    v = model.v_template.double().numpy()
+    f = model.faces.numpy()
+    col = np.random.default_rng(0).uniform(size=(len(v), 3))
+    binding = np.array([5, 7])
+    # local coordinates of (vertex 0 of face 5) and (centroid of face 7)
+    from holo_viewer.avatar.binding import world_to_local_np
+
+    pts = np.stack([v[f[5, 0]], v[f[7]].mean(0)])
+    q = np.tile([1.0, 0, 0, 0], (2, 1))
+    mu, ql, ls = world_to_local_np(pts, q, np.zeros((2, 3)), binding, v, f)
+    g = random_gaussians(2).replace(means=mu.astype(np.float32), quats=ql.astype(np.float32))
+    got = fa.surface_colors(g, binding, v, f, col)
+    np.testing.assert_allclose(got[0], col[f[5, 0]], atol=1e-5)
+    np.testing.assert_allclose(got[1], col[f[7]].mean(0), atol=1e-5)
+
+
+def test_orbit_and_scaled_cameras():
+    """An orbit of 0 degrees is the camera itself; a yaw moves the centre on the circle around the
+    focus; a half-resolution camera projects points to half the pixel coordinates."""
+    model = random_flame_model(n_vertices=60, seed=2)
+    cams = Pipeline(model=model, avatar=False).cameras()
+    c = np.array([0.0, 0.0, 0.0])
+    same = fa.orbit_cameras(cams, 24, [(0.0, 0.0), (30.0, 0.0)], c)
+    np.testing.assert_allclose(same.world_to_cam[0], cams.world_to_cam[24], atol=1e-12)
+    pos = lambda w: -w[:3, :3].T @ w[:3, 3]  # noqa: E731
+    p0, p1 = pos(cams.world_to_cam[24]), pos(same.world_to_cam[1])
+    assert abs(np.linalg.norm(p1 - c) - np.linalg.norm(p0 - c)) < 1e-9
+    assert p1[0] - p0[0] > 0.1 * np.linalg.norm(p0)  # turned toward +x
+    half = fa.scaled_cameras(cams, 0.5)
+    assert (half.width, half.height) == (cams.width // 2, cams.height // 2)
+    x = np.array([0.01, 0.02, 0.0, 1.0])
+    proj = lambda K, w: (K @ (w @ x)[:3])[:2] / (w @ x)[2]  # noqa: E731
+    np.testing.assert_allclose(proj(half.K[3], half.world_to_cam[3]), 0.5 * proj(cams.K[3], cams.world_to_cam[3]))
+    with pytest.raises(Exception, match="train_scale"):
+        fa.scaled_cameras(cams, 0.3)
+
+
+# ----------------------------------------------------------------------------- the asset
+@pytest.fixture(scope="module")
+def generator_local():
+    from holo_viewer.flame.default_head import load_default_model
+
+    model = load_default_model(add_teeth=True)
+    local, binding = dav.generate_default_gaussians(model, 2000, sh_degree=1, seed=0)
+    return model, local, binding
+
+
+def test_fitted_asset_round_trip_digest_check_and_fallback(tmp_path, monkeypatch, generator_local):
+    model, local, binding = generator_local
+    path = tmp_path / "fitted.npz"
+    dav.save_fitted_avatar(path, local, binding, model, colour_source=dav.appearance_digest(model))
+    got, b2, keys = dav.load_fitted_avatar(path)
+    assert np.array_equal(b2, binding) and len(got) == len(local)
+    np.testing.assert_allclose(got.means, local.means, atol=2e-3 * np.abs(local.means).max())  # float16
+    assert dav.fitted_asset_status(path) == (True, "ok")
+
+    # another head: the digest does not match -> not usable, the reason says so
+    other = tmp_path / "other_head.npz"
+    other.write_bytes(b"not the default head")
+    stale = tmp_path / "stale.npz"
+    dav.save_fitted_avatar(stale, local, binding, model, colour_source=dav.appearance_digest(model), head_path=other)
+    ok, why = dav.fitted_asset_status(stale)
+    assert not ok and "another default head" in why
+    # another colouring
+    recol = tmp_path / "recoloured.npz"
+    dav.save_fitted_avatar(recol, local, binding, model, colour_source="region-colours:0000")
+    ok, why = dav.fitted_asset_status(recol)
+    assert not ok and "another mesh colouring" in why
+    # missing / corrupt
+    assert not dav.fitted_asset_status(tmp_path / "missing.npz")[0]
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"garbage")
+    ok, why = dav.fitted_asset_status(bad)
+    assert not ok and "bad.npz" in why
+    with pytest.raises(AvatarError, match="bad.npz"):
+        dav.load_fitted_avatar(bad)
+
+    # default_avatar() falls back to the generator with one warning naming the reason
+    monkeypatch.setattr(dav, "DEFAULT_N_GAUSSIANS", 2000)
+    monkeypatch.setattr(dav, "fitted_asset_path", lambda: stale)
+    dav._fitted_local.cache_clear()
+    with pytest.warns(UserWarning, match="another default head"):
+        av = dav.default_avatar(n_gaussians=2000, use_disk_cache=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        dav._fitted_local.cache_clear()
+        dav.default_avatar(n_gaussians=2000, use_disk_cache=False)  # said once only
+    gen = dav.default_avatar(n_gaussians=2000, use_disk_cache=False, fitted=False)
+    assert torch.equal(av.local.sh, gen.local.sh)
+    # a matching asset is used (its float16 values, not the generator's)
+    monkeypatch.setattr(dav, "fitted_asset_path", lambda: path)
+    dav._fitted_local.cache_clear()
+    fitted = dav.default_avatar(n_gaussians=2000, use_disk_cache=False)
+    np.testing.assert_array_equal(fitted.local.sh.numpy(), np.asarray(got.sh))
+    assert not torch.equal(fitted.local.sh, gen.local.sh)
+    assert dav.default_avatar(n_gaussians=2000, sh_degree=0, use_disk_cache=False).local.sh.shape[1] == 1
+    dav._fitted_local.cache_clear()
+
+
+def test_the_shipped_asset_loads_and_matches_the_head():
+    path = dav.fitted_asset_path()
+    assert path.exists(), f"{path} is missing: run scripts/fit_default_avatar.py"
+    local, binding, keys = dav.load_fitted_avatar(path)
+    assert len(local) == dav.DEFAULT_N_GAUSSIANS <= 100_000
+    for a in (local.means, local.quats, local.log_scales, local.opacity_logits, local.sh):
+        assert np.all(np.isfinite(a))
+    assert dav.fitted_asset_status(path) == (True, "ok"), dav.fitted_asset_status(path)
+    assert path.stat().st_size < 8e6
+
+
+def test_a_hanging_target_render_is_cut_off():
+    """A target renderer that never returns is killed after the timeout (the pose is skipped: None);
+    a working one gives uint8 images and bool masks; a failing one gives None too."""
+    import time
+
+    from holo_viewer.camera import Cameras, intrinsics, look_at
+
+    cams = Cameras(look_at([0, 0, 1.0], [0, 0, 0])[None], intrinsics(20.0, 20.0, 8, 6)[None], 16, 12)
+
+    def ok(v, f, c, idx):
+        return np.full((len(idx), 12, 16, 3), 0.5, np.float32), np.ones((len(idx), 12, 16), bool)
+
+    def hang(v, f, c, idx):
+        time.sleep(60)
+
+    def fail(v, f, c, idx):
+        raise RuntimeError("boom")
+
+    v, f = np.zeros((3, 3)), np.array([[0, 1, 2]])
+    im, mk = fa._render_isolated(ok, v, f, cams, 30.0)
+    assert im.dtype == np.uint8 and im.shape == (1, 12, 16, 3) and int(im[0, 0, 0, 0]) == 128 and mk.all()
+    t0 = time.perf_counter()
+    assert fa._render_isolated(hang, v, f, cams, 1.0) is None
+    assert time.perf_counter() - t0 < 20
+    assert fa._render_isolated(fail, v, f, cams, 30.0) is None
+    assert fa._render_isolated(ok, v, f, cams, None)[0].shape == (1, 12, 16, 3)
