@@ -271,13 +271,18 @@ def head_box(masks: Sequence[np.ndarray], margin: int = 12) -> tuple[int, int, i
 
 def contact_sheet_image(res: dict[str, Any], scale: float = 1.0) -> np.ndarray:
     """Labelled sheet: a row per :data:`SHEET_ROWS` expression, *mesh | Gaussians* per fidelity view, PSNR under each pair."""
-    from PIL import Image, ImageDraw
+    from PIL import Image, ImageDraw, ImageFont
 
     pairs, fid = res["sheet_pairs"], list(res["fid_views"])
     names = [(k, label) for k, label in SHEET_ROWS if k in pairs]
     top, bottom, left, right = head_box([pairs[k][i][2] for k, _ in names for i in fid])
     tile_h, tile_w = bottom - top, right - left
-    head_w, label_h, pad = 92, 16, 4
+    size = max(11, tile_h // 22)  # legible after the sheet is scaled down for the README
+    try:
+        font = ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1: the fixed bitmap font
+        font = ImageFont.load_default()
+    head_w, label_h, pad = 8 * size, 2 * size, 4
     cols = [(i, which) for i in fid for which in (1, 0)]  # mesh then Gaussians per view
     H = label_h + len(names) * (tile_h + label_h + pad)
     W = head_w + len(cols) * (tile_w + pad)
@@ -285,17 +290,19 @@ def contact_sheet_image(res: dict[str, Any], scale: float = 1.0) -> np.ndarray:
     draw = ImageDraw.Draw(sheet)
     for c, (i, which) in enumerate(cols):
         x = head_w + c * (tile_w + pad)
-        draw.text((x + 2, 2), f"{'mesh' if which else 'Gaussians'} v{i} ({res['angles'][i]:+.0f} deg)", fill=(0, 0, 0))
+        draw.text((x + 2, 2), f"{'mesh' if which else 'Gaussians'} v{i} ({res['angles'][i]:+.0f} deg)", fill=(0, 0, 0),
+                  font=font)
     for r, (key, label) in enumerate(names):
         y = label_h + r * (tile_h + label_h + pad)
-        draw.text((4, y + tile_h // 2), label, fill=(0, 0, 0))
+        draw.text((4, y + tile_h // 2), label, fill=(0, 0, 0), font=font)
         for c, (i, which) in enumerate(cols):
             x = head_w + c * (tile_w + pad)
             img = np.clip(pairs[key][i][which][top:bottom, left:right], 0, 1)
             sheet.paste(Image.fromarray((img * 255 + 0.5).astype(np.uint8)), (x, y))
             if which == 0:
                 psnr = res["per_expression"][key]["psnr_db"][int(i)]
-                draw.text((x - tile_w // 2 - 30, y + tile_h + 2), f"PSNR {psnr:.1f} dB", fill=(0, 0, 0))
+                draw.text((x - tile_w // 2 - 3 * size, y + tile_h + 2), f"PSNR {psnr:.1f} dB", fill=(0, 0, 0),
+                          font=font)
     if scale != 1.0:
         sheet = sheet.resize((int(W * scale), int(H * scale)), Image.LANCZOS)
     return np.asarray(sheet)

@@ -205,6 +205,7 @@ def test_contact_sheet_layout_and_head_box():
     sheet = contact_sheet_image(res)
     tile_h, tile_w = 34, 37  # the mask box (rows 20-29, cols 10-24) grown by the default 12 px, clipped to 40 wide
     assert sheet.ndim == 3 and sheet.shape[2] == 3 and sheet.dtype == np.uint8
-    assert sheet.shape == (16 + len(SHEET_ROWS) * (tile_h + 16 + 4), 92 + 6 * (tile_w + 4), 3)
+    label_h, head_w = 22, 88  # font size 11 (the minimum) for this small tile
+    assert sheet.shape == (label_h + len(SHEET_ROWS) * (tile_h + label_h + 4), head_w + 6 * (tile_w + 4), 3)
     # the mesh tile of the first row sits right of the label column: grey 0.5 -> 128
-    assert (sheet[16 + 5, 92 + 5] == 128).all()
+    assert (sheet[label_h + 5, head_w + 5] == 128).all()
