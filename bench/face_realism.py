@@ -45,6 +45,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from holo_viewer.errors import MissingDependencyError  # noqa: E402
+from holo_viewer.pipeline.fit_avatar import masked_psnr  # noqa: E402,F401  (one masked PSNR, shared with the fit)
 from holo_viewer.tracking.landmarks import predictor_path  # noqa: E402
 
 #: 68-point (iBUG 300-W, 0-based) index groups; "right" = the subject's right (image left)
@@ -134,16 +135,6 @@ def monotone(values: Sequence[float], direction: int = 0) -> bool:
     if direction > 0:
         return bool(np.all(diff >= 0))
     return bool(np.all(diff <= 0) or np.all(diff >= 0))
-
-
-def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
-    """PSNR (dB, peak 1) of two (H, W, 3) images in [0, 1] over the pixels where ``mask`` (H, W) is true."""
-    m = np.asarray(mask, dtype=bool)
-    if not m.any():
-        raise ValueError("mask: no pixel selected")
-    diff = np.asarray(a, np.float64)[m] - np.asarray(b, np.float64)[m]
-    mse = float(np.mean(diff * diff))
-    return float("inf") if mse == 0 else float(10.0 * np.log10(1.0 / mse))
 
 
 def nearest_views(angles: np.ndarray, targets: Sequence[float]) -> list[int]:
