@@ -185,16 +185,6 @@ def camera_angles(cameras: Any, focal_center: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(rel[:, 0], rel[:, 2]))
 
 
-def mesh_colors(model: Any) -> np.ndarray:
-    """Per-vertex region colours of the default head, smoothed once (as ``write_head_renders``)."""
-    from holo_viewer.flame.preview import region_colors, smooth_vertex_colors
-
-    meta = getattr(model, "metadata", {}) or {}
-    faces = model.faces.cpu().numpy()
-    c = region_colors(meta["vertex_region"], [str(s) for s in meta["region_names"]], int(model.n_vertices))
-    return smooth_vertex_colors(c, faces, 1)
-
-
 # =============================================================================== bench
 
 
@@ -310,10 +300,11 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
     pipe = Pipeline()
     model = pipe.model
     faces = model.faces.cpu().numpy()
-    colors = mesh_colors(model)
+    from holo_viewer.avatar.default_avatar import appearance_colors
     from holo_viewer.flame.head_textures import head_appearance
 
-    appearance = head_appearance(model)  # the textured mesh (None: region colours)
+    appearance = head_appearance(model)  # the textured mesh
+    colors = appearance_colors(model) if appearance is None else None  # region colours for an untextured head
     cams = pipe.cameras()
     (framing,), _ = pipe.compute("framing")
     centre = np.asarray(framing[0])

@@ -198,14 +198,7 @@ def render_mesh(
             cam.SetClippingRange(max(dist - 3 * radius, 1e-3), dist + 3 * radius)
             add_key_lights(vtk, ren, centre, dist, d, up)
             win.Render()
-            grab = vtk.vtkWindowToImageFilter()
-            grab.SetInput(win)
-            grab.SetInputBufferTypeToRGB()
-            grab.ReadFrontBufferOff()
-            grab.Update()
-            img = grab.GetOutput()
-            arr = nps.vtk_to_numpy(img.GetPointData().GetScalars()).reshape(h, w, 3)
-            images.append(np.ascontiguousarray(arr[::-1]).astype(np.float32) / 255.0)
+            images.append(_grab(vtk, nps, win, "rgb").astype(np.float32) / 255.0)
     except (RuntimeError, ValueError, TypeError, AttributeError) as exc:  # VTK/GL failures
         raise RenderError(f"render_mesh: offscreen VTK rendering failed ({exc})") from exc
     finally:
@@ -277,17 +270,8 @@ def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, i
             cam.SetClippingRange(cameras.near, cameras.far)
             add_key_lights(vtk, ren, centre, 1.0, -fwd, up)
             win.Render()
-            out = []
-            for kind in ("rgb", "z"):
-                grab = vtk.vtkWindowToImageFilter()
-                grab.SetInput(win)
-                grab.SetInputBufferTypeToRGB() if kind == "rgb" else grab.SetInputBufferTypeToZBuffer()
-                grab.ReadFrontBufferOff()
-                grab.Update()
-                arr = nps.vtk_to_numpy(grab.GetOutput().GetPointData().GetScalars())
-                out.append(np.ascontiguousarray(arr.reshape(H, W, -1)[::-1]))
-            images.append(out[0].astype(np.float32) / 255.0)
-            masks.append(out[1][..., 0] < 1.0)
+            images.append(_grab(vtk, nps, win, "rgb").astype(np.float32) / 255.0)
+            masks.append(_grab(vtk, nps, win, "z")[..., 0] < 1.0)
     except (RuntimeError, ValueError, TypeError, AttributeError) as exc:  # VTK/GL failures
         raise RenderError(f"render_mesh_cameras: offscreen VTK rendering failed ({exc})") from exc
     finally:
@@ -295,6 +279,18 @@ def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, i
     if not images:
         return np.zeros((0, H, W, 3), np.float32), np.zeros((0, H, W), bool)
     return np.stack(images), np.stack(masks)
+
+
+def _grab(vtk: Any, nps: Any, win: Any, kind: str) -> np.ndarray:
+    """The rendered window's back buffer, row 0 at the top: ``rgb`` (H, W, 3) uint8 or ``z`` (H, W, 1) depth."""
+    grab = vtk.vtkWindowToImageFilter()
+    grab.SetInput(win)
+    grab.SetInputBufferTypeToRGB() if kind == "rgb" else grab.SetInputBufferTypeToZBuffer()
+    grab.ReadFrontBufferOff()
+    grab.Update()
+    w, h = win.GetSize()
+    arr = nps.vtk_to_numpy(grab.GetOutput().GetPointData().GetScalars())
+    return np.ascontiguousarray(arr.reshape(h, w, -1)[::-1])
 
 
 def contact_sheet(rows: Sequence[Sequence[np.ndarray]], pad: int = 4,

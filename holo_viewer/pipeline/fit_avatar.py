@@ -48,7 +48,7 @@ from ..render.config import RenderConfig
 from ..render.differentiable import render_view
 from .settings import FaceControls
 
-__all__ = ["FitConfig", "FitResult", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "region_mesh_colors", "surface_colors",
+__all__ = ["FitConfig", "FitResult", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "surface_colors",
            "orbit_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity", "masked_psnr"]
 
 #: (mesh vertices, faces, cameras, indices) -> ((n, H, W, 3) float images in [0, 1], (n, H, W) bool masks)
@@ -140,14 +140,6 @@ def training_poses(au_map: Any, n_random: int = 24, seed: int = 0) -> list[Train
     return fixed
 
 
-def region_mesh_colors(model: Any) -> np.ndarray:
-    """(V, 3) per-vertex region colours of a labelled head, smoothed once (``make demo``'s mesh renders;
-    :func:`holo_viewer.avatar.default_avatar.appearance_colors`)."""
-    from ..avatar.default_avatar import appearance_colors
-
-    return appearance_colors(model)
-
-
 def _vertex_albedo(colors: np.ndarray, faces: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     colors = np.asarray(colors, np.float64)
     faces = np.asarray(faces)
@@ -189,10 +181,10 @@ class TargetSource:
     @classmethod
     def region_colors(cls, model: Any) -> "TargetSource":
         """The head's region colours through :func:`holo_viewer.flame.preview.render_mesh_cameras` (VTK)."""
-        from ..avatar.default_avatar import appearance_digest
+        from ..avatar.default_avatar import appearance_colors, appearance_digest
         from ..flame.preview import render_mesh_cameras
 
-        colors = region_mesh_colors(model)
+        colors = appearance_colors(model)
 
         def render(vertices: np.ndarray, faces: np.ndarray, cameras: Cameras, indices: Sequence[int]
                    ) -> tuple[np.ndarray, np.ndarray]:
