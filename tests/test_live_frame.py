@@ -211,6 +211,34 @@ def test_interleaver_update_and_readers(small_interleaver):
         assert not flat_out[rest].any()
 
 
+def test_update_columns_equals_update_of_readers(small_interleaver):
+    """The one-pass native-order update (what a tracked frame uses) writes exactly the subpixels
+    that readers() lists, with the values of update(), for both backends and dtypes."""
+    il = small_interleaver
+    rng = np.random.default_rng(6)
+    nb = -(-105 // 16)
+    for trial in range(3):
+        cols = rng.random((il.n_views, nb)) < (0.05, 0.3, 1.0)[trial]
+        subs = il.readers(cols, block=16)
+        for dtype in (np.uint8, np.float32):
+            q = rng.integers(0, 256, il.quilt_shape).astype(dtype)
+            if dtype == np.float32:
+                q /= 255
+            start = rng.integers(0, 256, il.shape).astype(dtype)
+            want = il.update(q, start.copy(), subs)
+            got = il.update_columns(q, start.copy(), cols, block=16)
+            np.testing.assert_array_equal(got, want)
+            il.backend, backend = "numpy", il.backend
+            try:
+                np.testing.assert_array_equal(il.update_columns(q, start.copy(), cols, block=16), want)
+            finally:
+                il.backend = backend
+    with pytest.raises(InputError, match="columns"):
+        il.update_columns(q, start.copy(), cols[:, :-1], block=16)
+    with pytest.raises(InputError, match="quilt"):
+        il.update_columns(q[:-1], start.copy(), cols, block=16)
+
+
 # ----------------------------------------------------------------------------- live modes
 def _scene(seed: int, n: int = 2500) -> Gaussians:
     return random_scene(n, degree=1, seed=seed, extent=(0.1, 0.13, 0.06), scale_range=(-6.0, -4.0))

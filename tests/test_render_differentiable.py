@@ -98,9 +98,8 @@ def dense_render(means, quats, log_scales, opacity_logits, sh, w2c, K, config: R
         power = -0.5 * (conic[g, 0] * dx * dx + conic[g, 2] * dy * dy) - conic[g, 1] * dx * dy
         alpha = torch.clamp(op[g] * torch.exp(power), max=config.alpha_cap)
         use = inbox & (power.detach() <= 0) & (alpha.detach() >= config.alpha_threshold) & ~done
-        stop = use & ((T * (1 - alpha)).detach() < config.t_min)
+        stop = use & ((T * (1 - alpha)).detach() < config.t_min)  # blended, then the pixel stops
         done = done | stop
-        use = use & ~stop
         a = torch.where(use, alpha, torch.zeros_like(alpha))
         C = C + (a * T)[..., None] * col[g]
         T = T * (1 - a)

@@ -89,10 +89,14 @@ def test_early_termination():
     bg = np.ones(3)
     a = 0.99  # alpha cap
     T1 = 1 - a
-    T2 = T1 * (1 - a)  # 1.0000000000000018e-4 >= t_min: the second splat blends
-    assert T2 >= 1e-4 and T2 * (1 - a) < 1e-4  # the third would take T below 1e-4: stop before it
-    want = a * cols[0] + T1 * a * cols[1] + T2 * bg
+    T2 = T1 * (1 - a)  # 1.0000000000000018e-4 >= t_min: the second splat blends, the pixel goes on
+    T3 = T2 * (1 - a)
+    assert T2 >= 1e-4 and T3 < 1e-4  # the third takes T below 1e-4: it blends, then the pixel stops
+    want = a * cols[0] + T1 * a * cols[1] + T2 * a * cols[2] + T3 * bg
     np.testing.assert_allclose(render(g, background=(1.0, 1.0, 1.0))[0][10, 10], want, atol=1e-9)
+    # a fourth splat behind is not blended
+    g4 = gaussians([[0, 0, 2.0], [0, 0, 2.5], [0, 0, 3.0], [0, 0, 3.5]], 0.05, 0.995, np.vstack([cols, [1, 1, 0]]))
+    np.testing.assert_allclose(render(g4, background=(1.0, 1.0, 1.0))[0][10, 10], want, atol=1e-9)
 
 
 def test_background_and_culling():

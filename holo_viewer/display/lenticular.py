@@ -242,7 +242,31 @@ def _numba_kernels():
                         a = src[i0[s]]
                         out[s] = a + (src[i1[s]] - a) * wf[s]
 
-        _NUMBA_KERNELS = (gather, blend_u8, blend_f, update)
+        @numba.njit(parallel=True, cache=True, boundscheck=False)
+        def update_keys(src, i0, i1, w8, wf, key0, key1, chosen, out, mode):  # pragma: no cover - compiled
+            # out[s] for the subpixels whose texel block key0[s] (blend: or key1[s]) is chosen, in
+            # native order: sequential reads of the tables and writes of out, random reads only
+            # of the chosen quilt texels (a list of scattered subpixels read i0 and wrote out at
+            # random, 2-3x slower per subpixel)
+            n = key0.shape[0]
+            nchunks = 256
+            per = (n + nchunks - 1) // nchunks
+            for c in numba.prange(nchunks):
+                for s in range(c * per, min(n, c * per + per)):
+                    if mode == 0:
+                        if chosen[key0[s]]:
+                            out[s] = src[i0[s]]
+                    elif chosen[key0[s]] or chosen[key1[s]]:
+                        if mode == 1:
+                            a = np.uint32(src[i0[s]])
+                            b = np.uint32(src[i1[s]])
+                            ww = np.uint32(w8[s])
+                            out[s] = (a * (256 - ww) + b * ww + 128) >> 8
+                        else:
+                            a = src[i0[s]]
+                            out[s] = a + (src[i1[s]] - a) * wf[s]
+
+        _NUMBA_KERNELS = (gather, blend_u8, blend_f, update, update_keys)
     return _NUMBA_KERNELS
 
 
@@ -440,6 +464,59 @@ class Interleaver:
         i1.flags.writeable = False
         wf.flags.writeable = False
         return i0, i1, wf
+
+    def _block_keys(self, block: int) -> tuple[np.ndarray, np.ndarray]:
+        """Per flat subpixel, the (view, texel column // block) key of the texel it reads (int16;
+        blend mode: of both texels), built once per block and cached (~19 MB per table)."""
+        cached = getattr(self, "_keys", None)
+        if cached is not None and cached[0] == block:
+            return cached[1], cached[2]
+        Hq, Wq, _ = self.quilt_shape
+        tw, th = Wq // self.cols, Hq // self.rows
+        nb = -(-tw // block)
+        if self.n_views * nb > np.iinfo(np.int16).max:
+            raise InputError(f"block: {self.n_views} views x {nb} column blocks exceed the int16 key table; "
+                             f"use a larger block than {block}")
+
+        def key(idx: np.ndarray) -> np.ndarray:
+            pix = idx // 3
+            qr, qc = pix // Wq, pix % Wq
+            view = qc // tw + self.cols * ((Hq - 1 - qr) // th)
+            return (view * nb + (qc % tw) // block).astype(np.int16)
+
+        k0 = key(self._idx0)
+        k1 = key(self._idx1) if self.mode == "blend" else k0
+        self._keys = (block, k0, k1)
+        return k0, k1
+
+    def update_columns(self, quilt: np.ndarray, out: np.ndarray, columns: np.ndarray, block: int = 16) -> np.ndarray:
+        """Recompute the subpixels of ``out`` that read the given texel-column blocks of ``quilt``:
+        the same result as ``update(quilt, out, readers(columns, block))``, in one pass in native
+        order (2-3x faster for a tracked frame's ~20-30 % of the subpixels, measured). Returns
+        ``out``."""
+        q = np.asarray(quilt)
+        if q.shape != self.quilt_shape or q.dtype not in (np.uint8, np.float32):
+            raise InputError(f"quilt: expected {self.quilt_shape} uint8 or float32, found {q.shape} {q.dtype}")
+        if out.shape != self.shape or out.dtype != q.dtype or not out.flags.c_contiguous:
+            raise InputError(f"out: expected a C-contiguous {self.shape} {q.dtype} array, found {out.shape} {out.dtype}")
+        k0, k1 = self._block_keys(int(block))
+        tw = self.quilt_shape[1] // self.cols
+        nb = -(-tw // int(block))
+        chosen = np.asarray(columns, dtype=bool).reshape(-1)
+        if chosen.size != self.n_views * nb:
+            raise InputError(f"columns: expected {self.n_views} x {nb} bools, found {np.shape(columns)}")
+        if not chosen.any():
+            return out
+        if self.backend != "numba":
+            return self.update(q, out, np.flatnonzero(chosen[k0] | chosen[k1]))
+        src = np.ascontiguousarray(q).reshape(-1)
+        if self.mode == "nearest":
+            mode, i1, w8, wf = 0, self._idx0, self._idx0[:1].astype(np.uint16), np.zeros(1, np.float32)
+        else:
+            _, _, wf = self.gather_indices()
+            mode, i1, w8 = (1 if q.dtype == np.uint8 else 2), self._idx1, self._w8
+        _numba_kernels()[4](src, self._idx0, i1, w8, wf, k0, k1, np.ascontiguousarray(chosen), out.reshape(-1), mode)
+        return out
 
     def _reader_table(self, block: int) -> tuple[np.ndarray, np.ndarray]:
         """Flat subpixels sorted by the (view, texel column // block) they read, and offsets."""

@@ -289,8 +289,7 @@ class LiveRenderer:
             for a, b in zip(starts * self.tile, np.minimum(ends * self.tile, W)):
                 to_uint8(self.views[k, :, a:b], out=self.quilt[rs, cs.start + a:cs.start + b])
         t3 = time.perf_counter()
-        subs = self.interleaver.readers(colmask, block=self.tile)
-        self.interleaver.update(self.quilt, self.native, subs)
+        self.interleaver.update_columns(self.quilt, self.native, colmask, block=self.tile)
         t4 = time.perf_counter()
         timings.update(select=t1 - t, render=t2 - t1, quilt=t3 - t2, interleave=t4 - t3)
         return float(colmask.mean())

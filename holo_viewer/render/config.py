@@ -59,7 +59,9 @@ class RenderConfig:
     alpha_cap : float
         Upper bound of alpha per splat (0.99).
     t_min : float
-        Early termination: stop before a splat that would take the transmittance below this.
+        Early termination: a pixel stops after the splat that takes its transmittance below this
+        (that splat is blended: the colour left out is < t_min, and the rule is continuous; 3DGS
+        stops before it, leaving out up to T alpha, ~1e-2 for an opaque splat).
     dilation : float
         Added to the 2D covariance diagonal (pixels^2): the 3DGS low-pass filter.
     near : float or None

@@ -230,14 +230,14 @@ def _forward(rec, box, off, ids, width, height, tiles_x, tile, bg, thr, cap, t_m
                     if alpha < thr:
                         continue
                     test_T = T * (1.0 - alpha)
-                    if test_T < t_min:
-                        break
                     w = alpha * T
                     c0 += w * rec[k, 6]
                     c1 += w * rec[k, 7]
                     c2 += w * rec[k, 8]
                     T = test_T
                     last = j + 1
+                    if test_T < t_min:  # blended, then the pixel stops
+                        break
                 img[py, px, 0] = c0 + T * bg[0]
                 img[py, px, 1] = c1 + T * bg[1]
                 img[py, px, 2] = c2 + T * bg[2]

@@ -383,8 +383,7 @@ def _blend_row(T, R, G, B, live, p0, n, fx0, fx1, dx0, ca, lin, cst, op, cap, th
         ok = lv if ((power <= zero) & (alpha >= thr) & (xf >= fx0) & (xf < fx1)) else zero
         tt = T[p]
         test = tt * (one - alpha)
-        fin = ok if test < tmin else zero
-        ok = ok - fin
+        fin = ok if test < tmin else zero  # blended, then finished
         live[p] = lv - fin
         w = ok * alpha * tt
         R[p] += w * cr
@@ -402,8 +401,8 @@ def composite(rec, box, off, base, ids, tile, tiles_x, tiles_y, width, height, a
     """Composite every (view, tile) front to back into ``out`` (V, H, W, 3) float32.
 
     Per tile row the splat's box columns are processed branch-free (vectorisable): a pixel
-    blends when power <= 0, alpha >= threshold and it is not finished; it finishes (without
-    blending) when the splat would take T below t_min. ``blends`` (V * n_tiles,) gets counts.
+    blends when power <= 0, alpha >= threshold and it is not finished; it finishes (after
+    blending) when the splat takes T below t_min. ``blends`` (V * n_tiles,) gets counts.
     """
     nv = rec.shape[0]
     nt = tiles_x * tiles_y

@@ -12,7 +12,9 @@ limits and its tile culling differ slightly at the image border; colours are not
 clipped per splat either; the output is clipped to [0, 1] here when
 ``config.clip_output``. ``alpha_threshold``, ``alpha_cap``, ``t_min`` and ``radius_sigmas`` are gsplat's
 compiled constants (1/255, 0.99, 1e-4, 3): a config that changes them raises RenderError
-rather than silently rendering something else.
+rather than silently rendering something else. gsplat stops a pixel *before* the splat that
+would take T below 1e-4 (3DGS's rule); the CPU backends blend that splat, then stop
+(docs/renderer.md, "Early termination"): they differ by at most T alpha there.
 """
 
 from __future__ import annotations

@@ -10,8 +10,8 @@ Gaussian's pixel box), exactly docs/design.md's 3DGS forward pass:
 3. cull ``t.z <= near``; conic = Sigma2D^-1, skip det <= 0; radius = ceil(3 sqrt(lambda_max));
    the splat touches pixel centres within the square of half-size radius around its centre;
 4. front to back by view depth (stable sort): ``power = -1/2 d^T conic d`` (skip > 0);
-   ``alpha = min(0.99, o e^power)``; skip alpha < 1/255; stop (per pixel) before a splat that
-   would take ``T (1 - alpha) < 1e-4``; ``C = sum c alpha T + T_final bg``; clipped to [0, 1].
+   ``alpha = min(0.99, o e^power)``; skip alpha < 1/255; a pixel stops after the splat that
+   takes ``T (1 - alpha) < 1e-4`` (blended: docs/renderer.md, "early termination"); ``C = sum c alpha T + T_final bg``; clipped to [0, 1].
 
 Every semantic knob of :class:`~holo_viewer.render.config.RenderConfig` is honoured
 (thresholds, radius, SH degree, shared SH, culling margin, background, near).
@@ -96,11 +96,10 @@ def render_view(means: np.ndarray, cov3d: np.ndarray, opacity: np.ndarray, color
         db = done[y0:y1, x0:x1]
         use = (power <= 0.0) & (alpha >= thr) & ~db
         test_T = Tb * (1.0 - alpha)
-        stop = use & (test_T < t_min)
+        stop = use & (test_T < t_min)  # blended, then the pixel stops
         if stop.any():
             db |= stop
             n_done += int(stop.sum())
-            use &= ~stop
         w = np.where(use, alpha * Tb, 0.0)
         C[y0:y1, x0:x1] += w[..., None] * colors[g][None, None, :]
         T[y0:y1, x0:x1] = np.where(use, test_T, Tb)

@@ -236,11 +236,13 @@ def _composite_band(out: Any, feats: Any, tile: Any, splat: Any, band: tuple[int
             alpha = torch.where(use, alpha, torch.zeros_like(alpha))
             T_after = torch.cumprod(1.0 - alpha, dim=1) * T[:, None, :]
             T_before = torch.cat([T[:, None, :], T_after[:, :-1]], dim=1)
-            keep = (T_after >= config.t_min) & ~done[:, None, :]
+            # a splat blends while T before it is >= t_min (the one that takes T below t_min
+            # blends, then the pixel stops)
+            keep = (T_before >= config.t_min) & ~done[:, None, :]
             w = torch.where(keep, alpha * T_before, torch.zeros_like(alpha))
             color += torch.einsum("bkp,bkc->bpc", w, f[..., 6:9])
             T = torch.where(keep, T_after, T[:, None, :]).amin(dim=1)
-            done |= ~keep.all(dim=1)
+            done |= (keep & (T_after < config.t_min)).any(dim=1)
             if bool(done.all()):
                 break
         color += T[..., None] * bg

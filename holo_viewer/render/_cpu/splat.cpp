@@ -177,11 +177,11 @@ int64_t tile_scalar(const Job& J, int v, int t, TileBuf& b) {
                 if (!(power <= 0.0f) || alpha < J.thr) continue;
                 const float tt = b.T[p];
                 const float test = tt * (1.0f - alpha);
-                if (test < J.tmin) { b.live[p] = 0; --n_live; continue; }
-                const float w = alpha * tt;
+                const float w = alpha * tt;  // blended, then the pixel stops if T fell below t_min
                 b.R[p] += w * r[6]; b.G[p] += w * r[7]; b.B[p] += w * r[8];
                 b.T[p] = test;
                 ++nbl;
+                if (test < J.tmin) { b.live[p] = 0; --n_live; }
             }
         }
     }
@@ -347,7 +347,7 @@ __attribute__((target("avx2,fma,popcnt"))) int64_t tile_avx2_rows(const Job& J, 
                 const __m256 T = _mm256_load_ps(Ty);
                 const __m256 test = _mm256_fnmadd_ps(T, alpha, T);
                 const __m256 fin = _mm256_and_ps(m, _mm256_cmp_ps(test, vtmin, _CMP_LT_OQ));
-                const __m256 ok = _mm256_andnot_ps(fin, m);
+                const __m256 ok = m;  // blended even when it finishes the pixel
                 const __m256 w = _mm256_and_ps(ok, _mm256_mul_ps(alpha, T));
                 float* Ry = Rp + y * tile + 8 * h;
                 float* Gy = Gp + y * tile + 8 * h;
@@ -508,7 +508,7 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
             const __m256 alpha = _mm256_min_ps(vcap, _mm256_mul_ps(op, fast_exp2_8(power)));
             const __m256 test = _mm256_fnmadd_ps(tt, alpha, tt);
             const __m256 fin = _mm256_and_ps(m, _mm256_cmp_ps(test, vtmin, _CMP_LT_OQ));
-            const __m256 ok = _mm256_andnot_ps(fin, m);
+            const __m256 ok = m;  // blended even when it finishes the pixel
             const __m256 w = _mm256_and_ps(ok, _mm256_mul_ps(alpha, tt));
             _mm256_store_ps(&Rp[p], _mm256_fmadd_ps(w, cr, _mm256_load_ps(&Rp[p])));
             _mm256_store_ps(&Gp[p], _mm256_fmadd_ps(w, cg, _mm256_load_ps(&Gp[p])));
@@ -631,7 +631,7 @@ HV_TARGET_AVX512 int64_t tile_avx512(const Job& J, int v, int t, TileBuf& b) {
             const __m512 T = _mm512_load_ps(Ty);
             const __m512 test = _mm512_fnmadd_ps(T, alpha, T);
             const __mmask16 fin = _mm512_mask_cmp_ps_mask(m, test, vtmin, _CMP_LT_OQ);
-            const __mmask16 ok = _kandn_mask16(fin, m);
+            const __mmask16 ok = m;  // blended even when it finishes the pixel
             // every lane computed and stored unmasked (w = 0 where not blending): GCC turned a
             // masked blend + store into a masked store, which the next splat's load of the same
             // row cannot take by store forwarding (12% slower, measured)
