@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -222,25 +222,30 @@ def _numba_kernels():
                     a = src[i0[k]]
                     out[k] = a + (src[i1[k]] - a) * w[k]
 
+        def one(src, i0, i1, w8, wf, s, out, mode):  # pragma: no cover - compiled
+            # out[s] of flat subpixel s: mode 0 nearest, 1 blend uint8, 2 blend float
+            if mode == 0:
+                out[s] = src[i0[s]]
+            elif mode == 1:
+                a = np.uint32(src[i0[s]])
+                b = np.uint32(src[i1[s]])
+                ww = np.uint32(w8[s])
+                out[s] = (a * (256 - ww) + b * ww + 128) >> 8
+            else:
+                a = src[i0[s]]
+                out[s] = a + (src[i1[s]] - a) * wf[s]
+
+        one = numba.njit(inline="always", boundscheck=False)(one)
+
         @numba.njit(parallel=True, cache=True, boundscheck=False)
         def update(src, i0, i1, w8, wf, sel, out, mode):  # pragma: no cover - compiled
-            # out[s] for the listed flat subpixels s only; mode 0 nearest, 1 blend uint8, 2 blend float
+            # out[s] for the listed flat subpixels s only
             n = sel.shape[0]
             nchunks = 64
             per = (n + nchunks - 1) // nchunks
             for c in numba.prange(nchunks):
                 for j in range(c * per, min(n, c * per + per)):
-                    s = sel[j]
-                    if mode == 0:
-                        out[s] = src[i0[s]]
-                    elif mode == 1:
-                        a = np.uint32(src[i0[s]])
-                        b = np.uint32(src[i1[s]])
-                        ww = np.uint32(w8[s])
-                        out[s] = (a * (256 - ww) + b * ww + 128) >> 8
-                    else:
-                        a = src[i0[s]]
-                        out[s] = a + (src[i1[s]] - a) * wf[s]
+                    one(src, i0, i1, w8, wf, sel[j], out, mode)
 
         @numba.njit(parallel=True, cache=True, boundscheck=False)
         def update_keys(src, i0, i1, w8, wf, key0, key1, chosen, out, mode):  # pragma: no cover - compiled
@@ -253,18 +258,8 @@ def _numba_kernels():
             per = (n + nchunks - 1) // nchunks
             for c in numba.prange(nchunks):
                 for s in range(c * per, min(n, c * per + per)):
-                    if mode == 0:
-                        if chosen[key0[s]]:
-                            out[s] = src[i0[s]]
-                    elif chosen[key0[s]] or chosen[key1[s]]:
-                        if mode == 1:
-                            a = np.uint32(src[i0[s]])
-                            b = np.uint32(src[i1[s]])
-                            ww = np.uint32(w8[s])
-                            out[s] = (a * (256 - ww) + b * ww + 128) >> 8
-                        else:
-                            a = src[i0[s]]
-                            out[s] = a + (src[i1[s]] - a) * wf[s]
+                    if chosen[key0[s]] or (mode != 0 and chosen[key1[s]]):
+                        one(src, i0, i1, w8, wf, s, out, mode)
 
         _NUMBA_KERNELS = (gather, blend_u8, blend_f, update, update_keys)
     return _NUMBA_KERNELS
@@ -510,11 +505,7 @@ class Interleaver:
         if self.backend != "numba":
             return self.update(q, out, np.flatnonzero(chosen[k0] | chosen[k1]))
         src = np.ascontiguousarray(q).reshape(-1)
-        if self.mode == "nearest":
-            mode, i1, w8, wf = 0, self._idx0, self._idx0[:1].astype(np.uint16), np.zeros(1, np.float32)
-        else:
-            _, _, wf = self.gather_indices()
-            mode, i1, w8 = (1 if q.dtype == np.uint8 else 2), self._idx1, self._w8
+        mode, i1, w8, wf = self._kernel_args(q.dtype)
         _numba_kernels()[4](src, self._idx0, i1, w8, wf, k0, k1, np.ascontiguousarray(chosen), out.reshape(-1), mode)
         return out
 
@@ -573,6 +564,14 @@ class Interleaver:
             return np.empty(0, dtype=np.int32)
         return np.concatenate([subs[offsets[k]:offsets[k + 1]] for k in keys])
 
+    def _kernel_args(self, dtype: Any) -> tuple:
+        """(mode, second index, uint8 weight, float weight) of the update kernels: mode 0 nearest,
+        1 blend of a uint8 quilt, 2 blend of a float32 one."""
+        if self.mode == "nearest":
+            return 0, self._idx0, self._idx0[:1].astype(np.uint16), np.zeros(1, np.float32)
+        _, _, wf = self.gather_indices()
+        return (1 if dtype == np.uint8 else 2), self._idx1, self._w8, wf
+
     def update(self, quilt: np.ndarray, out: np.ndarray, subpixels: np.ndarray) -> np.ndarray:
         """Recompute only the listed flat subpixels of ``out`` from ``quilt`` (same values as a
         full call there; the rest of ``out`` is left as it is). Returns ``out``."""
@@ -586,11 +585,7 @@ class Interleaver:
             raise InputError(f"subpixels: expected flat indices in [0, {out.size}), found [{sel.min()}, {sel.max()}]")
         src = np.ascontiguousarray(q).reshape(-1)
         flat = out.reshape(-1)
-        if self.mode == "nearest":
-            mode, i1, w8, wf = 0, self._idx0, self._idx0[:1].astype(np.uint16), np.zeros(1, np.float32)
-        else:
-            _, _, wf = self.gather_indices()
-            mode, i1, w8 = (1 if q.dtype == np.uint8 else 2), self._idx1, self._w8
+        mode, i1, w8, wf = self._kernel_args(q.dtype)
         if self.backend == "numba":
             _numba_kernels()[3](src, self._idx0, i1, w8, wf, sel, flat, mode)
         elif mode == 0:
