@@ -30,6 +30,8 @@ bench: setup
 	$(PY) bench/reaction_latency.py --json bench/results/reaction_latency.json
 	$(PY) bench/react_metrics_speed.py --json bench/results/react_metrics_speed.json
 	$(PY) bench/live_latency.py --json bench/results/live_latency.json
+	$(PY) bench/live_frame.py --json bench/results/live_frame.json
+	$(PY) bench/cpu_scaling.py --json bench/results/cpu_scaling.json
 
 bench-quick: setup
 	mkdir -p bench/results

@@ -28,3 +28,5 @@ python3 -m pytest -q -p no:cacheprovider tests/test_render_torch.py tests/test_f
   -k "cuda or gsplat or device" 2>&1 | tee "$out/gpu_tests.log" | tail -n 15
 python3 bench/render_gpu.py --json "$out/render_gpu.json" 2>&1 | tail -n 12
 python3 bench/live_frame.py --quick --device cuda --json "$out/live_frame_gpu.json" 2>&1 | tail -n 25
+# the CPU path on this machine's cores: thread count x numba threading layer (docs/live_frame.md)
+python3 bench/cpu_scaling.py --frames 3 --json "$out/cpu_scaling.json" 2>&1 | tail -n 20
