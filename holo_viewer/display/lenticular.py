@@ -183,6 +183,23 @@ def interleave_reference(quilt: np.ndarray, cal: DisplayCalibration, cols: int |
 _NUMBA_KERNELS = None
 
 
+def _one_subpixel(src, i0, i1, w8, wf, s, out, mode):  # pragma: no cover - compiled by _numba_kernels
+    """out[s] of flat subpixel s: mode 0 nearest, 1 blend of uint8 values, 2 blend of floats."""
+    if mode == 0:
+        out[s] = src[i0[s]]
+    elif mode == 1:
+        a = np.uint32(src[i0[s]])
+        b = np.uint32(src[i1[s]])
+        ww = np.uint32(w8[s])
+        out[s] = (a * (256 - ww) + b * ww + 128) >> 8
+    else:
+        a = src[i0[s]]
+        out[s] = a + (src[i1[s]] - a) * wf[s]
+
+
+_ONE_SUBPIXEL = None
+
+
 def _numba_kernels():
     global _NUMBA_KERNELS
     if _NUMBA_KERNELS is None:
@@ -222,20 +239,8 @@ def _numba_kernels():
                     a = src[i0[k]]
                     out[k] = a + (src[i1[k]] - a) * w[k]
 
-        def one(src, i0, i1, w8, wf, s, out, mode):  # pragma: no cover - compiled
-            # out[s] of flat subpixel s: mode 0 nearest, 1 blend uint8, 2 blend float
-            if mode == 0:
-                out[s] = src[i0[s]]
-            elif mode == 1:
-                a = np.uint32(src[i0[s]])
-                b = np.uint32(src[i1[s]])
-                ww = np.uint32(w8[s])
-                out[s] = (a * (256 - ww) + b * ww + 128) >> 8
-            else:
-                a = src[i0[s]]
-                out[s] = a + (src[i1[s]] - a) * wf[s]
-
-        one = numba.njit(inline="always", boundscheck=False)(one)
+        global _ONE_SUBPIXEL  # a module global, not a closure: the kernels calling it stay cacheable
+        _ONE_SUBPIXEL = numba.njit(inline="always", boundscheck=False)(_one_subpixel)
 
         @numba.njit(parallel=True, cache=True, boundscheck=False)
         def update(src, i0, i1, w8, wf, sel, out, mode):  # pragma: no cover - compiled
@@ -245,7 +250,7 @@ def _numba_kernels():
             per = (n + nchunks - 1) // nchunks
             for c in numba.prange(nchunks):
                 for j in range(c * per, min(n, c * per + per)):
-                    one(src, i0, i1, w8, wf, sel[j], out, mode)
+                    _ONE_SUBPIXEL(src, i0, i1, w8, wf, sel[j], out, mode)
 
         @numba.njit(parallel=True, cache=True, boundscheck=False)
         def update_keys(src, i0, i1, w8, wf, key0, key1, chosen, out, mode):  # pragma: no cover - compiled
@@ -259,7 +264,7 @@ def _numba_kernels():
             for c in numba.prange(nchunks):
                 for s in range(c * per, min(n, c * per + per)):
                     if chosen[key0[s]] or (mode != 0 and chosen[key1[s]]):
-                        one(src, i0, i1, w8, wf, s, out, mode)
+                        _ONE_SUBPIXEL(src, i0, i1, w8, wf, s, out, mode)
 
         _NUMBA_KERNELS = (gather, blend_u8, blend_f, update, update_keys)
     return _NUMBA_KERNELS
