@@ -466,23 +466,22 @@ class Interleaver:
         return i0, i1, wf
 
     def _block_keys(self, block: int) -> tuple[np.ndarray, np.ndarray]:
-        """Per flat subpixel, the (view, texel column // block) key of the texel it reads (int16;
-        blend mode: of both texels), built once per block and cached (~19 MB per table)."""
+        """Per flat subpixel, the (view, texel column // block) key of the texel it reads (blend
+        mode: of both texels; int16 when the keys fit, ~19 MB per table), built once per block and
+        cached."""
         cached = getattr(self, "_keys", None)
         if cached is not None and cached[0] == block:
             return cached[1], cached[2]
         Hq, Wq, _ = self.quilt_shape
         tw, th = Wq // self.cols, Hq // self.rows
         nb = -(-tw // block)
-        if self.n_views * nb > np.iinfo(np.int16).max:
-            raise InputError(f"block: {self.n_views} views x {nb} column blocks exceed the int16 key table; "
-                             f"use a larger block than {block}")
+        dtype = np.int16 if self.n_views * nb <= np.iinfo(np.int16).max else np.int32
 
         def key(idx: np.ndarray) -> np.ndarray:
             pix = idx // 3
             qr, qc = pix // Wq, pix % Wq
             view = qc // tw + self.cols * ((Hq - 1 - qr) // th)
-            return (view * nb + (qc % tw) // block).astype(np.int16)
+            return (view * nb + (qc % tw) // block).astype(dtype)
 
         k0 = key(self._idx0)
         k1 = key(self._idx1) if self.mode == "blend" else k0
@@ -519,22 +518,14 @@ class Interleaver:
         cached = getattr(self, "_readers", None)
         if cached is not None and cached[0] == block:
             return cached[1], cached[2]
-        Hq, Wq, _ = self.quilt_shape
-        tw, th = Wq // self.cols, Hq // self.rows
-        nb = -(-tw // block)
-
-        def key(idx: np.ndarray) -> np.ndarray:
-            pix = idx // 3
-            qr, qc = pix // Wq, pix % Wq
-            view = qc // tw + self.cols * ((Hq - 1 - qr) // th)
-            return (view * nb + (qc % tw) // block).astype(np.int32)
-
+        nb = -(-(self.quilt_shape[1] // self.cols) // block)
+        k0, k1 = self._block_keys(block)
         n = self._idx0.size
         if self.mode == "nearest":
-            keys = key(self._idx0)
+            keys = k0
             subs = np.arange(n, dtype=np.int32)
         else:  # a blended subpixel reads two views: listed under both
-            keys = np.concatenate([key(self._idx0), key(self._idx1)])
+            keys = np.concatenate([k0, k1])
             subs = np.concatenate([np.arange(n, dtype=np.int32)] * 2)
         order = np.argsort(keys, kind="stable")
         subs = subs[order]
