@@ -6,10 +6,13 @@ frame is **deformed Gaussians -> native image** (``LiveRenderer.frame``). All fr
 
 * ``full_quilt``: every view in full, uint8 quilt, interleave (the quality reference). Its views
   are also compared with the float64 reference renderer on ``--ref-views`` views (PSNR).
-* ``all_views``: untracked, every view; one record per level of detail (``lod_fraction``), and
-  one with the renderer's error-for-blends knobs (``render_knobs``: ``t_min`` 0.01,
-  ``alpha_threshold`` 2/255, every Gaussian kept). ``psnr_db``: native image against full_quilt's,
-  over the head region.
+* ``all_views``: untracked, every view; one record per level of detail (``lod_fraction``), one
+  with the renderer's error-for-blends knobs (``render_knobs``: ``t_min`` 0.01,
+  ``alpha_threshold`` 2/255, every Gaussian kept), and one per ``view_step`` (every step-th view
+  rendered, the others synthesized by a depth-compensated warp; 4 is the live default).
+  ``psnr_db``: native image against full_quilt's, over the head region; the ``view_step``
+  records add ``worst_sweep_psnr_db``, the worse eye over viewers at -12..12 degrees and
+  0.45-0.9 m (last frame).
 * ``tracked``: a viewer at 0.6 m moving sideways across the cone; one record per head motion
   margin. ``psnr_db``: the worse eye's perceived image (VirtualDisplay) against full_quilt's
   at the tracked position, head region, over the frames; ``worst_sweep_psnr_db``: the worst over
@@ -149,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
 
         # ---- untracked, all views, by level of detail
         for frac in ((1.0, 0.5) if args.quick else (1.0, 0.7, 0.5, 0.3)):
-            live = LiveRenderer(cal, cams, LiveConfig(lod_fraction=frac), rest=frames[0])
+            live = LiveRenderer(cal, cams, LiveConfig(lod_fraction=frac, view_step=1), rest=frames[0])
             live.frame(frames[0], mode="all_views")
             secs, natives, cpu = run_mode(live, frames[1:], "all_views")
             p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
@@ -161,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
         # ---- untracked, all views, with the renderer's error-for-blends knobs (every Gaussian kept):
         # a pixel stops after T < t_min (error < t_min there), splats fainter than alpha_threshold skip
         for knobs in (dict(t_min=1e-2, alpha_threshold=2.0 / 255.0),):
-            live = LiveRenderer(cal, cams, LiveConfig(render=RenderConfig(**knobs)))
+            live = LiveRenderer(cal, cams, LiveConfig(render=RenderConfig(**knobs), view_step=1))
             live.frame(frames[0], mode="all_views")
             secs, natives, cpu = run_mode(live, frames[1:], "all_views")
             p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
@@ -170,6 +173,26 @@ def main(argv: list[str] | None = None) -> int:
                             "best_seconds": float(min(secs)), "cpu_seconds_per_frame": cpu, "psnr_db": p,
                             "rendered_fraction": 1.0, "ratio_to_full_quilt": full_s / s})
             print(f"all_views    {knobs}  {s:.3f} s/frame (cpu {cpu:.2f})  native {p:.1f} dB", flush=True)
+
+        # ---- untracked, all views, with view synthesis: every view_step-th view rendered, the others
+        # warped from their rendered neighbours by depth; also the worst eye over a sweep of viewers
+        # (what a person anywhere in front of the panel sees), last frame
+        sweep_viewers = [eyes.TrackedViewer(a, d) for a in (-12.0, -6.0, 0.0, 6.0, 12.0) for d in (0.45, 0.6, 0.9)]
+        for step in ((4,) if args.quick else (2, 3, 4, 6, 8)):
+            live = LiveRenderer(cal, cams, LiveConfig(view_step=step))
+            fraction = live.frame(frames[0], mode="all_views").rendered_fraction
+            secs, natives, cpu = run_mode(live, frames[1:], "all_views")
+            p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
+            worst = min(eyes.eye_psnr(display, ref_natives[-1], natives[-1], v)
+                        for v in (sweep_viewers[::3] if args.quick else sweep_viewers))
+            s = float(np.median(secs))
+            records.append({"mode": "all_views", "lod_fraction": 1.0, "view_step": step,
+                            "seconds_per_frame": s, "best_seconds": float(min(secs)), "cpu_seconds_per_frame": cpu,
+                            "psnr_db": p, "worst_sweep_psnr_db": worst,
+                            "rendered_fraction": fraction, "ratio_to_full_quilt": full_s / s,
+                            "sweep": "eyes at -12..12 deg, 0.45-0.9 m"})
+            print(f"all_views    view_step {step}  {s:.3f} s/frame (cpu {cpu:.2f})  native {p:.1f} dB, "
+                  f"worst eye in sweep {worst:.1f} dB", flush=True)
 
         # ---- tracked viewer, by head motion margin
         angles = np.linspace(-8.0, 8.0, n_frames + 1)

@@ -123,6 +123,25 @@ def test_warp_weights_favour_the_nearer_source(cams):
         np.testing.assert_allclose(out[k], expected, atol=1e-6)
 
 
+def test_background_columns_skipped_equal_the_full_warp(cams):
+    rig = vs.rig_of(cams)
+    V, H, W = len(cams), cams.height, cams.width
+    rng = np.random.default_rng(3)
+    sources = vs.source_views(V, 6)
+    images = np.zeros((sources.size, H, W, 3), np.float32)
+    for i in range(sources.size):  # content in a narrow band per row, background elsewhere
+        for y in range(H):
+            c = int(rng.integers(10, W - 20))
+            images[i, y, c:c + int(rng.integers(1, 12))] = rng.uniform(0.1, 1.0, size=3)
+    wmaps = rng.uniform(0.3, 1.2, size=(sources.size, H, W)).astype(np.float32)  # shifts of many pixels
+    skipped = np.full((V, H, W, 3), 9.0, np.float32)
+    vs.warp_views(images, wmaps, sources, rig, out=skipped)  # background (0, 0, 0): columns skipped
+    full = np.full((V, H, W, 3), 9.0, np.float32)
+    vs.warp_views(images, wmaps, sources, rig, out=full, background=(-1.0, -1.0, -1.0))  # nothing skipped
+    np.testing.assert_array_equal(skipped, full)
+    assert (full[vs.bracket(V, sources)[:, 0]] > 0).mean() > 0.01  # the bands did move into targets
+
+
 def test_warp_into_the_quilt_writes_only_the_listed_pixels(cams):
     rig = vs.rig_of(cams)
     V, H, W = len(cams), cams.height, cams.width

@@ -301,7 +301,7 @@ class LiveRenderer:
             self._sampled = view_synthesis.sampled_columns(read.reshape(V, H, W))
         t3 = time.perf_counter()
         view_synthesis.warp_views(self._source_images, self._wmaps, src, self._rig, quilt=self.quilt, tiles=self._tiles,
-                                  pixels=self._sampled)
+                                  pixels=self._sampled, background=self.config.render.background)
         t4 = time.perf_counter()
         self.interleaver(self.quilt, out=self.native)
         t5 = time.perf_counter()

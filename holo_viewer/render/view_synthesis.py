@@ -243,28 +243,81 @@ def _columns(wrow: np.ndarray, xlist: np.ndarray, d0: float, d1: float, iters: i
 
 
 @numba.njit(parallel=True, cache=True)
+def _row_extents(images: np.ndarray, wmaps: np.ndarray, bg: np.ndarray, spans: np.ndarray, wr: np.ndarray) -> None:
+    """Per (source, row): the first and last column that is not the background colour (an empty
+    span is (W, -1)), and the row's inverse-depth range."""
+    S, H, W = images.shape[0], images.shape[1], images.shape[2]
+    for sy in numba.prange(S * H):
+        s, y = sy // H, sy % H
+        lo, hi = W, -1
+        for x in range(W):
+            if images[s, y, x, 0] != bg[0] or images[s, y, x, 1] != bg[1] or images[s, y, x, 2] != bg[2]:
+                if lo == W:
+                    lo = x
+                hi = x
+        spans[s, y, 0], spans[s, y, 1] = lo, hi
+        wmin, wmax = np.inf, -np.inf
+        for x in range(W):
+            wmin = min(wmin, wmaps[s, y, x])
+            wmax = max(wmax, wmaps[s, y, x])
+        wr[s, y, 0], wr[s, y, 1] = wmin, wmax
+
+
+@numba.njit(inline="always")
+def _live_range(span: np.ndarray, wr: np.ndarray, d0: float, d1: float, lo: int, hi: int) -> tuple[int, int]:
+    """Grow the target columns [lo, hi] by those that can read a non-background pixel of a source
+    row whose non-background span is ``span`` (columns x + d0 + d1 w, w within ``wr``; the linear
+    interpolation reads floor(col) and floor(col) + 1)."""
+    if span[1] < span[0]:
+        return lo, hi
+    s0, s1 = d0 + d1 * wr[0], d0 + d1 * wr[1]
+    smin, smax = min(s0, s1), max(s0, s1)
+    return min(lo, int(np.floor(span[0] - 2.0 - smax))), max(hi, int(np.ceil(span[1] + 2.0 - smin)))
+
+
+@numba.njit(parallel=True, cache=True)
 def _warp(images: np.ndarray, wmaps: np.ndarray, slot: np.ndarray, jobs: np.ndarray, d: np.ndarray,
-          iters: int, offsets: np.ndarray, columns: np.ndarray, out: np.ndarray, out_u8: np.ndarray,
-          row0: np.ndarray, col0: np.ndarray, to_u8: bool) -> None:
+          iters: int, offsets: np.ndarray, columns: np.ndarray, spans: np.ndarray, wr: np.ndarray,
+          bg: np.ndarray, out: np.ndarray, out_u8: np.ndarray, row0: np.ndarray, col0: np.ndarray,
+          to_u8: bool) -> None:
     T = jobs.shape[0]
     H, W = images.shape[1], images.shape[2]
     every = np.arange(W).astype(np.int32)
     listed = offsets.size > 0
+    bg8 = np.empty(3, np.uint8)
+    for c in range(3):
+        bg8[c] = min(max(int(bg[c] * 255.0 + 0.5), 0), 255)
     rows = 8  # rows per work item: the per-row buffers are made once per item
     per = (H + rows - 1) // rows
     for item in numba.prange(T * per):  # band-major: neighbouring items read the same source rows
         j, y0 = item % T, (item // T) * rows
         k, a, b = jobs[j, 0], jobs[j, 1], jobs[j, 2]
+        sa, sb = slot[a], slot[b]
         wa = (b - k) / (b - a)
         wb = 1.0 - wa
         xs = np.empty(W)
         i0a, i0b = np.empty(W, np.int64), np.empty(W, np.int64)
         fa, fb = np.empty(W), np.empty(W)
         for y in range(y0, min(H, y0 + rows)):
-            xl = columns[offsets[k * H + y]:offsets[k * H + y + 1]] if listed else every
-            ia, ib = images[slot[a], y], images[slot[b], y]
-            _columns(wmaps[slot[a], y], xl, d[j, 0], d[j, 1], iters, xs, i0a, fa)
-            _columns(wmaps[slot[b], y], xl, d[j, 2], d[j, 3], iters, xs, i0b, fb)
+            xall = columns[offsets[k * H + y]:offsets[k * H + y + 1]] if listed else every
+            # columns that can only read background in both sources are background: not warped
+            lo, hi = _live_range(spans[sa, y], wr[sa, y], d[j, 0], d[j, 1], W, -1)
+            lo, hi = _live_range(spans[sb, y], wr[sb, y], d[j, 2], d[j, 3], lo, hi)
+            n0 = np.searchsorted(xall, lo) if hi >= lo else xall.size
+            n1 = np.searchsorted(xall, hi, side="right") if hi >= lo else xall.size
+            for i in range(xall.size):
+                if n0 <= i < n1:
+                    continue
+                x = xall[i]
+                for c in range(3):
+                    if to_u8:
+                        out_u8[row0[j] + y, col0[j] + x, c] = bg8[c]
+                    else:
+                        out[k, y, x, c] = bg[c]
+            xl = xall[n0:n1]
+            ia, ib = images[sa, y], images[sb, y]
+            _columns(wmaps[sa, y], xl, d[j, 0], d[j, 1], iters, xs, i0a, fa)
+            _columns(wmaps[sb, y], xl, d[j, 2], d[j, 3], iters, xs, i0b, fb)
             for i in range(xl.size):
                 x, p, q = xl[i], i0a[i], i0b[i]
                 ca0, ca1 = wa * (1.0 - fa[i]), wa * fa[i]
@@ -299,7 +352,8 @@ def sampled_columns(pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: Rig, *, iters: int = 1,
                out: np.ndarray | None = None, quilt: np.ndarray | None = None,
-               tiles: np.ndarray | None = None, pixels: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+               tiles: np.ndarray | None = None, pixels: tuple[np.ndarray, np.ndarray] | None = None,
+               background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
     """Synthesize every view of the rig not in ``sources`` from its nearest rendered views on
     either side.
 
@@ -325,6 +379,10 @@ def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: 
     pixels : tuple or None
         :func:`sampled_columns` of a (V, H, W) mask of the pixels to write (the others are left as
         they are); None: every pixel.
+    background : tuple of 3 float
+        The renders' background colour: target pixels that can read only background pixels of
+        both sources (outside each source row's non-background span, grown by the largest shift
+        its depths allow) are set to it without a warp, which is what the warp gives there.
 
     Returns
     -------
@@ -351,6 +409,10 @@ def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: 
         if offsets.shape != (V * H + 1,) or offsets[-1] != columns.size or (
                 columns.size and (columns.min() < 0 or columns.max() >= W)):
             raise InputError(f"pixels: expected sampled_columns of a ({V}, {H}, {W}) mask")
+    bg = np.asarray(background, dtype=np.float32).reshape(3)
+    spans = np.empty((sources.size, H, 2), dtype=np.int64)
+    wr = np.empty((sources.size, H, 2), dtype=np.float64)
+    _row_extents(images, wmaps, bg, spans, wr)
     slot = np.full(V, -1, dtype=np.int64)
     slot[sources] = np.arange(sources.size)
     d = np.empty((len(jobs), 4))
@@ -365,12 +427,12 @@ def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: 
         if (row0.min(initial=0) < 0 or col0.min(initial=0) < 0 or row0.max(initial=0) + H > quilt.shape[0]
                 or col0.max(initial=0) + W > quilt.shape[1]):
             raise InputError(f"tiles: a {H}x{W} tile falls outside the {quilt.shape[:2]} quilt")
-        _warp(images, wmaps, slot, jobs, d, int(iters), offsets, columns, np.empty((1, 1, 1, 3), np.float32), quilt,
-              row0, col0, True)
+        _warp(images, wmaps, slot, jobs, d, int(iters), offsets, columns, spans, wr, bg,
+              np.empty((1, 1, 1, 3), np.float32), quilt, row0, col0, True)
         return quilt
     if out is None or out.shape != (V, H, W, 3) or out.dtype != np.float32:
         raise InputError(f"out: expected a float32 {(V, H, W, 3)} array (or quilt and tiles), found "
                          f"{getattr(out, 'dtype', None)} {getattr(out, 'shape', None)}")
-    _warp(images, wmaps, slot, jobs, d, int(iters), offsets, columns, out, np.empty((1, 1, 3), np.uint8),
+    _warp(images, wmaps, slot, jobs, d, int(iters), offsets, columns, spans, wr, bg, out, np.empty((1, 1, 3), np.uint8),
           np.zeros(0, np.int64), np.zeros(0, np.int64), False)
     return out
