@@ -11,7 +11,9 @@ Modes:
     the tracked eyes are re-rendered (:mod:`holo_viewer.pipeline.live`, the "live frame rate" work);
     the eyes receive exactly what ``full_quilt`` would give them.
 ``all_views``
-    Every view of the default cone each frame (untracked).
+    Every view of the default cone each frame (untracked): every 4th rendered, the others
+    synthesized by a depth-compensated warp (``view_step``; 44 dB on the native image, 2.4x
+    faster than rendering all 48).
 """
 
 from __future__ import annotations
@@ -51,10 +53,14 @@ class LiveRenderer:
     calibration : DisplayCalibration, optional
     render_threads : int, optional
         Renderer threads (default: all cores but one).
+    view_step : int or None
+        ``all_views``: render every view_step-th view and synthesize the others by depth
+        (:class:`holo_viewer.pipeline.live.LiveConfig`; None: the live default, 4; 1: every view).
     """
 
     def __init__(self, tile_scale: float = 1.0, native: bool = True, preview: bool = False, backend: str = "fast",
-                 calibration: Any = None, render_threads: int | None = None, mode: str = "cone") -> None:
+                 calibration: Any = None, render_threads: int | None = None, mode: str = "cone",
+                 view_step: int | None = None) -> None:
         import os
 
         from ..pipeline import Pipeline, ViewSettings
@@ -76,7 +82,7 @@ class LiveRenderer:
             from ..pipeline.live import LiveConfig, LiveRenderer as FrameRenderer
 
             self._live = FrameRenderer(self.pipeline.calibration, self.pipeline.cameras(),
-                                       LiveConfig(render=RenderConfig(num_threads=threads)))
+                                       LiveConfig(render=RenderConfig(num_threads=threads), view_step=view_step))
 
     def render(self, listener: Mapping[str, np.ndarray], pain: float, named: tuple[tuple[str, float], ...],
                viewer_angle_deg: float, viewer_distance_m: float) -> RenderedFrame:

@@ -137,7 +137,8 @@ class LiveRenderer:
 
     Notes
     -----
-    Holds ~250 MB (float views, quilt, native, the interleaver's tables); not thread-safe (one
+    Holds ~250 MB (float views, quilt, native, the interleaver's tables; ~80 MB more with view
+    synthesis: source renders, depth maps, the sampled-pixel lists); not thread-safe (one
     renderer per render thread). With ``backend="gsplat"`` the views stay on the GPU, so every
     frame renders all views (a tracked frame on the CPU path needs the kept host views).
     """
