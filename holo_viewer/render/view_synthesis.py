@@ -117,6 +117,14 @@ def bracket(n_views: int, sources: np.ndarray) -> np.ndarray:
     return np.stack((targets, src[hi - 1], src[hi]), axis=1).astype(np.int64)
 
 
+@numba.njit(inline="always")
+def _cell_taps(i: int, cell: int, n: int) -> tuple[int, int, float]:
+    """Linear interpolation of pixel i between cell centres: cells c0, c1 < n and the weight of c1."""
+    f = (i + 0.5) / cell - 0.5
+    c0 = min(max(int(np.floor(f)), 0), n - 1)
+    return c0, min(c0 + 1, n - 1), min(max(f - c0, 0.0), 1.0)
+
+
 @numba.njit(parallel=True, cache=True)
 def _zbuffer(means: np.ndarray, keep: np.ndarray, R: np.ndarray, tx: np.ndarray, ty: float, tz: float, fx: float,
              fy: float, cx: np.ndarray, cy: float, near: float, H: int, W: int, cell: int, w_zero: float,
@@ -163,17 +171,11 @@ def _zbuffer(means: np.ndarray, keep: np.ndarray, R: np.ndarray, tx: np.ndarray,
         # bilinear, separable: along x into a (h, W) buffer, then along y
         rows = np.empty((h, W))
         for x in range(W):
-            fx_ = (x + 0.5) / cell - 0.5
-            x0 = min(max(int(np.floor(fx_)), 0), w - 1)
-            x1 = min(x0 + 1, w - 1)
-            ax = min(max(fx_ - x0, 0.0), 1.0)
+            x0, x1, ax = _cell_taps(x, cell, w)
             for y in range(h):
                 rows[y, x] = (1.0 - ax) * zb[y, x0] + ax * zb[y, x1]
         for y in range(H):
-            fy_ = (y + 0.5) / cell - 0.5
-            y0 = min(max(int(np.floor(fy_)), 0), h - 1)
-            y1 = min(y0 + 1, h - 1)
-            ay = min(max(fy_ - y0, 0.0), 1.0)
+            y0, y1, ay = _cell_taps(y, cell, h)
             for x in range(W):
                 out[s, y, x] = (1.0 - ay) * rows[y0, x] + ay * rows[y1, x]
 
