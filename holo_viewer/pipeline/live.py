@@ -6,12 +6,12 @@ Modes (``LiveRenderer.frame`` / :func:`render_native`), all producing the panel'
     Every view in full (the quality reference): render -> uint8 quilt -> interleave.
 ``all_views``
     Untracked: every view, optionally with a level of detail (``LiveConfig.lod_fraction``, the
-    Gaussians that contribute most over the cone, chosen once per avatar), and optionally with
+    Gaussians that contribute most over the cone, chosen once per avatar), and by default with
     only every ``LiveConfig.view_step``-th view rendered and the others synthesized by a
-    depth-compensated warp of their rendered neighbours (:mod:`holo_viewer.render.view_synthesis`). The interleave samples
-    59 % of the quilt's pixels but some pixel of every 16x16 tile of every view (measured on the
-    Portrait), so a per-calibration tile mask saves nothing with row-vector compositing; see
-    docs/live_frame.md.
+    depth-compensated warp of their rendered neighbours (:mod:`holo_viewer.render.view_synthesis`;
+    ``view_step=1`` renders every view). The interleave samples 59 % of the quilt's pixels but
+    some pixel of every 16x16 tile of every view (measured on the Portrait), so a per-calibration
+    tile mask saves nothing with row-vector compositing; see docs/live_frame.md.
 ``tracked``
     A tracked viewer (:class:`~holo_viewer.display.eyes.TrackedViewer`): only the tile columns
     of the views whose light can reach the two eyes (beam weight > ``threshold``, over the head
