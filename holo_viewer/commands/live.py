@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--render-mode", choices=("cone", "tracked", "all_views"), default="cone",
                      help="cone: the 48 cameras follow the tracked viewer (Algorithm 1's viewer angle and distance; "
                      "default); tracked: default cone, only what the tracked eyes see is re-rendered (faster); "
-                     "all_views: default cone, every 4th view rendered and the others warped by depth (fastest untracked)")
+                     "all_views: default cone, every 5th view rendered and the others warped by depth (fastest untracked)")
     out.add_argument("--video-fps", type=float, default=10.0, help="frame rate written into native.mp4 (one frame "
                      "per displayed frame; default 10)")
     out.add_argument("--record-video", action="store_true", help="also keep the webcam video (off by default: "

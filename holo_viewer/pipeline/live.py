@@ -49,7 +49,7 @@ from ..render.config import RenderConfig
 
 __all__ = ["LiveConfig", "LiveFrame", "LiveRenderer", "render_native", "MODES"]
 
-AUTO_VIEW_STEP = 4  # LiveConfig.view_step=None on a horizontal rig
+AUTO_VIEW_STEP = 5  # LiveConfig.view_step=None on a horizontal rig
 
 Mode = Literal["auto", "tracked", "all_views", "full_quilt", "eye_centred"]
 MODES = ("auto", "tracked", "all_views", "full_quilt", "eye_centred")
@@ -79,8 +79,8 @@ class LiveConfig:
         all_views: render views 0, view_step, 2 view_step, ... and the last; synthesize the others
         from their nearest rendered views by a depth-compensated warp (1 = render every view).
         An explicit step > 1 needs a horizontal camera rig (the quilt cameras are one). None
-        (default): 4 when the cameras are such a rig (44.4 dB on the native image of the default
-        avatar, 0.19 s against 0.46 s; docs/live_frame.md), else 1. CPU path only: the gsplat
+        (default): 5 when the cameras are such a rig (43 dB on the native image of the default
+        avatar, 0.18 s against 0.46 s; docs/live_frame.md), else 1. CPU path only: the gsplat
         backend renders every view.
     backend : str
         all_views / full_quilt renderer: "fast" (CPU), or "gsplat" (CUDA: the views stay on the

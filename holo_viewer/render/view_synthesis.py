@@ -21,7 +21,8 @@ source view, the nearest one per ``cell`` x ``cell`` pixel cell is kept (a z-buf
 cells inside the head are filled from their neighbours, and the cells are interpolated
 bilinearly; cells that stay empty (background) get the zero-disparity plane, where every view
 agrees. Measured on the fitted avatar (bench/live_frame.py): every 2nd view 49 dB, every 3rd 46 dB,
-every 4th 44 dB over the head of the native image against rendering all 48 (docs/live_frame.md).
+every 4th 44 dB, every 5th (the live default) 43 dB over the head of the native image against
+rendering all 48 (docs/live_frame.md).
 
 Pure math, no I/O: :func:`rig_of` checks the cameras and returns what the warp needs,
 :func:`source_views` which views to render, :func:`inverse_depth` the depth maps,
