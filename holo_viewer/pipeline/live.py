@@ -80,8 +80,9 @@ class LiveConfig:
         from their nearest rendered views by a depth-compensated warp (1 = render every view).
         An explicit step > 1 needs a horizontal camera rig (the quilt cameras are one). None
         (default): 5 when the cameras are such a rig (43 dB on the native image of the default
-        avatar, 0.18 s against 0.46 s; docs/live_frame.md), else 1. CPU path only: the gsplat
-        backend renders every view.
+        avatar, 0.18 s against 0.46 s; docs/live_frame.md), else 1; with the gsplat backend None
+        renders every view (its synthesis on the device, ``view_step > 1``, is tested on CPU torch
+        but not yet timed on a GPU).
     backend : str
         all_views / full_quilt renderer: "fast" (CPU), or "gsplat" (CUDA: the views stay on the
         GPU and are tiled and interleaved there, :class:`~holo_viewer.display.device.DeviceInterleaver`).
@@ -178,6 +179,8 @@ class LiveRenderer:
         self._texel: np.ndarray | None = None
         self._rig = None
         step = self.config.view_step
+        if step is None and self.config.backend != "fast":
+            step = 1  # the GPU path renders every view unless asked: its synthesis is not timed yet
         if step is None or step > 1:
             from ..render import view_synthesis
 
@@ -192,8 +195,9 @@ class LiveRenderer:
             from ..display.quilt import tile_slices
 
             self._sources = view_synthesis.source_views(V, self.view_step)
-            self._wmaps = np.empty((self._sources.size, H, W), dtype=np.float32)
             self._source_cams = cameras[self._sources.tolist()]
+        if self.view_step > 1 and self.config.backend == "fast":
+            self._wmaps = np.empty((self._sources.size, H, W), dtype=np.float32)
             self._source_images = np.zeros((self._sources.size, H, W, 3), dtype=np.float32)
             Hq, Wq, _ = self.quilt_shape
             self._tiles = np.array([[tile_slices(Hq, Wq, cols, rows, k)[i].start for i in (0, 1)] for k in range(V)],
@@ -316,15 +320,32 @@ class LiveRenderer:
         from ..render import gsplat_backend
 
         t = time.perf_counter()
-        views = gsplat_backend.render_device(g, self.cameras, self.config.render)
-        t1 = time.perf_counter()
+        if self.view_step > 1:  # the source views rendered, the others warped on the device
+            import torch
+
+            from ..render import view_synthesis
+
+            src = self._sources
+            images = gsplat_backend.render_device(g, self._source_cams, self.config.render)
+            t1 = time.perf_counter()
+            gt = g.torch(device=images.device, dtype=torch.float32)
+            wmaps = view_synthesis.inverse_depth_torch(gt.means, torch.sigmoid(gt.opacity_logits), self.cameras, src,
+                                                       rig=self._rig)
+            views = view_synthesis.warp_views_torch(images, wmaps, src, self._rig)
+            fraction = src.size / len(self.cameras)
+        else:
+            views = gsplat_backend.render_device(g, self.cameras, self.config.render)
+            t1 = time.perf_counter()
+            fraction = 1.0
+        t2 = time.perf_counter()
         if self._device is None:
             V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
             self._device = DeviceInterleaver(self.interleaver, V, H, W, device=views.device)
         self.native[...] = self._device(views)
-        t2 = time.perf_counter()
-        timings.update(render=t1 - t, interleave=t2 - t1)
-        return 1.0
+        t3 = time.perf_counter()
+        # (device work is asynchronous: only the sum, ending with the copy to the host, is a GPU time)
+        timings.update(render=t1 - t, synthesis=t2 - t1, interleave=t3 - t2)
+        return fraction
 
     def tracked_columns(self, viewer: Any) -> np.ndarray:
         """(V, tiles_x) bool: the tile columns of each view a tracked frame renders for ``viewer``

@@ -32,6 +32,7 @@ Pure math, no I/O: :func:`rig_of` checks the cameras and returns what the warp n
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
@@ -39,7 +40,8 @@ import numpy as np
 from ..camera import Cameras
 from ..errors import InputError
 
-__all__ = ["Rig", "rig_of", "source_views", "inverse_depth", "warp_views", "bracket", "sampled_columns"]
+__all__ = ["Rig", "rig_of", "source_views", "inverse_depth", "warp_views", "bracket", "sampled_columns",
+           "inverse_depth_torch", "warp_views_torch"]
 
 
 @dataclass(frozen=True)
@@ -438,4 +440,97 @@ def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: 
                          f"{getattr(out, 'dtype', None)} {getattr(out, 'shape', None)}")
     _warp(images, wmaps, slot, jobs, d, int(iters), offsets, columns, spans, wr, bg, out, np.empty((1, 1, 3), np.uint8),
           np.zeros(0, np.int64), np.zeros(0, np.int64), False)
+    return out
+
+
+# ---- torch twins (any device): the GPU path keeps its views on the device -----------------------
+def inverse_depth_torch(means: Any, opacity: Any, cameras: Cameras, views: np.ndarray, *, rig: Rig | None = None,
+                        cell: int = 4, min_opacity: float = 0.5) -> Any:
+    """:func:`inverse_depth` on torch tensors (the device and float dtype of ``means``): the same
+    z-buffer of the centres, the same 3 hole-filling passes and the same bilinear interpolation
+    (tested against it on CPU torch). Returns (len(views), H, W)."""
+    import torch
+    import torch.nn.functional as F
+
+    rig = rig or rig_of(cameras)
+    views = np.asarray(views, dtype=np.int64)
+    if int(cell) != cell or cell < 1:
+        raise InputError(f"cell: expected an integer >= 1, found {cell!r}")
+    dev, dt = means.device, means.dtype
+    H, W = cameras.height, cameras.width
+    h, w = -(-H // cell), -(-W // cell)
+    S = views.size
+    m = means[opacity >= min_opacity]
+    R = torch.as_tensor(np.array(cameras.R[0]), dtype=dt, device=dev)
+    t0 = cameras.t[0]
+    px = m @ R[0]
+    py = m @ R[1]
+    z = m @ R[2] + float(t0[2])
+    tx = torch.as_tensor(rig.tx[views], dtype=dt, device=dev)[:, None]
+    cx = torch.as_tensor(rig.cx[views], dtype=dt, device=dev)[:, None]
+    u = rig.fx * (px[None] + tx) / z[None] + cx                                   # (S, N)
+    v = (float(cameras.fy[0]) * (py + float(t0[1])) / z + float(cameras.cy[0]))[None].expand(S, -1)
+    ok = (z > float(cameras.near))[None] & (u >= 0) & (v >= 0)
+    xi = torch.floor(u / cell).clamp(max=w).long()
+    yi = torch.floor(v / cell).clamp(max=h).long()
+    ok = ok & (xi < w) & (yi < h)
+    s_idx = torch.arange(S, device=dev)[:, None].expand(S, -1)
+    flat = (s_idx * h + yi) * w + xi
+    zb = torch.full((S * h * w,), float("inf"), dtype=dt, device=dev)
+    zb.scatter_reduce_(0, flat[ok], z[None].expand(S, -1)[ok], reduce="amin")
+    zb = zb.view(S, 1, h, w)
+    ones = torch.ones((1, 1, 3, 3), dtype=dt, device=dev)
+    for _ in range(3):  # an empty cell takes the mean of >= 3 filled neighbours (of the previous pass)
+        filled = torch.isfinite(zb)
+        total = F.conv2d(torch.where(filled, zb, torch.zeros_like(zb)), ones, padding=1)
+        count = F.conv2d(filled.to(dt), ones, padding=1)
+        zb = torch.where(~filled & (count >= 3), total / count.clamp(min=1), zb)
+    wc = torch.where(torch.isfinite(zb), 1.0 / zb, torch.full_like(zb, rig.w_zero))
+    up = F.interpolate(wc, scale_factor=float(cell), mode="bilinear", align_corners=False,
+                       recompute_scale_factor=False)
+    return up[:, 0, :H, :W]
+
+
+def warp_views_torch(images: Any, wmaps: Any, sources: np.ndarray, rig: Rig, *, iters: int = 1) -> Any:
+    """:func:`warp_views` on torch tensors: (V, H, W, 3) views, the sources' from ``images`` and the
+    others synthesized (every pixel; same columns, weights and interpolation, tested against it
+    on CPU torch)."""
+    import torch
+
+    sources = np.asarray(sources, dtype=np.int64)
+    V = rig.tx.size
+    S, H, W, _ = images.shape
+    if S != sources.size or tuple(wmaps.shape) != (S, H, W) or W < 2:
+        raise InputError(f"images, wmaps: expected ({sources.size}, H, W, 3) and ({sources.size}, H, W) with W >= 2, "
+                         f"found {tuple(images.shape)} and {tuple(wmaps.shape)}")
+    jobs = bracket(V, sources)
+    dev, dt = images.device, images.dtype
+    out = torch.empty((V, H, W, 3), dtype=dt, device=dev)
+    out[torch.as_tensor(sources, device=dev)] = images
+    if jobs.size == 0:
+        return out
+    slot = np.full(V, -1, dtype=np.int64)
+    slot[sources] = np.arange(S)
+    k, a, b = jobs[:, 0], jobs[:, 1], jobs[:, 2]
+    wa = torch.as_tensor((b - k) / (b - a), dtype=dt, device=dev)[:, None, None, None]
+    x = torch.arange(W, dtype=dt, device=dev)
+    acc = torch.zeros((len(jobs), H, W, 3), dtype=dt, device=dev)
+    for src, weight in ((a, wa), (b, 1.0 - wa)):
+        d0 = torch.as_tensor(rig.cx[src] - rig.cx[k], dtype=dt, device=dev)[:, None, None]
+        d1 = torch.as_tensor(rig.fx * (rig.tx[src] - rig.tx[k]), dtype=dt, device=dev)[:, None, None]
+        sl = torch.as_tensor(slot[src], device=dev)
+        wm, img = wmaps[sl], images[sl]
+        xs = x + d0 + d1 * wm
+        for it in range(int(iters) + 1):
+            p = torch.floor(xs).clamp(0, W - 2)
+            f = (xs - p).clamp(0.0, 1.0)
+            p = p.long()
+            if it == iters:
+                break
+            wv = (1.0 - f) * torch.gather(wm, 2, p) + f * torch.gather(wm, 2, p + 1)
+            xs = x + d0 + d1 * wv
+        p3 = p[..., None].expand(-1, -1, -1, 3)
+        col = (1.0 - f)[..., None] * torch.gather(img, 2, p3) + f[..., None] * torch.gather(img, 2, p3 + 1)
+        acc += weight * col
+    out[torch.as_tensor(k, device=dev)] = acc
     return out
