@@ -17,7 +17,8 @@ with weights ``(b - k, k - a) / (b - a)``.
 
 The inverse depth comes from the Gaussians, not from the compositor (which has no depth
 output): the centres of the Gaussians with opacity >= ``min_opacity`` are projected into each
-source view, the nearest one per ``cell`` x ``cell`` pixel cell is kept (a z-buffer), empty
+source view, the nearest one per ``cell`` x ``cell`` pixel cell (about a dozen centres per cell,
+:func:`auto_cell`) is kept (a z-buffer), empty
 cells inside the head are filled from their neighbours, and the cells are interpolated
 bilinearly; cells that stay empty (background) get the zero-disparity plane, where every view
 agrees. Measured on the fitted avatar (bench/live_frame.py): every 2nd view 49 dB, every 3rd 46 dB,
@@ -41,7 +42,7 @@ from ..camera import Cameras
 from ..errors import InputError
 
 __all__ = ["Rig", "rig_of", "source_views", "inverse_depth", "warp_views", "bracket", "sampled_columns",
-           "inverse_depth_torch", "warp_views_torch"]
+           "inverse_depth_torch", "warp_views_torch", "auto_cell"]
 
 
 @dataclass(frozen=True)
@@ -120,6 +121,20 @@ def bracket(n_views: int, sources: np.ndarray) -> np.ndarray:
     return np.stack((targets, src[hi - 1], src[hi]), axis=1).astype(np.int64)
 
 
+CENTRES_PER_CELL = 12  # the automatic z-buffer cell holds this many kept centres on average
+
+
+def auto_cell(n_kept: int, height: int, width: int) -> int:
+    """Side of the z-buffer's cells for ``n_kept`` centres in a height x width view: about
+    :data:`CENTRES_PER_CELL` per cell on average over the image (~twice that over a head that
+    fills half of it), 1..16 px. Measured on the default avatar (step 5, native image): the best
+    fixed cell was 6 px at 420x560 (44.6 dB; 4 px 43.5, 2 px 36.8: holes), 3 px at 210x280 and
+    2 px at 105x140; this rule gives 6, 3 and 2."""
+    if n_kept < 1:
+        return 16
+    return int(min(16, max(1, round(float(np.sqrt(CENTRES_PER_CELL * height * width / n_kept))))))
+
+
 @numba.njit(inline="always")
 def _cell_taps(i: int, cell: int, n: int) -> tuple[int, int, float]:
     """Linear interpolation of pixel i between cell centres: cells c0, c1 < n and the weight of c1."""
@@ -184,7 +199,7 @@ def _zbuffer(means: np.ndarray, keep: np.ndarray, R: np.ndarray, tx: np.ndarray,
 
 
 def inverse_depth(means: np.ndarray, opacity: np.ndarray, cameras: Cameras, views: np.ndarray, *,
-                  rig: Rig | None = None, cell: int = 4, min_opacity: float = 0.5,
+                  rig: Rig | None = None, cell: int | None = None, min_opacity: float = 0.5,
                   out: np.ndarray | None = None) -> np.ndarray:
     """(len(views), H, W) float32 inverse camera depth (1/m) of the nearest surface per pixel.
 
@@ -198,8 +213,9 @@ def inverse_depth(means: np.ndarray, opacity: np.ndarray, cameras: Cameras, view
         A horizontal rig (:func:`rig_of`).
     views : numpy.ndarray
         The views to make depth maps for.
-    cell : int
-        Side of the z-buffer's cells in pixels (4: ~27 centres per cell of the default avatar).
+    cell : int or None
+        Side of the z-buffer's cells in pixels; None: :func:`auto_cell` (6 px for the default
+        avatar at 420x560).
     out : numpy.ndarray or None
         (len(views), H, W) float32 to write into.
     """
@@ -209,16 +225,19 @@ def inverse_depth(means: np.ndarray, opacity: np.ndarray, cameras: Cameras, view
     opacity = np.asarray(opacity, dtype=np.float64)
     if means.ndim != 2 or means.shape[1] != 3 or opacity.shape != (means.shape[0],):
         raise InputError(f"means, opacity: expected (N, 3) and (N,), found {means.shape} and {opacity.shape}")
+    H, W = cameras.height, cameras.width
+    keep = opacity >= min_opacity
+    cell = auto_cell(int(keep.sum()), H, W) if cell is None else cell
     if int(cell) != cell or cell < 1:
         raise InputError(f"cell: expected an integer >= 1, found {cell!r}")
-    H, W = cameras.height, cameras.width
     if out is None:
         out = np.empty((views.size, H, W), dtype=np.float32)
     elif out.shape != (views.size, H, W) or out.dtype != np.float32:
         raise InputError(f"out: expected float32 {(views.size, H, W)}, found {out.dtype} {out.shape}")
     t0 = cameras.t[0]
-    _zbuffer(np.ascontiguousarray(means), opacity >= min_opacity, np.ascontiguousarray(cameras.R[0]), rig.tx[views], float(t0[1]), float(t0[2]), rig.fx, float(cameras.fy[0]), rig.cx[views],
-             float(cameras.cy[0]), float(cameras.near), H, W, int(cell), rig.w_zero, out)
+    _zbuffer(np.ascontiguousarray(means), keep, np.ascontiguousarray(cameras.R[0]), rig.tx[views], float(t0[1]),
+             float(t0[2]), rig.fx, float(cameras.fy[0]), rig.cx[views], float(cameras.cy[0]), float(cameras.near), H, W,
+             int(cell), rig.w_zero, out)
     return out
 
 
@@ -445,7 +464,7 @@ def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: 
 
 # ---- torch twins (any device): the GPU path keeps its views on the device -----------------------
 def inverse_depth_torch(means: Any, opacity: Any, cameras: Cameras, views: np.ndarray, *, rig: Rig | None = None,
-                        cell: int = 4, min_opacity: float = 0.5) -> Any:
+                        cell: int | None = None, min_opacity: float = 0.5) -> Any:
     """:func:`inverse_depth` on torch tensors (the device and float dtype of ``means``): the same
     z-buffer of the centres, the same 3 hole-filling passes and the same bilinear interpolation
     (tested against it on CPU torch). Returns (len(views), H, W)."""
@@ -454,13 +473,14 @@ def inverse_depth_torch(means: Any, opacity: Any, cameras: Cameras, views: np.nd
 
     rig = rig or rig_of(cameras)
     views = np.asarray(views, dtype=np.int64)
-    if int(cell) != cell or cell < 1:
-        raise InputError(f"cell: expected an integer >= 1, found {cell!r}")
     dev, dt = means.device, means.dtype
     H, W = cameras.height, cameras.width
+    m = means[opacity >= min_opacity]
+    cell = auto_cell(int(m.shape[0]), H, W) if cell is None else cell
+    if int(cell) != cell or cell < 1:
+        raise InputError(f"cell: expected an integer >= 1, found {cell!r}")
     h, w = -(-H // cell), -(-W // cell)
     S = views.size
-    m = means[opacity >= min_opacity]
     R = torch.as_tensor(np.array(cameras.R[0]), dtype=dt, device=dev)
     t0 = cameras.t[0]
     px = m @ R[0]
