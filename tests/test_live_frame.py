@@ -260,7 +260,7 @@ def small_cameras():
 @pytest.mark.parametrize("blend", [False, True])
 def test_tracked_frame_matches_full_path_where_eyes_see(display, small_cameras, blend):
     rng = np.random.default_rng(int(blend))
-    cfg = LiveConfig(blend=blend, motion_m=0.01, motion_distance_m=0.04, refresh_columns=5)
+    cfg = LiveConfig(blend=blend, motion_m=0.01, motion_distance_m=0.04, refresh_columns=5, tracked="bands")
     live = LiveRenderer(SMALL, small_cameras, cfg)
     reference = LiveRenderer(SMALL, small_cameras, cfg)
     g0 = _scene(0)

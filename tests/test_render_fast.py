@@ -202,7 +202,13 @@ def test_cpp_project_bin_equals_numba(degree, shared, cull, threads, tile):
 
     rec2, box2 = fast._records(3, m)
     off2, base2, seen2 = np.empty_like(off), np.empty_like(base), np.empty(m, np.uint8)
-    ins = fast._sorted_inputs(order, pc, cov, means, opacity, shared_rgb if shared else sh, thr)
+    ins = fast._sorted_inputs(order, means, np.asarray(g.quats, np.float64), np.asarray(g.log_scales, np.float64),
+                              opacity, shared_rgb if shared else sh, np.ascontiguousarray(cams_all.R[0]), thr)
+    # the one-pass sorted copies are prep_3d's values gathered in depth order, bit for bit
+    mp = ins[0].shape[1]
+    assert np.array_equal(ins[0][:, :m], pc[order].T) and np.array_equal(ins[1][:, :m], cov[order].T)
+    assert np.array_equal(ins[2][:, :m], means[order].T) and np.array_equal(ins[3][:m], opacity[order])
+    assert not ins[0][:, m:].any() and not ins[3][m:].any() and mp % 8 == 0
     args = (*ins, cams, m, ins[3].size, 3, W, H, degree, int(shared), tile, tx, ty, near, 0.3, 3.0, thr, cull, rec2, off2, base2,
             seen2)
     small = np.empty(10, dtype=np.int32)

@@ -37,7 +37,8 @@ from ..camera import Cameras
 from .calibration import DisplayCalibration
 from .simulate import VirtualDisplay
 
-__all__ = ["TrackedViewer", "eye_positions", "view_columns", "column_tile_mask", "received_subpixels",
+__all__ = ["TrackedViewer", "eye_positions", "view_columns", "view_segments", "eye_view_bounds", "reach_views",
+           "column_tile_mask", "received_subpixels",
            "received_samples", "quilt_samples",
            "eye_cameras", "eye_view_coordinates", "scatter_eye_images", "eye_images", "head_psnr", "eye_psnr",
            "psnr"]
@@ -116,36 +117,96 @@ def view_columns(calibration: DisplayCalibration, viewer: TrackedViewer, tile_wi
     """
     cal = calibration
     n = cal.n_views if n_views is None else int(n_views)
-    if mode not in ("nearest", "blend"):
-        raise InputError(f"mode: expected 'nearest' or 'blend', found {mode!r}")
-    check_finite_scalar(threshold, "threshold", low=0.0, high=0.999, low_open=True)
-    check_finite_scalar(sigma_views, "sigma_views", low=0.0, low_open=True)
-    check_finite_scalar(motion_m, "motion_m", low=0.0)
-    check_finite_scalar(motion_distance_m, "motion_distance_m", low=0.0)
-    if int(tile_width) < 1 or n < 2:
-        raise InputError(f"tile_width, n_views: expected >= 1 and >= 2, found {tile_width}, {n}")
+    if int(tile_width) < 1:
+        raise InputError(f"tile_width: expected >= 1, found {tile_width}")
+    near = _near_views(cal, viewer, n, mode, sigma_views, threshold, motion_m, motion_distance_m)
+    near = near.any(axis=0)  # (n, W): either eye
     W = cal.screen_w
-    x_m = ((np.arange(W, dtype=np.float64) + 0.5) / W - 0.5) * cal.physical_size_m[0]  # (W,)
-    reach = sigma_views * math.sqrt(2.0 * math.log(1.0 / threshold)) + (0.5 if mode == "nearest" else 1.0)
-    reach += 1e-9 * n  # rounding of zeta
-    d_lo = max(viewer.distance_m - motion_distance_m, 1e-3)
-    d_hi = viewer.distance_m + motion_distance_m
-    k = np.arange(n, dtype=np.float64)[:, None]  # (n, 1)
-    near = np.zeros((n, W), dtype=bool)
-    for xe0, _ in ((p[1] * math.tan(math.radians(p[0])), p[1]) for p in eye_positions(viewer)):
-        corners = [_view_coordinate(cal, n, x_m, xe, d) for xe in (xe0 - motion_m, xe0 + motion_m)
-                   for d in (d_lo, d_hi)]
-        t_lo = np.minimum.reduce(corners)[None, :]  # (1, W)
-        t_hi = np.maximum.reduce(corners)[None, :]
-        for shift in (-n, 0, n):  # circular distance in views
-            kk = k + shift
-            gap = np.maximum(t_lo - kk, kk - t_hi)  # distance from kk to [t_lo, t_hi] (<= 0 inside)
-            near |= gap < reach
     tex_col = np.minimum(np.floor((np.arange(W) + 0.5) / W * tile_width), tile_width - 1).astype(np.int64)
     out = np.zeros((n, int(tile_width)), dtype=bool)
     vi, ci = np.nonzero(near)
     out[vi, tex_col[ci]] = True
     return out
+
+
+def eye_view_bounds(calibration: DisplayCalibration, viewer: TrackedViewer, *, n_views: int | None = None,
+                    motion_m: float = 0.02, motion_distance_m: float = 0.05) -> np.ndarray:
+    """(E, 2, W) float64 ``t_lo``, ``t_hi``: the range of the view coordinate each eye looks at
+    through every native column while the head moves within the margin (``t`` is monotone in the
+    eye's sideways position and distance, so the four corners of the margin bound it)."""
+    cal = calibration
+    n = cal.n_views if n_views is None else int(n_views)
+    check_finite_scalar(motion_m, "motion_m", low=0.0)
+    check_finite_scalar(motion_distance_m, "motion_distance_m", low=0.0)
+    if n < 2:
+        raise InputError(f"n_views: expected >= 2, found {n}")
+    W = cal.screen_w
+    x_m = ((np.arange(W, dtype=np.float64) + 0.5) / W - 0.5) * cal.physical_size_m[0]  # (W,)
+    d_lo = max(viewer.distance_m - motion_distance_m, 1e-3)
+    d_hi = viewer.distance_m + motion_distance_m
+    eyes_ = eye_positions(viewer)
+    out = np.empty((len(eyes_), 2, W))
+    for e, (angle, d) in enumerate(eyes_):
+        xe0 = d * math.tan(math.radians(angle))
+        corners = [_view_coordinate(cal, n, x_m, xe, dd) for xe in (xe0 - motion_m, xe0 + motion_m)
+                   for dd in (d_lo, d_hi)]
+        out[e, 0] = np.minimum.reduce(corners)
+        out[e, 1] = np.maximum.reduce(corners)
+    return out
+
+
+def reach_views(sigma_views: float, threshold: float) -> float:
+    """``D0 = sigma sqrt(2 ln(1 / threshold))``: a subpixel of lens coordinate ``zeta`` sends an
+    eye at view coordinate ``t`` a weight > ``threshold`` iff ``|zeta - t| < D0`` (circularly)."""
+    check_finite_scalar(threshold, "threshold", low=0.0, high=0.999, low_open=True)
+    check_finite_scalar(sigma_views, "sigma_views", low=0.0, low_open=True)
+    return sigma_views * math.sqrt(2.0 * math.log(1.0 / threshold))
+
+
+def _near_views(cal: DisplayCalibration, viewer: TrackedViewer, n: int, mode: Mode, sigma_views: float,
+                threshold: float, motion_m: float, motion_distance_m: float) -> np.ndarray:
+    """(E, n, W) bool: view k is within reach of eye e's view coordinates at native column x over
+    the motion box (see :func:`view_columns`)."""
+    if mode not in ("nearest", "blend"):
+        raise InputError(f"mode: expected 'nearest' or 'blend', found {mode!r}")
+    reach = reach_views(sigma_views, threshold) + (0.5 if mode == "nearest" else 1.0)
+    reach += 1e-9 * n  # rounding of zeta
+    bounds = eye_view_bounds(cal, viewer, n_views=n, motion_m=motion_m, motion_distance_m=motion_distance_m)
+    k = np.arange(n, dtype=np.float64)[:, None]  # (n, 1)
+    E, _, W = bounds.shape
+    near = np.zeros((E, n, W), dtype=bool)
+    for e in range(E):
+        t_lo, t_hi = bounds[e, 0][None, :], bounds[e, 1][None, :]  # (1, W)
+        for shift in (-n, 0, n):  # circular distance in views
+            kk = k + shift
+            gap = np.maximum(t_lo - kk, kk - t_hi)  # distance from kk to [t_lo, t_hi] (<= 0 inside)
+            near[e] |= gap < reach
+    return near
+
+
+def view_segments(calibration: DisplayCalibration, viewer: TrackedViewer, *, n_views: int | None = None,
+                  mode: Mode = "nearest", sigma_views: float = 0.5, threshold: float = 0.01,
+                  motion_m: float = 0.02, motion_distance_m: float = 0.05) -> np.ndarray:
+    """Per eye and view, the native columns where a subpixel showing that view can send light to
+    the eye (weight > ``threshold``) over the head-motion margin: the rule of :func:`view_columns`
+    at native-column resolution, per eye.
+
+    Returns
+    -------
+    numpy.ndarray
+        (S, 4) int64 rows (eye, view, x0, x1): native columns ``x0 <= x < x1``; eye 0 is the left
+        (:func:`eye_positions`). One eye's rows of a view are disjoint; the two eyes' may overlap
+        (where a subpixel's lens coordinate decides which eye it lights).
+    """
+    cal = calibration
+    n = cal.n_views if n_views is None else int(n_views)
+    near = _near_views(cal, viewer, n, mode, sigma_views, threshold, motion_m, motion_distance_m)
+    E, _, W = near.shape
+    edges = np.diff(np.concatenate([np.zeros((E, n, 1), bool), near, np.zeros((E, n, 1), bool)], axis=2).astype(np.int8),
+                    axis=2)
+    e0, k0, x0 = np.nonzero(edges == 1)
+    x1 = np.nonzero(edges == -1)[2]
+    return np.stack([e0, k0, x0, x1], axis=1).astype(np.int64)
 
 
 def column_tile_mask(columns: np.ndarray, tile_height: int, tile: int = 16) -> np.ndarray:

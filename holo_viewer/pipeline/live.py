@@ -13,13 +13,22 @@ Modes (``LiveRenderer.frame`` / :func:`render_native`), all producing the panel'
     some pixel of every 16x16 tile of every view (measured on the Portrait), so a per-calibration
     tile mask saves nothing with row-vector compositing; see docs/live_frame.md.
 ``tracked``
-    A tracked viewer (:class:`~holo_viewer.display.eyes.TrackedViewer`): only the tile columns
-    of the views whose light can reach the two eyes (beam weight > ``threshold``, over the head
-    motion margin; :func:`~holo_viewer.display.eyes.view_columns`), plus ``refresh_columns``
-    tile columns of the other views in round-robin order, are rendered into the kept views of the
-    previous frames (``fast.render(tile_mask=..., out=...)``); the quilt and the native image are
-    updated only where they read those columns (:meth:`Interleaver.update`). The native subpixels
-    the eyes receive are exactly those of ``full_quilt`` (tested); the others hold older frames.
+    A tracked viewer (:class:`~holo_viewer.display.eyes.TrackedViewer`); two methods
+    (``LiveConfig.tracked``), both writing only the native subpixels whose light can reach the
+    two eyes (beam weight > ``threshold``, over the head motion margin) plus ``refresh_columns``
+    tile columns of the other views in round-robin order (rendered exactly, so other people in
+    the room still see a hologram); the other subpixels hold older frames.
+
+    ``slices`` (default on quilt cameras): one crossed-slit image per eye, each column seen from
+    the quilt camera the eye looks through there (:mod:`holo_viewer.render.crossed_slit`, drawn
+    from the same depth sort as the refresh), and every received subpixel's view texel warped
+    out of it by depth straight into the native image (:mod:`holo_viewer.display.slices`): two
+    images instead of ~25 view bands, approximate (measured per eye against ``full_quilt``).
+
+    ``bands``: the tile columns of the views those subpixels read are rendered into the kept
+    views of the previous frames (``fast.render(tile_mask=..., out=...)``); the quilt and the
+    native image are updated only where they read those columns (:meth:`Interleaver.update`).
+    The received subpixels are exactly those of ``full_quilt`` (tested).
 ``eye_centred``
     A tracked viewer, the alternative of the tracked light-field displays in the literature: one
     perspective image per eye from the eye's own position (a camera interpolated between the
@@ -86,6 +95,10 @@ class LiveConfig:
     backend : str
         all_views / full_quilt renderer: "fast" (CPU), or "gsplat" (CUDA: the views stay on the
         GPU and are tiled and interleaved there, :class:`~holo_viewer.display.device.DeviceInterleaver`).
+    tracked : {"slices", "bands"} or None
+        Method of tracked frames (see the module docstring): per-eye slices warped into the
+        received subpixels (approximate, fast), or the exact bands of the views. None (default):
+        slices on the calibration's quilt cameras, else bands.
     """
 
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -98,6 +111,7 @@ class LiveConfig:
     lod_fraction: float = 1.0
     view_step: int | None = None
     backend: str = "fast"
+    tracked: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.render, RenderConfig):
@@ -110,6 +124,8 @@ class LiveConfig:
             raise InputError(f"view_step: expected an integer >= 1, found {self.view_step!r}")
         if self.backend not in ("fast", "gsplat"):
             raise InputError(f"backend: expected 'fast' or 'gsplat', found {self.backend!r}")
+        if self.tracked not in (None, "slices", "bands"):
+            raise InputError(f"tracked: expected 'slices', 'bands' or None, found {self.tracked!r}")
 
 
 @dataclass
@@ -191,6 +207,17 @@ class LiveRenderer:
                     raise
             step = AUTO_VIEW_STEP if step is None else int(step)
         self.view_step = step if self._rig is not None and V > 2 else 1
+        self._slice_rig = None
+        self._buckets = None
+        if self.config.tracked != "bands" and self.config.backend == "fast":
+            from ..render import crossed_slit
+
+            try:
+                self._slice_rig = crossed_slit.slice_rig(cameras, calibration)
+            except InputError:
+                if self.config.tracked == "slices":
+                    raise
+        self.tracked_method = "slices" if self._slice_rig is not None else "bands"
         if self.view_step > 1:
             from ..display.quilt import tile_slices
 
@@ -236,7 +263,10 @@ class LiveRenderer:
             self._lod = None
         timings: dict[str, float] = {"validate": time.perf_counter() - t0}
         if mode == "tracked" and self._n_gaussians is not None:
-            fraction = self._tracked(gaussians, viewer, timings)
+            if self.tracked_method == "slices":
+                fraction = self._tracked_slices(gaussians, viewer, timings)
+            else:
+                fraction = self._tracked(gaussians, viewer, timings)
         elif mode == "eye_centred" and self._n_gaussians is not None:
             fraction = self._eye_centred(gaussians, viewer, timings)
         else:
@@ -360,22 +390,19 @@ class LiveRenderer:
         pad[:, :cols.shape[1]] = cols
         return pad.reshape(cols.shape[0], self.tiles_x, self.tile).any(axis=2)
 
-    def _tracked(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
-        from ..display.quilt import tile_slices, to_uint8
-        from ..render import fast
-
-        t = time.perf_counter()
-        colmask = self.tracked_columns(viewer)
+    def _refresh(self, colmask: np.ndarray) -> None:
+        """Add the next ``refresh_columns`` tile columns (round-robin over every view) to ``colmask``."""
         n_cols = colmask.size
         r = int(self.config.refresh_columns)
         if r:  # round-robin refresh of everything else
             nxt = (self._rr + np.arange(min(r, n_cols))) % n_cols
             colmask.reshape(-1)[nxt] = True
             self._rr = int((self._rr + r) % n_cols)
-        tile_mask = np.repeat(colmask[:, None, :], self.tiles_y, axis=1)
-        t1 = time.perf_counter()
-        fast.render(gaussians, self.cameras, self.config.render, tile_mask=tile_mask, out=self.views)
-        t2 = time.perf_counter()
+
+    def _columns_to_quilt(self, colmask: np.ndarray) -> None:
+        """The kept float views' tile columns ``colmask`` (V, tiles_x) -> the uint8 quilt."""
+        from ..display.quilt import tile_slices, to_uint8
+
         Hq, Wq, _ = self.quilt_shape
         W = self.cameras.width
         for k in np.flatnonzero(colmask.any(axis=1)):
@@ -385,11 +412,74 @@ class LiveRenderer:
             ends = np.flatnonzero(~on[1:] & on[:-1])
             for a, b in zip(starts * self.tile, np.minimum(ends * self.tile, W)):
                 to_uint8(self.views[k, :, a:b], out=self.quilt[rs, cs.start + a:cs.start + b])
+
+    def _tracked(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
+        from ..render import fast
+
+        t = time.perf_counter()
+        colmask = self.tracked_columns(viewer)
+        self._refresh(colmask)
+        tile_mask = np.repeat(colmask[:, None, :], self.tiles_y, axis=1)
+        t1 = time.perf_counter()
+        fast.render(gaussians, self.cameras, self.config.render, tile_mask=tile_mask, out=self.views)
+        t2 = time.perf_counter()
+        self._columns_to_quilt(colmask)
         t3 = time.perf_counter()
         self.interleaver.update_columns(self.quilt, self.native, colmask, block=self.tile)
         t4 = time.perf_counter()
         timings.update(select=t1 - t, render=t2 - t1, quilt=t3 - t2, interleave=t4 - t3)
         return float(colmask.mean())
+
+    def tracked_segments(self, viewer: Any) -> np.ndarray:
+        """(S, 4) (eye, view, x0, x1) native-column segments a ``slices`` frame writes for ``viewer``
+        (:func:`~holo_viewer.display.eyes.view_segments` with this renderer's knobs)."""
+        from ..display.eyes import view_segments
+
+        c = self.config
+        return view_segments(self.calibration, viewer, n_views=len(self.cameras),
+                             mode="blend" if c.blend else "nearest", sigma_views=c.sigma_views,
+                             threshold=c.threshold, motion_m=c.motion_m, motion_distance_m=c.motion_distance_m)
+
+    def _tracked_slices(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
+        """A tracked frame from one crossed-slit image per eye (see the module docstring)."""
+        from ..display.eyes import eye_view_bounds, reach_views
+        from ..display.slices import SubpixelBuckets, scatter_slices
+        from ..render import crossed_slit, fast
+
+        t = time.perf_counter()
+        rig = self._slice_rig
+        if self._buckets is None:  # once per renderer (~2 s, ~60 MB)
+            V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
+            self._buckets = SubpixelBuckets(self.interleaver, V, H, W)
+            self._slices = np.zeros((2, H, W, 3), dtype=np.float32)
+            self._slice_w = np.zeros((2, H, W), dtype=np.float32)
+        eyes_ = crossed_slit.eye_slices(rig, viewer)
+        E = len(eyes_)
+        c = self.config
+        segments = self.tracked_segments(viewer)
+        bounds = eye_view_bounds(self.calibration, viewer, n_views=len(self.cameras), motion_m=c.motion_m,
+                                 motion_distance_m=c.motion_distance_m)
+        colmask = np.zeros((len(self.cameras), self.tiles_x), dtype=bool)
+        self._refresh(colmask)
+        tile_mask = np.repeat(colmask[:, None, :], self.tiles_y, axis=1)
+        t1 = time.perf_counter()
+        passes = crossed_slit.slice_pass(rig, eyes_, self._slices[:E])
+        fast.render(gaussians, self.cameras, self.config.render, tile_mask=tile_mask, out=self.views, passes=passes)
+        t2 = time.perf_counter()
+        gn = gaussians.numpy()
+        opacity = 1.0 / (1.0 + np.exp(-np.asarray(gn.opacity_logits, dtype=np.float64)))
+        crossed_slit.slice_depth(gn.means, opacity, rig, eyes_, out=self._slice_w[:E])
+        t3 = time.perf_counter()
+        if colmask.any():  # the refreshed columns: exact, through the quilt
+            self._columns_to_quilt(colmask)
+            self.interleaver.update(self.quilt, self.native, self.interleaver.readers(colmask, block=self.tile))
+        t4 = time.perf_counter()
+        kv, gh = crossed_slit.warp_coefficients(rig, eyes_)
+        scatter_slices(self.native, self._buckets, segments, bounds, reach_views(c.sigma_views, c.threshold),
+                       self._slices[:E], self._slice_w[:E], kv, gh)
+        t5 = time.perf_counter()
+        timings.update(select=t1 - t, render=t2 - t1, depth=t3 - t2, interleave=t4 - t3, scatter=t5 - t4)
+        return float((E * self.tiles_x + colmask.sum()) / colmask.size)
 
 
     def _eye_centred(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:

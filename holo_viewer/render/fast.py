@@ -34,6 +34,8 @@ import math
 import os
 import threading
 import time
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -43,7 +45,7 @@ from ..errors import RenderError
 from .config import RenderConfig, RenderResult
 from .projection import clamp_limits
 
-__all__ = ["render", "tile_grid", "cpp_available", "kernel_names", "release_buffers"]
+__all__ = ["render", "tile_grid", "cpp_available", "kernel_names", "release_buffers", "SortedSplats", "SplatPass"]
 
 #: C++ compositor path: 0 = the best the CPU runs (AVX-512 for 16x16 tiles, else AVX2, else scalar),
 #: 1 = scalar, 2 = require AVX2, 3 = require AVX-512 (tests and the benchmark set this)
@@ -296,30 +298,42 @@ def _view_params(cameras: Cameras, views: np.ndarray, rects: np.ndarray | None =
     return cams
 
 
-def _sorted_inputs(order: np.ndarray, pc: np.ndarray, cov: np.ndarray, means: np.ndarray, opacity: np.ndarray,
-                   colours: np.ndarray, alpha_threshold: float) -> tuple[np.ndarray, ...]:
+def _sorted_inputs(order: np.ndarray, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray,
+                   opacity: np.ndarray, colours: np.ndarray, Wrot: np.ndarray, alpha_threshold: float
+                   ) -> tuple[np.ndarray, ...]:
     """Depth-ordered inputs of ``_splat_cpp.project_bin``: pc, cov, means, opacity, q, colours.
 
     Structure of arrays (one row per component) with a row length ``mp`` = m rounded up to a
     multiple of 8 (the kernel projects 8 splats at a time; the padding has opacity 0, so it is
-    never drawn). colours: (N, nk, 3) SH coefficients (rows j * 3 + channel), or (N, 3) shared
-    colours. q = 2 ln(opacity / threshold).
+    never drawn), made in one pass (``fast_kernels.prep_sorted``: pc, cov as ``prep_3d``).
+    colours: (N, nk, 3) SH coefficients (rows j * 3 + channel), or (N, 3) shared colours.
+    q = 2 ln(opacity / threshold).
     """
     from . import fast_kernels as fk
 
     m = order.size
     mp = -(-m // 8) * 8
-
-    def soa(a: np.ndarray, dtype: type) -> np.ndarray:
-        a = np.ascontiguousarray(a.reshape(len(a), -1), dtype=dtype)
-        out = np.empty((a.shape[1], mp), dtype=dtype)
-        out[:, m:] = 0
-        fk.gather_soa(a, order, out)
-        return out
-
-    op = soa(opacity, np.float64)[0]
+    cols = np.ascontiguousarray(colours.reshape(len(colours), -1))
+    pc, cov, mout = np.empty((3, mp)), np.empty((6, mp)), np.empty((3, mp))
+    op, sh = np.empty(mp), np.empty((cols.shape[1], mp), dtype=cols.dtype)
+    fk.prep_sorted(order, means, quats, log_scales, np.ascontiguousarray(opacity, dtype=np.float64), cols, Wrot,
+                   pc, cov, mout, op, sh)
     q = 2.0 * (np.log(np.maximum(op, 1e-300)) - math.log(alpha_threshold))  # padding: op = 0, never drawn
-    return soa(pc, np.float64), soa(cov, np.float64), soa(means, np.float64), op, q, soa(colours, np.float32)
+    return pc, cov, mout, op, q, sh
+
+
+def _soa(a: np.ndarray, order: np.ndarray, dtype: type) -> np.ndarray:
+    """Rows of ``a`` (N, ...) in ``order`` as a (C, mp) structure of arrays, mp = len(order) rounded
+    up to 8, the padding zero."""
+    from . import fast_kernels as fk
+
+    m = order.size
+    mp = -(-m // 8) * 8
+    a = np.ascontiguousarray(a.reshape(len(a), -1), dtype=dtype)
+    out = np.empty((a.shape[1], mp), dtype=dtype)
+    out[:, m:] = 0
+    fk.gather_soa(a, order, out)
+    return out
 
 
 def _threads(config: RenderConfig) -> int:
@@ -363,7 +377,8 @@ def _check_region(cameras: Cameras, config: RenderConfig, tile_mask: np.ndarray 
 
 
 def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None = None, *,
-           tile_mask: np.ndarray | None = None, out: np.ndarray | None = None) -> RenderResult:
+           tile_mask: np.ndarray | None = None, out: np.ndarray | None = None,
+           passes: tuple[SplatPass, ...] | list[SplatPass] = ()) -> RenderResult:
     """Render every camera with the fast backend (see the module docstring).
 
     Inputs are assumed validated (use :func:`holo_viewer.render.render_views`).
@@ -379,25 +394,96 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
         they are projected, so the cost follows the rendered area.
     out : numpy.ndarray or None
         (V, H, W, 3) float32 C-contiguous array to render into (e.g. the previous frame's views).
+    passes : sequence of SplatPass
+        Extra images drawn from the same depth sort (:class:`SplatPass`); the cameras must then
+        share one rotation. A render whose mask leaves no view still draws its passes.
 
     Returns
     -------
     RenderResult
         images (V, H, W, 3) float32 (``out`` when given); timings "preprocess", "sort", "project",
-        "bin", "composite", "total"; stats n_input, n_visible, mean_blends_per_pixel, threads,
-        kernel, rendered_tiles.
+        "bin", "composite", "passes" (their transforms), "total"; stats n_input, n_visible,
+        mean_blends_per_pixel (the cameras' images), threads, kernel, rendered_tiles.
     """
     config = config or RenderConfig()
     mask, rects = _check_region(cameras, config, tile_mask, out)
+    passes = tuple(passes)
+    for p in passes:
+        _check_pass(p, cameras)
+    if passes and len(_groups(cameras)) != 1:
+        raise RenderError("fast backend: passes: expected cameras sharing one rotation")
     shared = _SHARED_WORKSPACE.lock.acquire(blocking=False)
     try:
         return _render(gaussians, cameras, config, _SHARED_WORKSPACE if shared else _Workspace(),
-                       mask, rects, out)
+                       mask, rects, out, passes)
     finally:
         if shared:
             if _SHARED_WORKSPACE.nbytes() > _KEEP_AT_MOST:  # a huge scene: do not hold its buffers
                 _SHARED_WORKSPACE.release()
             _SHARED_WORKSPACE.lock.release()
+
+
+def _check_pass(p: "SplatPass", cameras: Cameras) -> None:
+    if not isinstance(p, SplatPass):
+        raise RenderError(f"fast backend: passes: expected SplatPass items, found {type(p).__name__}")
+    if not isinstance(p.cameras, Cameras) or len(_groups(p.cameras)) != 1:
+        raise RenderError("fast backend: SplatPass.cameras: expected Cameras sharing one rotation")
+    if len(cameras) and np.abs(p.cameras.R[0] - cameras.R[0]).max() > 1e-12:
+        raise RenderError("fast backend: SplatPass.cameras: expected the rotation of the render's cameras")
+    if (p.cameras.width, p.cameras.height) != (cameras.width, cameras.height):
+        raise RenderError(f"fast backend: SplatPass.cameras: expected {cameras.width}x{cameras.height} images (the "
+                          f"render's), found {p.cameras.width}x{p.cameras.height}")
+    shape = (len(p.cameras), cameras.height, cameras.width, 3)
+    o = p.out
+    if not (isinstance(o, np.ndarray) and o.shape == shape and o.dtype == np.float32 and o.flags.c_contiguous
+            and o.flags.writeable):
+        raise RenderError(f"fast backend: SplatPass.out: expected a writeable C-contiguous {shape} float32 array, "
+                          f"found {getattr(o, 'shape', None)} {getattr(o, 'dtype', type(o).__name__)}")
+
+
+@dataclass(frozen=True)
+class SortedSplats:
+    """The splats of one render in depth order, as the projection reads them (structure of arrays,
+    row stride ``mp`` = ``m`` rounded up to 8; the padding has opacity 0 and is never drawn).
+
+    Attributes
+    ----------
+    pc : (3, mp) float64 centres in the cameras' rotated frame, ``R mean`` (no translation).
+    cov : (6, mp) float64 covariances (xx, xy, xz, yy, yz, zz) in that frame.
+    means : (3, mp) float64 world centres.  opacity : (mp,) float64.
+    sh : (nk 3, mp) float32 SH coefficients (row j 3 + channel) of degree ``degree``.
+    order : (m,) int64 indices of these splats in the input.
+    """
+
+    pc: np.ndarray
+    cov: np.ndarray
+    means: np.ndarray
+    opacity: np.ndarray
+    sh: np.ndarray
+    degree: int
+    order: np.ndarray
+
+    @property
+    def m(self) -> int:
+        return int(self.order.size)
+
+
+@dataclass
+class SplatPass:
+    """Extra images drawn from the same depth-sorted splats as a render's views.
+
+    For projections that pinhole cameras only emulate after a change of the splats (e.g. the
+    crossed-slit eye images of :mod:`holo_viewer.render.crossed_slit`): ``transform`` maps the
+    :class:`SortedSplats` to ``(pc, cov, colours)`` with pc (3, mp) and cov (6, mp) float64 in
+    the frame of ``cameras`` (which add their translations) and colours (3, mp) float32 RGB shared
+    by the pass's cameras; the depth order of the render is kept, so the transform must keep
+    each splat's depth (a splat it cannot map goes behind the near plane). ``out`` receives the
+    (len(cameras), H, W, 3) float32 images (the size of the render's cameras).
+    """
+
+    cameras: Cameras
+    transform: Callable[[SortedSplats], tuple[np.ndarray, np.ndarray, np.ndarray]]
+    out: np.ndarray
 
 
 def _runs(views: np.ndarray) -> list[np.ndarray]:
@@ -410,7 +496,7 @@ def _runs(views: np.ndarray) -> list[np.ndarray]:
 
 def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, workspace: _Workspace,
             mask: np.ndarray | None = None, rects: np.ndarray | None = None,
-            out_images: np.ndarray | None = None) -> RenderResult:
+            out_images: np.ndarray | None = None, passes: tuple[SplatPass, ...] = ()) -> RenderResult:
     from . import fast_kernels as fk
 
     kernel = config.kernel
@@ -424,6 +510,8 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
     cpu_start = time.process_time()
     threads = _threads(config)
     timings = dict.fromkeys(("preprocess", "sort", "project", "bin", "composite"), 0.0)
+    if passes:
+        timings["passes"] = 0.0
 
     g = gaussians.numpy()
     means = np.ascontiguousarray(g.means, dtype=np.float64)
@@ -434,9 +522,6 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
     sh = np.ascontiguousarray(np.asarray(g.sh)[:, : (degree + 1) ** 2], dtype=np.float32)
     near = cameras.near if config.near is None else float(config.near)
     V, H, W = len(cameras), cameras.height, cameras.width
-    tile = int(config.tile_size)
-    tiles_x, tiles_y = -(-W // tile), -(-H // tile)
-    n_tiles = tiles_x * tiles_y
     if out_images is not None:
         images = out_images
     elif mask is not None:
@@ -444,9 +529,6 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
     else:
         images = _OUTPUTS.empty((V, H, W, 3))
     active = np.ones(V, dtype=bool) if mask is None else mask.any(axis=(1, 2))
-    no_jobs = np.empty(0, dtype=np.int32)
-    bg = np.asarray(config.background, dtype=np.float32)
-    cull = -1.0 if config.cull_margin is None else float(config.cull_margin)
     positions = cameras.positions
     if config.shared_sh:
         from .reference import view_colors
@@ -454,103 +536,193 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
         shared_rgb = view_colors(means, sh.astype(np.float64), degree, positions.mean(axis=0)).astype(np.float32)
     else:
         shared_rgb = np.zeros((1, 3), dtype=np.float32)
-    total_blends = 0
-    total_entries = 0
-    rendered_tiles = 0
-    path = ""
-    n_visible_mask = np.zeros(len(g), dtype=bool)
+    draw = _Draw(config, workspace, cpp if use_cpp else None, threads, W, H, near, len(g), timings)
     timings["preprocess"] += time.perf_counter() - t_start
 
     for gi, group in enumerate(_groups(cameras)):
         group = group[active[group]]
-        if group.size == 0:
+        if group.size == 0 and not passes:
             continue
         t0 = time.perf_counter()
-        Wrot = np.ascontiguousarray(cameras.R[group[0]])
-        pc, cov = fk.prep_3d(means, quats, log_scales, Wrot)
-        tvec = cameras.t[group]
-        front = (pc[:, 2] + tvec[:, 2].max()) > near
+        Wrot = np.ascontiguousarray(cameras.R[int(group[0]) if group.size else 0])
+        sorted_path = use_cpp or bool(passes)  # depth-ordered copies: the C++ pass reads every input in order
+        pc = cov = None
+        if sorted_path:
+            z = fk.depth_z(means, Wrot)
+        else:
+            pc, cov = fk.prep_3d(means, quats, log_scales, Wrot)
+            z = pc[:, 2]
+        tz = cameras.t[group, 2] if group.size else np.zeros(0)
+        for p in passes:  # a pass keeps the depths: its cameras add their z offsets as the render's do
+            tz = np.concatenate((tz, p.cameras.t[:, 2]))
+        front = (z + tz.max()) > near if tz.size else np.zeros(len(g), dtype=bool)
         t1 = time.perf_counter()
-        order, workspace.depth_hints[gi] = depth_order(pc[:, 2], front, workspace.depth_hints.get(gi))
+        order, workspace.depth_hints[gi] = depth_order(z, front, workspace.depth_hints.get(gi))
         m = order.size
-        if use_cpp:  # depth-ordered copies: the C++ pass reads every input sequentially
-            sorted_in = _sorted_inputs(order, pc, cov, means, opacity, shared_rgb if config.shared_sh else sh,
-                                       float(config.alpha_threshold))
+        sorted_in = None
+        if sorted_path:
+            sorted_in = _sorted_inputs(order, means, quats, log_scales, opacity,
+                                       shared_rgb if config.shared_sh else sh, Wrot, float(config.alpha_threshold))
+            if not use_cpp:  # the numba kernels read the inputs through the order instead
+                pc, cov = fk.prep_3d(means, quats, log_scales, Wrot)
         t2 = time.perf_counter()
         timings["preprocess"] += t1 - t0
         timings["sort"] += t2 - t1  # the depth sort and the depth-ordered copies
-        chunk = max(1, min(len(group), int(config.max_chunk_bytes // max(1, m * _BYTES_PER_SPLAT_VIEW))))
-        chunks = [r[c0:c0 + chunk] for r in (_runs(np.sort(group)) if mask is not None else [group])
-                  for c0 in range(0, len(r), chunk)]
-        for views in chunks:
+        if group.size:
+            chunk = max(1, min(len(group), int(config.max_chunk_bytes // max(1, m * _BYTES_PER_SPLAT_VIEW))))
+            chunks = [r[c0:c0 + chunk] for r in (_runs(np.sort(group)) if mask is not None else [group])
+                      for c0 in range(0, len(r), chunk)]
+            for views in chunks:
+                cams = _view_params(cameras, views, rects)
+                jobs = None if mask is None else np.flatnonzero(mask[views].reshape(-1)).astype(np.int32)
+                contiguous = bool(np.all(np.diff(views) == 1))  # always, with a mask
+                out = images[views[0]:views[-1] + 1] if contiguous else np.empty((len(views), H, W, 3), np.float32)
+                if use_cpp:
+                    seen = draw.cpp_views(sorted_in, m, degree, bool(config.shared_sh), cams, out, jobs)
+                else:
+                    seen = draw.numba_views(order, pc, cov, means, opacity, sh, degree, shared_rgb,
+                                            bool(config.shared_sh), cams, out,
+                                            mask[views] if mask is not None else None)
+                draw.visible[order[seen.astype(bool)]] = True
+                if not contiguous:
+                    images[views] = out
+        pass_sh = None
+        for p in passes:
             t3 = time.perf_counter()
-            cams = _view_params(cameras, views, rects)
-            if use_cpp:  # projection and binning fused in one pass per view, buffers reused
-                rec = workspace.records(len(views), m)
-                off = np.empty((len(views), n_tiles + 1), dtype=np.int64)
-                base = np.empty(len(views), dtype=np.int64)
-                seen = np.empty(m, dtype=np.uint8)
-                while True:
-                    ids_buf = workspace.ids()
-                    total, fill_s = cpp.project_bin(*sorted_in, cams, m, sorted_in[3].size, len(views), W, H,
-                                                    degree, int(config.shared_sh), tile, tiles_x, tiles_y, near,
-                                                    float(config.dilation), float(config.radius_sigmas),
-                                                    float(config.alpha_threshold), cull, rec, off, base, seen,
-                                                    ids_buf, threads)
-                    if total <= ids_buf.size:
-                        break
-                    workspace.grow_ids(total)
-                ids = ids_buf[:total]
-                t4 = time.perf_counter() - fill_s  # the fused pass counts as project, filling the lists as bin
-            else:
-                rec, box = _records(len(views), m)
-                seen = fk.project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb,
-                                        bool(config.shared_sh), cams, W, H, near, float(config.dilation),
-                                        float(config.radius_sigmas), float(config.alpha_threshold), cull, rec, box)
-                t4 = time.perf_counter()
-                off = fk.count_tiles(rec, box, tile, tiles_x, tiles_y)
-                base = np.zeros(len(views), dtype=np.int64)
-                base[1:] = np.cumsum(off[:-1, -1])
-                ids = np.empty(int(off[:, -1].sum()), dtype=np.int32)
-                fk.fill_tiles(rec, box, tile, tiles_x, off, base, ids)
-            n_visible_mask[order[seen.astype(bool)]] = True
-            total_entries += ids.size
-            t5 = time.perf_counter()
-            contiguous = bool(np.all(np.diff(views) == 1))  # always, with a mask
-            out = images[views[0]:views[-1] + 1] if contiguous else np.empty((len(views), H, W, 3), np.float32)
-            blends = np.zeros(len(views) * n_tiles, dtype=np.int64)
-            jobs = no_jobs
-            if mask is not None:
-                jobs = np.flatnonzero(mask[views].reshape(-1)).astype(np.int32)
-                rendered_tiles += jobs.size
-            else:
-                rendered_tiles += len(views) * n_tiles
+            if pass_sh is None:  # the SH coefficients in depth order (the cameras may share colours instead)
+                pass_sh = _soa(sh, order, np.float32) if config.shared_sh else sorted_in[5]
+            splats = SortedSplats(pc=sorted_in[0], cov=sorted_in[1], means=sorted_in[2], opacity=sorted_in[3],
+                                  sh=pass_sh, degree=degree, order=order)
+            ppc, pcov, pcol = _pass_inputs(p, splats)
+            timings["passes"] += time.perf_counter() - t3
+            pcams = _view_params(p.cameras, np.arange(len(p.cameras)))
             if use_cpp:
-                path = cpp.composite(rec, off, base, ids, len(views), m, tile, tiles_x, tiles_y, W, H,
-                                     float(config.alpha_threshold), float(config.alpha_cap), float(config.t_min),
-                                     bg, bool(config.clip_output), out, blends, threads, _CPP_MODE, jobs)
+                draw.cpp_views((ppc, pcov, sorted_in[2], sorted_in[3], sorted_in[4], pcol), m, 0, True, pcams,
+                               p.out, None, count_blends=False)
             else:
-                target = out
-                if mask is not None:  # the numba compositor does every tile: keep only the masked ones
-                    out = np.empty((len(views), H, W, 3), np.float32)
-                fk.composite(rec, box, off, base, ids, tile, tiles_x, tiles_y, W, H,
-                             float(config.alpha_threshold), float(config.alpha_cap), float(config.t_min),
-                             bg, bool(config.clip_output), out, blends)
-                if mask is not None:
-                    px = np.repeat(np.repeat(mask[views], tile, axis=1), tile, axis=2)[:, :H, :W]
-                    np.copyto(target, out, where=px[..., None])
-                    out = target
-            if not contiguous:
-                images[views] = out
-            total_blends += int(blends.sum())
-            t6 = time.perf_counter()
-            timings["project"] += t4 - t3
-            timings["bin"] += t5 - t4
-            timings["composite"] += t6 - t5
+                draw.numba_views(np.arange(m), np.ascontiguousarray(ppc[:, :m].T), np.ascontiguousarray(pcov[:, :m].T),
+                                 means[order], opacity[order], sh[order], 0, np.ascontiguousarray(pcol[:, :m].T), True,
+                                 pcams, p.out, None, count_blends=False)
     timings["total"] = time.perf_counter() - t_start
-    stats = {"n_input": len(g), "n_visible": int(n_visible_mask.sum()),
-             "mean_blends_per_pixel": total_blends / float(V * H * W), "threads": threads,
-             "cpu_seconds": time.process_time() - cpu_start, "tile_entries": total_entries,
-             "rendered_tiles": rendered_tiles}
+    stats = {"n_input": len(g), "n_visible": int(draw.visible.sum()),
+             "mean_blends_per_pixel": draw.blends / float(V * H * W), "threads": threads,
+             "cpu_seconds": time.process_time() - cpu_start, "tile_entries": draw.entries,
+             "rendered_tiles": draw.tiles}
     return RenderResult(images=images, timings=timings, stats=stats,
-                        backend=f"fast/cpp-{path}" if use_cpp else "fast/numba")
+                        backend=f"fast/cpp-{draw.path}" if use_cpp else "fast/numba")
+
+
+def _pass_inputs(p: SplatPass, splats: SortedSplats) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    mp = splats.pc.shape[1]
+    out = p.transform(splats)
+    try:
+        ppc, pcov, pcol = out
+    except (TypeError, ValueError):
+        raise RenderError("fast backend: SplatPass.transform: expected a tuple (pc, cov, colours)") from None
+    ppc = np.ascontiguousarray(ppc, dtype=np.float64)
+    pcov = np.ascontiguousarray(pcov, dtype=np.float64)
+    pcol = np.ascontiguousarray(pcol, dtype=np.float32)
+    for name, a, rows in (("pc", ppc, 3), ("cov", pcov, 6), ("colours", pcol, 3)):
+        if a.shape != (rows, mp):
+            raise RenderError(f"fast backend: SplatPass.transform: {name}: expected shape ({rows}, {mp}), "
+                              f"found {a.shape}")
+    return ppc, pcov, pcol
+
+
+class _Draw:
+    """Projection, binning and compositing of chunks of views, with the counters of a render."""
+
+    def __init__(self, config: RenderConfig, workspace: _Workspace, cpp, threads: int, W: int, H: int,  # noqa: ANN001
+                 near: float, n: int, timings: dict[str, float]) -> None:
+        self.config, self.workspace, self.cpp, self.threads = config, workspace, cpp, threads
+        self.W, self.H, self.near = W, H, near
+        self.tile = int(config.tile_size)
+        self.tiles_x, self.tiles_y = -(-W // self.tile), -(-H // self.tile)
+        self.timings = timings
+        self.visible = np.zeros(n, dtype=bool)
+        self.blends = self.entries = self.tiles = 0
+        self.path = ""
+        self.cull = -1.0 if config.cull_margin is None else float(config.cull_margin)
+
+    def cpp_views(self, sorted_in: tuple, m: int, degree: int, shared: bool, cams: np.ndarray, out: np.ndarray,
+                  jobs: np.ndarray | None, count_blends: bool = True) -> np.ndarray:
+        """One chunk of views through the C++ extension (projection and binning fused, buffers reused);
+        returns which of the m sorted splats any view drew."""
+        c, nv = self.config, len(cams)
+        n_tiles = self.tiles_x * self.tiles_y
+        t3 = time.perf_counter()
+        rec = self.workspace.records(nv, m)
+        off = np.empty((nv, n_tiles + 1), dtype=np.int64)
+        base = np.empty(nv, dtype=np.int64)
+        seen = np.empty(m, dtype=np.uint8)
+        while True:
+            ids_buf = self.workspace.ids()
+            total, fill_s = self.cpp.project_bin(*sorted_in, cams, m, sorted_in[3].size, nv, self.W, self.H,
+                                                 degree, int(shared), self.tile, self.tiles_x, self.tiles_y,
+                                                 self.near, float(c.dilation), float(c.radius_sigmas),
+                                                 float(c.alpha_threshold), self.cull, rec, off, base, seen,
+                                                 ids_buf, self.threads)
+            if total <= ids_buf.size:
+                break
+            self.workspace.grow_ids(total)
+        ids = ids_buf[:total]
+        t4 = time.perf_counter() - fill_s  # the fused pass counts as project, filling the lists as bin
+        t5 = time.perf_counter()
+        blends = np.zeros(nv * n_tiles, dtype=np.int64)
+        self.path = self.cpp.composite(rec, off, base, ids, nv, m, self.tile, self.tiles_x, self.tiles_y, self.W,
+                                       self.H, float(c.alpha_threshold), float(c.alpha_cap), float(c.t_min),
+                                       np.asarray(c.background, dtype=np.float32), bool(c.clip_output), out,
+                                       blends, self.threads, _CPP_MODE,
+                                       np.empty(0, dtype=np.int32) if jobs is None else jobs)
+        t6 = time.perf_counter()
+        self._count(ids.size, blends, nv * n_tiles if jobs is None else jobs.size, count_blends)
+        self.timings["project"] += t4 - t3
+        self.timings["bin"] += t5 - t4
+        self.timings["composite"] += t6 - t5
+        return seen
+
+    def numba_views(self, order: np.ndarray, pc: np.ndarray, cov: np.ndarray, means: np.ndarray,
+                    opacity: np.ndarray, sh: np.ndarray, degree: int, shared_rgb: np.ndarray, shared: bool,
+                    cams: np.ndarray, out: np.ndarray, mask: np.ndarray | None, count_blends: bool = True
+                    ) -> np.ndarray:
+        """One chunk of views through the numba kernels (every tile composited; a mask keeps its
+        tiles); returns which of the ordered splats any view drew."""
+        from . import fast_kernels as fk
+
+        c, nv = self.config, len(cams)
+        tile, W, H = self.tile, self.W, self.H
+        t3 = time.perf_counter()
+        rec, box = _records(nv, order.size)
+        seen = fk.project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, shared, cams, W, H,
+                                self.near, float(c.dilation), float(c.radius_sigmas), float(c.alpha_threshold),
+                                self.cull, rec, box)
+        t4 = time.perf_counter()
+        off = fk.count_tiles(rec, box, tile, self.tiles_x, self.tiles_y)
+        base = np.zeros(nv, dtype=np.int64)
+        base[1:] = np.cumsum(off[:-1, -1])
+        ids = np.empty(int(off[:, -1].sum()), dtype=np.int32)
+        fk.fill_tiles(rec, box, tile, self.tiles_x, off, base, ids)
+        t5 = time.perf_counter()
+        target = out
+        if mask is not None:  # the numba compositor does every tile: keep only the masked ones
+            out = np.empty((nv, H, W, 3), np.float32)
+        blends = np.zeros(nv * self.tiles_x * self.tiles_y, dtype=np.int64)
+        fk.composite(rec, box, off, base, ids, tile, self.tiles_x, self.tiles_y, W, H,
+                     float(c.alpha_threshold), float(c.alpha_cap), float(c.t_min),
+                     np.asarray(c.background, dtype=np.float32), bool(c.clip_output), out, blends)
+        if mask is not None:
+            px = np.repeat(np.repeat(mask, tile, axis=1), tile, axis=2)[:, :H, :W]
+            np.copyto(target, out, where=px[..., None])
+        t6 = time.perf_counter()
+        self._count(ids.size, blends, nv * self.tiles_x * self.tiles_y if mask is None else int(mask.sum()),
+                    count_blends)
+        self.timings["project"] += t4 - t3
+        self.timings["bin"] += t5 - t4
+        self.timings["composite"] += t6 - t5
+        return seen
+
+    def _count(self, entries: int, blends: np.ndarray, tiles: int, count_blends: bool) -> None:
+        if count_blends:  # a pass's images are not the cameras' statistics
+            self.entries += entries
+            self.tiles += tiles
+            self.blends += int(blends.sum())

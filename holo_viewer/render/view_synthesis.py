@@ -42,7 +42,7 @@ from ..camera import Cameras
 from ..errors import InputError
 
 __all__ = ["Rig", "rig_of", "source_views", "inverse_depth", "warp_views", "bracket", "sampled_columns",
-           "inverse_depth_torch", "warp_views_torch", "auto_cell"]
+           "inverse_depth_torch", "warp_views_torch", "auto_cell", "zbuffer_depth"]
 
 
 @dataclass(frozen=True)
@@ -162,40 +162,104 @@ def _zbuffer(means: np.ndarray, keep: np.ndarray, R: np.ndarray, tx: np.ndarray,
                 continue
             u = fx * (R[0, 0] * mx + R[0, 1] * my + R[0, 2] * mz + tx[s]) / z + cx[s]
             v = fy * (R[1, 0] * mx + R[1, 1] * my + R[1, 2] * mz + ty) / z + cy
-            if not (u >= 0.0 and v >= 0.0):
+            _keep_nearest(zb, u, v, z, cell, h, w)
+        _cells_to_pixels(zb, h, w, cell, H, W, w_zero, out[s])
+
+
+@numba.njit(parallel=True, cache=True)
+def _zbuffer_coef(means: np.ndarray, keep: np.ndarray, R: np.ndarray, ty: float, tz: float, coef: np.ndarray,
+                  fy: float, cy: float, near: float, H: int, W: int, cell: int, w_zero: float,
+                  out: np.ndarray) -> None:
+    # as _zbuffer, with column u = (a X + b Z + c) / (e Z + f) per source (coef rows a, b, c, e, f)
+    S = coef.shape[0]
+    h, w = (H + cell - 1) // cell, (W + cell - 1) // cell
+    for s in numba.prange(S):
+        a, b, c, e, f = coef[s, 0], coef[s, 1], coef[s, 2], coef[s, 3], coef[s, 4]
+        zb = np.full((h, w), np.inf)
+        for i in range(means.shape[0]):
+            if not keep[i]:
                 continue
-            xi, yi = int(u / cell), int(v / cell)
-            if xi < w and yi < h and z < zb[yi, xi]:
-                zb[yi, xi] = z
-        # holes inside the head (cells no centre fell in): the mean of >= 3 filled neighbours, 3 passes
-        for _ in range(3):
-            zn = zb.copy()
-            for y in range(h):
-                for x in range(w):
-                    if zb[y, x] != np.inf:
-                        continue
-                    acc, n = 0.0, 0
-                    for yy in range(max(0, y - 1), min(h, y + 2)):
-                        for xx in range(max(0, x - 1), min(w, x + 2)):
-                            if zb[yy, xx] != np.inf:
-                                acc += zb[yy, xx]
-                                n += 1
-                    if n >= 3:
-                        zn[y, x] = acc / n
-            zb = zn
-        for y in range(h):  # inverse depth per cell (background: the zero-disparity plane)
+            mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
+            z = R[2, 0] * mx + R[2, 1] * my + R[2, 2] * mz + tz
+            den = e * z + f
+            if not (z > near and den > 1e-9 * z):
+                continue
+            u = (a * (R[0, 0] * mx + R[0, 1] * my + R[0, 2] * mz) + b * z + c) / den
+            v = fy * (R[1, 0] * mx + R[1, 1] * my + R[1, 2] * mz + ty) / z + cy
+            _keep_nearest(zb, u, v, z, cell, h, w)
+        _cells_to_pixels(zb, h, w, cell, H, W, w_zero, out[s])
+
+
+@numba.njit(inline="always")
+def _keep_nearest(zb: np.ndarray, u: float, v: float, z: float, cell: int, h: int, w: int) -> None:
+    if not (u >= 0.0 and v >= 0.0):
+        return
+    xi, yi = int(u / cell), int(v / cell)
+    if xi < w and yi < h and z < zb[yi, xi]:
+        zb[yi, xi] = z
+
+
+@numba.njit(cache=True)
+def _cells_to_pixels(zb: np.ndarray, h: int, w: int, cell: int, H: int, W: int, w_zero: float,
+                     out: np.ndarray) -> None:
+    """Nearest depth per cell -> (H, W) inverse depth: holes filled, background w_zero, bilinear."""
+    # holes inside the head (cells no centre fell in): the mean of >= 3 filled neighbours, 3 passes
+    for _ in range(3):
+        zn = zb.copy()
+        for y in range(h):
             for x in range(w):
-                zb[y, x] = 1.0 / zb[y, x] if zb[y, x] != np.inf else w_zero
-        # bilinear, separable: along x into a (h, W) buffer, then along y
-        rows = np.empty((h, W))
+                if zb[y, x] != np.inf:
+                    continue
+                acc, n = 0.0, 0
+                for yy in range(max(0, y - 1), min(h, y + 2)):
+                    for xx in range(max(0, x - 1), min(w, x + 2)):
+                        if zb[yy, xx] != np.inf:
+                            acc += zb[yy, xx]
+                            n += 1
+                if n >= 3:
+                    zn[y, x] = acc / n
+        zb[:, :] = zn
+    for y in range(h):  # inverse depth per cell (background: the zero-disparity plane)
+        for x in range(w):
+            zb[y, x] = 1.0 / zb[y, x] if zb[y, x] != np.inf else w_zero
+    # bilinear, separable: along x into a (h, W) buffer, then along y
+    rows = np.empty((h, W))
+    for x in range(W):
+        x0, x1, ax = _cell_taps(x, cell, w)
+        for y in range(h):
+            rows[y, x] = (1.0 - ax) * zb[y, x0] + ax * zb[y, x1]
+    for y in range(H):
+        y0, y1, ay = _cell_taps(y, cell, h)
         for x in range(W):
-            x0, x1, ax = _cell_taps(x, cell, w)
-            for y in range(h):
-                rows[y, x] = (1.0 - ax) * zb[y, x0] + ax * zb[y, x1]
-        for y in range(H):
-            y0, y1, ay = _cell_taps(y, cell, h)
-            for x in range(W):
-                out[s, y, x] = (1.0 - ay) * rows[y0, x] + ay * rows[y1, x]
+            out[y, x] = (1.0 - ay) * rows[y0, x] + ay * rows[y1, x]
+
+
+def zbuffer_depth(means: np.ndarray, opacity: np.ndarray, R: np.ndarray, ty: float, tz: float, coef: np.ndarray,
+                  fy: float, cy: float, near: float, height: int, width: int, w_zero: float, *,
+                  cell: int | None = None, min_opacity: float = 0.5, out: np.ndarray | None = None) -> np.ndarray:
+    """(S, H, W) float32 inverse depth maps as :func:`inverse_depth`, for any images whose column
+    of a point (X, Y, Z) = ``R p + (0, ty, tz)`` is ``(a X + b Z + c) / (e Z + f)`` (``coef`` (S, 5)
+    rows a, b, c, e, f) and whose row is ``fy Y / Z + cy`` (e.g. the crossed-slit eye slices of
+    :mod:`holo_viewer.render.crossed_slit`)."""
+    means = np.ascontiguousarray(means, dtype=np.float64)
+    opacity = np.asarray(opacity, dtype=np.float64)
+    coef = np.ascontiguousarray(coef, dtype=np.float64)
+    if means.ndim != 2 or means.shape[1] != 3 or opacity.shape != (means.shape[0],):
+        raise InputError(f"means, opacity: expected (N, 3) and (N,), found {means.shape} and {opacity.shape}")
+    if coef.ndim != 2 or coef.shape[1] != 5:
+        raise InputError(f"coef: expected (S, 5) rows a, b, c, e, f, found {coef.shape}")
+    keep = opacity >= min_opacity
+    cell = auto_cell(int(keep.sum()), height, width) if cell is None else cell
+    if int(cell) != cell or cell < 1:
+        raise InputError(f"cell: expected an integer >= 1, found {cell!r}")
+    S = coef.shape[0]
+    if out is None:
+        out = np.empty((S, height, width), dtype=np.float32)
+    elif out.shape != (S, height, width) or out.dtype != np.float32:
+        raise InputError(f"out: expected float32 {(S, height, width)}, found {out.dtype} {out.shape}")
+    _zbuffer_coef(means, keep, np.ascontiguousarray(R, dtype=np.float64), float(ty), float(tz), coef, float(fy),
+                  float(cy), float(near), int(height), int(width), int(cell), float(w_zero), out)
+    return out
 
 
 def inverse_depth(means: np.ndarray, opacity: np.ndarray, cameras: Cameras, views: np.ndarray, *,

@@ -1,0 +1,280 @@
+"""Eye slices straight into the native subpixels a tracked viewer's eyes receive (pure array code).
+
+A tracked frame (``LiveConfig(tracked="slices")``) renders one crossed-slit image per eye
+(:mod:`holo_viewer.render.crossed_slit`) instead of bands of the 48 views. Every native subpixel
+that can send light to an eye (:func:`~holo_viewer.display.eyes.view_segments`: the views within
+reach of the eye's view coordinate, per native column, over the head-motion margin) gets the
+value the full path would give it, with each quilt view's texel warped out of that eye's slice
+by depth: no quilt, no interleave pass (the subpixel's view, texel and blend weight are the
+interleaver's own). The other subpixels keep what they showed.
+
+:class:`SubpixelBuckets` sorts each native row's subpixels by the view they show, once per
+calibration, so a frame visits only the subpixels of its segments (~15-30 % of the 9.4 M).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numba
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["SubpixelBuckets", "scatter_slices"]
+
+
+class SubpixelBuckets:
+    """Per native row and quilt view, the subpixels showing that view (the lower one in blend mode).
+
+    Parameters
+    ----------
+    interleaver : Interleaver
+        The panel's interleaver (its views, texels, blend weights are used as they are).
+    n_views, height, width : int
+        The quilt views (each ``height`` x ``width``, the quilt's tiles).
+
+    Attributes
+    ----------
+    positions : (H W 3,) int16
+        Per row, ``3 x + channel`` of its subpixels, sorted by (view, position).
+    zeta : (H W 3,) float32
+        Lens view coordinate of each listed subpixel (:attr:`VirtualDisplay.zeta`), same order.
+    offsets : (H, n_views + 1) int32
+        ``positions[y W 3 + offsets[y, k] : y W 3 + offsets[y, k + 1]]`` show view ``k``.
+    tex_row : (H,) int32 row (from the top) of the view's texel each native row reads.
+    tex_col : (W,) int32 texel column each native column reads.
+    view1, w8 : blend mode: (H W 3,) int16 upper view and uint16 weight (1/256) of each subpixel
+        (native order).
+    """
+
+    def __init__(self, interleaver: Any, n_views: int, height: int, width: int) -> None:
+        from .device import view_gather_indices
+        from .simulate import VirtualDisplay
+
+        il = interleaver
+        H, W, _ = il.shape
+        idx0, idx1, w8 = view_gather_indices(il, n_views, height, width)
+        per_view = height * width * 3
+        view0 = (idx0 // per_view).astype(np.int16)
+        texel = idx0 % per_view
+        # the interleaver's texel depends on the native row and column alone (not the view, not
+        # the channel beyond the channel itself): read it back and check
+        grid = texel.reshape(H, W, 3)
+        if not (np.all(grid[:, :, 0] % 3 == 0) and np.all(grid[:, :, 1] - grid[:, :, 0] == 1)
+                and np.all(grid[:, :, 2] - grid[:, :, 0] == 2)):
+            raise InputError("interleaver: a native pixel's channels read different texels: not supported")
+        pix = grid[:, :, 0] // 3
+        self.tex_row = (pix[:, 0] // width).astype(np.int32)
+        self.tex_col = (pix[0, :] % width).astype(np.int32)
+        if not np.array_equal(pix, self.tex_row[:, None] * width + self.tex_col[None, :]):
+            raise InputError("interleaver: texel rows and columns are not separable over the native image")
+        self.shape = (H, W, 3)
+        self.n_views = int(n_views)
+        self.mode = il.mode
+        keys = view0.reshape(H, W * 3).astype(np.int32) * (W * 3) + np.arange(W * 3, dtype=np.int32)[None, :]
+        keys.sort(axis=1)
+        pos = keys % (W * 3)
+        self.positions = pos.astype(np.int16).reshape(-1)
+        zeta = VirtualDisplay(il.calibration, n_views=il.n_views).zeta.astype(np.float32).reshape(H, W * 3)
+        self.zeta = np.take_along_axis(zeta, pos, axis=1).reshape(-1)
+        per_row = np.bincount((np.arange(H)[:, None] * self.n_views + view0.reshape(H, W * 3)).ravel(),
+                              minlength=H * self.n_views).reshape(H, self.n_views)
+        self.offsets = np.zeros((H, self.n_views + 1), dtype=np.int32)
+        np.cumsum(per_row, axis=1, out=self.offsets[:, 1:])
+        if self.mode == "blend":
+            self.view1 = (idx1 // per_view).astype(np.int16)
+            self.w8 = w8.astype(np.uint16)
+        else:
+            self.view1 = view0[:1].copy()
+            self.w8 = np.zeros(1, dtype=np.uint16)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.positions.nbytes + self.zeta.nbytes + self.offsets.nbytes + self.view1.nbytes
+                   + self.w8.nbytes)
+
+
+_F0, _F05, _F1, _F255 = np.float32(0.0), np.float32(0.5), np.float32(1.0), np.float32(255.0)
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _column(xi, Wf, W):  # pragma: no cover - compiled
+    """Pixel p and fraction f of the linear interpolation at column xi (centres at +1/2), written
+    as the C++ kernel's selects (AVX-512 max/min semantics, NaN -> the bound)."""
+    xm = xi - _F05
+    xm = xm if xm > np.float32(-1.0) else np.float32(-1.0)
+    xm = xm if xm < Wf else Wf
+    p = int(math.floor(xm))
+    p = p if p > 0 else 0
+    p = p if p < W - 2 else W - 2
+    f = xm - np.float32(p)
+    f = f if f > _F0 else _F0
+    f = f if f < _F1 else _F1
+    return p, f
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _slice_value(img, wrow, ch, uc, d0, d1, g, h, iters, W):  # pragma: no cover - compiled
+    """One view texel (column centre uc, channel ch) warped out of a slice row: float32, the C++
+    kernel's expressions in the same order."""
+    Wf = np.float32(W)
+    w = wrow[int(uc)]
+    xi = (uc + d0 + d1 * w) / (g + h * w)
+    for _ in range(iters):
+        p, f = _column(xi, Wf, W)
+        w0 = wrow[p]
+        w = w0 + f * (wrow[p + 1] - w0)
+        xi = (uc + d0 + d1 * w) / (g + h * w)
+    p, f = _column(xi, Wf, W)
+    a = img[p * 3 + ch]
+    v = np.rint((a + f * (img[p * 3 + 3 + ch] - a)) * _F255)
+    v = v if v > _F0 else _F0
+    return v if v < _F255 else _F255
+
+
+@numba.njit(inline="always")
+def _gap(zeta, lo, hi, n):  # pragma: no cover - compiled
+    """Circular distance (period n views) from zeta to [lo, hi] (<= 0 inside), float32."""
+    best = np.float32(np.inf)
+    for s in range(3):
+        z = zeta + np.float32(s - 1) * n
+        a, b = lo - z, z - hi
+        gap = a if a > b else b
+        best = gap if gap < best else best
+    return best
+
+
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def _scatter(native, positions, zetas, offsets, tex_row, tex_col, view1, w8, blend, segs, bounds, reach, images,
+             wmaps, kv, gh, iters, counts):  # pragma: no cover - compiled
+    H = offsets.shape[0]
+    W3 = native.shape[1]
+    Wv = wmaps.shape[2]
+    n = np.float32(offsets.shape[1] - 1)
+    for y in numba.prange(H):
+        ty = tex_row[y]
+        base = y * W3
+        cnt = 0
+        for j in range(segs.shape[0]):
+            e, k, x0, x1 = segs[j, 0], segs[j, 1], segs[j, 2], segs[j, 3]
+            lo, hi = offsets[y, k], offsets[y, k + 1]
+            a = lo + np.searchsorted(positions[base + lo:base + hi], 3 * x0)
+            b = lo + np.searchsorted(positions[base + lo:base + hi], 3 * x1)
+            img = images[e, ty]
+            wrow = wmaps[e, ty]
+            g, hh = gh[e, 0], gh[e, 1]
+            d0, d1 = kv[e, k, 0], kv[e, k, 1]
+            for i in range(a, b):
+                p = np.int64(positions[base + i])
+                x = p // 3
+                z = zetas[base + i]
+                gap = _gap(z, bounds[e, 0, x], bounds[e, 1, x], n)
+                if not gap < reach:
+                    continue  # sends this eye less than the threshold, wherever it is in the margin
+                mine = True
+                for o in range(bounds.shape[0]):  # a subpixel both eyes receive: the nearer eye's
+                    if o != e:
+                        go = _gap(z, bounds[o, 0, x], bounds[o, 1, x], n)
+                        if go < gap or (go == gap and o < e):
+                            mine = False
+                if not mine:
+                    continue
+                ch = p - 3 * x
+                uc = np.float32(tex_col[x]) + _F05
+                v0 = _slice_value(img, wrow, ch, uc, d0, d1, g, hh, iters, Wv)
+                if blend:
+                    s = base + p
+                    k1 = view1[s]
+                    v1 = v0 if k1 == k else _slice_value(img, wrow, ch, uc, kv[e, k1, 0], kv[e, k1, 1], g, hh,
+                                                         iters, Wv)
+                    ww = np.uint32(w8[s])
+                    native[y, p] = np.uint8((np.uint32(v0) * (256 - ww) + np.uint32(v1) * ww + 128) >> 8)
+                else:
+                    native[y, p] = np.uint8(v0)
+                cnt += 1
+        counts[y] = cnt
+
+
+def scatter_slices(native: np.ndarray, buckets: SubpixelBuckets, segments: np.ndarray, bounds: np.ndarray,
+                   reach: float, images: np.ndarray, wmaps: np.ndarray, kv: np.ndarray, gh: np.ndarray,
+                   iters: int = 1, kernel: str = "auto") -> int:
+    """Write the subpixels of ``segments`` that an eye can receive, from the eyes' slices.
+
+    Parameters
+    ----------
+    native : numpy.ndarray
+        (H, W, 3) uint8 native image, updated in place.
+    buckets : SubpixelBuckets
+    segments : numpy.ndarray
+        (S, 4) int64 (eye, view, x0, x1) of :func:`~holo_viewer.display.eyes.view_segments`.
+    bounds : numpy.ndarray
+        (E, 2, W) view-coordinate range of each eye per native column
+        (:func:`~holo_viewer.display.eyes.eye_view_bounds`).
+    reach : float
+        A listed subpixel is written when its lens coordinate is within ``reach`` views of its
+        eye's range (:func:`~holo_viewer.display.eyes.reach_views`), i.e. when it can send that
+        eye more than the threshold, and is not nearer the other eye's range (that eye's slice
+        writes it).
+    images, wmaps : numpy.ndarray
+        (E, h, w, 3) float32 slices and (E, h, w) float32 their inverse depths
+        (:func:`~holo_viewer.render.crossed_slit.slice_depth`).
+    kv, gh : numpy.ndarray
+        :func:`~holo_viewer.render.crossed_slit.warp_coefficients` (used as float32).
+    iters : int
+        Fixed-point steps for the source column after the first guess.
+    kernel : {"auto", "cpp", "cpp-scalar", "numba"}
+        The C++ kernel (AVX-512 where the CPU has it, 16 subpixels at a time, in nearest mode;
+        "cpp-scalar" without) when built, else numba; all compute the same float32 expressions
+        (tested equal).
+
+    Returns
+    -------
+    int
+        Subpixels written.
+    """
+    if native.shape != buckets.shape or native.dtype != np.uint8 or not native.flags.c_contiguous:
+        raise InputError(f"native: expected a C-contiguous uint8 {buckets.shape} array, found {native.dtype} "
+                         f"{native.shape}")
+    images = np.ascontiguousarray(images, dtype=np.float32)
+    wmaps = np.ascontiguousarray(wmaps, dtype=np.float32)
+    E = images.shape[0]
+    if images.ndim != 4 or images.shape[3] != 3 or wmaps.shape != images.shape[:3] or images.shape[2] < 2:
+        raise InputError(f"images, wmaps: expected (E, h, w, 3) and (E, h, w), found {images.shape} and {wmaps.shape}")
+    H, W, _ = buckets.shape
+    segs = np.ascontiguousarray(segments, dtype=np.int64).reshape(-1, 4)
+    if segs.size and (segs[:, 0].min() < 0 or segs[:, 0].max() >= E or segs[:, 1].min() < 0
+                      or segs[:, 1].max() >= buckets.n_views or segs[:, 2].min() < 0
+                      or segs[:, 3].max() > W or np.any(segs[:, 3] < segs[:, 2])):
+        raise InputError(f"segments: expected rows (eye < {E}, view < {buckets.n_views}, 0 <= x0 <= x1 <= {W})")
+    if bounds.shape != (E, 2, W):
+        raise InputError(f"bounds: expected ({E}, 2, {W}), found {bounds.shape}")
+    if kv.shape != (E, buckets.n_views, 2) or gh.shape != (E, 2):
+        raise InputError(f"kv, gh: expected ({E}, {buckets.n_views}, 2) and ({E}, 2), found {kv.shape}, {gh.shape}")
+    if kernel not in ("auto", "cpp", "cpp-scalar", "numba"):
+        raise InputError(f"kernel: expected 'auto', 'cpp', 'cpp-scalar' or 'numba', found {kernel!r}")
+    if int(tex_max := buckets.tex_col.max()) >= images.shape[2] or int(buckets.tex_row.max()) >= images.shape[1]:
+        raise InputError(f"images: expected slices of the views' size, found {images.shape[1:3]} (texel {tex_max})")
+    args = (native.reshape(H, W * 3), buckets.positions, buckets.zeta, buckets.offsets, buckets.tex_row,
+            buckets.tex_col, buckets.view1, buckets.w8, buckets.mode == "blend", segs,
+            np.ascontiguousarray(bounds, dtype=np.float32), np.float32(reach), images.reshape(E, images.shape[1], -1),
+            wmaps, np.ascontiguousarray(kv, dtype=np.float32), np.ascontiguousarray(gh, dtype=np.float32), int(iters))
+    from ..render.fast import _cpp
+
+    cpp = _cpp() if kernel != "numba" else None
+    if kernel.startswith("cpp") and (cpp is None or not hasattr(cpp, "scatter_slices")):
+        raise InputError("kernel 'cpp': the C++ extension holo_viewer.render._splat_cpp is not built")
+    counts = np.zeros(H, dtype=np.int64)
+    if cpp is not None and hasattr(cpp, "scatter_slices"):
+        cpp.scatter_slices(*args, counts, H, W * 3, buckets.n_views, E, images.shape[1], images.shape[2], _threads(),
+                           1 if kernel == "cpp-scalar" else 0)
+    else:
+        _scatter(*args, counts)
+    return int(counts.sum())
+
+
+def _threads() -> int:
+    import numba
+
+    return int(numba.get_num_threads())

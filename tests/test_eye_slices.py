@@ -1,0 +1,361 @@
+"""Tracked frames from eye slices: the crossed-slit eye images (holo_viewer.render.crossed_slit),
+the renderer's passes that draw them, and the warp into the native subpixels an eye receives
+(holo_viewer.display.slices).
+
+Tolerances (stated once):
+* a slice column is the projection of the quilt camera the eye looks through there: the slit
+  projection of a point equals that camera's pinhole projection to 1e-9 px (float64);
+* a moved centre projects (pinhole) to the slit column to 1e-9 px and its covariance is the
+  slit projection's Jacobian footprint to 1e-9 relative (finite differences to 1e-6);
+* a point seen in view k lands, through the warp formula with its true inverse depth, on its
+  slice column to 1e-9 px;
+* a rendered slice equals, column by column, the render of each column's own quilt camera above
+  35 dB on a scene of small splats (measured 38-44 dB; EWA's first-order footprint differs from
+  the per-column camera's only by the camera change across a splat);
+* a render's passes leave its views bit-identical, and an identity pass equals the pinhole
+  render of its camera to 1e-5 (colours evaluated outside the kernel: float rounding);
+* the numba, C++ scalar and C++ AVX-512 scatter kernels agree bit for bit;
+* the written subpixels include every subpixel whose light weight exceeds the threshold at an
+  eye anywhere inside the motion margin (VirtualDisplay.weights), exactly;
+* a tracked slices frame is above 40 dB per eye against the full quilt path on random scenes
+  (measured 46-51 dB); the default avatar's figures are in docs/live_frame.md.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.scenes import quilt_cameras, random_scene  # noqa: E402
+from holo_viewer.avatar.gaussians import Gaussians  # noqa: E402
+from holo_viewer.display import eyes  # noqa: E402
+from holo_viewer.display.calibration import DisplayCalibration  # noqa: E402
+from holo_viewer.display.cameras import make_quilt_cameras  # noqa: E402
+from holo_viewer.display.lenticular import Interleaver  # noqa: E402
+from holo_viewer.display.simulate import VirtualDisplay  # noqa: E402
+from holo_viewer.display.slices import SubpixelBuckets, scatter_slices  # noqa: E402
+from holo_viewer.errors import InputError, RenderError  # noqa: E402
+from holo_viewer.pipeline.live import LiveConfig, LiveRenderer  # noqa: E402
+from holo_viewer.render import RenderConfig, crossed_slit as cs, fast  # noqa: E402
+from holo_viewer.render.reference import view_colors  # noqa: E402
+
+CAL = DisplayCalibration.load(None)
+SMALL = CAL.with_quilt(8, 6, 840, 840)  # same optics, 105 x 140 tiles
+
+
+@pytest.fixture(scope="module")
+def cams():
+    return make_quilt_cameras(SMALL, focal_center=(0.0, 0.0, 0.0), size=0.12, near=0.01, far=10.0)
+
+
+@pytest.fixture(scope="module")
+def rig(cams):
+    return cs.slice_rig(cams, SMALL)
+
+
+def _scene(seed: int, n: int = 2500, log_scale: tuple[float, float] = (-6.0, -4.0)) -> Gaussians:
+    return random_scene(n, degree=1, seed=seed, extent=(0.1, 0.13, 0.06), scale_range=log_scale)
+
+
+def _rig_frame(rig, means):
+    p = means @ rig.R.T
+    return p[:, 0], p[:, 1] + rig.ty, p[:, 2] + rig.tz
+
+
+# ----------------------------------------------------------------------------- geometry
+@pytest.mark.parametrize("angle,distance", [(0.0, 0.6), (12.0, 0.45), (-7.0, 0.9)])
+def test_slice_column_is_the_projection_of_the_camera_looked_through(rig, angle, distance):
+    rng = np.random.default_rng(0)
+    means = rng.normal(scale=0.05, size=(200, 3))
+    X, Y, Z = _rig_frame(rig, means)
+    for eye in cs.eye_slices(rig, eyes.TrackedViewer(angle, distance)):
+        xi = cs.slice_columns(rig, eye, X, Z)
+        assert np.isfinite(xi).all()
+        for i in range(0, 200, 37):
+            cam = cs.column_camera(rig, eye, xi[i])
+            pc = cam.world_to_cam[0, :3, :3] @ means[i] + cam.world_to_cam[0, :3, 3]
+            u = cam.K[0, 0, 0] * pc[0] / pc[2] + cam.K[0, 0, 2]
+            assert abs(u - xi[i]) < 1e-9
+        # on the focal plane every camera sees a point in the same column: the slice agrees with view 0
+        Zf = np.full(5, 1.0 / rig.w_zero)
+        Xf = np.linspace(-0.03, 0.03, 5)
+        u0 = rig.fx * (Xf + rig.tx[0]) / Zf + rig.cx[0]
+        np.testing.assert_allclose(cs.slice_columns(rig, eye, Xf, Zf), u0, atol=1e-9)
+    # each native column's slice column looks through the camera of the view coordinate the eye has there
+    viewer = eyes.TrackedViewer(angle, distance)
+    t = eyes.eye_view_coordinates(SMALL, viewer, len(rig.tx))
+    x_native = (np.arange(SMALL.screen_w) + 0.5) / SMALL.screen_w * rig.width
+    for e, eye in enumerate(cs.eye_slices(rig, viewer)):
+        alpha = np.radians((t[e] / (len(rig.tx) - 1) - 0.5) * SMALL.view_cone)
+        np.testing.assert_allclose(eye.A + eye.B * x_native, np.tan(alpha), atol=1e-12)
+
+
+def test_transform_moves_centres_and_covariances_to_the_slit_footprint(rig):
+    g = _scene(1, 300)
+    gn = g.numpy()
+    splats = _sorted_splats(g, rig)
+    eye = cs.eye_slices(rig, eyes.TrackedViewer(5.0, 0.55))[1]
+    pc, cov, col = cs.transform_splats(rig, eye, splats)
+    m = splats.m
+    order = splats.order
+    X, Y, Z = _rig_frame(rig, np.asarray(gn.means, np.float64)[order])
+    xi = cs.slice_columns(rig, eye, X, Z)
+    u = rig.fx * pc[0, :m] / (pc[2, :m] + rig.tz) + rig.cxm
+    np.testing.assert_allclose(u, xi, atol=1e-9)
+    np.testing.assert_array_equal(pc[2, :m], splats.pc[2, :m])  # the depth, so the order, is kept
+    # footprint: J_pinhole(moved) J_move = J_slit, checked through the 2x2 screen covariance
+    for i in range(0, m, 29):
+        Zi = Z[i]
+        Xp = pc[0, i]
+        Jp = np.array([[rig.fx / Zi, 0.0, -rig.fx * Xp / Zi ** 2], [0.0, rig.fy / Zi, -rig.fy * pc[1, i] / Zi ** 2]])
+        # pc[1] is the rotated y without ty: the camera adds ty
+        Jp[1, 2] = -rig.fy * (pc[1, i] + rig.ty) / Zi ** 2
+        C = _cov3(cov[:, i])
+        screen = Jp @ C @ Jp.T
+        h = 1e-6  # the slit projection's Jacobian by central differences
+        f = lambda x, z: cs.slice_columns(rig, eye, np.array([x]), np.array([z]))[0]  # noqa: E731
+        Js = np.array([[(f(X[i] + h, Zi) - f(X[i] - h, Zi)) / (2 * h), 0.0, (f(X[i], Zi + h) - f(X[i], Zi - h)) / (2 * h)],
+                       [0.0, rig.fy / Zi, -rig.fy * Y[i] / Zi ** 2]])
+        C0 = _cov3(splats.cov[:, i])
+        np.testing.assert_allclose(screen, Js @ C0 @ Js.T, rtol=1e-6, atol=1e-9 * np.abs(screen).max())
+    # colours: SH seen from the camera of the centre's column
+    s = eye.A + eye.B * xi
+    for i in range(0, m, 41):
+        cam = cs.column_camera(rig, eye, xi[i])
+        sh = np.asarray(gn.sh, np.float64)[order[i]][None]
+        want = view_colors(np.asarray(gn.means, np.float64)[order[i]][None], sh, 1, cam.positions[0])[0]
+        np.testing.assert_allclose(col[:, i], want, atol=1e-6)
+        assert abs(s[i] - (eye.A + eye.B * xi[i])) == 0.0
+
+
+def _cov3(c):
+    return np.array([[c[0], c[1], c[2]], [c[1], c[3], c[4]], [c[2], c[4], c[5]]])
+
+
+def _sorted_splats(g, rig):
+    gn = g.numpy()
+    means = np.asarray(gn.means, np.float64)
+    opacity = 1.0 / (1.0 + np.exp(-np.asarray(gn.opacity_logits, np.float64)))
+    from holo_viewer.render import fast_kernels as fk
+
+    z = fk.depth_z(means, rig.R)
+    order = np.argsort(z, kind="stable").astype(np.int64)
+    sh = np.ascontiguousarray(np.asarray(gn.sh, np.float32))
+    ins = fast._sorted_inputs(order, means, np.asarray(gn.quats, np.float64), np.asarray(gn.log_scales, np.float64),
+                              opacity, sh, rig.R, 1 / 255)
+    return fast.SortedSplats(pc=ins[0], cov=ins[1], means=ins[2], opacity=ins[3], sh=ins[5], degree=gn.sh_degree,
+                             order=order)
+
+
+def test_warp_formula_maps_a_view_pixel_to_its_slice_column(rig):
+    rng = np.random.default_rng(2)
+    means = rng.normal(scale=0.05, size=(100, 3))
+    X, _, Z = _rig_frame(rig, means)
+    es = cs.eye_slices(rig, eyes.TrackedViewer(-4.0, 0.7))
+    kv, gh = cs.warp_coefficients(rig, es)
+    for e, eye in enumerate(es):
+        xi = cs.slice_columns(rig, eye, X, Z)
+        for k in (0, 17, len(rig.tx) - 1):
+            u = rig.fx * (X + rig.tx[k]) / Z + rig.cx[k]  # continuous column in view k
+            w = 1.0 / Z
+            back = (u + kv[e, k, 0] + kv[e, k, 1] * w) / (gh[e, 0] + gh[e, 1] * w)
+            np.testing.assert_allclose(back, xi, atol=1e-9)
+
+
+def test_slice_rig_refuses_other_cameras(cams):
+    from holo_viewer.camera import Cameras
+    import dataclasses
+
+    w2c = np.array(cams.world_to_cam)
+    w2c[3, 1, 3] += 0.01  # one camera moved up: not a horizontal rig
+    with pytest.raises(InputError, match="horizontal rig"):
+        cs.slice_rig(Cameras(w2c, cams.K, cams.width, cams.height, cams.near, cams.far), SMALL)
+    with pytest.raises(InputError, match="affine"):  # another panel's cone: not its quilt cameras
+        cs.slice_rig(cams, dataclasses.replace(SMALL, view_cone=30.0))
+    with pytest.raises(InputError, match="slices"):
+        LiveRenderer(SMALL, Cameras(w2c, cams.K, cams.width, cams.height, cams.near, cams.far),
+                     LiveConfig(tracked="slices"))
+    with pytest.raises(InputError, match="tracked"):
+        LiveConfig(tracked="eyes")
+    # not a rig: the default falls back to the exact bands
+    live = LiveRenderer(SMALL, Cameras(w2c, cams.K, cams.width, cams.height, cams.near, cams.far))
+    assert live.tracked_method == "bands"
+
+
+# ----------------------------------------------------------------------------- rendering
+def test_rendered_slice_matches_each_columns_own_camera(cams, rig):
+    g = _scene(3, 4000, log_scale=(-6.5, -5.0))
+    viewer = eyes.TrackedViewer(6.0, 0.5)
+    es = cs.eye_slices(rig, viewer)
+    out = np.zeros((len(es), cams.height, cams.width, 3), np.float32)
+    tm = np.zeros((len(cams),) + fast.tile_grid(cams), bool)
+    fast.render(g, cams, RenderConfig(), tile_mask=tm, passes=cs.slice_pass(rig, es, out))
+    for e, eye in enumerate(es):
+        got, want = [], []
+        for c in range(10, cams.width - 10, 9):
+            col = fast.render(g, cs.column_camera(rig, eye, c + 0.5), RenderConfig()).images[0, :, c]
+            got.append(out[e, :, c])
+            want.append(col)
+        got, want = np.array(got), np.array(want)
+        assert np.abs(want).max() > 0.1  # the scene is in the picture
+        assert eyes.psnr(want, got) > 35.0
+
+
+def test_passes_leave_the_views_and_an_identity_pass_is_the_pinhole(cams):
+    g = _scene(4, 1500)
+    gn = g.numpy()
+    sub = cams[[3, 4]]
+    plain = fast.render(g, sub, RenderConfig()).images.copy()
+    k = 1  # an identity pass with the colours seen from camera k
+    pos = sub.positions[k]
+
+    def identity(splats):
+        means = splats.means[:, :splats.m].T
+        col = np.zeros((3, splats.pc.shape[1]), np.float32)
+        sh = np.asarray(gn.sh, np.float64)[splats.order]
+        col[:, :splats.m] = view_colors(means, sh, gn.sh_degree, pos).T
+        return splats.pc, splats.cov, col
+
+    out = np.zeros((1, sub.height, sub.width, 3), np.float32)
+    res = fast.render(g, sub, RenderConfig(), passes=[fast.SplatPass(cameras=sub[[k]], transform=identity, out=out)])
+    np.testing.assert_array_equal(res.images, plain)
+    np.testing.assert_allclose(out[0], plain[k], atol=1e-5)
+    assert "passes" in res.timings
+    # no view rendered at all: the pass still runs
+    out2 = np.zeros_like(out)
+    tm = np.zeros((2,) + fast.tile_grid(sub), bool)
+    fast.render(g, sub, RenderConfig(), tile_mask=tm, passes=[fast.SplatPass(sub[[k]], identity, out2)])
+    np.testing.assert_array_equal(out2, out)
+    # numba kernels: the same pass
+    out3 = np.zeros_like(out)
+    fast.render(g, sub, RenderConfig(kernel="numba"), passes=[fast.SplatPass(sub[[k]], identity, out3)])
+    np.testing.assert_allclose(out3, out, atol=1e-5)
+    with pytest.raises(RenderError, match="out"):
+        fast.render(g, sub, RenderConfig(), passes=[fast.SplatPass(sub[[k]], identity, out[..., :2])])
+    with pytest.raises(RenderError, match="transform"):
+        fast.render(g, sub, RenderConfig(), passes=[fast.SplatPass(sub[[k]], lambda s: (s.pc,), out)])
+    with pytest.raises(RenderError, match="rotation"):
+        turned = np.array(sub.world_to_cam[[0]])
+        turned[0, :3, :3] = turned[0, :3, :3] @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        from holo_viewer.camera import Cameras
+
+        fast.render(g, sub, RenderConfig(), passes=[fast.SplatPass(
+            Cameras(turned, sub.K[[0]], sub.width, sub.height, sub.near, sub.far), identity, out)])
+
+
+# ----------------------------------------------------------------------------- into the native image
+@pytest.fixture(scope="module", params=["nearest", "blend"])
+def buckets(request):
+    il = Interleaver(SMALL, (840, 840, 3), mode=request.param)
+    return il, SubpixelBuckets(il, 48, 140, 105)
+
+
+def _tables(rig, viewer, seed, mode, motion=0.01):
+    rng = np.random.default_rng(seed)
+    es = cs.eye_slices(rig, viewer)
+    H, W = rig.height, rig.width
+    yy, xx = np.mgrid[0:H, 0:W]
+    imgs = np.stack([np.stack([0.5 + 0.4 * np.sin(xx / (3 + e + c) + rng.uniform(0, 6)) * np.cos(yy / 7)
+                               for c in range(3)], -1) for e in range(len(es))]).astype(np.float32)
+    wm = (rig.w_zero + 0.05 * np.sin(xx / 11.0 + yy / 13.0)[None].repeat(len(es), 0)).astype(np.float32)
+    segs = eyes.view_segments(SMALL, viewer, n_views=48, mode=mode, motion_m=motion, motion_distance_m=0.04)
+    bounds = eyes.eye_view_bounds(SMALL, viewer, n_views=48, motion_m=motion, motion_distance_m=0.04)
+    kv, gh = cs.warp_coefficients(rig, es)
+    return segs, bounds, imgs, wm, kv, gh
+
+
+SCATTER_KERNELS = ["numba"] + (["cpp", "cpp-scalar"] if fast.cpp_available() else [])
+
+
+@pytest.mark.parametrize("angle,distance", [(0.0, 0.6), (-13.0, 0.5), (9.0, 1.2)])
+def test_scatter_kernels_agree_and_cover_every_received_subpixel(buckets, rig, angle, distance):
+    il, b = buckets
+    viewer = eyes.TrackedViewer(angle, distance)
+    segs, bounds, imgs, wm, kv, gh = _tables(rig, viewer, 0, il.mode)
+    reach = eyes.reach_views(0.5, 0.01)
+    outs = {}
+    for kernel in SCATTER_KERNELS:
+        lo = np.zeros(il.shape, np.uint8)
+        hi = np.full(il.shape, 255, np.uint8)
+        n = scatter_slices(lo, b, segs, bounds, reach, imgs, wm, kv, gh, kernel=kernel)
+        assert scatter_slices(hi, b, segs, bounds, reach, imgs, wm, kv, gh, kernel=kernel) == n
+        written = lo == hi
+        assert written.sum() >= n  # (a written 0 or 255 also counts)
+        outs[kernel] = (lo, written)
+    ref, written = outs["numba"]
+    for kernel, (lo, w) in outs.items():
+        np.testing.assert_array_equal(lo, ref, err_msg=kernel)
+    display = VirtualDisplay(SMALL)
+    for dx in (0.0, 0.009, -0.009):  # eyes anywhere inside the sideways margin
+        x = viewer.centre_x_m + dx
+        moved = eyes.TrackedViewer(math.degrees(math.atan2(x, viewer.distance_m)), viewer.distance_m)
+        seen = eyes.received_subpixels(display, moved, 0.01)
+        assert not (seen & ~written).any()
+    # it writes far fewer than all subpixels
+    assert written.mean() < 0.45
+
+
+def test_scatter_validates_its_inputs(buckets, rig):
+    il, b = buckets
+    segs, bounds, imgs, wm, kv, gh = _tables(rig, eyes.TrackedViewer(0.0, 0.6), 1, il.mode)
+    native = np.zeros(il.shape, np.uint8)
+    reach = eyes.reach_views(0.5, 0.01)
+    with pytest.raises(InputError, match="native"):
+        scatter_slices(native[:-1], b, segs, bounds, reach, imgs, wm, kv, gh)
+    with pytest.raises(InputError, match="segments"):
+        scatter_slices(native, b, segs + np.array([0, 48, 0, 0]), bounds, reach, imgs, wm, kv, gh)
+    with pytest.raises(InputError, match="bounds"):
+        scatter_slices(native, b, segs, bounds[:, :, :-1], reach, imgs, wm, kv, gh)
+    with pytest.raises(InputError, match="images"):
+        scatter_slices(native, b, segs, bounds, reach, imgs[:, :, :50], wm[:, :, :50], kv, gh)
+    with pytest.raises(InputError, match="kernel"):
+        scatter_slices(native, b, segs, bounds, reach, imgs, wm, kv, gh, kernel="gpu")
+
+
+def test_view_segments_are_the_view_columns_per_eye():
+    for viewer in (eyes.TrackedViewer(0.0, 0.6), eyes.TrackedViewer(10.0, 2.5), eyes.TrackedViewer(-19.0, 0.5)):
+        segs = eyes.view_segments(SMALL, viewer, n_views=48, motion_m=0.01, motion_distance_m=0.04)
+        cover = np.zeros((2, 48, SMALL.screen_w), np.int32)
+        for e, k, x0, x1 in segs:
+            assert 0 <= x0 < x1 <= SMALL.screen_w and e in (0, 1)
+            cover[e, k, x0:x1] += 1
+        assert cover.max() == 1  # one eye's segments of a view are disjoint
+        cover = cover.sum(axis=0)
+        cols = eyes.view_columns(SMALL, viewer, SMALL.screen_w, n_views=48, motion_m=0.01, motion_distance_m=0.04)
+        np.testing.assert_array_equal(cover > 0, cols)  # together: view_columns at native resolution
+
+
+# ----------------------------------------------------------------------------- the live mode
+@pytest.mark.parametrize("blend", [False, True])
+def test_tracked_slices_frame_against_the_full_path(cams, blend):
+    display = VirtualDisplay(SMALL)
+    cfg = LiveConfig(blend=blend, motion_m=0.01, motion_distance_m=0.04, refresh_columns=3)
+    live = LiveRenderer(SMALL, cams, cfg)
+    assert live.tracked_method == "slices"
+    reference = LiveRenderer(SMALL, cams, LiveConfig(blend=blend))
+    g0 = _scene(5, 3000, log_scale=(-6.0, -4.5))
+    rng = np.random.default_rng(7)
+    live.frame(g0, eyes.TrackedViewer(0.0, 0.6))
+    for step in range(2):
+        g = _moved(g0, step)
+        viewer = eyes.TrackedViewer(float(rng.uniform(-12, 12)), float(rng.uniform(0.5, 0.9)))
+        f = live.frame(g, viewer)
+        assert f.mode == "tracked" and {"render", "depth", "scatter"} <= set(f.timings)
+        ref = reference.frame(g, mode="full_quilt").native
+        assert (f.native != ref).any()  # approximate, and the unseen subpixels hold the last frame
+        assert eyes.eye_psnr(display, ref, f.native, viewer) > 40.0
+    # the refreshed columns went through the quilt exactly, like the bands method's
+    assert live._rr == 2 * cfg.refresh_columns
+
+
+def _moved(g: Gaussians, seed: int) -> Gaussians:
+    rng = np.random.default_rng(100 + seed)
+    gg = g.numpy()
+    return Gaussians(gg.means + rng.normal(scale=0.004, size=gg.means.shape), gg.quats, gg.log_scales,
+                     gg.opacity_logits, gg.sh + rng.normal(scale=0.2, size=gg.sh.shape))
