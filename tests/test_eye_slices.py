@@ -101,7 +101,8 @@ def test_transform_moves_centres_and_covariances_to_the_slit_footprint(rig):
     gn = g.numpy()
     splats = _sorted_splats(g, rig)
     eye = cs.eye_slices(rig, eyes.TrackedViewer(5.0, 0.55))[1]
-    pc, cov, col = cs.transform_splats(rig, eye, splats)
+    pcs, covs, cols = cs.transform_splats(rig, cs.eye_slices(rig, eyes.TrackedViewer(5.0, 0.55)), splats)
+    pc, cov, col = pcs[1], covs[1], cols[1]
     m = splats.m
     order = splats.order
     X, Y, Z = _rig_frame(rig, np.asarray(gn.means, np.float64)[order])

@@ -200,13 +200,28 @@ def view_segments(calibration: DisplayCalibration, viewer: TrackedViewer, *, n_v
     """
     cal = calibration
     n = cal.n_views if n_views is None else int(n_views)
-    near = _near_views(cal, viewer, n, mode, sigma_views, threshold, motion_m, motion_distance_m)
-    E, _, W = near.shape
-    edges = np.diff(np.concatenate([np.zeros((E, n, 1), bool), near, np.zeros((E, n, 1), bool)], axis=2).astype(np.int8),
-                    axis=2)
-    e0, k0, x0 = np.nonzero(edges == 1)
-    x1 = np.nonzero(edges == -1)[2]
-    return np.stack([e0, k0, x0, x1], axis=1).astype(np.int64)
+    if mode not in ("nearest", "blend"):
+        raise InputError(f"mode: expected 'nearest' or 'blend', found {mode!r}")
+    reach = reach_views(sigma_views, threshold) + (0.5 if mode == "nearest" else 1.0) + 1e-9 * n
+    bounds = eye_view_bounds(cal, viewer, n_views=n, motion_m=motion_m, motion_distance_m=motion_distance_m)
+    # t_lo, t_hi fall with the column (the view coordinate turns away from the eye across the
+    # panel), so view k (or k -+ n, circularly) is within reach on one run of columns:
+    # t_hi(x) > k - reach on a prefix, t_lo(x) < k + reach on a suffix (the rule of view_columns)
+    rows = []
+    k = np.arange(n, dtype=np.float64)
+    for e in range(bounds.shape[0]):
+        lo_desc, hi_desc = bounds[e, 0], bounds[e, 1]
+        if not (np.all(np.diff(lo_desc) <= 0) and np.all(np.diff(hi_desc) <= 0)):
+            raise InputError("view_segments: the eye's view coordinate is not monotone over the panel")
+        for shift in (-n, 0, n):
+            kk = k + shift
+            # prefix end: first column with t_hi <= kk - reach; suffix start: first with t_lo < kk + reach
+            x1 = np.searchsorted(-hi_desc, -(kk - reach), side="left")
+            x0 = np.searchsorted(-lo_desc, -(kk + reach), side="right")
+            ok = x0 < x1
+            rows.append(np.stack([np.full(int(ok.sum()), e), np.flatnonzero(ok), x0[ok], x1[ok]], axis=1))
+    out = np.concatenate(rows).astype(np.int64) if rows else np.zeros((0, 4), np.int64)
+    return out[np.lexsort((out[:, 2], out[:, 1], out[:, 0]))]
 
 
 def column_tile_mask(columns: np.ndarray, tile_height: int, tile: int = 16) -> np.ndarray:

@@ -194,88 +194,104 @@ def slice_cameras(rig: SliceRig, n: int) -> Cameras:
 
 
 @numba.njit(parallel=True, cache=True)
-def _transform(pc, cov, means, sh, m, degree, ty, tz, fx, cxm, near, a, b, c, e, f, A, B, P0, P1,
-               out_pc, out_cov, out_col):  # pragma: no cover - compiled
+def _transform(pc, cov, means, sh, m, degree, ty, tz, fx, cxm, near, coef, ab, P0, P1, out_pc, out_cov,
+               out_col):  # pragma: no cover - compiled
+    """Every eye's moved centres, covariances and colours in one pass over the splats (coef (E, 5)
+    rows a, b, c, e, f; ab (E, 2) the slices' A, B; outputs (E, rows, mp))."""
     mp = pc.shape[1]
+    E = coef.shape[0]
     nk = (degree + 1) * (degree + 1)
     chunk = 512
     for ci in numba.prange((mp + chunk - 1) // chunk):
         basis = np.empty(16)  # once per chunk (an allocation per splat cost more than the rest)
         for i in range(ci * chunk, min(mp, ci * chunk + chunk)):
-            out_pc[1, i] = pc[1, i]
             X, Z = pc[0, i], pc[2, i] + tz
-            den = e * Z + f
-            if i >= m or not (Z > near and den > 1e-9 * Z):
-                # padding, or behind the slit camera: moved behind the near plane, never drawn
-                out_pc[0, i] = 0.0
-                out_pc[2, i] = -tz - 1.0
-                for r in range(6):
-                    out_cov[r, i] = cov[r, i]
-                for r in range(3):
-                    out_col[r, i] = 0.0
-                continue
             xx, xy, xz, yy, yz, zz = cov[0, i], cov[1, i], cov[2, i], cov[3, i], cov[4, i], cov[5, i]
-            xi = (a * X + b * Z + c) / den
-            out_pc[0, i] = (xi - cxm) * Z / fx
-            out_pc[2, i] = pc[2, i]
-            jx = Z / den * (a / fx)
-            jz = ((b * f - e * (a * X + c)) / (den * den) * Z + (xi - cxm)) / fx
-            out_cov[0, i] = jx * jx * xx + 2.0 * jx * jz * xz + jz * jz * zz
-            out_cov[1, i] = jx * xy + jz * yz
-            out_cov[2, i] = jx * xz + jz * zz
-            out_cov[3, i] = yy
-            out_cov[4, i] = yz
-            out_cov[5, i] = zz
-            s = A + B * xi  # the camera of the centre's column
-            dx = means[0, i] - (P0[0] + s * P1[0])
-            dy = means[1, i] - (P0[1] + s * P1[1])
-            dz = means[2, i] - (P0[2] + s * P1[2])
-            nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
-            inv = 1.0 / nrm if nrm > 0.0 else 1.0
-            _sh_basis(degree, dx * inv, dy * inv, dz * inv, basis)
-            for ch in range(3):
-                acc = 0.0
-                for j in range(nk):
-                    acc += basis[j] * sh[j * 3 + ch, i]
-                out_col[ch, i] = max(acc + 0.5, 0.0)
+            for q in range(E):
+                a, b, c, e, f = coef[q, 0], coef[q, 1], coef[q, 2], coef[q, 3], coef[q, 4]
+                den = e * Z + f
+                out_pc[q, 1, i] = pc[1, i]
+                if i >= m or not (Z > near and den > 1e-9 * Z):
+                    # padding, or behind the slit camera: moved behind the near plane, never drawn
+                    out_pc[q, 0, i] = 0.0
+                    out_pc[q, 2, i] = -tz - 1.0
+                    for r in range(6):
+                        out_cov[q, r, i] = cov[r, i]
+                    for r in range(3):
+                        out_col[q, r, i] = 0.0
+                    continue
+                xi = (a * X + b * Z + c) / den
+                out_pc[q, 0, i] = (xi - cxm) * Z / fx
+                out_pc[q, 2, i] = pc[2, i]
+                jx = Z / den * (a / fx)
+                jz = ((b * f - e * (a * X + c)) / (den * den) * Z + (xi - cxm)) / fx
+                out_cov[q, 0, i] = jx * jx * xx + 2.0 * jx * jz * xz + jz * jz * zz
+                out_cov[q, 1, i] = jx * xy + jz * yz
+                out_cov[q, 2, i] = jx * xz + jz * zz
+                out_cov[q, 3, i] = yy
+                out_cov[q, 4, i] = yz
+                out_cov[q, 5, i] = zz
+                s = ab[q, 0] + ab[q, 1] * xi  # the camera of the centre's column
+                dx = means[0, i] - (P0[0] + s * P1[0])
+                dy = means[1, i] - (P0[1] + s * P1[1])
+                dz = means[2, i] - (P0[2] + s * P1[2])
+                nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
+                inv = 1.0 / nrm if nrm > 0.0 else 1.0
+                _sh_basis(degree, dx * inv, dy * inv, dz * inv, basis)
+                for ch in range(3):
+                    acc = 0.0
+                    for j in range(nk):
+                        acc += basis[j] * sh[j * 3 + ch, i]
+                    out_col[q, ch, i] = max(acc + 0.5, 0.0)
 
 
-def transform_splats(rig: SliceRig, eye: EyeSlice, splats: SortedSplats,
+def transform_splats(rig: SliceRig, eyes: list[EyeSlice], splats: SortedSplats,
                      out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Moved centres, covariances and colours of ``splats`` for ``eye``'s slice (see the module
-    docstring): (3, mp) and (6, mp) float64, (3, mp) float32, in the splats' depth order."""
+    """Moved centres, covariances and colours of ``splats`` for each eye's slice (see the module
+    docstring), in the splats' depth order: (E, 3, mp) and (E, 6, mp) float64, (E, 3, mp) float32."""
     mp = splats.pc.shape[1]
+    E = len(eyes)
     if out is None:
-        out = (np.empty((3, mp)), np.empty((6, mp)), np.empty((3, mp), np.float32))
-    a, b, c, e, f = eye.coefficients(rig)
+        out = (np.empty((E, 3, mp)), np.empty((E, 6, mp)), np.empty((E, 3, mp), np.float32))
+    coef = np.array([eye.coefficients(rig) for eye in eyes], dtype=np.float64).reshape(E, 5)
+    ab = np.array([(eye.A, eye.B) for eye in eyes], dtype=np.float64).reshape(E, 2)
     # camera position of s: -R^T (tx(s), ty, tz) = P0 + s P1
     P0 = -rig.R.T @ np.array([rig.p0, rig.ty, rig.tz])
     P1 = -rig.R.T @ np.array([rig.p1, 0.0, 0.0])
     _transform(splats.pc, splats.cov, splats.means, splats.sh, splats.m, int(splats.degree), rig.ty, rig.tz,
-               rig.fx, rig.cxm, rig.near, a, b, c, e, f, eye.A, eye.B, P0, P1, out[0], out[1], out[2])
+               rig.fx, rig.cxm, rig.near, coef, ab, P0, P1, out[0], out[1], out[2])
     return out
 
 
-def slice_pass(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray) -> list[SplatPass]:
+def slice_pass(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray, buffers: dict | None = None
+               ) -> list[SplatPass]:
     """One :class:`~holo_viewer.render.fast.SplatPass` per eye, drawing its slice into ``out[i]``
-    ((E, H, W, 3) float32) from the render's depth-sorted splats."""
+    ((E, H, W, 3) float32) from the render's depth-sorted splats (every eye's splats are moved in
+    the first pass's transform, in one pass over them). ``buffers``: a dict kept by the caller
+    between frames, holding the moved splats' arrays (fresh ones each frame cost ~3 ms of page
+    faults for the avatar)."""
     if out.shape != (len(eyes), rig.height, rig.width, 3):
         raise InputError(f"out: expected {(len(eyes), rig.height, rig.width, 3)}, found {out.shape}")
     cams = slice_cameras(rig, 1)
-    bufs: dict[int, tuple] = {}
+    done: dict[str, Any] = {}
+    keep = {} if buffers is None else buffers
 
-    def make(i: int, eye: EyeSlice) -> SplatPass:
+    def make(i: int) -> SplatPass:
         def transform(splats: SortedSplats) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            mp = splats.pc.shape[1]
-            buf = bufs.get(i)
-            if buf is None or buf[0].shape[1] != mp:
-                buf = bufs[i] = (np.empty((3, mp)), np.empty((6, mp)), np.empty((3, mp), np.float32))
-            return transform_splats(rig, eye, splats, buf)
+            if done.get("splats") is not splats:
+                E, mp = len(eyes), splats.pc.shape[1]
+                bufs = keep.get("moved")
+                if bufs is None or bufs[0].shape != (E, 3, mp):
+                    bufs = keep["moved"] = (np.empty((E, 3, mp)), np.empty((E, 6, mp)),
+                                            np.empty((E, 3, mp), np.float32))
+                done["splats"], done["out"] = splats, transform_splats(rig, eyes, splats, bufs)
+            pc, cov, col = done["out"]
+            return pc[i], cov[i], col[i]
 
         return SplatPass(cameras=cams, transform=transform, out=out[i:i + 1])
 
-    return [make(i, eye) for i, eye in enumerate(eyes)]
+    return [make(i) for i in range(len(eyes))]
 
 
 def slice_depth(means: np.ndarray, opacity: np.ndarray, rig: SliceRig, eyes: list[EyeSlice], *,
