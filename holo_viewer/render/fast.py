@@ -328,8 +328,15 @@ def _sorted_inputs(order: np.ndarray, means: np.ndarray, quats: np.ndarray, log_
     pc, cov, mout = ws.buffer("pc", (3, mp), np.float64), ws.buffer("cov", (6, mp), np.float64), \
         ws.buffer("means", (3, mp), np.float64)
     op, sh = ws.buffer("opacity", (mp,), np.float64), ws.buffer("sh", (cols.shape[1], mp), cols.dtype)
-    fk.prep_sorted(order, means, quats, log_scales, np.ascontiguousarray(opacity, dtype=np.float64), cols, Wrot,
-                   pc, cov, mout, op, sh)
+    opacity = np.ascontiguousarray(opacity, dtype=np.float64)
+    cpp = _cpp()
+    if cpp is not None and hasattr(cpp, "prep_sorted") and cols.dtype == np.float32:  # the same values, 2-4x faster
+        cpp.prep_sorted(np.ascontiguousarray(order, dtype=np.int64), np.ascontiguousarray(means, dtype=np.float64),
+                        np.ascontiguousarray(quats, dtype=np.float64), np.ascontiguousarray(log_scales, dtype=np.float64),
+                        opacity, cols, np.ascontiguousarray(Wrot, dtype=np.float64), pc, cov, mout, op, sh, m, mp,
+                        len(means), cols.shape[1], _cpu_threads())
+    else:
+        fk.prep_sorted(order, means, quats, log_scales, opacity, cols, Wrot, pc, cov, mout, op, sh)
     q = 2.0 * (np.log(np.maximum(op, 1e-300)) - math.log(alpha_threshold))  # padding: op = 0, never drawn
     return pc, cov, mout, op, q, sh
 
@@ -346,6 +353,13 @@ def _soa(a: np.ndarray, order: np.ndarray, dtype: type) -> np.ndarray:
     out[:, m:] = 0
     fk.gather_soa(a, order, out)
     return out
+
+
+def _cpu_threads() -> int:
+    """The threads the compiled kernels use: numba's current count."""
+    import numba
+
+    return int(numba.get_num_threads())
 
 
 def _threads(config: RenderConfig) -> int:

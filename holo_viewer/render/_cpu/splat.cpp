@@ -1404,6 +1404,84 @@ PyObject* project_bin(PyObject*, PyObject* args) {
     return result;
 }
 
+// ---- fast_kernels.prep_sorted: the depth-ordered inputs of project_bin in one pass (same float64
+// expressions in the same order, std::exp = libm exp as numba's math.exp: bit-identical; tested)
+PyObject* prep_sorted(PyObject*, PyObject* args) {
+    Py_buffer order{}, means{}, quats{}, ls{}, opa{}, col{}, rot{}, pc{}, cov{}, mout{}, op{}, sh{};
+    int m, mp, n, c, n_threads;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*w*w*w*w*w*iiiii", &order, &means, &quats, &ls, &opa, &col, &rot, &pc,
+                          &cov, &mout, &op, &sh, &m, &mp, &n, &c, &n_threads))
+        return nullptr;
+    bool ok = m >= 0 && mp >= m && n >= 0 && c >= 0;
+    if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.prep_sorted: inconsistent sizes");
+    ok = ok && need(order, int64_t(m) * 8, "order") && need(means, int64_t(n) * 24, "means") &&
+         need(quats, int64_t(n) * 32, "quats") && need(ls, int64_t(n) * 24, "log_scales") &&
+         need(opa, int64_t(n) * 8, "opacity") && need(col, int64_t(n) * c * 4, "colours") && need(rot, 72, "Wrot") &&
+         need(pc, int64_t(mp) * 24, "pc") && need(cov, int64_t(mp) * 48, "cov") && need(mout, int64_t(mp) * 24, "mout") &&
+         need(op, int64_t(mp) * 8, "op") && need(sh, int64_t(mp) * c * 4, "sh");
+    const int64_t* ord = (const int64_t*)order.buf;
+    for (int i = 0; ok && i < m; ++i) ok = ord[i] >= 0 && ord[i] < n;
+    if (!ok && !PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "_splat_cpp.prep_sorted: order outside 0 .. N");
+    if (ok) {
+        const double* M = (const double*)means.buf;
+        const double* Q = (const double*)quats.buf;
+        const double* L = (const double*)ls.buf;
+        const double* O = (const double*)opa.buf;
+        const float* C = (const float*)col.buf;
+        const double* W = (const double*)rot.buf;
+        double* PC = (double*)pc.buf;
+        double* CV = (double*)cov.buf;
+        double* MO = (double*)mout.buf;
+        double* OP = (double*)op.buf;
+        float* SH = (float*)sh.buf;
+        const int chunk = 2048;
+        Py_BEGIN_ALLOW_THREADS
+        parallel_for((mp + chunk - 1) / chunk, std::max(1, n_threads), [&](int ci) {
+            for (int i = ci * chunk; i < std::min(mp, ci * chunk + chunk); ++i) {
+                if (i >= m) {
+                    for (int r = 0; r < 3; ++r) { PC[r * mp + i] = 0.0; MO[r * mp + i] = 0.0; }
+                    for (int r = 0; r < 6; ++r) CV[r * mp + i] = 0.0;
+                    OP[i] = 0.0;
+                    for (int j = 0; j < c; ++j) SH[int64_t(j) * mp + i] = 0.0f;
+                    continue;
+                }
+                const int64_t k = ord[i];
+                double w = Q[4 * k], x = Q[4 * k + 1], y = Q[4 * k + 2], z = Q[4 * k + 3];
+                const double qn = std::sqrt(w * w + x * x + y * y + z * z);
+                w = w / qn; x = x / qn; y = y / qn; z = z / qn;
+                const double R00 = 1 - 2 * (y * y + z * z), R01 = 2 * (x * y - w * z), R02 = 2 * (x * z + w * y);
+                const double R10 = 2 * (x * y + w * z), R11 = 1 - 2 * (x * x + z * z), R12 = 2 * (y * z - w * x);
+                const double R20 = 2 * (x * z - w * y), R21 = 2 * (y * z + w * x), R22 = 1 - 2 * (x * x + y * y);
+                const double s0 = std::exp(L[3 * k]), s1 = std::exp(L[3 * k + 1]), s2 = std::exp(L[3 * k + 2]);
+                const double m0 = M[3 * k], m1 = M[3 * k + 1], m2 = M[3 * k + 2];
+                double Mx[3][3];
+                for (int r = 0; r < 3; ++r) {
+                    const double a0 = W[3 * r] * R00 + W[3 * r + 1] * R10 + W[3 * r + 2] * R20;
+                    const double a1 = W[3 * r] * R01 + W[3 * r + 1] * R11 + W[3 * r + 2] * R21;
+                    const double a2 = W[3 * r] * R02 + W[3 * r + 1] * R12 + W[3 * r + 2] * R22;
+                    Mx[r][0] = a0 * s0; Mx[r][1] = a1 * s1; Mx[r][2] = a2 * s2;
+                    PC[r * mp + i] = W[3 * r] * m0 + W[3 * r + 1] * m1 + W[3 * r + 2] * m2;
+                }
+                CV[i] = Mx[0][0] * Mx[0][0] + Mx[0][1] * Mx[0][1] + Mx[0][2] * Mx[0][2];
+                CV[mp + i] = Mx[0][0] * Mx[1][0] + Mx[0][1] * Mx[1][1] + Mx[0][2] * Mx[1][2];
+                CV[2 * mp + i] = Mx[0][0] * Mx[2][0] + Mx[0][1] * Mx[2][1] + Mx[0][2] * Mx[2][2];
+                CV[3 * mp + i] = Mx[1][0] * Mx[1][0] + Mx[1][1] * Mx[1][1] + Mx[1][2] * Mx[1][2];
+                CV[4 * mp + i] = Mx[1][0] * Mx[2][0] + Mx[1][1] * Mx[2][1] + Mx[1][2] * Mx[2][2];
+                CV[5 * mp + i] = Mx[2][0] * Mx[2][0] + Mx[2][1] * Mx[2][1] + Mx[2][2] * Mx[2][2];
+                MO[i] = m0; MO[mp + i] = m1; MO[2 * mp + i] = m2;
+                OP[i] = O[k];
+                for (int j = 0; j < c; ++j) SH[int64_t(j) * mp + i] = C[k * c + j];
+            }
+        });
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&order); PyBuffer_Release(&means); PyBuffer_Release(&quats); PyBuffer_Release(&ls);
+    PyBuffer_Release(&opa); PyBuffer_Release(&col); PyBuffer_Release(&rot); PyBuffer_Release(&pc);
+    PyBuffer_Release(&cov); PyBuffer_Release(&mout); PyBuffer_Release(&op); PyBuffer_Release(&sh);
+    if (!ok) return nullptr;
+    Py_RETURN_NONE;
+}
+
 // ---- eye slices -> native subpixels (holo_viewer/display/slices.py; the same float32 expressions,
 // in the same order, as its numba kernel: the build has -ffp-contract=off, and every clamp is a
 // select with the AVX-512 max/min semantics, NaN -> the bound, so the two agree bit for bit).
@@ -1463,6 +1541,15 @@ inline float slice_gap(float zeta, float lo, float hi, float n) {
         best = gap < best ? gap : best;
     }
     return best;
+}
+
+// searchsorted (left) of value in the sorted int16 run [lo, hi)
+inline int lower_bound16(const int16_t* row, int lo, int hi, int value) {
+    while (lo < hi) {
+        const int mid = (lo + hi) >> 1;
+        if (row[mid] < value) lo = mid + 1; else hi = mid;
+    }
+    return lo;
 }
 
 // subpixels [a, b) of row y's bucket of view k, from eye e's slice; returns how many were written
@@ -1530,64 +1617,99 @@ HV_TARGET_AVX512 inline __m512 slice_gap16(__m512 z0, __m512 lo, __m512 hi, __m5
     return best;
 }
 
-// slice_run_scalar for nearest mode, 16 subpixels at a time (gathers from the row's slice, tables)
-HV_TARGET_AVX512 int64_t slice_run_avx512(const SliceJob& J, int y, int e, int k, int a, int b) {
+// One native row in nearest mode, 16 subpixels at a time: the row's candidates of every segment
+// are first copied into one list (position, lens coordinate, eye, warp coefficients), so the long
+// dependency chain of a warp (gather, divide, floor, gather, ...) overlaps across many vectors
+// instead of stalling on each segment's one or two (2-3x faster than vectors per segment, measured).
+struct SliceRowBuf {
+    std::vector<int32_t> p, e;
+    std::vector<float> z, d0, d1;
+    void reserve(size_t n) {
+        if (p.size() < n + 16) { p.resize(n + 16); e.resize(n + 16); z.resize(n + 16); d0.resize(n + 16); d1.resize(n + 16); }
+    }
+};
+
+HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf& R) {
     const int64_t base = int64_t(y) * J.W3;
-    const int ty = J.tex_row[y];
+    const int32_t* o = J.off + int64_t(y) * (J.V + 1);
     const int W = J.W3 / 3;
-    const float* img = J.images + (int64_t(e) * J.hv + ty) * J.wv * 3;
-    const float* wrow = J.wmaps + (int64_t(e) * J.hv + ty) * J.wv;
-    const float* tlo = J.bounds + int64_t(e) * 2 * W;
-    const float* thi = tlo + W;
-    const float* kve = J.kv + int64_t(e) * J.V * 2;
-    const __m512 d0 = _mm512_set1_ps(kve[2 * k]), d1 = _mm512_set1_ps(kve[2 * k + 1]);
-    const __m512 g = _mm512_set1_ps(J.gh[2 * e]), h = _mm512_set1_ps(J.gh[2 * e + 1]);
-    const __m512 wvf = _mm512_set1_ps(float(J.wv)), reach = _mm512_set1_ps(J.reach);
-    const __m512i wv2 = _mm512_set1_epi32(J.wv - 2);
-    const __m512 n = _mm512_set1_ps(float(J.V));
+    R.reserve(size_t(J.W3) * 2);
+    int n = 0;
+    for (int j = 0; j < J.n_segs; ++j) {  // gather the row's candidates
+        const int64_t* sg = J.segs + 4 * j;
+        const int e = int(sg[0]), k = int(sg[1]);
+        const int a = lower_bound16(J.pos + base, o[k], o[k + 1], int(3 * sg[2]));
+        const int b = lower_bound16(J.pos + base, a, o[k + 1], int(3 * sg[3]));
+        if (size_t(n + (b - a) + 16) > R.p.size()) R.reserve(size_t(n + (b - a)) * 2);
+        const float d0 = J.kv[(int64_t(e) * J.V + k) * 2], d1 = J.kv[(int64_t(e) * J.V + k) * 2 + 1];
+        for (int i = a; i < b; ++i, ++n) {
+            R.p[n] = J.pos[base + i];
+            R.z[n] = J.zeta[base + i];
+            R.e[n] = e;
+            R.d0[n] = d0;
+            R.d1[n] = d1;
+        }
+    }
+    const int ty = J.tex_row[y];
+    const int64_t plane = int64_t(J.hv) * J.wv;
+    const __m512i wrow0 = _mm512_set1_epi32(int32_t(int64_t(ty) * J.wv));  // row ty's first pixel in a slice
+    const __m512i eplane = _mm512_set1_epi32(int32_t(plane));
+    const __m512 wvf = _mm512_set1_ps(float(J.wv)), reach = _mm512_set1_ps(J.reach), nv = _mm512_set1_ps(float(J.V));
+    const __m512i wv2 = _mm512_set1_epi32(J.wv - 2), two_w = _mm512_set1_epi32(2 * W), one = _mm512_set1_epi32(1);
+    const __m512i three = _mm512_set1_epi32(3);
     alignas(64) int32_t pv[16], vv[16];
     int64_t cnt = 0;
-    for (int i = a; i < b; i += 16) {
-        const int len = std::min(16, b - i);
+    for (int i = 0; i < n; i += 16) {
+        const int len = std::min(16, n - i);
         __mmask16 m = len == 16 ? __mmask16(0xFFFF) : __mmask16((1u << len) - 1);
-        const __m512i p = _mm512_cvtepi16_epi32(_mm256_maskz_loadu_epi16(m, J.pos + base + i));
+        const __m512i p = _mm512_maskz_loadu_epi32(m, R.p.data() + i);
+        const __m512i e = _mm512_maskz_loadu_epi32(m, R.e.data() + i);
+        const __m512 z0 = _mm512_maskz_loadu_ps(m, R.z.data() + i);
         const __m512i x = _mm512_srli_epi32(_mm512_mullo_epi32(p, _mm512_set1_epi32(43691)), 17);  // p / 3
-        const __m512i ch = _mm512_sub_epi32(p, _mm512_mullo_epi32(x, _mm512_set1_epi32(3)));
-        const __m512 z0 = _mm512_maskz_loadu_ps(m, J.zeta + base + i);
-        const __m512 lo = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, x, tlo, 4);
-        const __m512 hi = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, x, thi, 4);
-        const __m512 best = slice_gap16(z0, lo, hi, n);
+        const __m512i ch = _mm512_sub_epi32(p, _mm512_mullo_epi32(x, three));
+        const __m512i bx = _mm512_add_epi32(_mm512_mullo_epi32(e, two_w), x);  // bounds[e, 0, x]
+        const __m512 best = slice_gap16(z0, _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, bx, J.bounds, 4),
+                                        _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m,
+                                                                 _mm512_add_epi32(bx, _mm512_set1_epi32(W)), J.bounds, 4),
+                                        nv);
         m &= _mm512_cmp_ps_mask(best, reach, _CMP_LT_OQ);
-        for (int o = 0; m && o < J.E; ++o) {  // a subpixel both eyes receive: the nearer eye's
-            if (o == e) continue;
-            const float* olo = J.bounds + int64_t(o) * 2 * W;
-            const __m512 go = slice_gap16(z0, _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, x, olo, 4),
-                                          _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, x, olo + W, 4), n);
-            m &= ~(_mm512_cmp_ps_mask(go, best, _CMP_LT_OQ) |
-                   (o < e ? _mm512_cmp_ps_mask(go, best, _CMP_EQ_OQ) : __mmask16(0)));
+        for (int oe = 0; m && oe < J.E; ++oe) {  // a subpixel both eyes receive: the nearer eye's
+            const __mmask16 other = m & _mm512_cmpneq_epi32_mask(e, _mm512_set1_epi32(oe));
+            if (!other) continue;
+            const __m512i ox = _mm512_add_epi32(_mm512_set1_epi32(oe * 2 * W), x);
+            const __m512 go = slice_gap16(z0, _mm512_mask_i32gather_ps(_mm512_setzero_ps(), other, ox, J.bounds, 4),
+                                          _mm512_mask_i32gather_ps(_mm512_setzero_ps(), other,
+                                                                   _mm512_add_epi32(ox, _mm512_set1_epi32(W)), J.bounds, 4),
+                                          nv);
+            const __mmask16 lower = _mm512_cmpgt_epi32_mask(e, _mm512_set1_epi32(oe));  // oe < e
+            m &= ~(other & (_mm512_cmp_ps_mask(go, best, _CMP_LT_OQ) | (lower & _mm512_cmp_ps_mask(go, best, _CMP_EQ_OQ))));
         }
         if (!m) continue;
+        const __m512 d0 = _mm512_maskz_loadu_ps(m, R.d0.data() + i), d1 = _mm512_maskz_loadu_ps(m, R.d1.data() + i);
+        const __m512 g = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_slli_epi32(e, 1), J.gh, 4);
+        const __m512 h = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_add_epi32(_mm512_slli_epi32(e, 1), one),
+                                                  J.gh, 4);
+        const __m512i rowbase = _mm512_add_epi32(_mm512_mullo_epi32(e, eplane), wrow0);  // slice e, row ty
         const __m512i u = _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), m, x, J.tex_col, 4);
         const __m512 uc = _mm512_add_ps(_mm512_cvtepi32_ps(u), _mm512_set1_ps(0.5f));
-        __m512 w = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, u, wrow, 4);
+        __m512 w = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_add_epi32(rowbase, u), J.wmaps, 4);
         __m512 xi = _mm512_div_ps(_mm512_add_ps(_mm512_add_ps(uc, d0), _mm512_mul_ps(d1, w)),
                                   _mm512_add_ps(g, _mm512_mul_ps(h, w)));
         __m512i q;
         __m512 f;
         for (int it = 0; it < J.iters; ++it) {
             slice_column16(xi, wvf, wv2, q, f);
-            const __m512 w0 = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, q, wrow, 4);
-            const __m512 w1 = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_add_epi32(q, _mm512_set1_epi32(1)),
-                                                       wrow, 4);
+            const __m512i at = _mm512_add_epi32(rowbase, q);
+            const __m512 w0 = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, at, J.wmaps, 4);
+            const __m512 w1 = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_add_epi32(at, one), J.wmaps, 4);
             w = _mm512_add_ps(w0, _mm512_mul_ps(f, _mm512_sub_ps(w1, w0)));
             xi = _mm512_div_ps(_mm512_add_ps(_mm512_add_ps(uc, d0), _mm512_mul_ps(d1, w)),
                                _mm512_add_ps(g, _mm512_mul_ps(h, w)));
         }
         slice_column16(xi, wvf, wv2, q, f);
-        const __m512i at = _mm512_add_epi32(_mm512_mullo_epi32(q, _mm512_set1_epi32(3)), ch);
-        const __m512 va = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, at, img, 4);
-        const __m512 vb = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_add_epi32(at, _mm512_set1_epi32(3)),
-                                                   img, 4);
+        const __m512i at = _mm512_add_epi32(_mm512_mullo_epi32(_mm512_add_epi32(rowbase, q), three), ch);
+        const __m512 va = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, at, J.images, 4);
+        const __m512 vb = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_add_epi32(at, three), J.images, 4);
         __m512 v = _mm512_roundscale_ps(_mm512_mul_ps(_mm512_add_ps(va, _mm512_mul_ps(f, _mm512_sub_ps(vb, va))),
                                                       _mm512_set1_ps(255.0f)),
                                         _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
@@ -1603,15 +1725,6 @@ HV_TARGET_AVX512 int64_t slice_run_avx512(const SliceJob& J, int y, int e, int k
     return cnt;
 }
 #endif
-
-// searchsorted (left) of value in the sorted int16 run [lo, hi)
-inline int lower_bound16(const int16_t* row, int lo, int hi, int value) {
-    while (lo < hi) {
-        const int mid = (lo + hi) >> 1;
-        if (row[mid] < value) lo = mid + 1; else hi = mid;
-    }
-    return lo;
-}
 
 PyObject* scatter_slices(PyObject*, PyObject* args) {
     Py_buffer native{}, pos{}, zeta{}, off{}, tex_row{}, tex_col{}, view1{}, w8{}, segs{}, bounds{}, images{},
@@ -1651,6 +1764,13 @@ PyObject* scatter_slices(PyObject*, PyObject* args) {
         const int chunk = 16;  // rows per work item
         Py_BEGIN_ALLOW_THREADS
         parallel_for((J.H + chunk - 1) / chunk, std::max(1, n_threads), [&](int c) {
+#if HV_HAVE_AVX2_PATH
+            if (wide) {
+                SliceRowBuf R;
+                for (int y = c * chunk; y < std::min(J.H, c * chunk + chunk); ++y) J.counts[y] = slice_row_avx512(J, y, R);
+                return;
+            }
+#endif
             for (int y = c * chunk; y < std::min(J.H, c * chunk + chunk); ++y) {
                 const int64_t base = int64_t(y) * J.W3;
                 const int32_t* o = J.off + int64_t(y) * (J.V + 1);
@@ -1660,12 +1780,7 @@ PyObject* scatter_slices(PyObject*, PyObject* args) {
                     const int e = int(sg[0]), k = int(sg[1]);
                     const int a = lower_bound16(J.pos + base, o[k], o[k + 1], int(3 * sg[2]));
                     const int b = lower_bound16(J.pos + base, a, o[k + 1], int(3 * sg[3]));
-#if HV_HAVE_AVX2_PATH
-                    cnt += wide ? slice_run_avx512(J, y, e, k, a, b) : slice_run_scalar(J, y, e, k, a, b);
-#else
-                    (void)wide;
                     cnt += slice_run_scalar(J, y, e, k, a, b);
-#endif
                 }
                 J.counts[y] = cnt;
             }
@@ -1723,6 +1838,10 @@ PyMethodDef methods[] = {
      "order, float64 structure of arrays with row stride mp, a multiple of 8 >= m, padding opacity 0; "
      "sh float32). Writes rec, off, base, seen and, when ids holds them, the tile lists; returns the "
      "number of entries (larger than ids' capacity: nothing written to ids, grow it and call again)."},
+    {"prep_sorted", prep_sorted, METH_VARARGS,
+     "prep_sorted(order, means, quats, log_scales, opacity, colours, Wrot, pc, cov, mout, op, sh, m, mp, n, c, "
+     "n_threads) -> None\n\nholo_viewer.render.fast_kernels.prep_sorted (bit-identical): the splats in depth "
+     "order as structures of arrays (row stride mp), camera-frame centres and covariances computed."},
     {"scatter_slices", scatter_slices, METH_VARARGS,
      "scatter_slices(native, positions, zeta, offsets, tex_row, tex_col, view1, w8, blend, segments, bounds, "
      "reach, images, wmaps, kv, gh, iters, counts, H, W3, V, E, hv, wv, n_threads[, mode]) -> None\n\n"
