@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from bench.scenes import quilt_cameras, random_scene, shell_scene  # the repository root is on sys.path (conftest)
+from holo_viewer.avatar.gaussians import Gaussians
 from holo_viewer.camera import Cameras, intrinsics, look_at
 from holo_viewer.errors import RenderError
 from holo_viewer.render import RenderConfig, render_views
@@ -322,3 +323,20 @@ def test_output_memory_is_recycled_only_when_nothing_refers_to_it(kernel):
     assert third.ctypes.data == ptr
     np.testing.assert_array_equal(third, want1)
     np.testing.assert_array_equal(second, want2)
+
+
+@pytest.mark.skipif(not fast.cpp_available(), reason="C++ extension not built")
+def test_float32_inputs_render_as_their_exact_float64_widening():
+    """The C++ depth-ordered copies read float32 Gaussians as they are (no float64 copy first): the
+    widening is exact, so the images are those of the same values given as float64, bit for bit."""
+    g = random_scene(2000, degree=1, seed=11).numpy()
+    g32 = Gaussians(*(np.asarray(getattr(g, f), np.float32) for f in ("means", "quats", "log_scales",
+                                                                       "opacity_logits", "sh")))
+    g64 = Gaussians(*(np.asarray(getattr(g32, f), np.float64) for f in ("means", "quats", "log_scales",
+                                                                        "opacity_logits", "sh")))
+    cams = quilt_cameras(4, 64, 48, use_display=False)
+    a = render_views(g32, cams, "fast").images
+    b = render_views(g64, cams, "fast").images
+    np.testing.assert_array_equal(a, b)
+    c = render_views(g64, cams, "fast", RenderConfig(kernel="numba")).images
+    np.testing.assert_allclose(a, c, atol=1e-4)

@@ -246,10 +246,11 @@ def _transform(pc, cov, means, sh, m, degree, ty, tz, fx, cxm, near, coef, ab, P
 
 
 def transform_splats(rig: SliceRig, eyes: list[EyeSlice], splats: SortedSplats,
-                     out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+                     out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, kernel: str = "auto"
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Moved centres, covariances and colours of ``splats`` for each eye's slice (see the module
-    docstring), in the splats' depth order: (E, 3, mp) and (E, 6, mp) float64, (E, 3, mp) float32."""
+    docstring), in the splats' depth order: (E, 3, mp) and (E, 6, mp) float64, (E, 3, mp) float32.
+    ``kernel``: "auto" (the C++ extension when built, else numba) or "numba"; they agree bit for bit."""
     mp = splats.pc.shape[1]
     E = len(eyes)
     if out is None:
@@ -259,8 +260,16 @@ def transform_splats(rig: SliceRig, eyes: list[EyeSlice], splats: SortedSplats,
     # camera position of s: -R^T (tx(s), ty, tz) = P0 + s P1
     P0 = -rig.R.T @ np.array([rig.p0, rig.ty, rig.tz])
     P1 = -rig.R.T @ np.array([rig.p1, 0.0, 0.0])
-    _transform(splats.pc, splats.cov, splats.means, splats.sh, splats.m, int(splats.degree), rig.ty, rig.tz,
-               rig.fx, rig.cxm, rig.near, coef, ab, P0, P1, out[0], out[1], out[2])
+    from .fast import _cpp, _cpu_threads
+
+    cpp = _cpp()
+    args = (splats.pc, splats.cov, splats.means, splats.sh, splats.m, int(splats.degree), rig.ty, rig.tz, rig.fx,
+            rig.cxm, rig.near, coef, ab, P0, P1, out[0], out[1], out[2])
+    if kernel != "numba" and cpp is not None and hasattr(cpp, "slice_transform") and splats.sh.dtype == np.float32:
+        arrays = [np.ascontiguousarray(a) if isinstance(a, np.ndarray) else a for a in args]
+        cpp.slice_transform(*arrays[:5], mp, *arrays[5:], E, _cpu_threads())
+    else:
+        _transform(*args)
     return out
 
 

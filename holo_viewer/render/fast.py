@@ -330,13 +330,17 @@ def _sorted_inputs(order: np.ndarray, means: np.ndarray, quats: np.ndarray, log_
     op, sh = ws.buffer("opacity", (mp,), np.float64), ws.buffer("sh", (cols.shape[1], mp), cols.dtype)
     opacity = np.ascontiguousarray(opacity, dtype=np.float64)
     cpp = _cpp()
+    geo = [np.ascontiguousarray(a) for a in (means, quats, log_scales)]
+    f32 = all(a.dtype == np.float32 for a in geo)
     if cpp is not None and hasattr(cpp, "prep_sorted") and cols.dtype == np.float32:  # the same values, 2-4x faster
-        cpp.prep_sorted(np.ascontiguousarray(order, dtype=np.int64), np.ascontiguousarray(means, dtype=np.float64),
-                        np.ascontiguousarray(quats, dtype=np.float64), np.ascontiguousarray(log_scales, dtype=np.float64),
-                        opacity, cols, np.ascontiguousarray(Wrot, dtype=np.float64), pc, cov, mout, op, sh, m, mp,
-                        len(means), cols.shape[1], _cpu_threads())
+        if not f32:  # float32 inputs are read as they are (widened exactly in the kernel)
+            geo = [np.ascontiguousarray(a, dtype=np.float64) for a in geo]
+        cpp.prep_sorted(np.ascontiguousarray(order, dtype=np.int64), *geo, opacity, cols,
+                        np.ascontiguousarray(Wrot, dtype=np.float64), pc, cov, mout, op, sh, m, mp, len(means),
+                        cols.shape[1], int(f32), _cpu_threads())
     else:
-        fk.prep_sorted(order, means, quats, log_scales, opacity, cols, Wrot, pc, cov, mout, op, sh)
+        fk.prep_sorted(order, *(np.ascontiguousarray(a, dtype=np.float64) for a in geo), opacity, cols, Wrot, pc, cov,
+                       mout, op, sh)
     q = 2.0 * (np.log(np.maximum(op, 1e-300)) - math.log(alpha_threshold))  # padding: op = 0, never drawn
     return pc, cov, mout, op, q, sh
 
@@ -540,9 +544,11 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
         timings["passes"] = 0.0
 
     g = gaussians.numpy()
-    means = np.ascontiguousarray(g.means, dtype=np.float64)
-    quats = np.ascontiguousarray(g.quats, dtype=np.float64)
-    log_scales = np.ascontiguousarray(g.log_scales, dtype=np.float64)
+    # the C++ depth-ordered copies read float32 inputs as they are; the numba kernels get float64
+    raw = [np.ascontiguousarray(a) for a in (g.means, g.quats, g.log_scales)]
+    if not (use_cpp and all(a.dtype == np.float32 for a in raw)):
+        raw = [np.ascontiguousarray(a, dtype=np.float64) for a in raw]
+    means, quats, log_scales = raw
     opacity = (1.0 / (1.0 + np.exp(-np.asarray(g.opacity_logits, dtype=np.float64))))
     degree = g.sh_degree if config.sh_degree is None else min(g.sh_degree, int(config.sh_degree))
     sh = np.ascontiguousarray(np.asarray(g.sh)[:, : (degree + 1) ** 2], dtype=np.float32)
@@ -574,7 +580,7 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
         sorted_path = use_cpp or bool(passes)  # depth-ordered copies: the C++ pass reads every input in order
         pc = cov = None
         if sorted_path:
-            z = fk.depth_z(means, Wrot)
+            z = fk.depth_z(means, Wrot)  # (float32 centres widen exactly: the same z)
         else:
             pc, cov = fk.prep_3d(means, quats, log_scales, Wrot)
             z = pc[:, 2]
@@ -590,7 +596,7 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
             sorted_in = _sorted_inputs(order, means, quats, log_scales, opacity,
                                        shared_rgb if config.shared_sh else sh, Wrot, float(config.alpha_threshold),
                                        workspace)
-            if not use_cpp:  # the numba kernels read the inputs through the order instead
+            if not use_cpp:  # the numba kernels read the inputs through the order instead (float64 here)
                 pc, cov = fk.prep_3d(means, quats, log_scales, Wrot)
         t2 = time.perf_counter()
         timings["preprocess"] += t1 - t0

@@ -1406,16 +1406,59 @@ PyObject* project_bin(PyObject*, PyObject* args) {
 
 // ---- fast_kernels.prep_sorted: the depth-ordered inputs of project_bin in one pass (same float64
 // expressions in the same order, std::exp = libm exp as numba's math.exp: bit-identical; tested)
+template <typename T>
+void prep_sorted_rows(const int64_t* ord, const T* M, const T* Q, const T* L, const double* O, const float* C,
+                      const double* W, double* PC, double* CV, double* MO, double* OP, float* SH, int m, int mp, int c,
+                      int i0, int i1) {
+    for (int i = i0; i < i1; ++i) {
+        if (i >= m) {
+            for (int r = 0; r < 3; ++r) { PC[r * mp + i] = 0.0; MO[r * mp + i] = 0.0; }
+            for (int r = 0; r < 6; ++r) CV[r * mp + i] = 0.0;
+            OP[i] = 0.0;
+            for (int j = 0; j < c; ++j) SH[int64_t(j) * mp + i] = 0.0f;
+            continue;
+        }
+        const int64_t k = ord[i];  // inputs widened to double exactly, as the numba path's copies
+        double w = double(Q[4 * k]), x = double(Q[4 * k + 1]), y = double(Q[4 * k + 2]), z = double(Q[4 * k + 3]);
+        const double qn = std::sqrt(w * w + x * x + y * y + z * z);
+        w = w / qn; x = x / qn; y = y / qn; z = z / qn;
+        const double R00 = 1 - 2 * (y * y + z * z), R01 = 2 * (x * y - w * z), R02 = 2 * (x * z + w * y);
+        const double R10 = 2 * (x * y + w * z), R11 = 1 - 2 * (x * x + z * z), R12 = 2 * (y * z - w * x);
+        const double R20 = 2 * (x * z - w * y), R21 = 2 * (y * z + w * x), R22 = 1 - 2 * (x * x + y * y);
+        const double s0 = std::exp(double(L[3 * k])), s1 = std::exp(double(L[3 * k + 1])),
+                     s2 = std::exp(double(L[3 * k + 2]));
+        const double m0 = double(M[3 * k]), m1 = double(M[3 * k + 1]), m2 = double(M[3 * k + 2]);
+        double Mx[3][3];
+        for (int r = 0; r < 3; ++r) {
+            const double a0 = W[3 * r] * R00 + W[3 * r + 1] * R10 + W[3 * r + 2] * R20;
+            const double a1 = W[3 * r] * R01 + W[3 * r + 1] * R11 + W[3 * r + 2] * R21;
+            const double a2 = W[3 * r] * R02 + W[3 * r + 1] * R12 + W[3 * r + 2] * R22;
+            Mx[r][0] = a0 * s0; Mx[r][1] = a1 * s1; Mx[r][2] = a2 * s2;
+            PC[r * mp + i] = W[3 * r] * m0 + W[3 * r + 1] * m1 + W[3 * r + 2] * m2;
+        }
+        CV[i] = Mx[0][0] * Mx[0][0] + Mx[0][1] * Mx[0][1] + Mx[0][2] * Mx[0][2];
+        CV[mp + i] = Mx[0][0] * Mx[1][0] + Mx[0][1] * Mx[1][1] + Mx[0][2] * Mx[1][2];
+        CV[2 * mp + i] = Mx[0][0] * Mx[2][0] + Mx[0][1] * Mx[2][1] + Mx[0][2] * Mx[2][2];
+        CV[3 * mp + i] = Mx[1][0] * Mx[1][0] + Mx[1][1] * Mx[1][1] + Mx[1][2] * Mx[1][2];
+        CV[4 * mp + i] = Mx[1][0] * Mx[2][0] + Mx[1][1] * Mx[2][1] + Mx[1][2] * Mx[2][2];
+        CV[5 * mp + i] = Mx[2][0] * Mx[2][0] + Mx[2][1] * Mx[2][1] + Mx[2][2] * Mx[2][2];
+        MO[i] = m0; MO[mp + i] = m1; MO[2 * mp + i] = m2;
+        OP[i] = O[k];
+        for (int j = 0; j < c; ++j) SH[int64_t(j) * mp + i] = C[k * c + j];
+    }
+}
+
 PyObject* prep_sorted(PyObject*, PyObject* args) {
     Py_buffer order{}, means{}, quats{}, ls{}, opa{}, col{}, rot{}, pc{}, cov{}, mout{}, op{}, sh{};
-    int m, mp, n, c, n_threads;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*w*w*w*w*w*iiiii", &order, &means, &quats, &ls, &opa, &col, &rot, &pc,
-                          &cov, &mout, &op, &sh, &m, &mp, &n, &c, &n_threads))
+    int m, mp, n, c, n_threads, f32;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*w*w*w*w*w*iiiiii", &order, &means, &quats, &ls, &opa, &col, &rot, &pc,
+                          &cov, &mout, &op, &sh, &m, &mp, &n, &c, &f32, &n_threads))
         return nullptr;
+    const int64_t fs = f32 ? 4 : 8;  // bytes of a means / quats / log_scales value
     bool ok = m >= 0 && mp >= m && n >= 0 && c >= 0;
     if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.prep_sorted: inconsistent sizes");
-    ok = ok && need(order, int64_t(m) * 8, "order") && need(means, int64_t(n) * 24, "means") &&
-         need(quats, int64_t(n) * 32, "quats") && need(ls, int64_t(n) * 24, "log_scales") &&
+    ok = ok && need(order, int64_t(m) * 8, "order") && need(means, int64_t(n) * 3 * fs, "means") &&
+         need(quats, int64_t(n) * 4 * fs, "quats") && need(ls, int64_t(n) * 3 * fs, "log_scales") &&
          need(opa, int64_t(n) * 8, "opacity") && need(col, int64_t(n) * c * 4, "colours") && need(rot, 72, "Wrot") &&
          need(pc, int64_t(mp) * 24, "pc") && need(cov, int64_t(mp) * 48, "cov") && need(mout, int64_t(mp) * 24, "mout") &&
          need(op, int64_t(mp) * 8, "op") && need(sh, int64_t(mp) * c * 4, "sh");
@@ -1423,61 +1466,121 @@ PyObject* prep_sorted(PyObject*, PyObject* args) {
     for (int i = 0; ok && i < m; ++i) ok = ord[i] >= 0 && ord[i] < n;
     if (!ok && !PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "_splat_cpp.prep_sorted: order outside 0 .. N");
     if (ok) {
-        const double* M = (const double*)means.buf;
-        const double* Q = (const double*)quats.buf;
-        const double* L = (const double*)ls.buf;
-        const double* O = (const double*)opa.buf;
-        const float* C = (const float*)col.buf;
-        const double* W = (const double*)rot.buf;
-        double* PC = (double*)pc.buf;
-        double* CV = (double*)cov.buf;
-        double* MO = (double*)mout.buf;
-        double* OP = (double*)op.buf;
-        float* SH = (float*)sh.buf;
         const int chunk = 2048;
         Py_BEGIN_ALLOW_THREADS
         parallel_for((mp + chunk - 1) / chunk, std::max(1, n_threads), [&](int ci) {
-            for (int i = ci * chunk; i < std::min(mp, ci * chunk + chunk); ++i) {
-                if (i >= m) {
-                    for (int r = 0; r < 3; ++r) { PC[r * mp + i] = 0.0; MO[r * mp + i] = 0.0; }
-                    for (int r = 0; r < 6; ++r) CV[r * mp + i] = 0.0;
-                    OP[i] = 0.0;
-                    for (int j = 0; j < c; ++j) SH[int64_t(j) * mp + i] = 0.0f;
-                    continue;
-                }
-                const int64_t k = ord[i];
-                double w = Q[4 * k], x = Q[4 * k + 1], y = Q[4 * k + 2], z = Q[4 * k + 3];
-                const double qn = std::sqrt(w * w + x * x + y * y + z * z);
-                w = w / qn; x = x / qn; y = y / qn; z = z / qn;
-                const double R00 = 1 - 2 * (y * y + z * z), R01 = 2 * (x * y - w * z), R02 = 2 * (x * z + w * y);
-                const double R10 = 2 * (x * y + w * z), R11 = 1 - 2 * (x * x + z * z), R12 = 2 * (y * z - w * x);
-                const double R20 = 2 * (x * z - w * y), R21 = 2 * (y * z + w * x), R22 = 1 - 2 * (x * x + y * y);
-                const double s0 = std::exp(L[3 * k]), s1 = std::exp(L[3 * k + 1]), s2 = std::exp(L[3 * k + 2]);
-                const double m0 = M[3 * k], m1 = M[3 * k + 1], m2 = M[3 * k + 2];
-                double Mx[3][3];
-                for (int r = 0; r < 3; ++r) {
-                    const double a0 = W[3 * r] * R00 + W[3 * r + 1] * R10 + W[3 * r + 2] * R20;
-                    const double a1 = W[3 * r] * R01 + W[3 * r + 1] * R11 + W[3 * r + 2] * R21;
-                    const double a2 = W[3 * r] * R02 + W[3 * r + 1] * R12 + W[3 * r + 2] * R22;
-                    Mx[r][0] = a0 * s0; Mx[r][1] = a1 * s1; Mx[r][2] = a2 * s2;
-                    PC[r * mp + i] = W[3 * r] * m0 + W[3 * r + 1] * m1 + W[3 * r + 2] * m2;
-                }
-                CV[i] = Mx[0][0] * Mx[0][0] + Mx[0][1] * Mx[0][1] + Mx[0][2] * Mx[0][2];
-                CV[mp + i] = Mx[0][0] * Mx[1][0] + Mx[0][1] * Mx[1][1] + Mx[0][2] * Mx[1][2];
-                CV[2 * mp + i] = Mx[0][0] * Mx[2][0] + Mx[0][1] * Mx[2][1] + Mx[0][2] * Mx[2][2];
-                CV[3 * mp + i] = Mx[1][0] * Mx[1][0] + Mx[1][1] * Mx[1][1] + Mx[1][2] * Mx[1][2];
-                CV[4 * mp + i] = Mx[1][0] * Mx[2][0] + Mx[1][1] * Mx[2][1] + Mx[1][2] * Mx[2][2];
-                CV[5 * mp + i] = Mx[2][0] * Mx[2][0] + Mx[2][1] * Mx[2][1] + Mx[2][2] * Mx[2][2];
-                MO[i] = m0; MO[mp + i] = m1; MO[2 * mp + i] = m2;
-                OP[i] = O[k];
-                for (int j = 0; j < c; ++j) SH[int64_t(j) * mp + i] = C[k * c + j];
-            }
+            const int i0 = ci * chunk, i1 = std::min(mp, ci * chunk + chunk);
+            if (f32)
+                prep_sorted_rows<float>(ord, (const float*)means.buf, (const float*)quats.buf, (const float*)ls.buf,
+                                        (const double*)opa.buf, (const float*)col.buf, (const double*)rot.buf,
+                                        (double*)pc.buf, (double*)cov.buf, (double*)mout.buf, (double*)op.buf,
+                                        (float*)sh.buf, m, mp, c, i0, i1);
+            else
+                prep_sorted_rows<double>(ord, (const double*)means.buf, (const double*)quats.buf, (const double*)ls.buf,
+                                         (const double*)opa.buf, (const float*)col.buf, (const double*)rot.buf,
+                                         (double*)pc.buf, (double*)cov.buf, (double*)mout.buf, (double*)op.buf,
+                                         (float*)sh.buf, m, mp, c, i0, i1);
         });
         Py_END_ALLOW_THREADS
     }
     PyBuffer_Release(&order); PyBuffer_Release(&means); PyBuffer_Release(&quats); PyBuffer_Release(&ls);
     PyBuffer_Release(&opa); PyBuffer_Release(&col); PyBuffer_Release(&rot); PyBuffer_Release(&pc);
     PyBuffer_Release(&cov); PyBuffer_Release(&mout); PyBuffer_Release(&op); PyBuffer_Release(&sh);
+    if (!ok) return nullptr;
+    Py_RETURN_NONE;
+}
+
+// ---- crossed_slit._transform: every eye's moved centres, covariances and colours (the same float64
+// expressions in the same order, branch-free so that the lane loop vectorises; bit-identical)
+template <int DEG>
+void slice_transform_range(const double* pc, const double* cov, const double* means, const float* sh, int m, int mp,
+                           double ty, double tz, double fx, double cxm, double near, const double* cf,
+                           const double* ab, const double* P0, const double* P1, double* opc, double* ocov,
+                           float* ocol, int i0, int i1) {
+    constexpr int nk = (DEG + 1) * (DEG + 1);
+    const double a = cf[0], b = cf[1], c = cf[2], e = cf[3], f = cf[4];
+#pragma GCC ivdep
+    for (int i = i0; i < i1; ++i) {
+        const double X = pc[i], Z = pc[2 * mp + i] + tz;
+        const double den = e * Z + f;
+        const bool ok = (i < m) & (Z > near) & (den > 1e-9 * Z);
+        const double xx = cov[i], xy = cov[mp + i], xz = cov[2 * mp + i];
+        const double yy = cov[3 * mp + i], yz = cov[4 * mp + i], zz = cov[5 * mp + i];
+        const double xi = (a * X + b * Z + c) / den;
+        const double jx = Z / den * (a / fx);
+        const double jz = ((b * f - e * (a * X + c)) / (den * den) * Z + (xi - cxm)) / fx;
+        opc[mp + i] = pc[mp + i];
+        opc[i] = ok ? (xi - cxm) * Z / fx : 0.0;
+        opc[2 * mp + i] = ok ? pc[2 * mp + i] : -tz - 1.0;
+        ocov[i] = ok ? jx * jx * xx + 2.0 * jx * jz * xz + jz * jz * zz : xx;
+        ocov[mp + i] = ok ? jx * xy + jz * yz : xy;
+        ocov[2 * mp + i] = ok ? jx * xz + jz * zz : xz;
+        ocov[3 * mp + i] = yy;
+        ocov[4 * mp + i] = yz;
+        ocov[5 * mp + i] = zz;
+        const double s = ab[0] + ab[1] * xi;  // the camera of the centre's column
+        const double dx = means[i] - (P0[0] + s * P1[0]);
+        const double dy = means[mp + i] - (P0[1] + s * P1[1]);
+        const double dz = means[2 * mp + i] - (P0[2] + s * P1[2]);
+        const double nrm = std::sqrt(dx * dx + dy * dy + dz * dz);
+        const double inv = nrm > 0.0 ? 1.0 / nrm : 1.0;
+        const double x = dx * inv, y = dy * inv, z = dz * inv;
+        double bs[16];
+        bs[0] = SH_C0;
+        if (DEG >= 1) { bs[1] = -SH_C1 * y; bs[2] = SH_C1 * z; bs[3] = -SH_C1 * x; }
+        if (DEG >= 2) {
+            const double xx2 = x * x, yy2 = y * y, zz2 = z * z, xy2 = x * y, yz2 = y * z, xz2 = x * z;
+            bs[4] = SH_C2[0] * xy2; bs[5] = SH_C2[1] * yz2; bs[6] = SH_C2[2] * (2.0 * zz2 - xx2 - yy2);
+            bs[7] = SH_C2[3] * xz2; bs[8] = SH_C2[4] * (xx2 - yy2);
+            if (DEG >= 3) {
+                bs[9] = SH_C3[0] * y * (3.0 * xx2 - yy2); bs[10] = SH_C3[1] * xy2 * z;
+                bs[11] = SH_C3[2] * y * (4.0 * zz2 - xx2 - yy2);
+                bs[12] = SH_C3[3] * z * (2.0 * zz2 - 3.0 * xx2 - 3.0 * yy2);
+                bs[13] = SH_C3[4] * x * (4.0 * zz2 - xx2 - yy2); bs[14] = SH_C3[5] * z * (xx2 - yy2);
+                bs[15] = SH_C3[6] * x * (xx2 - 3.0 * yy2);
+            }
+        }
+        for (int ch = 0; ch < 3; ++ch) {
+            double acc = 0.0;
+            for (int j = 0; j < nk; ++j) acc += bs[j] * double(sh[int64_t(j * 3 + ch) * mp + i]);
+            ocol[int64_t(ch) * mp + i] = ok ? float(std::max(acc + 0.5, 0.0)) : 0.0f;
+        }
+    }
+}
+
+PyObject* slice_transform(PyObject*, PyObject* args) {
+    Py_buffer pc{}, cov{}, means{}, sh{}, coef{}, ab{}, p0{}, p1{}, opc{}, ocov{}, ocol{};
+    int m, mp, degree, E, n_threads;
+    double ty, tz, fx, cxm, near;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*iiidddddy*y*y*y*w*w*w*ii", &pc, &cov, &means, &sh, &m, &mp, &degree, &ty, &tz,
+                          &fx, &cxm, &near, &coef, &ab, &p0, &p1, &opc, &ocov, &ocol, &E, &n_threads))
+        return nullptr;
+    const int nk = (degree + 1) * (degree + 1);
+    bool ok = m >= 0 && mp >= m && degree >= 0 && degree <= 3 && E >= 1;
+    if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.slice_transform: inconsistent sizes");
+    ok = ok && need(pc, int64_t(mp) * 24, "pc") && need(cov, int64_t(mp) * 48, "cov") && need(means, int64_t(mp) * 24, "means") &&
+         need(sh, int64_t(mp) * nk * 12, "sh") && need(coef, int64_t(E) * 40, "coef") && need(ab, int64_t(E) * 16, "ab") &&
+         need(p0, 24, "P0") && need(p1, 24, "P1") && need(opc, int64_t(E) * mp * 24, "out_pc") &&
+         need(ocov, int64_t(E) * mp * 48, "out_cov") && need(ocol, int64_t(E) * mp * 12, "out_col");
+    if (ok) {
+        const int chunk = 4096;
+        const int nchunks = (mp + chunk - 1) / chunk;
+        auto fn = degree == 0 ? slice_transform_range<0> : degree == 1 ? slice_transform_range<1>
+                  : degree == 2 ? slice_transform_range<2> : slice_transform_range<3>;
+        Py_BEGIN_ALLOW_THREADS
+        parallel_for(nchunks * E, std::max(1, n_threads), [&](int job) {
+            const int q = job / nchunks, ci = job % nchunks;
+            fn((const double*)pc.buf, (const double*)cov.buf, (const double*)means.buf, (const float*)sh.buf, m, mp,
+               ty, tz, fx, cxm, near, (const double*)coef.buf + 5 * q, (const double*)ab.buf + 2 * q,
+               (const double*)p0.buf, (const double*)p1.buf, (double*)opc.buf + int64_t(q) * 3 * mp,
+               (double*)ocov.buf + int64_t(q) * 6 * mp, (float*)ocol.buf + int64_t(q) * 3 * mp, ci * chunk,
+               std::min(mp, ci * chunk + chunk));
+        });
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&pc); PyBuffer_Release(&cov); PyBuffer_Release(&means); PyBuffer_Release(&sh);
+    PyBuffer_Release(&coef); PyBuffer_Release(&ab); PyBuffer_Release(&p0); PyBuffer_Release(&p1);
+    PyBuffer_Release(&opc); PyBuffer_Release(&ocov); PyBuffer_Release(&ocol);
     if (!ok) return nullptr;
     Py_RETURN_NONE;
 }
@@ -1840,8 +1943,12 @@ PyMethodDef methods[] = {
      "number of entries (larger than ids' capacity: nothing written to ids, grow it and call again)."},
     {"prep_sorted", prep_sorted, METH_VARARGS,
      "prep_sorted(order, means, quats, log_scales, opacity, colours, Wrot, pc, cov, mout, op, sh, m, mp, n, c, "
-     "n_threads) -> None\n\nholo_viewer.render.fast_kernels.prep_sorted (bit-identical): the splats in depth "
+     "float32, n_threads) -> None\n\nholo_viewer.render.fast_kernels.prep_sorted (bit-identical): the splats in depth "
      "order as structures of arrays (row stride mp), camera-frame centres and covariances computed."},
+    {"slice_transform", slice_transform, METH_VARARGS,
+     "slice_transform(pc, cov, means, sh, m, mp, degree, ty, tz, fx, cxm, near, coef, ab, P0, P1, out_pc, out_cov, "
+     "out_col, E, n_threads) -> None\n\nholo_viewer.render.crossed_slit's moved splats for E eye slices "
+     "(bit-identical to its numba kernel)."},
     {"scatter_slices", scatter_slices, METH_VARARGS,
      "scatter_slices(native, positions, zeta, offsets, tex_row, tex_col, view1, w8, blend, segments, bounds, "
      "reach, images, wmaps, kv, gh, iters, counts, H, W3, V, E, hv, wv, n_threads[, mode]) -> None\n\n"
