@@ -472,7 +472,6 @@ class LiveRenderer:
             self._buckets = SubpixelBuckets(self.interleaver, V, H, W)
             self._slices = np.zeros((2, H, W, 3), dtype=np.float32)
             self._slice_w = np.zeros((2, H, W), dtype=np.float32)
-            self._slice_buffers: dict = {}
         eyes_ = crossed_slit.eye_slices(rig, viewer)
         E = len(eyes_)
         c = self.config
@@ -483,8 +482,8 @@ class LiveRenderer:
         self._refresh(colmask)
         tile_mask = np.repeat(colmask[:, None, :], self.tiles_y, axis=1)
         t1 = time.perf_counter()
-        passes = crossed_slit.slice_pass(rig, eyes_, self._slices[:E], buffers=self._slice_buffers)
-        fast.render(gaussians, self.cameras, self.config.render, tile_mask=tile_mask, out=self.views, passes=passes)
+        fast.render(gaussians, self.cameras, self.config.render, tile_mask=tile_mask, out=self.views,
+                    slits=crossed_slit.slit_views(rig, eyes_, self._slices[:E]))
         t2 = time.perf_counter()
         gn = gaussians.numpy()
         opacity = 1.0 / (1.0 + np.exp(-np.asarray(gn.opacity_logits, dtype=np.float64)))

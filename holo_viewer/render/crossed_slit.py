@@ -52,10 +52,10 @@ import numpy as np
 from ..camera import Cameras
 from ..errors import InputError
 from . import view_synthesis
-from .fast import SortedSplats, SplatPass
+from .fast import SlitViews, SortedSplats, SplatPass
 from .fast_kernels import _sh_basis
 
-__all__ = ["SliceRig", "EyeSlice", "slice_rig", "eye_slices", "slice_columns", "slice_cameras", "slice_pass",
+__all__ = ["SliceRig", "EyeSlice", "slice_rig", "eye_slices", "slice_columns", "slice_cameras", "slice_pass", "slit_views",
            "transform_splats", "slice_depth", "warp_coefficients", "column_camera"]
 
 
@@ -246,11 +246,12 @@ def _transform(pc, cov, means, sh, m, degree, ty, tz, fx, cxm, near, coef, ab, P
 
 
 def transform_splats(rig: SliceRig, eyes: list[EyeSlice], splats: SortedSplats,
-                     out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, kernel: str = "auto"
+                     out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Moved centres, covariances and colours of ``splats`` for each eye's slice (see the module
     docstring), in the splats' depth order: (E, 3, mp) and (E, 6, mp) float64, (E, 3, mp) float32.
-    ``kernel``: "auto" (the C++ extension when built, else numba) or "numba"; they agree bit for bit."""
+    Written out for :func:`slice_pass`, the reference the in-kernel :func:`slit_views` is tested
+    against (the live path never writes them)."""
     mp = splats.pc.shape[1]
     E = len(eyes)
     if out is None:
@@ -260,17 +261,23 @@ def transform_splats(rig: SliceRig, eyes: list[EyeSlice], splats: SortedSplats,
     # camera position of s: -R^T (tx(s), ty, tz) = P0 + s P1
     P0 = -rig.R.T @ np.array([rig.p0, rig.ty, rig.tz])
     P1 = -rig.R.T @ np.array([rig.p1, 0.0, 0.0])
-    from .fast import _cpp, _cpu_threads
-
-    cpp = _cpp()
-    args = (splats.pc, splats.cov, splats.means, splats.sh, splats.m, int(splats.degree), rig.ty, rig.tz, rig.fx,
-            rig.cxm, rig.near, coef, ab, P0, P1, out[0], out[1], out[2])
-    if kernel != "numba" and cpp is not None and hasattr(cpp, "slice_transform") and splats.sh.dtype == np.float32:
-        arrays = [np.ascontiguousarray(a) if isinstance(a, np.ndarray) else a for a in args]
-        cpp.slice_transform(*arrays[:5], mp, *arrays[5:], E, _cpu_threads())
-    else:
-        _transform(*args)
+    _transform(splats.pc, splats.cov, splats.means, splats.sh, splats.m, int(splats.degree), rig.ty, rig.tz, rig.fx,
+               rig.cxm, rig.near, coef, ab, P0, P1, out[0], out[1], out[2])
     return out
+
+
+def slit_views(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray) -> SlitViews:
+    """The eyes' slices as :class:`~holo_viewer.render.fast.SlitViews`: projected by the fast
+    renderer's kernels in the same pass as the render's cameras, into ``out`` ((E, H, W, 3)
+    float32). The same numbers as :func:`slice_pass` (the moved splats drawn by pinholes), bit for
+    bit, without writing the moved splats out (tested)."""
+    E = len(eyes)
+    if out.shape != (E, rig.height, rig.width, 3):
+        raise InputError(f"out: expected {(E, rig.height, rig.width, 3)}, found {out.shape}")
+    P0 = -rig.R.T @ np.array([rig.p0, rig.ty, rig.tz])  # camera position of s: P0 + s P1
+    P1 = -rig.R.T @ np.array([rig.p1, 0.0, 0.0])
+    params = np.array([(*eye.coefficients(rig), eye.A, eye.B, *P0, *P1) for eye in eyes], dtype=np.float64)
+    return SlitViews(cameras=slice_cameras(rig, E), params=params.reshape(E, 13), out=out)
 
 
 def slice_pass(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray, buffers: dict | None = None

@@ -45,7 +45,8 @@ from ..errors import RenderError
 from .config import RenderConfig, RenderResult
 from .projection import clamp_limits
 
-__all__ = ["render", "tile_grid", "cpp_available", "kernel_names", "release_buffers", "SortedSplats", "SplatPass"]
+__all__ = ["render", "tile_grid", "cpp_available", "kernel_names", "release_buffers", "SortedSplats", "SplatPass",
+           "SlitViews", "CAM"]
 
 #: C++ compositor path: 0 = the best the CPU runs (AVX-512 for 16x16 tiles, else AVX2, else scalar),
 #: 1 = scalar, 2 = require AVX2, 3 = require AVX-512 (tests and the benchmark set this)
@@ -288,13 +289,18 @@ def depth_order(z: np.ndarray, keep: np.ndarray, hint: np.ndarray | None = None)
     return full[keep[full]], full
 
 
+#: doubles per view in the projection kernels' camera parameters (fast_kernels.project_views)
+CAM = 29
+
+
 def _view_params(cameras: Cameras, views: np.ndarray, rects: np.ndarray | None = None) -> np.ndarray:
-    """(len(views), 18) float64 per-view parameters of the projection kernels (project_views docs).
+    """(len(views), CAM) float64 per-view parameters of the projection kernels (project_views docs;
+    pinholes: the crossed-slit entries 18.. are 0).
 
     ``rects``: (V, 4) pixel rectangles x0, x1, y0, y1 (all cameras) the splat boxes are clipped
     to; None = the image."""
     W, H = cameras.width, cameras.height
-    cams = np.empty((len(views), 18))
+    cams = np.zeros((len(views), CAM))
     if rects is None:
         cams[:, 14:18] = (0.0, W, 0.0, H)
     else:
@@ -408,7 +414,7 @@ def _check_region(cameras: Cameras, config: RenderConfig, tile_mask: np.ndarray 
 
 def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None = None, *,
            tile_mask: np.ndarray | None = None, out: np.ndarray | None = None,
-           passes: tuple[SplatPass, ...] | list[SplatPass] = ()) -> RenderResult:
+           passes: tuple[SplatPass, ...] | list[SplatPass] = (), slits: SlitViews | None = None) -> RenderResult:
     """Render every camera with the fast backend (see the module docstring).
 
     Inputs are assumed validated (use :func:`holo_viewer.render.render_views`).
@@ -427,6 +433,10 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
     passes : sequence of SplatPass
         Extra images drawn from the same depth sort (:class:`SplatPass`); the cameras must then
         share one rotation. A render whose mask leaves no view still draws its passes.
+    slits : SlitViews or None
+        Crossed-slit views drawn in the same projection pass as the first chunk of cameras (their
+        images into ``slits.out``); the cameras must share one rotation. A render whose mask
+        leaves no view still draws them.
 
     Returns
     -------
@@ -440,17 +450,37 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
     passes = tuple(passes)
     for p in passes:
         _check_pass(p, cameras)
-    if passes and len(_groups(cameras)) != 1:
-        raise RenderError("fast backend: passes: expected cameras sharing one rotation")
+    if slits is not None:
+        _check_slits(slits, cameras)
+    if (passes or slits is not None) and len(_groups(cameras)) != 1:
+        raise RenderError("fast backend: passes, slits: expected cameras sharing one rotation")
     shared = _SHARED_WORKSPACE.lock.acquire(blocking=False)
     try:
         return _render(gaussians, cameras, config, _SHARED_WORKSPACE if shared else _Workspace(),
-                       mask, rects, out, passes)
+                       mask, rects, out, passes, slits)
     finally:
         if shared:
             if _SHARED_WORKSPACE.nbytes() > _KEEP_AT_MOST:  # a huge scene: do not hold its buffers
                 _SHARED_WORKSPACE.release()
             _SHARED_WORKSPACE.lock.release()
+
+
+def _check_slits(slits: "SlitViews", cameras: Cameras) -> None:
+    if not isinstance(slits, SlitViews) or not isinstance(slits.cameras, Cameras):
+        raise RenderError(f"fast backend: slits: expected SlitViews, found {type(slits).__name__}")
+    S = len(slits.cameras)
+    if len(cameras) and np.abs(slits.cameras.R - cameras.R[0]).max() > 1e-12:
+        raise RenderError("fast backend: SlitViews.cameras: expected the rotation of the render's cameras")
+    p = np.asarray(slits.params)
+    if p.shape != (S, 13) or p.dtype != np.float64 or not np.isfinite(p).all():
+        raise RenderError(f"fast backend: SlitViews.params: expected finite float64 ({S}, 13), found {p.dtype} {p.shape}")
+    shape = (S, cameras.height, cameras.width, 3)
+    o = slits.out
+    if (slits.cameras.width, slits.cameras.height) != (cameras.width, cameras.height) or not (
+            isinstance(o, np.ndarray) and o.shape == shape and o.dtype == np.float32 and o.flags.c_contiguous
+            and o.flags.writeable):
+        raise RenderError(f"fast backend: SlitViews.out: expected a writeable C-contiguous {shape} float32 array "
+                          f"(the render's size), found {getattr(o, 'shape', None)} {getattr(o, 'dtype', None)}")
 
 
 def _check_pass(p: "SplatPass", cameras: Cameras) -> None:
@@ -499,6 +529,40 @@ class SortedSplats:
 
 
 @dataclass
+class SlitViews:
+    """Crossed-slit views (:mod:`holo_viewer.render.crossed_slit`) drawn with a render's cameras, in
+    the same projection pass: each splat's centre moves to its slice column ``xi = (a X + b Z + c)
+    / (e Z + f)`` (X, Z in the cameras' frame, R p + their translation) at the same depth, its
+    covariance by that move's Jacobian, and its SH is seen from the camera of that column.
+
+    Attributes
+    ----------
+    cameras : Cameras
+        S pinholes with the render's rotation carrying fx, fy, cy, the principal column the moved
+        centres are splatted with and the translation; their positions are ``P0`` below.
+    params : (S, 13) float64
+        a, b, c, e, f; A, B (the column's camera is ``s = A + B xi``); P0 (3), P1 (3): its position
+        ``P0 + s P1``.
+    out : (S, H, W, 3) float32
+        The images (the render's size), every pixel written.
+    """
+
+    cameras: Cameras
+    params: np.ndarray
+    out: np.ndarray
+
+
+def _slit_params(slits: SlitViews) -> np.ndarray:
+    cams = _view_params(slits.cameras, np.arange(len(slits.cameras)))
+    p = slits.params
+    cams[:, 18] = 1.0
+    cams[:, 19:26] = p[:, 0:7]
+    cams[:, 7:10] = p[:, 7:10]
+    cams[:, 26:29] = p[:, 10:13]
+    return cams
+
+
+@dataclass
 class SplatPass:
     """Extra images drawn from the same depth-sorted splats as a render's views.
 
@@ -526,7 +590,8 @@ def _runs(views: np.ndarray) -> list[np.ndarray]:
 
 def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, workspace: _Workspace,
             mask: np.ndarray | None = None, rects: np.ndarray | None = None,
-            out_images: np.ndarray | None = None, passes: tuple[SplatPass, ...] = ()) -> RenderResult:
+            out_images: np.ndarray | None = None, passes: tuple[SplatPass, ...] = (),
+            slits: SlitViews | None = None) -> RenderResult:
     from . import fast_kernels as fk
 
     kernel = config.kernel
@@ -573,7 +638,7 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
 
     for gi, group in enumerate(_groups(cameras)):
         group = group[active[group]]
-        if group.size == 0 and not passes:
+        if group.size == 0 and not passes and slits is None:
             continue
         t0 = time.perf_counter()
         Wrot = np.ascontiguousarray(cameras.R[int(group[0]) if group.size else 0])
@@ -587,6 +652,8 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
         tz = cameras.t[group, 2] if group.size else np.zeros(0)
         for p in passes:  # a pass keeps the depths: its cameras add their z offsets as the render's do
             tz = np.concatenate((tz, p.cameras.t[:, 2]))
+        if slits is not None:  # so do crossed-slit views
+            tz = np.concatenate((tz, slits.cameras.t[:, 2]))
         front = (z + tz.max()) > near if tz.size else np.zeros(len(g), dtype=bool)
         t1 = time.perf_counter()
         order, workspace.depth_hints[gi] = depth_order(z, front, workspace.depth_hints.get(gi))
@@ -601,24 +668,36 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
         t2 = time.perf_counter()
         timings["preprocess"] += t1 - t0
         timings["sort"] += t2 - t1  # the depth sort and the depth-ordered copies
+        chunks: list[np.ndarray] = []
         if group.size:
             chunk = max(1, min(len(group), int(config.max_chunk_bytes // max(1, m * _BYTES_PER_SPLAT_VIEW))))
             chunks = [r[c0:c0 + chunk] for r in (_runs(np.sort(group)) if mask is not None else [group])
                       for c0 in range(0, len(r), chunk)]
-            for views in chunks:
-                cams = _view_params(cameras, views, rects)
-                jobs = None if mask is None else np.flatnonzero(mask[views].reshape(-1)).astype(np.int32)
-                contiguous = bool(np.all(np.diff(views) == 1))  # always, with a mask
-                out = images[views[0]:views[-1] + 1] if contiguous else np.empty((len(views), H, W, 3), np.float32)
-                if use_cpp:
-                    seen = draw.cpp_views(sorted_in, m, degree, bool(config.shared_sh), cams, out, jobs)
-                else:
+        slit_cams = None if slits is None else _slit_params(slits)
+        if slit_cams is not None and not chunks:
+            chunks = [np.zeros(0, dtype=np.int64)]
+        for ci, views in enumerate(chunks):
+            cams = _view_params(cameras, views, rects)
+            with_slits = slit_cams is not None and ci == 0  # drawn in the first chunk's projection pass
+            jobs = None if mask is None else np.flatnonzero(mask[views].reshape(-1)).astype(np.int32)
+            contiguous = views.size == 0 or bool(np.all(np.diff(views) == 1))  # always, with a mask
+            out = (images[views[0]:views[-1] + 1] if views.size else images[:0]) if contiguous else \
+                np.empty((len(views), H, W, 3), np.float32)
+            if use_cpp:
+                seen = draw.cpp_views(sorted_in, m, degree, bool(config.shared_sh), cams, out, jobs,
+                                      slits=(slit_cams, slits.out) if with_slits else None)
+            else:
+                seen = np.zeros(m, dtype=np.uint8)
+                if views.size:
                     seen = draw.numba_views(order, pc, cov, means, opacity, sh, degree, shared_rgb,
                                             bool(config.shared_sh), cams, out,
                                             mask[views] if mask is not None else None)
-                draw.visible[order[seen.astype(bool)]] = True
-                if not contiguous:
-                    images[views] = out
+                if with_slits:
+                    draw.numba_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, bool(config.shared_sh),
+                                     slit_cams, slits.out, None, count_blends=False)
+            draw.visible[order[seen.astype(bool)]] = True
+            if not contiguous:
+                images[views] = out
         splats = None
         for p in passes:
             t3 = time.perf_counter()
@@ -679,10 +758,15 @@ class _Draw:
         self.cull = -1.0 if config.cull_margin is None else float(config.cull_margin)
 
     def cpp_views(self, sorted_in: tuple, m: int, degree: int, shared: bool, cams: np.ndarray, out: np.ndarray,
-                  jobs: np.ndarray | None, count_blends: bool = True) -> np.ndarray:
-        """One chunk of views through the C++ extension (projection and binning fused, buffers reused);
-        returns which of the m sorted splats any view drew."""
-        c, nv = self.config, len(cams)
+                  jobs: np.ndarray | None, count_blends: bool = True,
+                  slits: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """One chunk of views through the C++ extension (projection and binning fused, buffers reused),
+        with ``slits`` = (their camera parameters, their images) projected in the same pass and
+        composited into their own images; returns which of the m sorted splats any view drew."""
+        c, n_main = self.config, len(cams)
+        if slits is not None:
+            cams = np.concatenate((cams, slits[0]))
+        nv = len(cams)
         n_tiles = self.tiles_x * self.tiles_y
         t3 = time.perf_counter()
         rec = self.workspace.records(nv, m)
@@ -702,14 +786,19 @@ class _Draw:
         ids = ids_buf[:total]
         t4 = time.perf_counter() - fill_s  # the fused pass counts as project, filling the lists as bin
         t5 = time.perf_counter()
-        blends = np.zeros(nv * n_tiles, dtype=np.int64)
-        self.path = self.cpp.composite(rec, off, base, ids, nv, m, self.tile, self.tiles_x, self.tiles_y, self.W,
-                                       self.H, float(c.alpha_threshold), float(c.alpha_cap), float(c.t_min),
-                                       np.asarray(c.background, dtype=np.float32), bool(c.clip_output), out,
-                                       blends, self.threads, _CPP_MODE,
-                                       np.empty(0, dtype=np.int32) if jobs is None else jobs)
+        blends = np.zeros(max(n_main, 1) * n_tiles, dtype=np.int64)
+        bg = np.asarray(c.background, dtype=np.float32)
+        parts = ((0, n_main, out, jobs, blends), (n_main, nv, None if slits is None else slits[1], None,
+                                                   np.zeros((nv - n_main) * n_tiles, dtype=np.int64)))
+        for lo, hi, img, sel, bl in parts:
+            if hi > lo:  # the views, then the slit views into their own images (records of one pass)
+                self.path = self.cpp.composite(rec[lo:hi], off[lo:hi], base[lo:hi], ids, hi - lo, m, self.tile,
+                                               self.tiles_x, self.tiles_y, self.W, self.H, float(c.alpha_threshold),
+                                               float(c.alpha_cap), float(c.t_min), bg, bool(c.clip_output), img, bl,
+                                               self.threads, _CPP_MODE,
+                                               np.empty(0, dtype=np.int32) if sel is None else sel)
         t6 = time.perf_counter()
-        self._count(ids.size, blends, nv * n_tiles if jobs is None else jobs.size, count_blends)
+        self._count(ids.size, blends, n_main * n_tiles if jobs is None else jobs.size, count_blends)
         self.timings["project"] += t4 - t3
         self.timings["bin"] += t5 - t4
         self.timings["composite"] += t6 - t5

@@ -194,9 +194,14 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
                   near, dilation, radius_sigmas, alpha_threshold, cull_margin, rec, box):  # pragma: no cover - compiled
     """Per view and splat (in depth order ``order``): 2D centre, conic, colour and pixel box.
 
-    cams (V, 18): fx, fy, cx, cy, tx, ty, tz (world->camera translation), cam_pos xyz (world),
-    clamp limits lo_x, hi_x, lo_y, hi_y of t.x/t.z and t.y/t.z (projection.clamp_limits), and the
-    pixel rectangle x0, x1, y0, y1 the boxes are clipped to (0, width, 0, height: the image).
+    cams (V, 29): fx, fy, cx, cy, tx, ty, tz (world->camera translation), cam_pos xyz (world),
+    clamp limits lo_x, hi_x, lo_y, hi_y of t.x/t.z and t.y/t.z (projection.clamp_limits), the
+    pixel rectangle x0, x1, y0, y1 the boxes are clipped to (0, width, 0, height: the image), and a
+    crossed-slit view's flag (18, 0 for a pinhole) and parameters: a, b, c, e, f (19-23), A, B
+    (24, 25) and the slope of the camera position in s (26-28): each centre moves to its slice
+    column xi = (a X + b Z + c) / (e Z + f) at the same depth, its covariance by that move's
+    Jacobian, and its SH is seen from cam_pos + s slope, s = A + B xi
+    (:mod:`holo_viewer.render.crossed_slit`).
     cull_margin < 0 disables centre culling. Writes rec (V, M, REC) and box (V, M, 4).
     Returns (M,) uint8: 1 where the splat's box is non-empty in at least one view.
     """
@@ -219,12 +224,32 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
             seen[k] = 0
             continue
         q = 2.0 * (math.log(op) - ln_thr)  # alpha >= thr  <=>  d^T conic d <= q
-        sxx, sxy, sxz, syy, syz, szz = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5]
+        cxx, cxy, cxz, syy, syz, szz = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5]
         for v in range(nv):
             fx, fy, cx, cy = cams[v, 0], cams[v, 1], cams[v, 2], cams[v, 3]
             tx = pc[i, 0] + cams[v, 4]
             ty = pc[i, 1] + cams[v, 5]
             tz = pc[i, 2] + cams[v, 6]
+            sxx, sxy, sxz = cxx, cxy, cxz
+            px, py, pz = cams[v, 7], cams[v, 8], cams[v, 9]
+            if cams[v, 18] != 0.0:  # a crossed-slit view (the C++ project_block's SLIT, same expressions)
+                a_, b_, c_, e_, f_ = cams[v, 19], cams[v, 20], cams[v, 21], cams[v, 22], cams[v, 23]
+                X, Z = tx, tz
+                den = e_ * Z + f_
+                ok = den > 1e-9 * Z
+                xi = (a_ * X + b_ * Z + c_) / den if ok else 0.0
+                if ok:
+                    jx = Z / den * (a_ / fx)
+                    jz = ((b_ * f_ - e_ * (a_ * X + c_)) / (den * den) * Z + (xi - cx)) / fx
+                    sxx = jx * jx * cxx + 2.0 * jx * jz * cxz + jz * jz * szz
+                    sxy = jx * cxy + jz * syz
+                    sxz = jx * cxz + jz * szz
+                    tx = (xi - cx) * Z / fx
+                else:
+                    tx = 0.0
+                    tz = -1.0
+                s_ = cams[v, 24] + cams[v, 25] * xi
+                px, py, pz = px + s_ * cams[v, 26], py + s_ * cams[v, 27], pz + s_ * cams[v, 28]
             box[v, k, 0] = 0
             box[v, k, 1] = 0
             box[v, k, 2] = 0
@@ -291,9 +316,9 @@ def project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, use_sh
                 for ch in range(3):
                     rec[v, k, 6 + ch] = shared_rgb[i, ch]
             else:
-                dx = means[i, 0] - cams[v, 7]
-                dy = means[i, 1] - cams[v, 8]
-                dz = means[i, 2] - cams[v, 9]
+                dx = means[i, 0] - px
+                dy = means[i, 1] - py
+                dz = means[i, 2] - pz
                 nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
                 if nrm > 0.0:
                     dx, dy, dz = dx / nrm, dy / nrm, dz / nrm

@@ -45,7 +45,7 @@ namespace {
 // q = 2 ln(opacity/threshold), then the int32 pixel box x0, x1, y0, y1 (fast_kernels.py REC_STRIDE, BOX_AT).
 constexpr int REC = 16;            // floats per record
 constexpr int BOX_AT = 10;         // word offset of the box in the record
-constexpr int CAM = 18;            // doubles per view in project_bin's cams (fast_kernels.project_views)
+constexpr int CAM = 29;            // doubles per view in project_bin's cams (fast_kernels.project_views)
 constexpr float EXP_LO = -12.8f;   // exp(x < EXP_LO) treated as exp(EXP_LO); alpha_threshold >= 1e-5
 
 struct Job {
@@ -933,11 +933,16 @@ struct ProjJob {
 // built with -ffp-contract=off, so the results are bit-identical; a test checks).
 constexpr int LANES = 8;
 struct Block {
-    alignas(64) double u[LANES], vv[LANES], A[LANES], B[LANES], C[LANES], col[3][LANES];
+    alignas(64) double u[LANES], vv[LANES], A[LANES], B[LANES], C[LANES], col[3][LANES], s[LANES];
     alignas(64) int32_t box[4][LANES];
 };
 
-template <int DEG, bool SHARED>
+// SLIT: a crossed-slit view (holo_viewer.render.crossed_slit; cams[18] = 1): each centre first
+// moves to the column xi = (a X + b Z + c) / (e Z + f) of its eye slice, X' = (xi - cx) Z / fx,
+// its covariance by the move's Jacobian (cams[19..23] = a, b, c, e, f), and its SH is seen from
+// the camera of that column, position cams[7..9] + s cams[26..28] with s = cams[24] + cams[25] xi
+// (the same float64 expressions, in the same order, as crossed_slit's moved splats).
+template <int DEG, bool SHARED, bool SLIT>
 HV_ALWAYS_INLINE inline void project_block(const ProjJob& P, const double* cam, int k, Block& o) {
     const int64_t mp = P.mp;
     const double fx = cam[0], fy = cam[1], cx = cam[2], cy = cam[3];
@@ -954,9 +959,27 @@ HV_ALWAYS_INLINE inline void project_block(const ProjJob& P, const double* cam, 
 #pragma GCC ivdep
     for (int l = 0; l < LANES; ++l) {  // geometry
         const double op = opa[l], q = qa[l];
-        const double sxx = cov[l], sxy = cov[mp + l], sxz = cov[2 * mp + l];
+        double sxx = cov[l], sxy = cov[mp + l], sxz = cov[2 * mp + l];
         const double syy = cov[3 * mp + l], syz = cov[4 * mp + l], szz = cov[5 * mp + l];
-        const double tx = pc[l] + cam[4], ty = pc[mp + l] + cam[5], tz = pc[2 * mp + l] + cam[6];
+        double tx = pc[l] + cam[4], tz = pc[2 * mp + l] + cam[6];
+        const double ty = pc[mp + l] + cam[5];
+        if (SLIT) {
+            const double a = cam[19], b = cam[20], c = cam[21], e = cam[22], f = cam[23];
+            const double X = tx, Z = tz, den = e * Z + f;
+            const bool ok = den > 1e-9 * Z;
+            const double xi = (a * X + b * Z + c) / den;
+            const double jx = Z / den * (a / fx);
+            const double jz = ((b * f - e * (a * X + c)) / (den * den) * Z + (xi - cx)) / fx;
+            const double nxx = jx * jx * sxx + 2.0 * jx * jz * sxz + jz * jz * szz;
+            const double nxy = jx * sxy + jz * syz;
+            const double nxz = jx * sxz + jz * szz;
+            sxx = ok ? nxx : sxx;
+            sxy = ok ? nxy : sxy;
+            sxz = ok ? nxz : sxz;
+            tx = ok ? (xi - cx) * Z / fx : 0.0;
+            tz = ok ? tz : -1.0;  // behind the slit camera: not drawn
+            o.s[l] = cam[24] + cam[25] * xi;
+        }
         const double itz = 1.0 / tz;
         const double u = fx * tx * itz + cx, vv = fy * ty * itz + cy;
         const bool outside = (u < ulo) | (u > uhi) | (vv < vlo) | (vv > vhi);
@@ -997,7 +1020,14 @@ HV_ALWAYS_INLINE inline void project_block(const ProjJob& P, const double* cam, 
     alignas(64) double bs[nk][LANES];
 #pragma GCC ivdep
     for (int l = 0; l < LANES; ++l) {  // SH basis of the view direction
-        double x = mean[l] - cam[7], y = mean[mp + l] - cam[8], z = mean[2 * mp + l] - cam[9];
+        double x, y, z;
+        if (SLIT) {
+            x = mean[l] - (cam[7] + o.s[l] * cam[26]);
+            y = mean[mp + l] - (cam[8] + o.s[l] * cam[27]);
+            z = mean[2 * mp + l] - (cam[9] + o.s[l] * cam[28]);
+        } else {
+            x = mean[l] - cam[7]; y = mean[mp + l] - cam[8]; z = mean[2 * mp + l] - cam[9];
+        }
         const double nrm = std::sqrt(x * x + y * y + z * z);
         const double inv = nrm > 0.0 ? 1.0 / nrm : 1.0;
         x = x * inv; y = y * inv; z = z * inv;
@@ -1151,7 +1181,7 @@ HV_ALWAYS_INLINE inline void project_count_region(const ProjJob& P, const BinJob
             g.q[l] = P.q[k];
             for (int i = 0; i < nrows; ++i) g.sh[i][l] = P.sh[i * mp + k];
         }
-        project_block<DEG, SHARED>(Pl, cam, 0, o);
+        project_block<DEG, SHARED, false>(Pl, cam, 0, o);
         if (banded) band_block(o, g.q, B.div.shift, pre);
         for (int l = 0; l < np_; ++l) emit(P, B, v, idx[l], o, l, banded ? pre[l] : nullptr, cnt, ent);
         np_ = 0;
@@ -1188,7 +1218,7 @@ HV_ALWAYS_INLINE inline void project_count_region(const ProjJob& P, const BinJob
             if (cnt8 == 0) continue;
             if (cnt8 >= DENSE) {
                 flush();  // the pending gathered splats come first: the lists stay in depth order
-                project_block<DEG, SHARED>(P, cam, ks + b0, o);
+                project_block<DEG, SHARED, false>(P, cam, ks + b0, o);
                 if (banded) band_block(o, P.q + ks + b0, B.div.shift, pre);
                 for (int l = 0; l < LANES && b0 + l < n; ++l)
                     if (keep[b0 + l]) emit(P, B, v, ks + b0 + l, o, l, banded ? pre[l] : nullptr, cnt, ent);
@@ -1204,17 +1234,17 @@ HV_ALWAYS_INLINE inline void project_count_region(const ProjJob& P, const BinJob
     flush();
 }
 
-template <int DEG, bool SHARED>
+template <int DEG, bool SHARED, bool SLIT>
 HV_ALWAYS_INLINE inline void project_count(const ProjJob& P, const BinJob& B, int v, int k0, int k1,
                                                          int64_t* cnt, Entries& ent) {
     const double* cam = P.cams + int64_t(v) * CAM;
-    if (cam[14] > 0.0 || cam[15] < P.width || cam[16] > 0.0 || cam[17] < P.height)
+    if (!SLIT && (cam[14] > 0.0 || cam[15] < P.width || cam[16] > 0.0 || cam[17] < P.height))
         return project_count_region<DEG, SHARED>(P, B, v, k0, k1, cnt, ent);
     Block o;
     alignas(64) int32_t pre[LANES][4];
     const bool banded = B.div.shift >= 0;
     for (int k = k0; k < k1; k += LANES) {
-        project_block<DEG, SHARED>(P, cam, k, o);
+        project_block<DEG, SHARED, SLIT>(P, cam, k, o);
         if (banded) band_block(o, P.q + k, B.div.shift, pre);
         const int n = std::min(LANES, k1 - k);
         for (int l = 0; l < n; ++l) {
@@ -1239,10 +1269,10 @@ HV_ALWAYS_INLINE inline void project_count(const ProjJob& P, const BinJob& B, in
 using CountFn = void (*)(const ProjJob&, const BinJob&, int, int, int, int64_t*, Entries&);
 
 #define HV_COUNT_VARIANT(NAME, ATTR)                                                                        \
-    template <int DEG, bool SHARED>                                                                         \
+    template <int DEG, bool SHARED, bool SLIT>                                                              \
     ATTR void NAME(const ProjJob& P, const BinJob& B, int v, int k0, int k1, int64_t* cnt,                 \
                    Entries& ent) {                                                                          \
-        project_count<DEG, SHARED>(P, B, v, k0, k1, cnt, ent);                                             \
+        project_count<DEG, SHARED, SLIT>(P, B, v, k0, k1, cnt, ent);                                       \
     }
 HV_COUNT_VARIANT(count_generic, )
 #if HV_HAVE_AVX2_PATH
@@ -1250,28 +1280,29 @@ HV_COUNT_VARIANT(count_avx2, __attribute__((target("avx2,fma,sse4.1"))))
 HV_COUNT_VARIANT(count_avx512, __attribute__((target("avx512f,avx512vl,avx512dq,avx2,fma,sse4.1"))))
 #endif
 
-template <template <int, bool> class Sel>
+template <template <int, bool, bool> class Sel, bool SLIT>
 CountFn pick_degree(int degree, bool shared) {
-    if (shared) return Sel<0, true>::fn;
+    if (shared) return Sel<0, true, SLIT>::fn;
     switch (degree) {
-        case 0: return Sel<0, false>::fn;
-        case 1: return Sel<1, false>::fn;
-        case 2: return Sel<2, false>::fn;
-        default: return Sel<3, false>::fn;
+        case 0: return Sel<0, false, SLIT>::fn;
+        case 1: return Sel<1, false, SLIT>::fn;
+        case 2: return Sel<2, false, SLIT>::fn;
+        default: return Sel<3, false, SLIT>::fn;
     }
 }
-template <int D, bool S> struct SelGeneric { static constexpr CountFn fn = count_generic<D, S>; };
+template <int D, bool S, bool L> struct SelGeneric { static constexpr CountFn fn = count_generic<D, S, L>; };
 #if HV_HAVE_AVX2_PATH
-template <int D, bool S> struct SelAvx2 { static constexpr CountFn fn = count_avx2<D, S>; };
-template <int D, bool S> struct SelAvx512 { static constexpr CountFn fn = count_avx512<D, S>; };
+template <int D, bool S, bool L> struct SelAvx2 { static constexpr CountFn fn = count_avx2<D, S, L>; };
+template <int D, bool S, bool L> struct SelAvx512 { static constexpr CountFn fn = count_avx512<D, S, L>; };
 #endif
 
+template <bool SLIT>
 CountFn count_function(int degree, bool shared) {
 #if HV_HAVE_AVX2_PATH
-    if (cpu_has_avx512()) return pick_degree<SelAvx512>(degree, shared);
-    if (cpu_has_avx2()) return pick_degree<SelAvx2>(degree, shared);
+    if (cpu_has_avx512()) return pick_degree<SelAvx512, SLIT>(degree, shared);
+    if (cpu_has_avx2()) return pick_degree<SelAvx2, SLIT>(degree, shared);
 #endif
-    return pick_degree<SelGeneric>(degree, shared);
+    return pick_degree<SelGeneric, SLIT>(degree, shared);
 }
 
 // project_bin's per-unit tile counts and (splat, tile) entries (~45 MB for the avatar quilt's
@@ -1333,7 +1364,8 @@ PyObject* project_bin(PyObject*, PyObject* args) {
         auto& entries = scratch.entries;  // per unit: its (splat, tile) entries, for the fill
         if (counts.size() < size_t(n_units)) counts.resize(size_t(n_units));
         if (entries.size() < size_t(n_units)) entries.resize(size_t(n_units));
-        const CountFn count_fn = count_function(P.degree, P.use_shared != 0);
+        const CountFn count_pin = count_function<false>(P.degree, P.use_shared != 0);
+        const CountFn count_slit = count_function<true>(P.degree, P.use_shared != 0);
         std::atomic<bool> bad{false};
         BinJob B{P.rec, P.m, P.tile, P.tiles_x, P.tiles_y, &bad, TileDiv(P.tile)};
         auto seg_range = [&](int s, int& k0, int& k1) {  // multiples of LANES (blocks read k..k+7)
@@ -1354,7 +1386,8 @@ PyObject* project_bin(PyObject*, PyObject* args) {
             for (int kb = k0; kb < k1; kb += BLOCK)
                 for (int v = 0; v < P.nv; ++v) {
                     const int unit = v * segs + s;
-                    count_fn(P, B, v, kb, std::min(k1, kb + BLOCK), counts[unit].data(), entries[unit]);
+                    (P.cams[int64_t(v) * CAM + 18] != 0.0 ? count_slit : count_pin)(
+                        P, B, v, kb, std::min(k1, kb + BLOCK), counts[unit].data(), entries[unit]);
                 }
         });
         Py_END_ALLOW_THREADS
@@ -1486,101 +1519,6 @@ PyObject* prep_sorted(PyObject*, PyObject* args) {
     PyBuffer_Release(&order); PyBuffer_Release(&means); PyBuffer_Release(&quats); PyBuffer_Release(&ls);
     PyBuffer_Release(&opa); PyBuffer_Release(&col); PyBuffer_Release(&rot); PyBuffer_Release(&pc);
     PyBuffer_Release(&cov); PyBuffer_Release(&mout); PyBuffer_Release(&op); PyBuffer_Release(&sh);
-    if (!ok) return nullptr;
-    Py_RETURN_NONE;
-}
-
-// ---- crossed_slit._transform: every eye's moved centres, covariances and colours (the same float64
-// expressions in the same order, branch-free so that the lane loop vectorises; bit-identical)
-template <int DEG>
-void slice_transform_range(const double* pc, const double* cov, const double* means, const float* sh, int m, int mp,
-                           double ty, double tz, double fx, double cxm, double near, const double* cf,
-                           const double* ab, const double* P0, const double* P1, double* opc, double* ocov,
-                           float* ocol, int i0, int i1) {
-    constexpr int nk = (DEG + 1) * (DEG + 1);
-    const double a = cf[0], b = cf[1], c = cf[2], e = cf[3], f = cf[4];
-#pragma GCC ivdep
-    for (int i = i0; i < i1; ++i) {
-        const double X = pc[i], Z = pc[2 * mp + i] + tz;
-        const double den = e * Z + f;
-        const bool ok = (i < m) & (Z > near) & (den > 1e-9 * Z);
-        const double xx = cov[i], xy = cov[mp + i], xz = cov[2 * mp + i];
-        const double yy = cov[3 * mp + i], yz = cov[4 * mp + i], zz = cov[5 * mp + i];
-        const double xi = (a * X + b * Z + c) / den;
-        const double jx = Z / den * (a / fx);
-        const double jz = ((b * f - e * (a * X + c)) / (den * den) * Z + (xi - cxm)) / fx;
-        opc[mp + i] = pc[mp + i];
-        opc[i] = ok ? (xi - cxm) * Z / fx : 0.0;
-        opc[2 * mp + i] = ok ? pc[2 * mp + i] : -tz - 1.0;
-        ocov[i] = ok ? jx * jx * xx + 2.0 * jx * jz * xz + jz * jz * zz : xx;
-        ocov[mp + i] = ok ? jx * xy + jz * yz : xy;
-        ocov[2 * mp + i] = ok ? jx * xz + jz * zz : xz;
-        ocov[3 * mp + i] = yy;
-        ocov[4 * mp + i] = yz;
-        ocov[5 * mp + i] = zz;
-        const double s = ab[0] + ab[1] * xi;  // the camera of the centre's column
-        const double dx = means[i] - (P0[0] + s * P1[0]);
-        const double dy = means[mp + i] - (P0[1] + s * P1[1]);
-        const double dz = means[2 * mp + i] - (P0[2] + s * P1[2]);
-        const double nrm = std::sqrt(dx * dx + dy * dy + dz * dz);
-        const double inv = nrm > 0.0 ? 1.0 / nrm : 1.0;
-        const double x = dx * inv, y = dy * inv, z = dz * inv;
-        double bs[16];
-        bs[0] = SH_C0;
-        if (DEG >= 1) { bs[1] = -SH_C1 * y; bs[2] = SH_C1 * z; bs[3] = -SH_C1 * x; }
-        if (DEG >= 2) {
-            const double xx2 = x * x, yy2 = y * y, zz2 = z * z, xy2 = x * y, yz2 = y * z, xz2 = x * z;
-            bs[4] = SH_C2[0] * xy2; bs[5] = SH_C2[1] * yz2; bs[6] = SH_C2[2] * (2.0 * zz2 - xx2 - yy2);
-            bs[7] = SH_C2[3] * xz2; bs[8] = SH_C2[4] * (xx2 - yy2);
-            if (DEG >= 3) {
-                bs[9] = SH_C3[0] * y * (3.0 * xx2 - yy2); bs[10] = SH_C3[1] * xy2 * z;
-                bs[11] = SH_C3[2] * y * (4.0 * zz2 - xx2 - yy2);
-                bs[12] = SH_C3[3] * z * (2.0 * zz2 - 3.0 * xx2 - 3.0 * yy2);
-                bs[13] = SH_C3[4] * x * (4.0 * zz2 - xx2 - yy2); bs[14] = SH_C3[5] * z * (xx2 - yy2);
-                bs[15] = SH_C3[6] * x * (xx2 - 3.0 * yy2);
-            }
-        }
-        for (int ch = 0; ch < 3; ++ch) {
-            double acc = 0.0;
-            for (int j = 0; j < nk; ++j) acc += bs[j] * double(sh[int64_t(j * 3 + ch) * mp + i]);
-            ocol[int64_t(ch) * mp + i] = ok ? float(std::max(acc + 0.5, 0.0)) : 0.0f;
-        }
-    }
-}
-
-PyObject* slice_transform(PyObject*, PyObject* args) {
-    Py_buffer pc{}, cov{}, means{}, sh{}, coef{}, ab{}, p0{}, p1{}, opc{}, ocov{}, ocol{};
-    int m, mp, degree, E, n_threads;
-    double ty, tz, fx, cxm, near;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*iiidddddy*y*y*y*w*w*w*ii", &pc, &cov, &means, &sh, &m, &mp, &degree, &ty, &tz,
-                          &fx, &cxm, &near, &coef, &ab, &p0, &p1, &opc, &ocov, &ocol, &E, &n_threads))
-        return nullptr;
-    const int nk = (degree + 1) * (degree + 1);
-    bool ok = m >= 0 && mp >= m && degree >= 0 && degree <= 3 && E >= 1;
-    if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.slice_transform: inconsistent sizes");
-    ok = ok && need(pc, int64_t(mp) * 24, "pc") && need(cov, int64_t(mp) * 48, "cov") && need(means, int64_t(mp) * 24, "means") &&
-         need(sh, int64_t(mp) * nk * 12, "sh") && need(coef, int64_t(E) * 40, "coef") && need(ab, int64_t(E) * 16, "ab") &&
-         need(p0, 24, "P0") && need(p1, 24, "P1") && need(opc, int64_t(E) * mp * 24, "out_pc") &&
-         need(ocov, int64_t(E) * mp * 48, "out_cov") && need(ocol, int64_t(E) * mp * 12, "out_col");
-    if (ok) {
-        const int chunk = 4096;
-        const int nchunks = (mp + chunk - 1) / chunk;
-        auto fn = degree == 0 ? slice_transform_range<0> : degree == 1 ? slice_transform_range<1>
-                  : degree == 2 ? slice_transform_range<2> : slice_transform_range<3>;
-        Py_BEGIN_ALLOW_THREADS
-        parallel_for(nchunks * E, std::max(1, n_threads), [&](int job) {
-            const int q = job / nchunks, ci = job % nchunks;
-            fn((const double*)pc.buf, (const double*)cov.buf, (const double*)means.buf, (const float*)sh.buf, m, mp,
-               ty, tz, fx, cxm, near, (const double*)coef.buf + 5 * q, (const double*)ab.buf + 2 * q,
-               (const double*)p0.buf, (const double*)p1.buf, (double*)opc.buf + int64_t(q) * 3 * mp,
-               (double*)ocov.buf + int64_t(q) * 6 * mp, (float*)ocol.buf + int64_t(q) * 3 * mp, ci * chunk,
-               std::min(mp, ci * chunk + chunk));
-        });
-        Py_END_ALLOW_THREADS
-    }
-    PyBuffer_Release(&pc); PyBuffer_Release(&cov); PyBuffer_Release(&means); PyBuffer_Release(&sh);
-    PyBuffer_Release(&coef); PyBuffer_Release(&ab); PyBuffer_Release(&p0); PyBuffer_Release(&p1);
-    PyBuffer_Release(&opc); PyBuffer_Release(&ocov); PyBuffer_Release(&ocol);
     if (!ok) return nullptr;
     Py_RETURN_NONE;
 }
@@ -1934,9 +1872,10 @@ PyMethodDef methods[] = {
      "project_bin(pc, cov, means, opacity, q, sh, cams, m, mp, nv, width, height, degree, use_shared, tile, "
      "tiles_x, tiles_y, near, dilation, radius_sigmas, alpha_threshold, cull_margin, rec, off, base, seen, ids, "
      "n_threads) -> (total entries, seconds spent filling the lists)\n\n"
-     "cams (nv, 18) float64: fast_kernels.project_views' 14 parameters, then the pixel rectangle x0, x1, "
+     "cams (nv, 29) float64: fast_kernels.project_views' 14 parameters, then the pixel rectangle x0, x1, "
      "y0, y1 every box is clipped to (the image, or a region of it: splats that cannot reach it are "
-     "skipped by a conservative test before projection).\n"
+     "skipped by a conservative test before projection), then a crossed-slit view's flag and its 10 "
+     "parameters (0 for a pinhole; see project_views).\n"
      "fast_kernels.project_views, count_tiles and fill_tiles in one pass over the splats (inputs in depth "
      "order, float64 structure of arrays with row stride mp, a multiple of 8 >= m, padding opacity 0; "
      "sh float32). Writes rec, off, base, seen and, when ids holds them, the tile lists; returns the "
@@ -1945,10 +1884,6 @@ PyMethodDef methods[] = {
      "prep_sorted(order, means, quats, log_scales, opacity, colours, Wrot, pc, cov, mout, op, sh, m, mp, n, c, "
      "float32, n_threads) -> None\n\nholo_viewer.render.fast_kernels.prep_sorted (bit-identical): the splats in depth "
      "order as structures of arrays (row stride mp), camera-frame centres and covariances computed."},
-    {"slice_transform", slice_transform, METH_VARARGS,
-     "slice_transform(pc, cov, means, sh, m, mp, degree, ty, tz, fx, cxm, near, coef, ab, P0, P1, out_pc, out_cov, "
-     "out_col, E, n_threads) -> None\n\nholo_viewer.render.crossed_slit's moved splats for E eye slices "
-     "(bit-identical to its numba kernel)."},
     {"scatter_slices", scatter_slices, METH_VARARGS,
      "scatter_slices(native, positions, zeta, offsets, tex_row, tex_col, view1, w8, blend, segments, bounds, "
      "reach, images, wmaps, kv, gh, iters, counts, H, W3, V, E, hv, wv, n_threads[, mode]) -> None\n\n"
