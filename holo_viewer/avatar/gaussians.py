@@ -121,12 +121,10 @@ class Gaussians:
         prefix = f"{context}: " if context else ""
         for name in _FIELDS:
             arr = self._np(getattr(self, name))
-            # a finite float64 sum means every value is finite (NaN and inf propagate); a
-            # non-finite sum (bad values, or a float64 overflow) takes the per-Gaussian check,
-            # which names the culprits. 10x faster than that check on clean data (~0.1 ms per field).
-            with np.errstate(over="ignore", invalid="ignore"):
-                total = np.sum(arr, dtype=np.float64)
-            if arr.size == 0 or np.isfinite(total):  # 0 Gaussians: nothing to check
+            # one flat test on clean data (the avatar's 100k Gaussians: ~0.3 ms for every field in
+            # float32, 3x faster than a float64 sum, 10x faster than the per-Gaussian test); only
+            # bad data takes the per-Gaussian test, which names the culprits
+            if arr.size == 0 or (arr.dtype.kind == "f" and np.isfinite(arr).all()):  # 0 Gaussians: nothing to check
                 continue
             bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
             if bad.any():
@@ -134,9 +132,11 @@ class Gaussians:
                 raise InputError(f"{prefix}{name}: expected finite values, found NaN/inf in {idx.size} Gaussians "
                                  f"(indices {idx[:8].tolist()}{'...' if idx.size > 8 else ''})")
         q = self._np(self.quats)
-        qn2 = np.zeros(q.shape[0])
-        for j in range(q.shape[1]):  # column by column: numpy's per-row reduction is ~7x slower
-            c = q[:, j].astype(np.float64)
+        # column by column (numpy's per-row reduction is ~7x slower), in float32 for float32
+        # quaternions (1e-24 is a normal float32; no conversion pass)
+        qn2 = np.zeros(q.shape[0], dtype=np.float32 if q.dtype == np.float32 else np.float64)
+        for j in range(q.shape[1]):
+            c = q[:, j]
             qn2 += c * c
         bad = qn2 < 1e-24  # |q| < 1e-12
         if bad.any():
