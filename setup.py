@@ -1,8 +1,8 @@
-"""Build the optional C++ tile compositor of the fast splat renderer.
+"""Build the optional C++ kernels: the fast splat renderer's and the eye slices' scatter.
 
 Everything else about the package lives in pyproject.toml. The extension is ``optional``:
 when no C++17 compiler is available the install still succeeds with a warning, and
-``holo_viewer.render.fast`` falls back to its numba kernel.
+``holo_viewer.render.fast`` and ``holo_viewer.display.slices`` fall back to their numba kernels.
 """
 
 import platform
@@ -39,12 +39,16 @@ else:
 setup(
     ext_modules=[
         Extension(
-            "holo_viewer.render._splat_cpp",
-            sources=["holo_viewer/render/_cpu/splat.cpp"],
+            name,
+            sources=[source],
+            include_dirs=["holo_viewer/_cpu"],
+            depends=["holo_viewer/_cpu/hv_common.h"],
             extra_compile_args=args,
             extra_link_args=link,
             language="c++",
             optional=True,
         )
+        for name, source in (("holo_viewer.render._splat_cpp", "holo_viewer/render/_cpu/splat.cpp"),
+                             ("holo_viewer.display._slices_cpp", "holo_viewer/display/_cpu/slices.cpp"))
     ]
 )

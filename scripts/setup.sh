@@ -39,7 +39,12 @@ if [ ! -x "$VENV/bin/python" ]; then
   echo "setup: creating $VENV"
   "$PYTHON" -m venv "$VENV"
 fi
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+# reinstall when the package metadata or a compiled kernel's source is newer than the last install
+stale=""
+for f in pyproject.toml setup.py holo_viewer/_cpu/*.h holo_viewer/*/_cpu/*.cpp; do
+  [ -f "$f" ] && [ "$f" -nt "$stamp" ] && stale=1
+done
+if [ ! -f "$stamp" ] || [ -n "$stale" ]; then
   echo "setup: installing holo_viewer[dev] into $VENV (torch==2.13.0 CPU)"
   "$VENV/bin/python" -m pip install -q --upgrade pip
   "$VENV/bin/python" -m pip install -q "torch==2.13.0"

@@ -40,6 +40,7 @@ from holo_viewer.display.cameras import make_quilt_cameras  # noqa: E402
 from holo_viewer.display.lenticular import Interleaver  # noqa: E402
 from holo_viewer.display.simulate import VirtualDisplay  # noqa: E402
 from holo_viewer.display.slices import SubpixelBuckets, scatter_slices  # noqa: E402
+from holo_viewer.display.slices import cpp_available as slices_cpp_available  # noqa: E402
 from holo_viewer.errors import InputError, RenderError  # noqa: E402
 from holo_viewer.pipeline.live import LiveConfig, LiveRenderer  # noqa: E402
 from holo_viewer.render import RenderConfig, crossed_slit as cs, fast  # noqa: E402
@@ -74,7 +75,7 @@ def test_slice_column_is_the_projection_of_the_camera_looked_through(rig, angle,
     rng = np.random.default_rng(0)
     means = rng.normal(scale=0.05, size=(200, 3))
     X, Y, Z = _rig_frame(rig, means)
-    for eye in cs.eye_slices(rig, eyes.TrackedViewer(angle, distance)):
+    for eye in cs.eye_slices(rig, eyes.eye_positions(eyes.TrackedViewer(angle, distance))):
         xi = cs.slice_columns(rig, eye, X, Z)
         assert np.isfinite(xi).all()
         for i in range(0, 200, 37):
@@ -91,7 +92,7 @@ def test_slice_column_is_the_projection_of_the_camera_looked_through(rig, angle,
     viewer = eyes.TrackedViewer(angle, distance)
     t = eyes.eye_view_coordinates(SMALL, viewer, len(rig.tx))
     x_native = (np.arange(SMALL.screen_w) + 0.5) / SMALL.screen_w * rig.width
-    for e, eye in enumerate(cs.eye_slices(rig, viewer)):
+    for e, eye in enumerate(cs.eye_slices(rig, eyes.eye_positions(viewer))):
         alpha = np.radians((t[e] / (len(rig.tx) - 1) - 0.5) * SMALL.view_cone)
         np.testing.assert_allclose(eye.A + eye.B * x_native, np.tan(alpha), atol=1e-12)
 
@@ -100,8 +101,9 @@ def test_transform_moves_centres_and_covariances_to_the_slit_footprint(rig):
     g = _scene(1, 300)
     gn = g.numpy()
     splats = _sorted_splats(g, rig)
-    eye = cs.eye_slices(rig, eyes.TrackedViewer(5.0, 0.55))[1]
-    pcs, covs, cols = cs.transform_splats(rig, cs.eye_slices(rig, eyes.TrackedViewer(5.0, 0.55)), splats)
+    both = cs.eye_slices(rig, eyes.eye_positions(eyes.TrackedViewer(5.0, 0.55)))
+    eye = both[1]
+    pcs, covs, cols = cs.transform_splats(rig, both, splats)
     pc, cov, col = pcs[1], covs[1], cols[1]
     m = splats.m
     order = splats.order
@@ -158,7 +160,7 @@ def test_warp_formula_maps_a_view_pixel_to_its_slice_column(rig):
     rng = np.random.default_rng(2)
     means = rng.normal(scale=0.05, size=(100, 3))
     X, _, Z = _rig_frame(rig, means)
-    es = cs.eye_slices(rig, eyes.TrackedViewer(-4.0, 0.7))
+    es = cs.eye_slices(rig, eyes.eye_positions(eyes.TrackedViewer(-4.0, 0.7)))
     kv, gh = cs.warp_coefficients(rig, es)
     for e, eye in enumerate(es):
         xi = cs.slice_columns(rig, eye, X, Z)
@@ -193,7 +195,7 @@ def test_slice_rig_refuses_other_cameras(cams):
 def test_rendered_slice_matches_each_columns_own_camera(cams, rig):
     g = _scene(3, 4000, log_scale=(-6.5, -5.0))
     viewer = eyes.TrackedViewer(6.0, 0.5)
-    es = cs.eye_slices(rig, viewer)
+    es = cs.eye_slices(rig, eyes.eye_positions(viewer))
     out = np.zeros((len(es), cams.height, cams.width, 3), np.float32)
     tm = np.zeros((len(cams),) + fast.tile_grid(cams), bool)
     fast.render(g, cams, RenderConfig(), tile_mask=tm, passes=cs.slice_pass(rig, es, out))
@@ -213,7 +215,7 @@ def test_slit_views_are_the_moved_splats_drawn_by_pinholes(cams, rig):
     drawn by pinholes (SplatPass): bit for bit in C++; numba's kernels to the compositors' 1e-4.
     Views rendered in the same pass keep their exact tiles."""
     g = _scene(3, 4000)
-    es = cs.eye_slices(rig, eyes.TrackedViewer(6.0, 0.5))
+    es = cs.eye_slices(rig, eyes.eye_positions(eyes.TrackedViewer(6.0, 0.5)))
     tm = np.zeros((len(cams),) + fast.tile_grid(cams), bool)
     ref = np.zeros((2, cams.height, cams.width, 3), np.float32)
     fast.render(g, cams, RenderConfig(), tile_mask=tm, passes=cs.slice_pass(rig, es, ref))
@@ -290,7 +292,7 @@ def buckets(request):
 
 def _tables(rig, viewer, seed, mode, motion=0.01):
     rng = np.random.default_rng(seed)
-    es = cs.eye_slices(rig, viewer)
+    es = cs.eye_slices(rig, eyes.eye_positions(viewer))
     H, W = rig.height, rig.width
     yy, xx = np.mgrid[0:H, 0:W]
     imgs = np.stack([np.stack([0.5 + 0.4 * np.sin(xx / (3 + e + c) + rng.uniform(0, 6)) * np.cos(yy / 7)
@@ -302,7 +304,7 @@ def _tables(rig, viewer, seed, mode, motion=0.01):
     return segs, bounds, imgs, wm, kv, gh
 
 
-SCATTER_KERNELS = ["numba"] + (["cpp", "cpp-scalar"] if fast.cpp_available() else [])
+SCATTER_KERNELS = ["numba"] + (["cpp", "cpp-scalar"] if slices_cpp_available() else [])
 
 
 @pytest.mark.parametrize("angle,distance", [(0.0, 0.6), (-13.0, 0.5), (9.0, 1.2)])

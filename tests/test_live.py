@@ -295,3 +295,22 @@ def test_panel_window_under_xvfb(tmp_path, xvfb_server):
             pytest.skip("no xrandr/xdpyinfo to list the virtual monitor")
         assert r.returncode == 0, r.stderr[-2000:]
         assert _check_session(out)["meta"]["displayed_frames"] == 2
+
+
+def test_auto_render_mode_renders_for_the_eyes_only_while_a_face_is_tracked():
+    """The live command's default: tracked frames while the tracker sees a face, all views otherwise."""
+    from holo_viewer.live.render import LiveRenderer
+
+    r = LiveRenderer(tile_scale=0.1, native=True, preview=False, mode="auto")
+    calls = []
+    frame = r._live.frame
+    r._live.frame = lambda g, viewer, mode: calls.append((viewer, mode)) or frame(g, viewer, mode)
+    listener = {"expr": np.zeros(10)}
+    assert r.render(listener, 0.3, (), 5.0, 0.7, True).native.shape == (2048, 1536, 3)
+    r.render(listener, 0.3, (), 5.0, 0.7, False)
+    assert calls[0][1] == "tracked" and calls[0][0].angle_deg == 5.0 and calls[0][0].distance_m == 0.7
+    assert calls[1] == (None, "all_views")
+    from holo_viewer.errors import InputError
+
+    with pytest.raises(InputError, match="auto"):
+        LiveRenderer(tile_scale=0.1, mode="eyes")

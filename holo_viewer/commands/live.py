@@ -29,10 +29,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--no-preview", action="store_true", help="no desktop preview window")
     out.add_argument("--tile-scale", type=float, default=1.0, help="quilt tile size relative to the calibration's "
                      "(e.g. 0.5 renders 4x fewer pixels; default 1)")
-    out.add_argument("--render-mode", choices=("cone", "tracked", "all_views"), default="cone",
-                     help="cone: the 48 cameras follow the tracked viewer (Algorithm 1's viewer angle and distance; "
-                     "default); tracked: default cone, only what the tracked eyes see is re-rendered (faster); "
-                     "all_views: default cone, every 5th view rendered and the others warped by depth (fastest untracked)")
+    out.add_argument("--render-mode", choices=("auto", "cone", "tracked", "all_views"), default="auto",
+                     help="auto (default): tracked while a face is tracked, all_views otherwise; tracked: the "
+                     "panel's default cone, only the subpixels the tracked eyes receive redrawn, from one image per "
+                     "eye (fastest); all_views: default cone, every 5th view rendered and the others warped by depth; "
+                     "cone: the 48 cameras follow the tracked viewer (Algorithm 1's viewer angle and distance), the "
+                     "whole quilt each frame (slowest)")
     out.add_argument("--video-fps", type=float, default=10.0, help="frame rate written into native.mp4 (one frame "
                      "per displayed frame; default 10)")
     out.add_argument("--record-video", action="store_true", help="also keep the webcam video (off by default: "

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["SubpixelBuckets", "scatter_slices"]
+__all__ = ["SubpixelBuckets", "scatter_slices", "cpp_available"]
 
 
 class SubpixelBuckets:
@@ -260,18 +260,29 @@ def scatter_slices(native: np.ndarray, buckets: SubpixelBuckets, segments: np.nd
             buckets.tex_col, buckets.view1, buckets.w8, buckets.mode == "blend", segs,
             np.ascontiguousarray(bounds, dtype=np.float32), np.float32(reach), images.reshape(E, images.shape[1], -1),
             wmaps, np.ascontiguousarray(kv, dtype=np.float32), np.ascontiguousarray(gh, dtype=np.float32), int(iters))
-    from ..render.fast import _cpp
-
     cpp = _cpp() if kernel != "numba" else None
-    if kernel.startswith("cpp") and (cpp is None or not hasattr(cpp, "scatter_slices")):
-        raise InputError("kernel 'cpp': the C++ extension holo_viewer.render._splat_cpp is not built")
+    if kernel.startswith("cpp") and cpp is None:
+        raise InputError("kernel 'cpp': the C++ extension holo_viewer.display._slices_cpp is not built")
     counts = np.zeros(H, dtype=np.int64)
-    if cpp is not None and hasattr(cpp, "scatter_slices"):
+    if cpp is not None:
         cpp.scatter_slices(*args, counts, H, W * 3, buckets.n_views, E, images.shape[1], images.shape[2], _threads(),
                            1 if kernel == "cpp-scalar" else 0)
     else:
         _scatter(*args, counts)
     return int(counts.sum())
+
+
+def _cpp():  # noqa: ANN202
+    try:
+        from . import _slices_cpp  # type: ignore[attr-defined]
+    except ImportError:
+        return None
+    return _slices_cpp
+
+
+def cpp_available() -> bool:
+    """True when the compiled kernel (``holo_viewer.display._slices_cpp``) is importable."""
+    return _cpp() is not None
 
 
 def _threads() -> int:

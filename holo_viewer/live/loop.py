@@ -328,7 +328,7 @@ class LiveSession:
                 frame, lf, pain, named, _ready = item
                 _, ang, dist, tracked = self._viewer.get()
                 if renderer is not None:
-                    res = renderer.render(lf, pain, named, ang, dist)
+                    res = renderer.render(lf, pain, named, ang, dist, tracked)
                     self.render_ms.append(1000 * res.seconds)
                     if res.native is not None and cfg.write_native_video:
                         if writer is None:

@@ -1,8 +1,8 @@
 """Re-render a recorded session (the same renderer, the recorded inputs: deterministic).
 
-A session recorded with ``--render-mode tracked`` is replayed with every view of the same default
-cone (``all_views`` with every view rendered: what the tracked frames converge to, without
-depending on earlier frames).
+A session recorded with ``--render-mode tracked``, ``auto`` or ``all_views`` is replayed with every
+view of the same default cone (``all_views`` with every view rendered: what those frames
+approximate, without depending on earlier frames).
 """
 
 from __future__ import annotations
@@ -25,7 +25,8 @@ def replay_frames(session: str | os.PathLike, tile_scale: float | None = None, e
     meta, tr = load_session(session)
     scale = float(tile_scale if tile_scale is not None else meta.get("settings", {}).get("tile_scale", 1.0))
     mode = str(meta.get("settings", {}).get("render_mode", "cone"))
-    renderer = LiveRenderer(tile_scale=scale, native=True, preview=False, mode="all_views" if mode == "tracked" else mode,
+    renderer = LiveRenderer(tile_scale=scale, native=True, preview=False,
+                            mode="all_views" if mode in ("tracked", "auto") else mode,
                             view_step=1)  # offline: every view rendered, no synthesis
     scenario = None
     sc = meta.get("settings", {}).get("scenario")

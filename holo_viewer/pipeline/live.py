@@ -461,7 +461,7 @@ class LiveRenderer:
 
     def _tracked_slices(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
         """A tracked frame from one crossed-slit image per eye (see the module docstring)."""
-        from ..display.eyes import eye_view_bounds, reach_views
+        from ..display.eyes import eye_positions, eye_view_bounds, reach_views
         from ..display.slices import SubpixelBuckets, scatter_slices
         from ..render import crossed_slit, fast
 
@@ -472,7 +472,7 @@ class LiveRenderer:
             self._buckets = SubpixelBuckets(self.interleaver, V, H, W)
             self._slices = np.zeros((2, H, W, 3), dtype=np.float32)
             self._slice_w = np.zeros((2, H, W), dtype=np.float32)
-        eyes_ = crossed_slit.eye_slices(rig, viewer)
+        eyes_ = crossed_slit.eye_slices(rig, eye_positions(viewer))
         E = len(eyes_)
         c = self.config
         segments = self.tracked_segments(viewer)

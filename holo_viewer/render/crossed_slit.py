@@ -148,12 +148,11 @@ def slice_rig(cameras: Cameras, calibration: Any, tol: float = 1e-6) -> SliceRig
                     near=float(cameras.near))
 
 
-def eye_slices(rig: SliceRig, viewer: Any) -> list[EyeSlice]:
-    """The slices of a :class:`~holo_viewer.display.eyes.TrackedViewer`'s eyes (left first)."""
-    from ..display.eyes import eye_positions
-
+def eye_slices(rig: SliceRig, positions: Any) -> list[EyeSlice]:
+    """The slices of eyes at ``positions``: (angle_deg, distance_m) pairs, e.g.
+    :func:`holo_viewer.display.eyes.eye_positions` of a tracked viewer (left eye first)."""
     out = []
-    for angle, d in eye_positions(viewer):
+    for angle, d in positions:
         xe = d * math.tan(math.radians(angle))
         out.append(EyeSlice(A=(xe + 0.5 * rig.panel_width_m) / d, B=-rig.panel_width_m / (rig.width * d),
                             xe=xe, d=d))

@@ -26,20 +26,14 @@
 #include <thread>
 #include <vector>
 
-#if defined(__GNUC__) || defined(__clang__)
-#define HV_ALWAYS_INLINE __attribute__((always_inline))
-#else
-#define HV_ALWAYS_INLINE
-#endif
-
-#if (defined(__x86_64__) || defined(_M_X64)) && (defined(__GNUC__) || defined(__clang__))
-#include <immintrin.h>
-#define HV_HAVE_AVX2_PATH 1
-#else
-#define HV_HAVE_AVX2_PATH 0
-#endif
+#include "hv_common.h"
 
 namespace {
+
+using hv::cpu_has_avx2;
+using hv::cpu_has_avx512;
+using hv::need;
+using hv::parallel_for;
 
 // One 64-byte record per (view, splat): floats u, v, conic A, B, C, opacity, r, g, b,
 // q = 2 ln(opacity/threshold), then the int32 pixel box x0, x1, y0, y1 (fast_kernels.py REC_STRIDE, BOX_AT).
@@ -544,7 +538,6 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
 // path up to float rounding; 256-bit halves of the 512-bit ops on CPUs that split them.
 // GCC 12's avx512fintrin.h warns about its own _mm512_undefined_ps (a false positive)
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-#define HV_TARGET_AVX512 __attribute__((target("avx512f,avx512vl,avx512bw,avx512dq,avx2,fma,popcnt")))
 
 HV_TARGET_AVX512 inline __m512 fast_exp2_16(__m512 t) {
     // same polynomial as fast_exp2_8; scalef applies 2^n
@@ -651,20 +644,6 @@ HV_TARGET_AVX512 int64_t tile_avx512(const Job& J, int v, int t, TileBuf& b) {
     return nbl;
 }
 
-bool cpu_has_avx512() {
-    __builtin_cpu_init();
-    return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") &&
-           __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512dq") &&
-           __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
-}
-
-bool cpu_has_avx2() {
-    __builtin_cpu_init();
-    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
-}
-#else
-bool cpu_has_avx2() { return false; }
-bool cpu_has_avx512() { return false; }
 #endif
 
 enum class Path { scalar, avx2, avx512 };
@@ -702,14 +681,6 @@ void run_jobs(const Job& J, int n_threads, Path path) {
     for (auto& th : pool) th.join();
 }
 
-bool need(Py_buffer& b, Py_ssize_t n_bytes, const char* name) {
-    if (b.len < n_bytes) {
-        PyErr_Format(PyExc_ValueError, "_splat_cpp.composite: buffer %s: expected >= %zd bytes, found %zd",
-                     name, n_bytes, b.len);
-        return false;
-    }
-    return true;
-}
 
 PyObject* composite(PyObject*, PyObject* args) {
     Py_buffer rec{}, off{}, base{}, ids{}, bg{}, out{}, blends{}, sel{};
@@ -872,19 +843,6 @@ inline void entries_of(const BinJob& B, int v, int k, const int32_t* pre, F&& f)
     }
 }
 
-// f(i) for i in [0, n), handed to n_threads threads (the caller's included) from a counter.
-template <typename F>
-void parallel_for(int n, int n_threads, F&& f) {
-    std::atomic<int> next{0};
-    auto worker = [&]() {
-        for (int i; (i = next.fetch_add(1)) < n;) f(i);
-    };
-    n_threads = std::max(1, std::min(n_threads, n));
-    std::vector<std::thread> pool;
-    for (int i = 1; i < n_threads; ++i) pool.emplace_back(worker);
-    worker();
-    for (auto& th : pool) th.join();
-}
 
 // ---- fused projection + binning (fast.py uses it with the C++ kernels) ------------------------
 // Same forward pass as fast_kernels.project_views (float64, same formulas and order of
@@ -1523,319 +1481,6 @@ PyObject* prep_sorted(PyObject*, PyObject* args) {
     Py_RETURN_NONE;
 }
 
-// ---- eye slices -> native subpixels (holo_viewer/display/slices.py; the same float32 expressions,
-// in the same order, as its numba kernel: the build has -ffp-contract=off, and every clamp is a
-// select with the AVX-512 max/min semantics, NaN -> the bound, so the two agree bit for bit).
-struct SliceJob {
-    uint8_t* native;                       // (H, W3)
-    const int16_t* pos;                    // (H W3,) per row sorted by (view, position)
-    const float* zeta;                     // (H W3,) lens coordinate of each listed subpixel
-    const int32_t* off;                    // (H, V + 1)
-    const int32_t *tex_row, *tex_col;      // (H,), (W,)
-    const int16_t* view1;                  // blend: (H W3,) upper view (native order)
-    const uint16_t* w8;                    // blend: (H W3,) weight of the upper view, 1/256
-    const int64_t* segs;                   // (S, 4) eye, view, x0, x1
-    const float* bounds;                   // (E, 2, W) t_lo, t_hi
-    const float *images, *wmaps, *kv, *gh; // (E, hv, wv, 3), (E, hv, wv), (E, V, 2), (E, 2)
-    int64_t* counts;                       // (H,)
-    float reach;
-    int blend, n_segs, iters, H, W3, V, E, hv, wv;
-};
-
-inline void slice_column(float xi, int wv, int& p, float& f) {
-    float xm = xi - 0.5f;
-    xm = xm > -1.0f ? xm : -1.0f;
-    xm = xm < float(wv) ? xm : float(wv);
-    p = int(std::floor(xm));
-    p = p > 0 ? p : 0;
-    p = p < wv - 2 ? p : wv - 2;
-    f = xm - float(p);
-    f = f > 0.0f ? f : 0.0f;
-    f = f < 1.0f ? f : 1.0f;
-}
-
-inline float slice_value(const float* img, const float* wrow, int ch, float uc, float d0, float d1, float g,
-                         float h, int iters, int wv) {
-    float w = wrow[int(uc)];
-    float xi = (uc + d0 + d1 * w) / (g + h * w);
-    int p;
-    float f;
-    for (int it = 0; it < iters; ++it) {
-        slice_column(xi, wv, p, f);
-        const float w0 = wrow[p];
-        w = w0 + f * (wrow[p + 1] - w0);
-        xi = (uc + d0 + d1 * w) / (g + h * w);
-    }
-    slice_column(xi, wv, p, f);
-    const float a = img[p * 3 + ch];
-    float v = std::nearbyint((a + f * (img[p * 3 + 3 + ch] - a)) * 255.0f);
-    v = v > 0.0f ? v : 0.0f;
-    return v < 255.0f ? v : 255.0f;
-}
-
-inline float slice_gap(float zeta, float lo, float hi, float n) {
-    float best = INFINITY;
-    for (int s = 0; s < 3; ++s) {
-        const float z = zeta + float(s - 1) * n;
-        const float a = lo - z, b = z - hi;
-        const float gap = a > b ? a : b;
-        best = gap < best ? gap : best;
-    }
-    return best;
-}
-
-// searchsorted (left) of value in the sorted int16 run [lo, hi)
-inline int lower_bound16(const int16_t* row, int lo, int hi, int value) {
-    while (lo < hi) {
-        const int mid = (lo + hi) >> 1;
-        if (row[mid] < value) lo = mid + 1; else hi = mid;
-    }
-    return lo;
-}
-
-// subpixels [a, b) of row y's bucket of view k, from eye e's slice; returns how many were written
-int64_t slice_run_scalar(const SliceJob& J, int y, int e, int k, int a, int b) {
-    const int64_t base = int64_t(y) * J.W3;
-    const int ty = J.tex_row[y];
-    const int W = J.W3 / 3;
-    const float* img = J.images + (int64_t(e) * J.hv + ty) * J.wv * 3;
-    const float* wrow = J.wmaps + (int64_t(e) * J.hv + ty) * J.wv;
-    const float* tlo = J.bounds + int64_t(e) * 2 * W;
-    const float* thi = tlo + W;
-    const float* kve = J.kv + int64_t(e) * J.V * 2;
-    const float g = J.gh[2 * e], h = J.gh[2 * e + 1], n = float(J.V);
-    int64_t cnt = 0;
-    for (int i = a; i < b; ++i) {
-        const int p = J.pos[base + i];
-        const int x = p / 3;
-        const float z = J.zeta[base + i];
-        const float gap = slice_gap(z, tlo[x], thi[x], n);
-        if (!(gap < J.reach)) continue;
-        bool mine = true;  // a subpixel both eyes receive: the nearer eye's
-        for (int o = 0; o < J.E; ++o) {
-            if (o == e) continue;
-            const float* olo = J.bounds + int64_t(o) * 2 * W;
-            const float go = slice_gap(z, olo[x], olo[W + x], n);
-            if (go < gap || (go == gap && o < e)) mine = false;
-        }
-        if (!mine) continue;
-        const int ch = p - 3 * x;
-        const float uc = float(J.tex_col[x]) + 0.5f;
-        const float v0 = slice_value(img, wrow, ch, uc, kve[2 * k], kve[2 * k + 1], g, h, J.iters, J.wv);
-        if (J.blend) {
-            const int64_t sidx = base + p;
-            const int k1 = J.view1[sidx];
-            const float v1 = k1 == k ? v0 : slice_value(img, wrow, ch, uc, kve[2 * k1], kve[2 * k1 + 1], g, h,
-                                                        J.iters, J.wv);
-            const uint32_t ww = J.w8[sidx];
-            J.native[sidx] = uint8_t((uint32_t(v0) * (256 - ww) + uint32_t(v1) * ww + 128) >> 8);
-        } else {
-            J.native[base + p] = uint8_t(v0);
-        }
-        ++cnt;
-    }
-    return cnt;
-}
-
-#if HV_HAVE_AVX2_PATH
-HV_TARGET_AVX512 inline void slice_column16(__m512 xi, __m512 wvf, __m512i wv2, __m512i& p, __m512& f) {
-    __m512 xm = _mm512_sub_ps(xi, _mm512_set1_ps(0.5f));
-    xm = _mm512_max_ps(xm, _mm512_set1_ps(-1.0f));  // (xm > -1) ? xm : -1, NaN -> -1
-    xm = _mm512_min_ps(xm, wvf);
-    p = _mm512_cvttps_epi32(_mm512_floor_ps(xm));
-    p = _mm512_min_epi32(_mm512_max_epi32(p, _mm512_setzero_si512()), wv2);
-    f = _mm512_sub_ps(xm, _mm512_cvtepi32_ps(p));
-    f = _mm512_min_ps(_mm512_max_ps(f, _mm512_setzero_ps()), _mm512_set1_ps(1.0f));
-}
-
-HV_TARGET_AVX512 inline __m512 slice_gap16(__m512 z0, __m512 lo, __m512 hi, __m512 n) {
-    __m512 best = _mm512_set1_ps(INFINITY);
-    for (int s = 0; s < 3; ++s) {
-        const __m512 z = _mm512_add_ps(z0, _mm512_mul_ps(_mm512_set1_ps(float(s - 1)), n));
-        const __m512 gap = _mm512_max_ps(_mm512_sub_ps(lo, z), _mm512_sub_ps(z, hi));
-        best = _mm512_min_ps(gap, best);
-    }
-    return best;
-}
-
-// One native row in nearest mode, 16 subpixels at a time: the row's candidates of every segment
-// are first copied into one list (position, lens coordinate, eye, warp coefficients), so the long
-// dependency chain of a warp (gather, divide, floor, gather, ...) overlaps across many vectors
-// instead of stalling on each segment's one or two (2-3x faster than vectors per segment, measured).
-struct SliceRowBuf {
-    std::vector<int32_t> p, e;
-    std::vector<float> z, d0, d1;
-    void reserve(size_t n) {
-        if (p.size() < n + 16) { p.resize(n + 16); e.resize(n + 16); z.resize(n + 16); d0.resize(n + 16); d1.resize(n + 16); }
-    }
-};
-
-HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf& R) {
-    const int64_t base = int64_t(y) * J.W3;
-    const int32_t* o = J.off + int64_t(y) * (J.V + 1);
-    const int W = J.W3 / 3;
-    R.reserve(size_t(J.W3) * 2);
-    int n = 0;
-    for (int j = 0; j < J.n_segs; ++j) {  // gather the row's candidates
-        const int64_t* sg = J.segs + 4 * j;
-        const int e = int(sg[0]), k = int(sg[1]);
-        const int a = lower_bound16(J.pos + base, o[k], o[k + 1], int(3 * sg[2]));
-        const int b = lower_bound16(J.pos + base, a, o[k + 1], int(3 * sg[3]));
-        if (size_t(n + (b - a) + 16) > R.p.size()) R.reserve(size_t(n + (b - a)) * 2);
-        const float d0 = J.kv[(int64_t(e) * J.V + k) * 2], d1 = J.kv[(int64_t(e) * J.V + k) * 2 + 1];
-        for (int i = a; i < b; ++i, ++n) {
-            R.p[n] = J.pos[base + i];
-            R.z[n] = J.zeta[base + i];
-            R.e[n] = e;
-            R.d0[n] = d0;
-            R.d1[n] = d1;
-        }
-    }
-    const int ty = J.tex_row[y];
-    const int64_t plane = int64_t(J.hv) * J.wv;
-    const __m512i wrow0 = _mm512_set1_epi32(int32_t(int64_t(ty) * J.wv));  // row ty's first pixel in a slice
-    const __m512i eplane = _mm512_set1_epi32(int32_t(plane));
-    const __m512 wvf = _mm512_set1_ps(float(J.wv)), reach = _mm512_set1_ps(J.reach), nv = _mm512_set1_ps(float(J.V));
-    const __m512i wv2 = _mm512_set1_epi32(J.wv - 2), two_w = _mm512_set1_epi32(2 * W), one = _mm512_set1_epi32(1);
-    const __m512i three = _mm512_set1_epi32(3);
-    alignas(64) int32_t pv[16], vv[16];
-    int64_t cnt = 0;
-    for (int i = 0; i < n; i += 16) {
-        const int len = std::min(16, n - i);
-        __mmask16 m = len == 16 ? __mmask16(0xFFFF) : __mmask16((1u << len) - 1);
-        const __m512i p = _mm512_maskz_loadu_epi32(m, R.p.data() + i);
-        const __m512i e = _mm512_maskz_loadu_epi32(m, R.e.data() + i);
-        const __m512 z0 = _mm512_maskz_loadu_ps(m, R.z.data() + i);
-        const __m512i x = _mm512_srli_epi32(_mm512_mullo_epi32(p, _mm512_set1_epi32(43691)), 17);  // p / 3
-        const __m512i ch = _mm512_sub_epi32(p, _mm512_mullo_epi32(x, three));
-        const __m512i bx = _mm512_add_epi32(_mm512_mullo_epi32(e, two_w), x);  // bounds[e, 0, x]
-        const __m512 best = slice_gap16(z0, _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, bx, J.bounds, 4),
-                                        _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m,
-                                                                 _mm512_add_epi32(bx, _mm512_set1_epi32(W)), J.bounds, 4),
-                                        nv);
-        m &= _mm512_cmp_ps_mask(best, reach, _CMP_LT_OQ);
-        for (int oe = 0; m && oe < J.E; ++oe) {  // a subpixel both eyes receive: the nearer eye's
-            const __mmask16 other = m & _mm512_cmpneq_epi32_mask(e, _mm512_set1_epi32(oe));
-            if (!other) continue;
-            const __m512i ox = _mm512_add_epi32(_mm512_set1_epi32(oe * 2 * W), x);
-            const __m512 go = slice_gap16(z0, _mm512_mask_i32gather_ps(_mm512_setzero_ps(), other, ox, J.bounds, 4),
-                                          _mm512_mask_i32gather_ps(_mm512_setzero_ps(), other,
-                                                                   _mm512_add_epi32(ox, _mm512_set1_epi32(W)), J.bounds, 4),
-                                          nv);
-            const __mmask16 lower = _mm512_cmpgt_epi32_mask(e, _mm512_set1_epi32(oe));  // oe < e
-            m &= ~(other & (_mm512_cmp_ps_mask(go, best, _CMP_LT_OQ) | (lower & _mm512_cmp_ps_mask(go, best, _CMP_EQ_OQ))));
-        }
-        if (!m) continue;
-        const __m512 d0 = _mm512_maskz_loadu_ps(m, R.d0.data() + i), d1 = _mm512_maskz_loadu_ps(m, R.d1.data() + i);
-        const __m512 g = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_slli_epi32(e, 1), J.gh, 4);
-        const __m512 h = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_add_epi32(_mm512_slli_epi32(e, 1), one),
-                                                  J.gh, 4);
-        const __m512i rowbase = _mm512_add_epi32(_mm512_mullo_epi32(e, eplane), wrow0);  // slice e, row ty
-        const __m512i u = _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), m, x, J.tex_col, 4);
-        const __m512 uc = _mm512_add_ps(_mm512_cvtepi32_ps(u), _mm512_set1_ps(0.5f));
-        __m512 w = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_add_epi32(rowbase, u), J.wmaps, 4);
-        __m512 xi = _mm512_div_ps(_mm512_add_ps(_mm512_add_ps(uc, d0), _mm512_mul_ps(d1, w)),
-                                  _mm512_add_ps(g, _mm512_mul_ps(h, w)));
-        __m512i q;
-        __m512 f;
-        for (int it = 0; it < J.iters; ++it) {
-            slice_column16(xi, wvf, wv2, q, f);
-            const __m512i at = _mm512_add_epi32(rowbase, q);
-            const __m512 w0 = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, at, J.wmaps, 4);
-            const __m512 w1 = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_add_epi32(at, one), J.wmaps, 4);
-            w = _mm512_add_ps(w0, _mm512_mul_ps(f, _mm512_sub_ps(w1, w0)));
-            xi = _mm512_div_ps(_mm512_add_ps(_mm512_add_ps(uc, d0), _mm512_mul_ps(d1, w)),
-                               _mm512_add_ps(g, _mm512_mul_ps(h, w)));
-        }
-        slice_column16(xi, wvf, wv2, q, f);
-        const __m512i at = _mm512_add_epi32(_mm512_mullo_epi32(_mm512_add_epi32(rowbase, q), three), ch);
-        const __m512 va = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, at, J.images, 4);
-        const __m512 vb = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_add_epi32(at, three), J.images, 4);
-        __m512 v = _mm512_roundscale_ps(_mm512_mul_ps(_mm512_add_ps(va, _mm512_mul_ps(f, _mm512_sub_ps(vb, va))),
-                                                      _mm512_set1_ps(255.0f)),
-                                        _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-        v = _mm512_min_ps(_mm512_max_ps(v, _mm512_setzero_ps()), _mm512_set1_ps(255.0f));
-        _mm512_store_si512(vv, _mm512_cvttps_epi32(v));
-        _mm512_store_si512(pv, p);
-        for (unsigned bits = m; bits; bits &= bits - 1) {
-            const int l = __builtin_ctz(bits);
-            J.native[base + pv[l]] = uint8_t(vv[l]);
-            ++cnt;
-        }
-    }
-    return cnt;
-}
-#endif
-
-PyObject* scatter_slices(PyObject*, PyObject* args) {
-    Py_buffer native{}, pos{}, zeta{}, off{}, tex_row{}, tex_col{}, view1{}, w8{}, segs{}, bounds{}, images{},
-        wmaps{}, kv{}, gh{}, counts{};
-    SliceJob J{};
-    int blend, n_threads, mode = 0;
-    if (!PyArg_ParseTuple(args, "w*y*y*y*y*y*y*y*py*y*fy*y*y*y*iw*iiiiiiii|i", &native, &pos, &zeta, &off, &tex_row,
-                          &tex_col, &view1, &w8, &blend, &segs, &bounds, &J.reach, &images, &wmaps, &kv, &gh,
-                          &J.iters, &counts, &J.H, &J.W3, &J.V, &J.E, &J.hv, &J.wv, &n_threads, &mode))
-        return nullptr;
-    J.blend = blend;
-    const int64_t nsub = int64_t(J.H) * J.W3;
-    J.n_segs = int(segs.len / (4 * 8));
-    bool ok = J.H > 0 && J.W3 > 0 && J.W3 % 3 == 0 && J.V > 0 && J.E > 0 && J.hv > 0 && J.wv >= 2 && J.iters >= 0 &&
-              J.W3 < 32768 && segs.len % 32 == 0;
-    if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.scatter_slices: inconsistent sizes");
-    ok = ok && need(native, nsub, "native") && need(pos, nsub * 2, "positions") && need(zeta, nsub * 4, "zeta") &&
-         need(off, int64_t(J.H) * (J.V + 1) * 4, "offsets") && need(tex_row, int64_t(J.H) * 4, "tex_row") &&
-         need(tex_col, int64_t(J.W3 / 3) * 4, "tex_col") && (!blend || (need(view1, nsub * 2, "view1") &&
-         need(w8, nsub * 2, "w8"))) && need(bounds, int64_t(J.E) * 2 * (J.W3 / 3) * 4, "bounds") &&
-         need(images, int64_t(J.E) * J.hv * J.wv * 12, "images") && need(wmaps, int64_t(J.E) * J.hv * J.wv * 4, "wmaps") &&
-         need(kv, int64_t(J.E) * J.V * 8, "kv") && need(gh, int64_t(J.E) * 8, "gh") && need(counts, int64_t(J.H) * 8, "counts");
-    if (ok) {
-        J.native = (uint8_t*)native.buf; J.pos = (const int16_t*)pos.buf; J.zeta = (const float*)zeta.buf;
-        J.off = (const int32_t*)off.buf; J.tex_row = (const int32_t*)tex_row.buf; J.tex_col = (const int32_t*)tex_col.buf;
-        J.view1 = (const int16_t*)view1.buf; J.w8 = (const uint16_t*)w8.buf; J.segs = (const int64_t*)segs.buf;
-        J.bounds = (const float*)bounds.buf; J.images = (const float*)images.buf; J.wmaps = (const float*)wmaps.buf;
-        J.kv = (const float*)kv.buf; J.gh = (const float*)gh.buf; J.counts = (int64_t*)counts.buf;
-        for (int j = 0; ok && j < J.n_segs; ++j) {  // the tables' texels must lie inside the slices
-            const int64_t* sg = J.segs + 4 * j;
-            ok = sg[0] >= 0 && sg[0] < J.E && sg[1] >= 0 && sg[1] < J.V && sg[2] >= 0 && sg[3] <= J.W3 / 3;
-        }
-        if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.scatter_slices: a segment is outside the tables");
-    }
-    if (ok) {
-        const bool wide = !blend && mode != 1 && cpu_has_avx512();
-        const int chunk = 16;  // rows per work item
-        Py_BEGIN_ALLOW_THREADS
-        parallel_for((J.H + chunk - 1) / chunk, std::max(1, n_threads), [&](int c) {
-#if HV_HAVE_AVX2_PATH
-            if (wide) {
-                SliceRowBuf R;
-                for (int y = c * chunk; y < std::min(J.H, c * chunk + chunk); ++y) J.counts[y] = slice_row_avx512(J, y, R);
-                return;
-            }
-#endif
-            for (int y = c * chunk; y < std::min(J.H, c * chunk + chunk); ++y) {
-                const int64_t base = int64_t(y) * J.W3;
-                const int32_t* o = J.off + int64_t(y) * (J.V + 1);
-                int64_t cnt = 0;
-                for (int j = 0; j < J.n_segs; ++j) {
-                    const int64_t* sg = J.segs + 4 * j;
-                    const int e = int(sg[0]), k = int(sg[1]);
-                    const int a = lower_bound16(J.pos + base, o[k], o[k + 1], int(3 * sg[2]));
-                    const int b = lower_bound16(J.pos + base, a, o[k + 1], int(3 * sg[3]));
-                    cnt += slice_run_scalar(J, y, e, k, a, b);
-                }
-                J.counts[y] = cnt;
-            }
-        });
-        Py_END_ALLOW_THREADS
-    }
-    PyBuffer_Release(&native); PyBuffer_Release(&pos); PyBuffer_Release(&zeta); PyBuffer_Release(&off);
-    PyBuffer_Release(&tex_row); PyBuffer_Release(&tex_col); PyBuffer_Release(&view1); PyBuffer_Release(&w8);
-    PyBuffer_Release(&segs); PyBuffer_Release(&bounds); PyBuffer_Release(&images); PyBuffer_Release(&wmaps);
-    PyBuffer_Release(&kv); PyBuffer_Release(&gh); PyBuffer_Release(&counts);
-    if (!ok) return nullptr;
-    Py_RETURN_NONE;
-}
-
 // Both wait, without the GIL, for a project_bin call that holds the cache.
 PyObject* release_scratch(PyObject*, PyObject*) {
     Py_BEGIN_ALLOW_THREADS
@@ -1884,11 +1529,6 @@ PyMethodDef methods[] = {
      "prep_sorted(order, means, quats, log_scales, opacity, colours, Wrot, pc, cov, mout, op, sh, m, mp, n, c, "
      "float32, n_threads) -> None\n\nholo_viewer.render.fast_kernels.prep_sorted (bit-identical): the splats in depth "
      "order as structures of arrays (row stride mp), camera-frame centres and covariances computed."},
-    {"scatter_slices", scatter_slices, METH_VARARGS,
-     "scatter_slices(native, positions, zeta, offsets, tex_row, tex_col, view1, w8, blend, segments, bounds, "
-     "reach, images, wmaps, kv, gh, iters, counts, H, W3, V, E, hv, wv, n_threads[, mode]) -> None\n\n"
-     "holo_viewer.display.slices' numba kernel (the same float32 expressions): the subpixels of the "
-     "segments that an eye can receive, warped out of the eyes' slices into native. mode 1: scalar only."},
     {"release_scratch", release_scratch, METH_NOARGS,
      "Free the tile counts and (splat, tile) entries project_bin keeps between calls."},
     {"scratch_bytes", scratch_bytes, METH_NOARGS, "Bytes project_bin's kept scratch holds."},
