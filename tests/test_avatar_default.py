@@ -63,6 +63,10 @@ def _opacity_error(gauss: Gaussians, cams: Cameras) -> np.ndarray:
 def test_default_avatar_renders_opaque():
     av = default_avatar()  # 100k, the shipped configuration
     assert av.n_gaussians == 100_000
+    # stored front to back (the renderers' per-frame depth-ordered copies then read in sequence)
+    z = av.rest().numpy().means[:, 2]
+    assert np.all(np.diff(z) <= 0)
+    assert len(av.region) == av.n_gaussians
     W, H = 210, 280  # half of the 420 x 560 quilt tile (same angular Gaussian size relative to pixels x2)
     f = 0.5 * H / np.tan(np.deg2rad(14))
     w2c = [look_at([0.6 * np.sin(np.deg2rad(a)), -0.01, 0.6 * np.cos(np.deg2rad(a))], [0, -0.01, 0]) for a in (0, 30)]
