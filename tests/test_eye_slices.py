@@ -237,6 +237,12 @@ def test_slit_views_are_the_moved_splats_drawn_by_pinholes(cams, rig):
     np.testing.assert_allclose(nb, ref, atol=1e-4)
     with pytest.raises(RenderError, match="SlitViews.out"):
         fast.render(g, cams, RenderConfig(), slits=fast.SlitViews(cs.slice_cameras(rig, 2), np.zeros((2, 13)), got[:1]))
+    # their own early termination: a pixel stops after T < t_min, so it moves by less than t_min
+    loose = np.zeros_like(ref)
+    fast.render(g, cams, RenderConfig(), tile_mask=tm, slits=cs.slit_views(rig, es, loose, t_min=3e-3))
+    assert 0 < np.abs(loose - ref).max() < 3e-3 + 1e-4 + 1e-6
+    with pytest.raises(RenderError, match="t_min"):
+        fast.render(g, cams, RenderConfig(), slits=cs.slit_views(rig, es, loose, t_min=0.7))
     with pytest.raises(RenderError, match="params"):
         fast.render(g, cams, RenderConfig(), slits=fast.SlitViews(cs.slice_cameras(rig, 2), np.zeros((2, 12)), got))
 

@@ -265,7 +265,7 @@ def transform_splats(rig: SliceRig, eyes: list[EyeSlice], splats: SortedSplats,
     return out
 
 
-def slit_views(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray) -> SlitViews:
+def slit_views(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray, t_min: float | None = None) -> SlitViews:
     """The eyes' slices as :class:`~holo_viewer.render.fast.SlitViews`: projected by the fast
     renderer's kernels in the same pass as the render's cameras, into ``out`` ((E, H, W, 3)
     float32). The same numbers as :func:`slice_pass` (the moved splats drawn by pinholes), bit for
@@ -276,7 +276,7 @@ def slit_views(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray) -> SlitView
     P0 = -rig.R.T @ np.array([rig.p0, rig.ty, rig.tz])  # camera position of s: P0 + s P1
     P1 = -rig.R.T @ np.array([rig.p1, 0.0, 0.0])
     params = np.array([(*eye.coefficients(rig), eye.A, eye.B, *P0, *P1) for eye in eyes], dtype=np.float64)
-    return SlitViews(cameras=slice_cameras(rig, E), params=params.reshape(E, 13), out=out)
+    return SlitViews(cameras=slice_cameras(rig, E), params=params.reshape(E, 13), out=out, t_min=t_min)
 
 
 def slice_pass(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray, buffers: dict | None = None

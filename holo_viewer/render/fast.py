@@ -471,6 +471,8 @@ def _check_slits(slits: "SlitViews", cameras: Cameras) -> None:
     S = len(slits.cameras)
     if len(cameras) and np.abs(slits.cameras.R - cameras.R[0]).max() > 1e-12:
         raise RenderError("fast backend: SlitViews.cameras: expected the rotation of the render's cameras")
+    if slits.t_min is not None and not (0.0 <= float(slits.t_min) <= 0.5):
+        raise RenderError(f"fast backend: SlitViews.t_min: expected in [0, 0.5] or None, found {slits.t_min!r}")
     p = np.asarray(slits.params)
     if p.shape != (S, 13) or p.dtype != np.float64 or not np.isfinite(p).all():
         raise RenderError(f"fast backend: SlitViews.params: expected finite float64 ({S}, 13), found {p.dtype} {p.shape}")
@@ -545,11 +547,15 @@ class SlitViews:
         ``P0 + s P1``.
     out : (S, H, W, 3) float32
         The images (the render's size), every pixel written.
+    t_min : float or None
+        Their compositing's early-termination threshold (None: the render's ``t_min``): a
+        pixel's error stays below it (docs/renderer.md "Early termination").
     """
 
     cameras: Cameras
     params: np.ndarray
     out: np.ndarray
+    t_min: float | None = None
 
 
 def _slit_params(slits: SlitViews) -> np.ndarray:
@@ -684,8 +690,9 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
             out = (images[views[0]:views[-1] + 1] if views.size else images[:0]) if contiguous else \
                 np.empty((len(views), H, W, 3), np.float32)
             if use_cpp:
+                slit_t = config.t_min if slits is None or slits.t_min is None else slits.t_min
                 seen = draw.cpp_views(sorted_in, m, degree, bool(config.shared_sh), cams, out, jobs,
-                                      slits=(slit_cams, slits.out) if with_slits else None)
+                                      slits=(slit_cams, slits.out, slit_t) if with_slits else None)
             else:
                 seen = np.zeros(m, dtype=np.uint8)
                 if views.size:
@@ -694,7 +701,7 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
                                             mask[views] if mask is not None else None)
                 if with_slits:
                     draw.numba_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, bool(config.shared_sh),
-                                     slit_cams, slits.out, None, count_blends=False)
+                                     slit_cams, slits.out, None, count_blends=False, t_min=slits.t_min)
             draw.visible[order[seen.astype(bool)]] = True
             if not contiguous:
                 images[views] = out
@@ -788,13 +795,14 @@ class _Draw:
         t5 = time.perf_counter()
         blends = np.zeros(max(n_main, 1) * n_tiles, dtype=np.int64)
         bg = np.asarray(c.background, dtype=np.float32)
-        parts = ((0, n_main, out, jobs, blends), (n_main, nv, None if slits is None else slits[1], None,
-                                                   np.zeros((nv - n_main) * n_tiles, dtype=np.int64)))
-        for lo, hi, img, sel, bl in parts:
+        parts = ((0, n_main, out, jobs, blends, float(c.t_min)),
+                 (n_main, nv, None if slits is None else slits[1], None,
+                  np.zeros((nv - n_main) * n_tiles, dtype=np.int64), float(c.t_min if slits is None else slits[2])))
+        for lo, hi, img, sel, bl, t_min in parts:
             if hi > lo:  # the views, then the slit views into their own images (records of one pass)
                 self.path = self.cpp.composite(rec[lo:hi], off[lo:hi], base[lo:hi], ids, hi - lo, m, self.tile,
                                                self.tiles_x, self.tiles_y, self.W, self.H, float(c.alpha_threshold),
-                                               float(c.alpha_cap), float(c.t_min), bg, bool(c.clip_output), img, bl,
+                                               float(c.alpha_cap), t_min, bg, bool(c.clip_output), img, bl,
                                                self.threads, _CPP_MODE,
                                                np.empty(0, dtype=np.int32) if sel is None else sel)
         t6 = time.perf_counter()
@@ -806,8 +814,8 @@ class _Draw:
 
     def numba_views(self, order: np.ndarray, pc: np.ndarray, cov: np.ndarray, means: np.ndarray,
                     opacity: np.ndarray, sh: np.ndarray, degree: int, shared_rgb: np.ndarray, shared: bool,
-                    cams: np.ndarray, out: np.ndarray, mask: np.ndarray | None, count_blends: bool = True
-                    ) -> np.ndarray:
+                    cams: np.ndarray, out: np.ndarray, mask: np.ndarray | None, count_blends: bool = True,
+                    t_min: float | None = None) -> np.ndarray:
         """One chunk of views through the numba kernels (every tile composited; a mask keeps its
         tiles); returns which of the ordered splats any view drew."""
         from . import fast_kernels as fk
@@ -831,7 +839,7 @@ class _Draw:
             out = np.empty((nv, H, W, 3), np.float32)
         blends = np.zeros(nv * self.tiles_x * self.tiles_y, dtype=np.int64)
         fk.composite(rec, box, off, base, ids, tile, self.tiles_x, self.tiles_y, W, H,
-                     float(c.alpha_threshold), float(c.alpha_cap), float(c.t_min),
+                     float(c.alpha_threshold), float(c.alpha_cap), float(c.t_min if t_min is None else t_min),
                      np.asarray(c.background, dtype=np.float32), bool(c.clip_output), out, blends)
         if mask is not None:
             px = np.repeat(np.repeat(mask, tile, axis=1), tile, axis=2)[:, :H, :W]
