@@ -13,12 +13,15 @@ frame is **deformed Gaussians -> native image** (``LiveRenderer.frame``). All fr
   ``psnr_db``: native image against full_quilt's, over the head region; the ``view_step``
   records add ``worst_sweep_psnr_db``, the worse eye over viewers at -12..12 degrees and
   0.45-0.9 m (last frame).
-* ``tracked``: a viewer at 0.6 m moving sideways across the cone; one record per head motion
-  margin. ``psnr_db``: the worse eye's perceived image (VirtualDisplay) against full_quilt's
+* ``tracked``: a viewer at 0.6 m moving sideways across the cone; one record per method
+  (``slices``: one crossed-slit image per eye warped into the received subpixels, the default;
+  ``bands``: the exact view bands) and head motion margin (``defaults``: the method's own,
+  ``pipeline.live.TRACKED_DEFAULTS``). ``psnr_db``: the worse eye's perceived image (VirtualDisplay) against full_quilt's
   at the tracked position, head region, over the frames; ``worst_sweep_psnr_db``: the worst over
   a sweep of eye positions (last frame): sideways +-1 and +-2 cm (+-1 cm with --quick) and +-5 cm
-  in depth, whatever the margin, so the records show what the margin buys. The first tracked frame
-  (everything) is not timed.
+  in depth, whatever the margin, so the records show what the margin buys (``sweep_psnr_db``:
+  each offset's). The first tracked frame
+  (everything) and the slices' one-off tables are not timed.
 * ``eye_centred``: the same viewer path; one perspective image per eye (camera interpolated between
   the quilt cameras) written into the subpixels that eye receives. ``psnr_db`` as ``tracked``.
 * ``vtk``: the VTK point-Gaussian pass on ``--vtk-views`` views after a warm-up, extrapolated to
@@ -205,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
             cfg = LiveConfig(motion_m=motion, motion_distance_m=motion_d, tracked=method)
             live = LiveRenderer(cal, cams, cfg)
             live.frame(frames[0], viewers[0], mode="tracked")  # everything, once
+            live.prepare_tracked()  # the slices' one-off tables (a live session builds them while warming up)
             secs, fracs, worst = [], [], math.inf
             c0 = time.process_time()
             natives = []

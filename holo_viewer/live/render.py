@@ -85,6 +85,8 @@ class LiveRenderer:
 
             self._live = FrameRenderer(self.pipeline.calibration, self.pipeline.cameras(),
                                        LiveConfig(render=RenderConfig(num_threads=threads), view_step=view_step))
+            if mode in ("auto", "tracked"):  # the one-off tables now, not at the first tracked face
+                self._live.prepare_tracked()
 
     def render(self, listener: Mapping[str, np.ndarray], pain: float, named: tuple[tuple[str, float], ...],
                viewer_angle_deg: float, viewer_distance_m: float, viewer_tracked: bool = True) -> RenderedFrame:

@@ -463,19 +463,28 @@ class LiveRenderer:
                              mode="blend" if c.blend else "nearest", sigma_views=c.sigma_views,
                              threshold=c.threshold, motion_m=self.motion_m, motion_distance_m=self.motion_distance_m)
 
+    def prepare_tracked(self) -> None:
+        """Build the one-off tables of ``slices`` tracked frames now (~2 s and ~60 MB for the
+        Portrait; otherwise the first tracked frame does): a live session calls it while it warms
+        up, a benchmark before it times."""
+        if self.tracked_method != "slices" or self._buckets is not None:
+            return
+        from ..display.slices import SubpixelBuckets
+
+        V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
+        self._buckets = SubpixelBuckets(self.interleaver, V, H, W)
+        self._slices = np.zeros((2, H, W, 3), dtype=np.float32)
+        self._slice_w = np.zeros((2, H, W), dtype=np.float32)
+
     def _tracked_slices(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
         """A tracked frame from one crossed-slit image per eye (see the module docstring)."""
         from ..display.eyes import eye_positions, eye_view_bounds, reach_views
-        from ..display.slices import SubpixelBuckets, scatter_slices
+        from ..display.slices import scatter_slices
         from ..render import crossed_slit, fast
 
         t = time.perf_counter()
         rig = self._slice_rig
-        if self._buckets is None:  # once per renderer (~2 s, ~60 MB)
-            V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
-            self._buckets = SubpixelBuckets(self.interleaver, V, H, W)
-            self._slices = np.zeros((2, H, W, 3), dtype=np.float32)
-            self._slice_w = np.zeros((2, H, W), dtype=np.float32)
+        self.prepare_tracked()
         eyes_ = crossed_slit.eye_slices(rig, eye_positions(viewer))
         E = len(eyes_)
         c = self.config
