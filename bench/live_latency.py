@@ -13,7 +13,7 @@ render ms/frame, late reaction windows (finished after their first frame was due
 25 fps frames never displayed. ``--rss-seconds S`` adds a synthetic session of S seconds without
 rendering that samples the process RSS (the 10-minute memory check: ``--rss-seconds 600``).
 
-    python bench/live_latency.py [--seconds 8] [--tile-scale 0.5] [--json bench/results/live_latency.json]
+    python bench/live_latency.py [--seconds 8] [--tile-scale 0.5] [--render-mode auto] [--json bench/results/live_latency.json]
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def onset_latency(tracks: dict, onsets: list[int], k: int) -> list[float]:
     return out
 
 
-def run_session(files: dict, out: Path, render: bool, tile_scale: float) -> dict:
+def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: str = "auto") -> dict:
     from holo_viewer.live import sources
     from holo_viewer.live.loop import LiveConfig, LiveSession
     from holo_viewer.live.render import LiveRenderer
@@ -70,7 +70,7 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float) -> dict
 
     cfg = LiveConfig(out=str(out), tile_scale=tile_scale, write_native_video=False, flush_s=60.0)
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
-    renderer = LiveRenderer(tile_scale=tile_scale) if render else None
+    renderer = LiveRenderer(tile_scale=tile_scale, mode=mode) if render else None
     t0 = time.perf_counter()
     summary = session.run(renderer)
     wall = time.perf_counter() - t0
@@ -86,7 +86,7 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float) -> dict
         return None if not len(x) else round(float(np.percentile(x, q)), 1)
 
     return {
-        "render": render, "tile_scale": tile_scale, "wall_s": round(wall, 2), "frames": n,
+        "render": render, "tile_scale": tile_scale, "render_mode": mode, "wall_s": round(wall, 2), "frames": n,
         "onsets": len(onsets), "onsets_reflected": len(lat),
         "onset_to_display_ms_median": pct(1000 * np.array(lat), 50), "onset_to_display_ms_p95": pct(1000 * np.array(lat), 95),
         "tracker_ms_median": pct(session.tracker_ms, 50), "tracker_ms_p95": pct(session.tracker_ms, 95),
@@ -161,6 +161,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=8.0, help="clip length")
     ap.add_argument("--tile-scale", type=float, default=0.5)
+    ap.add_argument("--render-mode", default="auto", choices=("auto", "cone", "tracked", "all_views"),
+                    help="the live renderer's mode (holo-viewer live --render-mode; default auto)")
     ap.add_argument("--rss-seconds", type=float, default=0.0, help="also run a synthetic session this long for RSS")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "holo_viewer_live_bench"))
     ap.add_argument("--json", default=None)
@@ -178,14 +180,14 @@ def main() -> int:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for render in (False, True):
-            rows.append(run_session(files, Path(tmp) / f"s{int(render)}", render, args.tile_scale))
+            rows.append(run_session(files, Path(tmp) / f"s{int(render)}", render, args.tile_scale, args.render_mode))
         rss = rss_run(args.rss_seconds, Path(tmp) / "rss") if args.rss_seconds > 0 else None
     base, full = rows
     ratio = (full["reaction_ms_per_window_median"] or 0) / max(base["reaction_ms_per_window_median"] or 1e-9, 1e-9)
     keys = ["onset_to_display_ms_median", "onset_to_display_ms_p95", "tracker_ms_median", "tracker_ms_p95",
             "tracked_frames", "reaction_ms_per_window_median", "reaction_ms_per_window_p95", "reaction_windows",
             "late_reaction_windows", "late_window_max_ms", "render_ms_median", "render_ms_p95", "displayed_frames", "frames_not_displayed"]
-    print(f"\nlive latency, {args.seconds:g} s replayed clip, tile scale {args.tile_scale} "
+    print(f"\nlive latency, {args.seconds:g} s replayed clip, tile scale {args.tile_scale}, {args.render_mode} "
           f"(load average {load[0]:.2f} {load[1]:.2f} on {os.cpu_count()} cores)")
     print(f"{'':34s} {'no render':>12s} {'render':>12s}")
     for k in keys:

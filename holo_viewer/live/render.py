@@ -61,7 +61,7 @@ class LiveRenderer:
     """
 
     def __init__(self, tile_scale: float = 1.0, native: bool = True, preview: bool = False, backend: str = "fast",
-                 calibration: Any = None, render_threads: int | None = None, mode: str = "cone",
+                 calibration: Any = None, render_threads: int | None = None, mode: str = "auto",
                  view_step: int | None = None) -> None:
         import os
 
