@@ -32,7 +32,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.scenes import quilt_cameras, random_scene  # noqa: E402
+from bench.scenes import random_scene  # noqa: E402
 from holo_viewer.avatar.gaussians import Gaussians  # noqa: E402
 from holo_viewer.display import eyes  # noqa: E402
 from holo_viewer.display.calibration import DisplayCalibration  # noqa: E402
