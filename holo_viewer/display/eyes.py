@@ -163,14 +163,19 @@ def reach_views(sigma_views: float, threshold: float) -> float:
     return sigma_views * math.sqrt(2.0 * math.log(1.0 / threshold))
 
 
+def _view_reach(mode: Mode, sigma_views: float, threshold: float, n: int) -> float:
+    """How far (views) a view may lie from an eye's view coordinate and still be shown by a
+    subpixel that sends it more than ``threshold``: ``D0`` + 1/2 (nearest) or + 1 (blend)."""
+    if mode not in ("nearest", "blend"):
+        raise InputError(f"mode: expected 'nearest' or 'blend', found {mode!r}")
+    return reach_views(sigma_views, threshold) + (0.5 if mode == "nearest" else 1.0) + 1e-9 * n  # (zeta rounding)
+
+
 def _near_views(cal: DisplayCalibration, viewer: TrackedViewer, n: int, mode: Mode, sigma_views: float,
                 threshold: float, motion_m: float, motion_distance_m: float) -> np.ndarray:
     """(E, n, W) bool: view k is within reach of eye e's view coordinates at native column x over
     the motion box (see :func:`view_columns`)."""
-    if mode not in ("nearest", "blend"):
-        raise InputError(f"mode: expected 'nearest' or 'blend', found {mode!r}")
-    reach = reach_views(sigma_views, threshold) + (0.5 if mode == "nearest" else 1.0)
-    reach += 1e-9 * n  # rounding of zeta
+    reach = _view_reach(mode, sigma_views, threshold, n)
     bounds = eye_view_bounds(cal, viewer, n_views=n, motion_m=motion_m, motion_distance_m=motion_distance_m)
     k = np.arange(n, dtype=np.float64)[:, None]  # (n, 1)
     E, _, W = bounds.shape
@@ -186,10 +191,12 @@ def _near_views(cal: DisplayCalibration, viewer: TrackedViewer, n: int, mode: Mo
 
 def view_segments(calibration: DisplayCalibration, viewer: TrackedViewer, *, n_views: int | None = None,
                   mode: Mode = "nearest", sigma_views: float = 0.5, threshold: float = 0.01,
-                  motion_m: float = 0.02, motion_distance_m: float = 0.05) -> np.ndarray:
+                  motion_m: float = 0.02, motion_distance_m: float = 0.05,
+                  bounds: np.ndarray | None = None) -> np.ndarray:
     """Per eye and view, the native columns where a subpixel showing that view can send light to
     the eye (weight > ``threshold``) over the head-motion margin: the rule of :func:`view_columns`
-    at native-column resolution, per eye.
+    at native-column resolution, per eye. ``bounds``: the :func:`eye_view_bounds` of this viewer
+    and margin when the caller has them (else computed here).
 
     Returns
     -------
@@ -200,10 +207,11 @@ def view_segments(calibration: DisplayCalibration, viewer: TrackedViewer, *, n_v
     """
     cal = calibration
     n = cal.n_views if n_views is None else int(n_views)
-    if mode not in ("nearest", "blend"):
-        raise InputError(f"mode: expected 'nearest' or 'blend', found {mode!r}")
-    reach = reach_views(sigma_views, threshold) + (0.5 if mode == "nearest" else 1.0) + 1e-9 * n
-    bounds = eye_view_bounds(cal, viewer, n_views=n, motion_m=motion_m, motion_distance_m=motion_distance_m)
+    reach = _view_reach(mode, sigma_views, threshold, n)
+    if bounds is None:
+        bounds = eye_view_bounds(cal, viewer, n_views=n, motion_m=motion_m, motion_distance_m=motion_distance_m)
+    elif bounds.shape != (len(eye_positions(viewer)), 2, cal.screen_w):
+        raise InputError(f"bounds: expected ({len(eye_positions(viewer))}, 2, {cal.screen_w}), found {bounds.shape}")
     # t_lo, t_hi fall with the column (the view coordinate turns away from the eye across the
     # panel), so view k (or k -+ n, circularly) is within reach on one run of columns:
     # t_hi(x) > k - reach on a prefix, t_lo(x) < k + reach on a suffix (the rule of view_columns)

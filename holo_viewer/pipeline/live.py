@@ -98,7 +98,8 @@ class LiveConfig:
         is larger than the staleness: the same worst eye at +-1 cm as with 1 cm, measured).
     refresh_columns : int or None
         Tracked: tile columns of the other views re-rendered per frame, round-robin (0 = none).
-        None: the method's default (bands 8, slices 2: ~2.5 ms a column on 2 cores).
+        None: the method's default (bands 8, slices 2: 8 columns cost a slices frame ~5 ms on 2
+        cores, measured).
     lod_fraction : float
         all_views: fraction of the Gaussians kept (1 = all).
     view_step : int or None
@@ -459,15 +460,17 @@ class LiveRenderer:
         timings.update(select=t1 - t, render=t2 - t1, quilt=t3 - t2, interleave=t4 - t3)
         return float(colmask.mean())
 
-    def tracked_segments(self, viewer: Any) -> np.ndarray:
+    def tracked_segments(self, viewer: Any, bounds: np.ndarray | None = None) -> np.ndarray:
         """(S, 4) (eye, view, x0, x1) native-column segments a ``slices`` frame writes for ``viewer``
-        (:func:`~holo_viewer.display.eyes.view_segments` with this renderer's knobs)."""
+        (:func:`~holo_viewer.display.eyes.view_segments` with this renderer's knobs; ``bounds``
+        its eyes' view-coordinate ranges when already computed)."""
         from ..display.eyes import view_segments
 
         c = self.config
         return view_segments(self.calibration, viewer, n_views=len(self.cameras),
                              mode="blend" if c.blend else "nearest", sigma_views=c.sigma_views,
-                             threshold=c.threshold, motion_m=self.motion_m, motion_distance_m=self.motion_distance_m)
+                             threshold=c.threshold, motion_m=self.motion_m, motion_distance_m=self.motion_distance_m,
+                             bounds=bounds)
 
     def prepare_tracked(self) -> None:
         """Build the one-off tables of ``slices`` tracked frames now (~2 s and ~60 MB for the
@@ -494,9 +497,9 @@ class LiveRenderer:
         eyes_ = crossed_slit.eye_slices(rig, eye_positions(viewer))
         E = len(eyes_)
         c = self.config
-        segments = self.tracked_segments(viewer)
         bounds = eye_view_bounds(self.calibration, viewer, n_views=len(self.cameras), motion_m=self.motion_m,
                                  motion_distance_m=self.motion_distance_m)
+        segments = self.tracked_segments(viewer, bounds)
         colmask = np.zeros((len(self.cameras), self.tiles_x), dtype=bool)
         self._refresh(colmask)
         tile_mask = np.repeat(colmask[:, None, :], self.tiles_y, axis=1)

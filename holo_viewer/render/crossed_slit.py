@@ -279,28 +279,20 @@ def slit_views(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray, t_min: floa
     return SlitViews(cameras=slice_cameras(rig, E), params=params.reshape(E, 13), out=out, t_min=t_min)
 
 
-def slice_pass(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray, buffers: dict | None = None
-               ) -> list[SplatPass]:
+def slice_pass(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray) -> list[SplatPass]:
     """One :class:`~holo_viewer.render.fast.SplatPass` per eye, drawing its slice into ``out[i]``
-    ((E, H, W, 3) float32) from the render's depth-sorted splats (every eye's splats are moved in
-    the first pass's transform, in one pass over them). ``buffers``: a dict kept by the caller
-    between frames, holding the moved splats' arrays (fresh ones each frame cost ~3 ms of page
-    faults for the avatar)."""
+    ((E, H, W, 3) float32) from the render's depth-sorted splats moved by :func:`transform_splats`
+    (every eye's in the first pass's transform, in one pass over them): the reference the
+    in-kernel :func:`slit_views` are tested against."""
     if out.shape != (len(eyes), rig.height, rig.width, 3):
         raise InputError(f"out: expected {(len(eyes), rig.height, rig.width, 3)}, found {out.shape}")
     cams = slice_cameras(rig, 1)
     done: dict[str, Any] = {}
-    keep = {} if buffers is None else buffers
 
     def make(i: int) -> SplatPass:
         def transform(splats: SortedSplats) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             if done.get("splats") is not splats:
-                E, mp = len(eyes), splats.pc.shape[1]
-                bufs = keep.get("moved")
-                if bufs is None or bufs[0].shape != (E, 3, mp):
-                    bufs = keep["moved"] = (np.empty((E, 3, mp)), np.empty((E, 6, mp)),
-                                            np.empty((E, 3, mp), np.float32))
-                done["splats"], done["out"] = splats, transform_splats(rig, eyes, splats, bufs)
+                done["splats"], done["out"] = splats, transform_splats(rig, eyes, splats)
             pc, cov, col = done["out"]
             return pc[i], cov[i], col[i]
 

@@ -690,9 +690,8 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
             out = (images[views[0]:views[-1] + 1] if views.size else images[:0]) if contiguous else \
                 np.empty((len(views), H, W, 3), np.float32)
             if use_cpp:
-                slit_t = config.t_min if slits is None or slits.t_min is None else slits.t_min
                 seen = draw.cpp_views(sorted_in, m, degree, bool(config.shared_sh), cams, out, jobs,
-                                      slits=(slit_cams, slits.out, slit_t) if with_slits else None)
+                                      slits=(slit_cams, slits.out, slits.t_min) if with_slits else None)
             else:
                 seen = np.zeros(m, dtype=np.uint8)
                 if views.size:
@@ -766,10 +765,11 @@ class _Draw:
 
     def cpp_views(self, sorted_in: tuple, m: int, degree: int, shared: bool, cams: np.ndarray, out: np.ndarray,
                   jobs: np.ndarray | None, count_blends: bool = True,
-                  slits: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                  slits: tuple[np.ndarray, np.ndarray, float | None] | None = None) -> np.ndarray:
         """One chunk of views through the C++ extension (projection and binning fused, buffers reused),
-        with ``slits`` = (their camera parameters, their images) projected in the same pass and
-        composited into their own images; returns which of the m sorted splats any view drew."""
+        with ``slits`` = (their camera parameters, their images, their t_min or None for the
+        config's) projected in the same pass and composited into their own images; returns which
+        of the m sorted splats any view drew."""
         c, n_main = self.config, len(cams)
         if slits is not None:
             cams = np.concatenate((cams, slits[0]))
@@ -797,7 +797,8 @@ class _Draw:
         bg = np.asarray(c.background, dtype=np.float32)
         parts = ((0, n_main, out, jobs, blends, float(c.t_min)),
                  (n_main, nv, None if slits is None else slits[1], None,
-                  np.zeros((nv - n_main) * n_tiles, dtype=np.int64), float(c.t_min if slits is None else slits[2])))
+                  np.zeros((nv - n_main) * n_tiles, dtype=np.int64),
+                  float(c.t_min if slits is None or slits[2] is None else slits[2])))
         for lo, hi, img, sel, bl, t_min in parts:
             if hi > lo:  # the views, then the slit views into their own images (records of one pass)
                 self.path = self.cpp.composite(rec[lo:hi], off[lo:hi], base[lo:hi], ids, hi - lo, m, self.tile,
