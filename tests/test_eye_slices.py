@@ -313,7 +313,9 @@ def _tables(rig, viewer, seed, mode, motion=0.01):
 SCATTER_KERNELS = ["numba"] + (["cpp", "cpp-scalar"] if slices_cpp_available() else [])
 
 
-@pytest.mark.parametrize("angle,distance", [(0.0, 0.6), (-13.0, 0.5), (9.0, 1.2)])
+# (2.5 m: the eyes' reaches overlap, so the nearer-eye test decides; 19 deg: one eye past the cone's
+# edge, where the view coordinate wraps)
+@pytest.mark.parametrize("angle,distance", [(0.0, 0.6), (-13.0, 0.5), (9.0, 1.2), (0.0, 2.5), (19.0, 0.6)])
 def test_scatter_kernels_agree_and_cover_every_received_subpixel(buckets, rig, angle, distance):
     il, b = buckets
     viewer = eyes.TrackedViewer(angle, distance)

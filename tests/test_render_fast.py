@@ -253,7 +253,29 @@ def test_release_buffers_then_render_again():
     np.testing.assert_array_equal(render_views(g, cams, "fast").images, a)
 
 
-def test_depth_order_is_the_stable_sort_whatever_the_hint():
+@pytest.mark.skipif(not fast.cpp_available(), reason="C++ extension not built")
+def test_radix_argsort_is_numpys_stable_argsort():
+    """_splat_cpp.argsort_stable (LSD radix on the depths' bits) = numpy's stable argsort,
+    ties (-0.0 and +0.0 among them) in index order, over magnitudes, signs, infinities,
+    subnormals and digits shared by every key (skipped passes)."""
+    cpp = fast._cpp()
+    rng = np.random.default_rng(11)
+    cases = [rng.normal(size=20000), rng.uniform(0.4, 0.9, 30000), np.round(rng.uniform(-1, 1, 9000), 2),
+             np.array([0.0, -0.0, 1.0, -1.0, -0.0, 0.0, np.inf, -np.inf, 5e-324, -5e-324, 1e308, -1e-308]),
+             rng.choice([1.5, -2.25, 1e-300], 5000), np.full(100, 0.7), np.zeros(0), np.array([3.0]),
+             np.ldexp(rng.uniform(1, 2, 8000), rng.integers(-1070, 1020, 8000)) * rng.choice([-1, 1], 8000)]
+    for z in cases:
+        got = np.full(z.size, -1, dtype=np.int64)
+        cpp.argsort_stable(np.ascontiguousarray(z), got)
+        np.testing.assert_array_equal(got, np.argsort(z, kind="stable"))
+
+
+@pytest.mark.parametrize("radix", [True, False])
+def test_depth_order_is_the_stable_sort_whatever_the_hint(radix, monkeypatch):
+    if radix and not fast.cpp_available():
+        pytest.skip("C++ extension not built")
+    if not radix:  # numpy's timsort through the hint
+        monkeypatch.setattr(fast, "_cpp", lambda: None)
     rng = np.random.default_rng(3)
     z = np.round(rng.normal(1.0, 0.2, 5000), 2)  # many equal depths
     z[:50] = -0.0

@@ -261,10 +261,12 @@ def depth_order(z: np.ndarray, keep: np.ndarray, hint: np.ndarray | None = None)
         (N,) bool: which splats to order.
     hint : numpy.ndarray or None
         The full order this function returned for the previous frame (any permutation of
-        ``range(N)`` is correct). Consecutive frames move little, so ``z[hint]`` is nearly sorted
-        and numpy's stable sort (timsort) runs through it in ~1 ms instead of ~7 ms for 100k
-        splats. The result does not depend on the hint: runs of equal depths are put back in
-        index order afterwards.
+        ``range(N)`` is correct), used without the C++ extension: consecutive frames move little,
+        so ``z[hint]`` is nearly sorted and numpy's stable sort (timsort) runs through it in
+        ~1-4 ms instead of ~10 ms for 100k splats (runs of equal depths are put back in index
+        order afterwards). With the extension, an LSD radix sort of the depths' bits
+        (``_splat_cpp.argsort_stable``, ~1.3 ms for 100k on an animated avatar, where the hint
+        costs timsort ~4 ms) gives the same order without it. The result never depends on it.
 
     Returns
     -------
@@ -273,7 +275,11 @@ def depth_order(z: np.ndarray, keep: np.ndarray, hint: np.ndarray | None = None)
     full : numpy.ndarray
         (N,) the order of all splats: the next frame's hint.
     """
-    if hint is None or hint.shape != z.shape:
+    cpp = _cpp()
+    if cpp is not None and hasattr(cpp, "argsort_stable"):  # a radix sort: the same order, 2-5x faster
+        full = np.empty(z.size, dtype=np.int64)
+        cpp.argsort_stable(np.ascontiguousarray(z, dtype=np.float64), full)
+    elif hint is None or hint.shape != z.shape:
         full = np.argsort(z, kind="stable").astype(np.int64, copy=False)
     else:
         full = hint[np.argsort(z[hint], kind="stable")]

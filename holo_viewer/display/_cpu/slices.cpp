@@ -27,6 +27,7 @@ struct SliceJob {
     const float* bounds;                   // (E, 2, W) t_lo, t_hi
     const float *images, *wmaps, *kv, *gh; // (E, hv, wv, 3), (E, hv, wv), (E, V, 2), (E, 2)
     int64_t* counts;                       // (H,)
+    const uint8_t* contested;              // (S,) 1: another eye's reach may overlap the segment's
     float reach;
     int blend, n_segs, iters, H, W3, V, E, hv, wv;
 };
@@ -82,6 +83,21 @@ inline int lower_bound16(const int16_t* row, int lo, int hi, int value) {
     return lo;
 }
 
+// the same, for a run of positions spread about evenly over [0, span) (a view's subpixels along a
+// native row): a short walk from the interpolated index instead of a binary search
+inline int lower_bound_spread(const int16_t* row, int lo, int hi, int value, int span) {
+    if (lo >= hi) return lo;
+    int i = lo + int(int64_t(hi - lo) * value / span);
+    i = i < lo ? lo : (i > hi ? hi : i);
+    for (int s = 0; s < 4; ++s) {  // the answer is i when row[i - 1] < value <= row[i]
+        if (i > lo && row[i - 1] >= value) --i;
+        else if (i < hi && row[i] < value) ++i;
+        else return i;
+    }
+    if (i > lo && row[i - 1] >= value) return lower_bound16(row, lo, i, value);
+    return lower_bound16(row, i, hi, value);
+}
+
 // subpixels [a, b) of row y's bucket of view k, from eye e's slice; returns how many were written
 int64_t slice_run_scalar(const SliceJob& J, int y, int e, int k, int a, int b) {
     const int64_t base = int64_t(y) * J.W3;
@@ -126,6 +142,38 @@ int64_t slice_run_scalar(const SliceJob& J, int y, int e, int k, int a, int b) {
     return cnt;
 }
 
+// Per segment, 1 when a subpixel of it that its eye can receive (lens coordinate within reach of
+// that eye's range) may also be within reach of another eye's range at the same column, i.e.
+// when the nearer-eye test can reject it; 0 when, at every column of the segment, the eyes'
+// ranges widened by the reach lie apart (by 1e-3 views, in float64: far beyond the float32
+// rounding of the test) for every shift by the period. Where 0 the test is skipped: the same
+// result (a candidate's own gap is < reach, another eye's is >= reach).
+std::vector<uint8_t> segments_contested(const SliceJob& J) {
+    const int W = J.W3 / 3;
+    const double n = J.V, r = J.reach, eps = 1e-3;
+    std::vector<uint8_t> col(size_t(J.E) * W, 0);
+    for (int e = 0; e < J.E; ++e)
+        for (int o = 0; o < J.E; ++o) {
+            if (o == e) continue;
+            const float *le = J.bounds + int64_t(e) * 2 * W, *lo = J.bounds + int64_t(o) * 2 * W;
+            for (int x = 0; x < W; ++x) {
+                const double a0 = double(le[x]) - r, a1 = double(le[W + x]) + r;
+                bool apart = a0 == a0 && a1 == a1;  // NaN: contested
+                for (int s = -2; s <= 2 && apart; ++s) {
+                    const double b0 = double(lo[x]) - r + s * n, b1 = double(lo[W + x]) + r + s * n;
+                    apart = (b0 > a1 + eps) || (b1 < a0 - eps);
+                }
+                if (!apart) col[size_t(e) * W + x] = 1;
+            }
+        }
+    std::vector<uint8_t> seg(size_t(J.n_segs) + 1, 0);
+    for (int j = 0; j < J.n_segs; ++j) {
+        const int64_t* sg = J.segs + 4 * j;
+        for (int64_t x = sg[2]; x < sg[3] && !seg[size_t(j)]; ++x) seg[size_t(j)] = col[size_t(sg[0]) * W + x];
+    }
+    return seg;
+}
+
 #if HV_HAVE_AVX2_PATH
 HV_TARGET_AVX512 inline void slice_column16(__m512 xi, __m512 wvf, __m512i wv2, __m512i& p, __m512& f) {
     __m512 xm = _mm512_sub_ps(xi, _mm512_set1_ps(0.5f));
@@ -165,17 +213,28 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
     const int W = J.W3 / 3;
     R.reserve(size_t(J.W3) * 2);
     int n = 0;
+    if (y + 1 < J.H) {  // the next row's runs, fetched while this one is computed (tables far larger than the caches)
+        const int64_t nb = base + J.W3;
+        const int32_t* on = o + (J.V + 1);
+        for (int j = 0; j < J.n_segs; ++j) {
+            const int64_t* sg = J.segs + 4 * j;
+            const int k = int(sg[1]), lo = on[k], hi = on[k + 1];
+            const int a = lo + int(int64_t(hi - lo) * (3 * sg[2]) / J.W3), b = lo + int(int64_t(hi - lo) * (3 * sg[3]) / J.W3);
+            for (int i = a; i <= b; i += 16) { __builtin_prefetch(J.zeta + nb + i); __builtin_prefetch(J.pos + nb + i); }
+        }
+    }
     for (int j = 0; j < J.n_segs; ++j) {  // gather the row's candidates
         const int64_t* sg = J.segs + 4 * j;
         const int e = int(sg[0]), k = int(sg[1]);
-        const int a = lower_bound16(J.pos + base, o[k], o[k + 1], int(3 * sg[2]));
-        const int b = lower_bound16(J.pos + base, a, o[k + 1], int(3 * sg[3]));
+        const int a = lower_bound_spread(J.pos + base, o[k], o[k + 1], int(3 * sg[2]), J.W3);
+        const int b = lower_bound_spread(J.pos + base, a, o[k + 1], int(3 * sg[3]), J.W3);
         if (size_t(n + (b - a) + 16) > R.p.size()) R.reserve(size_t(n + (b - a)) * 2);
         const float d0 = J.kv[(int64_t(e) * J.V + k) * 2], d1 = J.kv[(int64_t(e) * J.V + k) * 2 + 1];
+        const int ef = e | (J.contested[j] << 8);  // the eye, and whether another eye may be nearer
         for (int i = a; i < b; ++i, ++n) {
             R.p[n] = J.pos[base + i];
             R.z[n] = J.zeta[base + i];
-            R.e[n] = e;
+            R.e[n] = ef;
             R.d0[n] = d0;
             R.d1[n] = d1;
         }
@@ -193,7 +252,9 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
         const int len = std::min(16, n - i);
         __mmask16 m = len == 16 ? __mmask16(0xFFFF) : __mmask16((1u << len) - 1);
         const __m512i p = _mm512_maskz_loadu_epi32(m, R.p.data() + i);
-        const __m512i e = _mm512_maskz_loadu_epi32(m, R.e.data() + i);
+        const __m512i ef = _mm512_maskz_loadu_epi32(m, R.e.data() + i);
+        const __m512i e = _mm512_and_si512(ef, _mm512_set1_epi32(0xFF));
+        const __mmask16 contested = _mm512_test_epi32_mask(ef, _mm512_set1_epi32(0x100));
         const __m512 z0 = _mm512_maskz_loadu_ps(m, R.z.data() + i);
         const __m512i x = _mm512_srli_epi32(_mm512_mullo_epi32(p, _mm512_set1_epi32(43691)), 17);  // p / 3
         const __m512i ch = _mm512_sub_epi32(p, _mm512_mullo_epi32(x, three));
@@ -203,8 +264,8 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
                                                                  _mm512_add_epi32(bx, _mm512_set1_epi32(W)), J.bounds, 4),
                                         nv);
         m &= _mm512_cmp_ps_mask(best, reach, _CMP_LT_OQ);
-        for (int oe = 0; m && oe < J.E; ++oe) {  // a subpixel both eyes receive: the nearer eye's
-            const __mmask16 other = m & _mm512_cmpneq_epi32_mask(e, _mm512_set1_epi32(oe));
+        for (int oe = 0; (m & contested) && oe < J.E; ++oe) {  // a subpixel both eyes receive: the nearer eye's
+            const __mmask16 other = m & contested & _mm512_cmpneq_epi32_mask(e, _mm512_set1_epi32(oe));
             if (!other) continue;
             const __m512i ox = _mm512_add_epi32(_mm512_set1_epi32(oe * 2 * W), x);
             const __m512 go = slice_gap16(z0, _mm512_mask_i32gather_ps(_mm512_setzero_ps(), other, ox, J.bounds, 4),
@@ -216,9 +277,12 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
         }
         if (!m) continue;
         const __m512 d0 = _mm512_maskz_loadu_ps(m, R.d0.data() + i), d1 = _mm512_maskz_loadu_ps(m, R.d1.data() + i);
-        const __m512 g = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_slli_epi32(e, 1), J.gh, 4);
-        const __m512 h = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_add_epi32(_mm512_slli_epi32(e, 1), one),
-                                                  J.gh, 4);
+        __m512 g = _mm512_set1_ps(J.gh[0]), h = _mm512_set1_ps(J.gh[1]);  // the eyes' (few): selects, not gathers
+        for (int oe = 1; oe < J.E; ++oe) {
+            const __mmask16 is = _mm512_cmpeq_epi32_mask(e, _mm512_set1_epi32(oe));
+            g = _mm512_mask_mov_ps(g, is, _mm512_set1_ps(J.gh[2 * oe]));
+            h = _mm512_mask_mov_ps(h, is, _mm512_set1_ps(J.gh[2 * oe + 1]));
+        }
         const __m512i rowbase = _mm512_add_epi32(_mm512_mullo_epi32(e, eplane), wrow0);  // slice e, row ty
         const __m512i u = _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), m, x, J.tex_col, 4);
         const __m512 uc = _mm512_add_ps(_mm512_cvtepi32_ps(u), _mm512_set1_ps(0.5f));
@@ -288,6 +352,11 @@ PyObject* scatter_slices(PyObject*, PyObject* args) {
             ok = sg[0] >= 0 && sg[0] < J.E && sg[1] >= 0 && sg[1] < J.V && sg[2] >= 0 && sg[3] <= J.W3 / 3;
         }
         if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.scatter_slices: a segment is outside the tables");
+    }
+    std::vector<uint8_t> contested;
+    if (ok) {
+        contested = segments_contested(J);
+        J.contested = contested.data();
     }
     if (ok) {
         const bool wide = !blend && mode != 1 && cpu_has_avx512();

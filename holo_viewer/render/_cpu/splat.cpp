@@ -1397,6 +1397,7 @@ PyObject* project_bin(PyObject*, PyObject* args) {
 
 // ---- fast_kernels.prep_sorted: the depth-ordered inputs of project_bin in one pass (same float64
 // expressions in the same order, std::exp = libm exp as numba's math.exp: bit-identical; tested)
+constexpr int PREP_AHEAD = 16;  // splats
 template <typename T>
 void prep_sorted_rows(const int64_t* ord, const T* M, const T* Q, const T* L, const double* O, const float* C,
                       const double* W, double* PC, double* CV, double* MO, double* OP, float* SH, int m, int mp, int c,
@@ -1408,6 +1409,12 @@ void prep_sorted_rows(const int64_t* ord, const T* M, const T* Q, const T* L, co
             OP[i] = 0.0;
             for (int j = 0; j < c; ++j) SH[int64_t(j) * mp + i] = 0.0f;
             continue;
+        }
+        if (i + PREP_AHEAD < m) {  // the order jumps about: fetch a later splat's inputs now
+            const int64_t kf = ord[i + PREP_AHEAD];
+            __builtin_prefetch(Q + 4 * kf); __builtin_prefetch(M + 3 * kf); __builtin_prefetch(L + 3 * kf);
+            __builtin_prefetch(O + kf); __builtin_prefetch(C + kf * c);
+            if (c * 4 > 64) __builtin_prefetch(C + kf * c + 16);
         }
         const int64_t k = ord[i];  // inputs widened to double exactly, as the numba path's copies
         double w = double(Q[4 * k]), x = double(Q[4 * k + 1]), y = double(Q[4 * k + 2]), z = double(Q[4 * k + 3]);
@@ -1481,6 +1488,70 @@ PyObject* prep_sorted(PyObject*, PyObject* args) {
     Py_RETURN_NONE;
 }
 
+// ---- fast.depth_order: a stable argsort of float64 depths (numpy's argsort(kind="stable"),
+// identical: ties keep index order). LSD radix sort, 11 bits a pass, on the depths' bits mapped
+// to order-preserving unsigned keys (-0.0 before +0.0, which compare equal: mapped to one key);
+// the passes whose digit is the same for every key are skipped. ~4x numpy's timsort on 100k
+// depths of an animated avatar (where the previous frame's order is a poor hint).
+PyObject* argsort_stable(PyObject*, PyObject* args) {
+    Py_buffer zb{}, ob{};
+    if (!PyArg_ParseTuple(args, "y*w*", &zb, &ob)) return nullptr;
+    const int64_t n = zb.len / 8;
+    bool ok = zb.len % 8 == 0 && need(ob, n * 8, "order");
+    if (ok && zb.len == 0) { PyBuffer_Release(&zb); PyBuffer_Release(&ob); Py_RETURN_NONE; }
+    if (ok) {
+        const double* z = (const double*)zb.buf;
+        int64_t* out = (int64_t*)ob.buf;
+        constexpr int BITS = 11, PASSES = (64 + BITS - 1) / BITS, B = 1 << BITS;
+        Py_BEGIN_ALLOW_THREADS
+        static thread_local std::vector<uint64_t> ka, kb;  // kept between calls (no page faults)
+        static thread_local std::vector<int64_t> ib;
+        if (ka.size() < size_t(n) || ka.size() > 4 * size_t(n) + 4096) {
+            ka.assign(size_t(n), 0); kb.assign(size_t(n), 0); ib.assign(size_t(n), 0);
+        }
+        std::vector<int64_t> hist(size_t(PASSES) * B, 0);
+        for (int64_t i = 0; i < n; ++i) {
+            double v = z[i];
+            v = v == 0.0 ? 0.0 : v;  // -0.0 == +0.0
+            uint64_t b;
+            std::memcpy(&b, &v, 8);
+            b = (b >> 63) ? ~b : (b | (uint64_t(1) << 63));
+            ka[size_t(i)] = b;
+            for (int p = 0; p < PASSES; ++p) ++hist[size_t(p) * B + ((b >> (p * BITS)) & (B - 1))];
+            out[i] = i;
+        }
+        uint64_t* kin = ka.data();
+        uint64_t* kout = kb.data();
+        int64_t* iin = out;
+        int64_t* iout = ib.data();
+        for (int p = 0; p < PASSES; ++p) {
+            int64_t* h = hist.data() + size_t(p) * B;
+            bool trivial = false;
+            for (int d = 0; d < B; ++d)
+                if (h[d] != 0) { trivial = h[d] == n; break; }
+            if (trivial) continue;  // one digit for all: the order stays
+            int64_t run = 0;
+            for (int d = 0; d < B; ++d) { const int64_t c = h[d]; h[d] = run; run += c; }
+            const int shift = p * BITS;
+            for (int64_t i = 0; i < n; ++i) {
+                const uint64_t k = kin[i];
+                const int64_t at = h[(k >> shift) & (B - 1)]++;
+                kout[at] = k;
+                iout[at] = iin[i];
+            }
+            std::swap(kin, kout);
+            std::swap(iin, iout);
+        }
+        if (iin != out) std::memcpy(out, iin, size_t(n) * 8);
+        Py_END_ALLOW_THREADS
+    } else if (!PyErr_Occurred()) {
+        PyErr_SetString(PyExc_ValueError, "_splat_cpp.argsort_stable: z must be float64");
+    }
+    PyBuffer_Release(&zb); PyBuffer_Release(&ob);
+    if (!ok) return nullptr;
+    Py_RETURN_NONE;
+}
+
 // Both wait, without the GIL, for a project_bin call that holds the cache.
 PyObject* release_scratch(PyObject*, PyObject*) {
     Py_BEGIN_ALLOW_THREADS
@@ -1529,6 +1600,9 @@ PyMethodDef methods[] = {
      "prep_sorted(order, means, quats, log_scales, opacity, colours, Wrot, pc, cov, mout, op, sh, m, mp, n, c, "
      "float32, n_threads) -> None\n\nholo_viewer.render.fast_kernels.prep_sorted (bit-identical): the splats in depth "
      "order as structures of arrays (row stride mp), camera-frame centres and covariances computed."},
+    {"argsort_stable", argsort_stable, METH_VARARGS,
+     "argsort_stable(z, order) -> None\n\nnumpy.argsort(z, kind='stable') of float64 z into int64 order (LSD "
+     "radix sort; identical, ties in index order)."},
     {"release_scratch", release_scratch, METH_NOARGS,
      "Free the tile counts and (splat, tile) entries project_bin keeps between calls."},
     {"scratch_bytes", scratch_bytes, METH_NOARGS, "Bytes project_bin's kept scratch holds."},
