@@ -200,10 +200,19 @@ HV_TARGET_AVX512 inline __m512 slice_gap16(__m512 z0, __m512 lo, __m512 hi, __m5
 // dependency chain of a warp (gather, divide, floor, gather, ...) overlaps across many vectors
 // instead of stalling on each segment's one or two (2-3x faster than vectors per segment, measured).
 struct SliceRowBuf {
-    std::vector<int32_t> p, e;
-    std::vector<float> z, d0, d1;
+    std::vector<int32_t> p, seg_e;  // per candidate: position | segment << 16; per segment: eye | contested << 8
+    std::vector<float> z, seg_d0, seg_d1;  // per candidate: lens coordinate; per segment: warp coefficients
+    explicit SliceRowBuf(const SliceJob& J) : seg_e(size_t(J.n_segs) + 1), seg_d0(size_t(J.n_segs) + 1),
+                                              seg_d1(size_t(J.n_segs) + 1) {
+        for (int j = 0; j < J.n_segs; ++j) {
+            const int e = int(J.segs[4 * j]), k = int(J.segs[4 * j + 1]);
+            seg_e[size_t(j)] = e | (J.contested[j] << 8);
+            seg_d0[size_t(j)] = J.kv[(int64_t(e) * J.V + k) * 2];
+            seg_d1[size_t(j)] = J.kv[(int64_t(e) * J.V + k) * 2 + 1];
+        }
+    }
     void reserve(size_t n) {
-        if (p.size() < n + 16) { p.resize(n + 16); e.resize(n + 16); z.resize(n + 16); d0.resize(n + 16); d1.resize(n + 16); }
+        if (p.size() < n + 16) { p.resize(n + 16); z.resize(n + 16); }
     }
 };
 
@@ -213,30 +222,15 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
     const int W = J.W3 / 3;
     R.reserve(size_t(J.W3) * 2);
     int n = 0;
-    if (y + 1 < J.H) {  // the next row's runs, fetched while this one is computed (tables far larger than the caches)
-        const int64_t nb = base + J.W3;
-        const int32_t* on = o + (J.V + 1);
-        for (int j = 0; j < J.n_segs; ++j) {
-            const int64_t* sg = J.segs + 4 * j;
-            const int k = int(sg[1]), lo = on[k], hi = on[k + 1];
-            const int a = lo + int(int64_t(hi - lo) * (3 * sg[2]) / J.W3), b = lo + int(int64_t(hi - lo) * (3 * sg[3]) / J.W3);
-            for (int i = a; i <= b; i += 16) { __builtin_prefetch(J.zeta + nb + i); __builtin_prefetch(J.pos + nb + i); }
-        }
-    }
     for (int j = 0; j < J.n_segs; ++j) {  // gather the row's candidates
         const int64_t* sg = J.segs + 4 * j;
         const int e = int(sg[0]), k = int(sg[1]);
         const int a = lower_bound_spread(J.pos + base, o[k], o[k + 1], int(3 * sg[2]), J.W3);
         const int b = lower_bound_spread(J.pos + base, a, o[k + 1], int(3 * sg[3]), J.W3);
         if (size_t(n + (b - a) + 16) > R.p.size()) R.reserve(size_t(n + (b - a)) * 2);
-        const float d0 = J.kv[(int64_t(e) * J.V + k) * 2], d1 = J.kv[(int64_t(e) * J.V + k) * 2 + 1];
-        const int ef = e | (J.contested[j] << 8);  // the eye, and whether another eye may be nearer
         for (int i = a; i < b; ++i, ++n) {
-            R.p[n] = J.pos[base + i];
+            R.p[n] = int32_t(J.pos[base + i]) | (j << 16);  // position and segment (< 32768 of each)
             R.z[n] = J.zeta[base + i];
-            R.e[n] = ef;
-            R.d0[n] = d0;
-            R.d1[n] = d1;
         }
     }
     const int ty = J.tex_row[y];
@@ -251,8 +245,9 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
     for (int i = 0; i < n; i += 16) {
         const int len = std::min(16, n - i);
         __mmask16 m = len == 16 ? __mmask16(0xFFFF) : __mmask16((1u << len) - 1);
-        const __m512i p = _mm512_maskz_loadu_epi32(m, R.p.data() + i);
-        const __m512i ef = _mm512_maskz_loadu_epi32(m, R.e.data() + i);
+        const __m512i pj = _mm512_maskz_loadu_epi32(m, R.p.data() + i);
+        const __m512i p = _mm512_and_si512(pj, _mm512_set1_epi32(0xFFFF)), sj = _mm512_srli_epi32(pj, 16);
+        const __m512i ef = _mm512_i32gather_epi32(sj, R.seg_e.data(), 4);  // the segment's eye (| 256: contested)
         const __m512i e = _mm512_and_si512(ef, _mm512_set1_epi32(0xFF));
         const __mmask16 contested = _mm512_test_epi32_mask(ef, _mm512_set1_epi32(0x100));
         const __m512 z0 = _mm512_maskz_loadu_ps(m, R.z.data() + i);
@@ -276,7 +271,7 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
             m &= ~(other & (_mm512_cmp_ps_mask(go, best, _CMP_LT_OQ) | (lower & _mm512_cmp_ps_mask(go, best, _CMP_EQ_OQ))));
         }
         if (!m) continue;
-        const __m512 d0 = _mm512_maskz_loadu_ps(m, R.d0.data() + i), d1 = _mm512_maskz_loadu_ps(m, R.d1.data() + i);
+        const __m512 d0 = _mm512_i32gather_ps(sj, R.seg_d0.data(), 4), d1 = _mm512_i32gather_ps(sj, R.seg_d1.data(), 4);
         __m512 g = _mm512_set1_ps(J.gh[0]), h = _mm512_set1_ps(J.gh[1]);  // the eyes' (few): selects, not gathers
         for (int oe = 1; oe < J.E; ++oe) {
             const __mmask16 is = _mm512_cmpeq_epi32_mask(e, _mm512_set1_epi32(oe));
@@ -359,13 +354,13 @@ PyObject* scatter_slices(PyObject*, PyObject* args) {
         J.contested = contested.data();
     }
     if (ok) {
-        const bool wide = !blend && mode != 1 && cpu_has_avx512();
+        const bool wide = !blend && mode != 1 && cpu_has_avx512() && J.n_segs < 32768;
         const int chunk = 16;  // rows per work item
         Py_BEGIN_ALLOW_THREADS
         parallel_for((J.H + chunk - 1) / chunk, std::max(1, n_threads), [&](int c) {
 #if HV_HAVE_AVX2_PATH
             if (wide) {
-                SliceRowBuf R;
+                SliceRowBuf R(J);
                 for (int y = c * chunk; y < std::min(J.H, c * chunk + chunk); ++y) J.counts[y] = slice_row_avx512(J, y, R);
                 return;
             }
