@@ -343,6 +343,41 @@ def test_scatter_kernels_agree_and_cover_every_received_subpixel(buckets, rig, a
     assert written.mean() < 0.45
 
 
+@pytest.mark.skipif(not slices_cpp_available(), reason="C++ extension not built")
+def test_scatter_kernels_agree_on_many_segments_and_any_texel_table(buckets, rig):
+    """The AVX-512 kernel reads up to 64 segments' constants by permutes and computes the texel
+    column where floor((x + 1/2) w / W) gives the table (the Portrait's): beyond 64 segments (the
+    same ones cut into pieces, so the same output) and with another texel table it gathers, and
+    every kernel still gives numba's output."""
+    import copy
+
+    il, b = buckets
+    viewer = eyes.TrackedViewer(4.0, 0.7)
+    segs, bounds, imgs, wm, kv, gh = _tables(rig, viewer, 2, il.mode)
+    reach = eyes.reach_views(0.5, 0.01)
+    pieces = []
+    for e, k, x0, x1 in segs:  # each segment cut in three
+        cuts = np.linspace(x0, x1, 4).astype(np.int64)
+        pieces += [(e, k, cuts[i], cuts[i + 1]) for i in range(3)]
+    many = np.array(pieces, dtype=np.int64)
+    assert len(segs) <= 64 < len(many)
+    other = copy.copy(b)
+    other.tex_col = b.tex_col[::-1].copy()  # valid texels, not floor((x + 1/2) w / W)
+    for tables, s in ((b, segs), (b, many), (other, segs)):
+        outs = []
+        for kernel in SCATTER_KERNELS:
+            native = np.zeros(il.shape, np.uint8)
+            n = scatter_slices(native, tables, s, bounds, reach, imgs, wm, kv, gh, kernel=kernel)
+            outs.append((n, native))
+        for n, native in outs[1:]:
+            assert n == outs[0][0]
+            np.testing.assert_array_equal(native, outs[0][1])
+    a, bb = (np.zeros(il.shape, np.uint8) for _ in range(2))
+    assert scatter_slices(a, b, segs, bounds, reach, imgs, wm, kv, gh) == \
+        scatter_slices(bb, b, many, bounds, reach, imgs, wm, kv, gh)
+    np.testing.assert_array_equal(a, bb)
+
+
 def test_scatter_validates_its_inputs(buckets, rig):
     il, b = buckets
     segs, bounds, imgs, wm, kv, gh = _tables(rig, eyes.TrackedViewer(0.0, 0.6), 1, il.mode)

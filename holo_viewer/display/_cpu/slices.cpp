@@ -202,14 +202,44 @@ HV_TARGET_AVX512 inline __m512 slice_gap16(__m512 z0, __m512 lo, __m512 hi, __m5
 struct SliceRowBuf {
     std::vector<int32_t> p, seg_e;  // per candidate: position | segment << 16; per segment: eye | contested << 8
     std::vector<float> z, seg_d0, seg_d1;  // per candidate: lens coordinate; per segment: warp coefficients
-    explicit SliceRowBuf(const SliceJob& J) : seg_e(size_t(J.n_segs) + 1), seg_d0(size_t(J.n_segs) + 1),
-                                              seg_d1(size_t(J.n_segs) + 1) {
+    // up to 64 segments: the tables live in registers and are read by permutes, not gathers
+    bool small = false, tex_affine = false;
+    float tex_scale = 0.0f;
+    __m512 tab[3][4];
+    HV_TARGET_AVX512 explicit SliceRowBuf(const SliceJob& J)
+        : seg_e(size_t(std::max(J.n_segs, 64)) + 1), seg_d0(size_t(std::max(J.n_segs, 64)) + 1),
+          seg_d1(size_t(std::max(J.n_segs, 64)) + 1) {
         for (int j = 0; j < J.n_segs; ++j) {
             const int e = int(J.segs[4 * j]), k = int(J.segs[4 * j + 1]);
             seg_e[size_t(j)] = e | (J.contested[j] << 8);
             seg_d0[size_t(j)] = J.kv[(int64_t(e) * J.V + k) * 2];
             seg_d1[size_t(j)] = J.kv[(int64_t(e) * J.V + k) * 2 + 1];
         }
+        small = J.n_segs <= 64;
+        for (int r = 0; r < 4; ++r) {
+            tab[0][r] = _mm512_castsi512_ps(_mm512_loadu_si512(seg_e.data() + 16 * r));
+            tab[1][r] = _mm512_loadu_ps(seg_d0.data() + 16 * r);
+            tab[2][r] = _mm512_loadu_ps(seg_d1.data() + 16 * r);
+        }
+        // the texel column of native column x as floor((x + 1/2) wv / W) in float32, the kernel's
+        // expression, where that reproduces the table for every column (the Portrait's does)
+        const int W = J.W3 / 3;
+        tex_scale = float(J.wv) / float(W);
+        tex_affine = true;
+        for (int x = 0; x < W && tex_affine; ++x)
+            tex_affine = int(std::floor((float(x) + 0.5f) * tex_scale)) == J.tex_col[x];
+    }
+    HV_TARGET_AVX512 __m512 lookup(__m512i j, const std::vector<float>& t, int which) const {
+        if (!small) return _mm512_i32gather_ps(j, t.data(), 4);
+        const __m512 lo = _mm512_permutex2var_ps(tab[which + 1][0], j, tab[which + 1][1]);
+        const __m512 hi = _mm512_permutex2var_ps(tab[which + 1][2], j, tab[which + 1][3]);
+        return _mm512_mask_mov_ps(lo, _mm512_test_epi32_mask(j, _mm512_set1_epi32(32)), hi);
+    }
+    HV_TARGET_AVX512 __m512i lookup_e(__m512i j) const {
+        if (!small) return _mm512_i32gather_epi32(j, seg_e.data(), 4);
+        const __m512 lo = _mm512_permutex2var_ps(tab[0][0], j, tab[0][1]);
+        const __m512 hi = _mm512_permutex2var_ps(tab[0][2], j, tab[0][3]);
+        return _mm512_castps_si512(_mm512_mask_mov_ps(lo, _mm512_test_epi32_mask(j, _mm512_set1_epi32(32)), hi));
     }
     void reserve(size_t n) {
         if (p.size() < n + 16) { p.resize(n + 16); z.resize(n + 16); }
@@ -240,6 +270,7 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
     const __m512 wvf = _mm512_set1_ps(float(J.wv)), reach = _mm512_set1_ps(J.reach), nv = _mm512_set1_ps(float(J.V));
     const __m512i wv2 = _mm512_set1_epi32(J.wv - 2), two_w = _mm512_set1_epi32(2 * W), one = _mm512_set1_epi32(1);
     const __m512i three = _mm512_set1_epi32(3);
+    const __m512 tex_scale = _mm512_set1_ps(R.tex_scale);
     alignas(64) int32_t pv[16], vv[16];
     int64_t cnt = 0;
     for (int i = 0; i < n; i += 16) {
@@ -247,7 +278,7 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
         __mmask16 m = len == 16 ? __mmask16(0xFFFF) : __mmask16((1u << len) - 1);
         const __m512i pj = _mm512_maskz_loadu_epi32(m, R.p.data() + i);
         const __m512i p = _mm512_and_si512(pj, _mm512_set1_epi32(0xFFFF)), sj = _mm512_srli_epi32(pj, 16);
-        const __m512i ef = _mm512_i32gather_epi32(sj, R.seg_e.data(), 4);  // the segment's eye (| 256: contested)
+        const __m512i ef = R.lookup_e(sj);  // the segment's eye (| 256: contested)
         const __m512i e = _mm512_and_si512(ef, _mm512_set1_epi32(0xFF));
         const __mmask16 contested = _mm512_test_epi32_mask(ef, _mm512_set1_epi32(0x100));
         const __m512 z0 = _mm512_maskz_loadu_ps(m, R.z.data() + i);
@@ -271,7 +302,7 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
             m &= ~(other & (_mm512_cmp_ps_mask(go, best, _CMP_LT_OQ) | (lower & _mm512_cmp_ps_mask(go, best, _CMP_EQ_OQ))));
         }
         if (!m) continue;
-        const __m512 d0 = _mm512_i32gather_ps(sj, R.seg_d0.data(), 4), d1 = _mm512_i32gather_ps(sj, R.seg_d1.data(), 4);
+        const __m512 d0 = R.lookup(sj, R.seg_d0, 0), d1 = R.lookup(sj, R.seg_d1, 1);
         __m512 g = _mm512_set1_ps(J.gh[0]), h = _mm512_set1_ps(J.gh[1]);  // the eyes' (few): selects, not gathers
         for (int oe = 1; oe < J.E; ++oe) {
             const __mmask16 is = _mm512_cmpeq_epi32_mask(e, _mm512_set1_epi32(oe));
@@ -279,7 +310,9 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
             h = _mm512_mask_mov_ps(h, is, _mm512_set1_ps(J.gh[2 * oe + 1]));
         }
         const __m512i rowbase = _mm512_add_epi32(_mm512_mullo_epi32(e, eplane), wrow0);  // slice e, row ty
-        const __m512i u = _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), m, x, J.tex_col, 4);
+        const __m512i u = R.tex_affine ? _mm512_cvttps_epi32(_mm512_floor_ps(_mm512_mul_ps(
+                                             _mm512_add_ps(_mm512_cvtepi32_ps(x), _mm512_set1_ps(0.5f)), tex_scale)))
+                                       : _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), m, x, J.tex_col, 4);
         const __m512 uc = _mm512_add_ps(_mm512_cvtepi32_ps(u), _mm512_set1_ps(0.5f));
         __m512 w = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, _mm512_add_epi32(rowbase, u), J.wmaps, 4);
         __m512 xi = _mm512_div_ps(_mm512_add_ps(_mm512_add_ps(uc, d0), _mm512_mul_ps(d1, w)),
