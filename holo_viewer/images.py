@@ -6,9 +6,14 @@ uint8 passes through unchanged.
 
 NaN and +-inf are refused with :class:`~holo_viewer.errors.ExportError` (a wrong picture is
 never written or shown silently), and so are finite values too large to be an image (float32
-above ~1e16, float64 above ~1e150, whose squares overflow): the check is one BLAS dot product of
-the scaled values with themselves, non-finite exactly then. Measured on a 48-view 420x560 quilt
-(2 cores, load ~3): 18 ms to convert without the check, 24 ms with it.
+above ~7e16, float64 above ~5e151, where the square of 255 x overflows). Images of 3 or 2 axes
+(a view, a quilt tile, a native image; ``out`` may be a strided view whose rows are contiguous)
+go through one compiled pass over their rows on all threads: scale, check, round, clip and store
+fused (the same values as numpy's multiply, rint, clip; tested equal); when it refuses an image,
+``out`` may hold part of it (the call raises). Other shapes use numpy (nothing written then), the check being one BLAS
+dot product of the scaled values with themselves, non-finite exactly when one square overflows
+or one value is NaN/inf (the sum of many large squares may overflow too: refused as well).
+Measured on the 48 views of a full quilt, 420x560 each (2 cores): 21 ms with numpy, 7 ms fused.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import ExportError, InputError
+
 
 __all__ = ["to_uint8"]
 
@@ -56,6 +62,17 @@ def to_uint8(images: np.ndarray, out: np.ndarray | None = None, *, name: str = "
     if not np.issubdtype(a.dtype, np.floating):
         raise ExportError(f"{name}: expected uint8 or float in [0, 1], found dtype {a.dtype}")
     dtype = np.result_type(a.dtype, np.float32)  # float32 stays float32, float64 stays float64
+    rows = _rows_view(out) if out is not None and a.ndim in (2, 3) else None
+    if a.ndim in (2, 3) and a.size and a.dtype == dtype and (out is None or rows is not None):  # the fused pass
+        if out is not None and out.dtype != np.uint8:
+            raise InputError(f"out: expected uint8, found {out.dtype}")
+        dst = np.empty(a.shape, dtype=np.uint8) if out is None else out
+        from ._uint8 import to_uint8_rows  # numba: imported when first needed
+
+        if to_uint8_rows(np.ascontiguousarray(a).reshape(a.shape[0], -1), _rows_view(dst)):
+            raise ExportError(f"{name}: contains NaN/inf (or absurdly large) values; expected floats in [0, 1], "
+                              "refusing to write a wrong picture")
+        return dst
     x = np.multiply(a, dtype.type(255.0), dtype=dtype)  # one temporary, updated in place
     if x.size and not np.isfinite(np.vdot(x, x)):  # NaN/inf propagate through the sum of squares
         raise ExportError(f"{name}: contains NaN/inf (or absurdly large) values; expected floats in [0, 1], "
@@ -66,3 +83,13 @@ def to_uint8(images: np.ndarray, out: np.ndarray | None = None, *, name: str = "
         return x.astype(np.uint8)
     np.copyto(out, x, casting="unsafe")
     return out
+
+
+def _rows_view(a: np.ndarray) -> np.ndarray | None:
+    """``a`` (H, ...) as an (H, L) view whose rows are contiguous (a quilt tile is), or None."""
+    v = a.view()
+    try:
+        v.shape = (a.shape[0], -1)  # raises where that would need a copy
+    except AttributeError:
+        return None
+    return v if v.strides[1] == v.itemsize or v.shape[1] <= 1 else None

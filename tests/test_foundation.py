@@ -182,3 +182,28 @@ def test_one_cache_dir_honours_holo_viewer_cache(tmp_path, monkeypatch):
     (tmp_path / "hv" / default_head.ASSET_NAME).write_bytes(b"placeholder")
     monkeypatch.setattr(default_head, "_repo_asset", lambda: tmp_path / "no-such-asset" / default_head.ASSET_NAME)
     assert default_head.default_head_path() == tmp_path / "hv" / default_head.ASSET_NAME
+
+
+def test_uint8_fused_pass_equals_numpy():
+    """Images of 2 or 3 axes take the compiled pass (scale, round half to even, clip, store,
+    fused, on all threads); it gives numpy's multiply, rint and clip exactly, into strided tiles
+    too, and refuses NaN/inf and overflowing squares like the numpy path (other shapes)."""
+    from holo_viewer.images import to_uint8
+
+    rng = np.random.default_rng(5)
+    for dtype in (np.float32, np.float64):
+        a = rng.uniform(-0.3, 1.3, (37, 23, 3)).astype(dtype)
+        a[0, :10, 0] = (np.arange(10) + 0.5) / 255  # exact halves: to even
+        want = np.clip(np.rint(a * dtype(255.0)), 0, 255).astype(np.uint8)
+        np.testing.assert_array_equal(to_uint8(a), want)
+        np.testing.assert_array_equal(to_uint8(a[..., 1]), want[..., 1])  # 2 axes
+        np.testing.assert_array_equal(to_uint8(a.reshape(-1)), want.reshape(-1))  # 1 axis: numpy
+        out = np.full((40, 50, 3), 7, np.uint8)
+        to_uint8(a, out=out[2:39, 5:28])  # a strided tile
+        np.testing.assert_array_equal(out[2:39, 5:28], want)
+        assert (out[:2] == 7).all() and (out[:, 28:] == 7).all()
+        for bad in (np.nan, np.inf, 1e30 if dtype == np.float32 else 1e200):
+            b = a.copy()
+            b[20, 3, 2] = bad
+            with pytest.raises(ExportError, match="NaN/inf"):
+                to_uint8(b)
