@@ -436,3 +436,24 @@ def _moved(g: Gaussians, seed: int) -> Gaussians:
     gg = g.numpy()
     return Gaussians(gg.means + rng.normal(scale=0.004, size=gg.means.shape), gg.quats, gg.log_scales,
                      gg.opacity_logits, gg.sh + rng.normal(scale=0.2, size=gg.sh.shape))
+
+
+@pytest.mark.parametrize("tracked", ["slices", "bands"])
+def test_prepare_tracked_builds_the_first_frames_tables(cams, tracked):
+    """prepare_tracked builds every one-off table a tracked frame needs (the slices' subpixel
+    buckets; the interleaver's column readers or keys), so the first tracked frame of a live
+    session builds none of them, and it runs once."""
+    live = LiveRenderer(SMALL, cams, LiveConfig(tracked=tracked, refresh_columns=2))
+    il = live.interleaver
+    assert getattr(il, "_readers", None) is None and getattr(il, "_keys", None) is None
+    live.prepare_tracked()
+    if tracked == "slices":
+        assert live._buckets is not None and il._readers is not None
+    else:
+        assert il._keys is not None
+    tables = (live._buckets, getattr(il, "_readers", None), getattr(il, "_keys", None))
+    g = _scene(3, 500)
+    live.frame(g, eyes.TrackedViewer(0.0, 0.6), mode="tracked")  # the first frame: everything
+    live.frame(g, eyes.TrackedViewer(2.0, 0.6), mode="tracked")
+    after = (live._buckets, getattr(il, "_readers", None), getattr(il, "_keys", None))
+    assert all(a is b for a, b in zip(tables, after))  # nothing rebuilt

@@ -232,6 +232,7 @@ class LiveRenderer:
         self.view_step = step if self._rig is not None and V > 2 else 1
         self._slice_rig = None
         self._buckets = None
+        self._tracked_ready = False  # prepare_tracked has run
         if self.config.tracked != "bands" and self.config.backend == "fast":
             from ..render import crossed_slit
 
@@ -473,10 +474,21 @@ class LiveRenderer:
                              bounds=bounds)
 
     def prepare_tracked(self) -> None:
-        """Build the one-off tables of ``slices`` tracked frames now (~2 s and ~60 MB for the
-        Portrait; otherwise the first tracked frame does): a live session calls it while it warms
-        up, a benchmark before it times."""
-        if self.tracked_method != "slices" or self._buckets is not None:
+        """Build the one-off tables of tracked frames now (otherwise the first tracked frame does,
+        and takes ~0.5 s longer for the Portrait): the interleaver's per-subpixel tile-column keys
+        (``bands``; ``slices``: the lists of the subpixels reading each tile column, for the
+        refresh) and, for ``slices``, the subpixels sorted by view (~2 s, ~60 MB). A live session
+        calls it while it warms up, a benchmark before it times."""
+        if self._tracked_ready:
+            return
+        self._tracked_ready = True
+        none = np.zeros((len(self.cameras), self.tiles_x), dtype=bool)
+        if self.tracked_method == "bands":
+            self.interleaver.update_columns(self.quilt, self.native, none, block=self.tile)
+            return
+        if self.refresh_columns > 0:
+            self.interleaver.readers(none, block=self.tile)
+        if self.tracked_method != "slices":
             return
         from ..display.slices import SubpixelBuckets
 
