@@ -257,11 +257,12 @@ def test_release_buffers_then_render_again():
 def test_radix_argsort_is_numpys_stable_argsort():
     """_splat_cpp.argsort_stable (LSD radix on the depths' bits) = numpy's stable argsort,
     ties (-0.0 and +0.0 among them) in index order, over magnitudes, signs, infinities,
-    subnormals and digits shared by every key (skipped passes)."""
+    subnormals, NaN of either sign (last) and digits shared by every key (skipped passes)."""
     cpp = fast._cpp()
     rng = np.random.default_rng(11)
     cases = [rng.normal(size=20000), rng.uniform(0.4, 0.9, 30000), np.round(rng.uniform(-1, 1, 9000), 2),
              np.array([0.0, -0.0, 1.0, -1.0, -0.0, 0.0, np.inf, -np.inf, 5e-324, -5e-324, 1e308, -1e-308]),
+             np.array([np.nan, 2.0, -np.nan, -np.inf, np.nan, np.inf, 0.5, -np.nan]),
              rng.choice([1.5, -2.25, 1e-300], 5000), np.full(100, 0.7), np.zeros(0), np.array([3.0]),
              np.ldexp(rng.uniform(1, 2, 8000), rng.integers(-1070, 1020, 8000)) * rng.choice([-1, 1], 8000)]
     for z in cases:
