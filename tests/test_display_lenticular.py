@@ -84,6 +84,21 @@ def test_random_calibrations_match_reference(flags, backend):
         assert np.abs(ib(qf) - interleave_reference(qf, cal, n_views=n, mode="blend"))[ok].max() < 1e-5
 
 
+@pytest.mark.parametrize("flags", FLAGS[:3], ids=lambda f: "".join(k[0] + k[-1] + str(int(v)) for k, v in f.items()))
+def test_nearest_row_kernel_reads_the_index_tables_texels(flags):
+    """The numba nearest kernel reads each subpixel's texel as row part (native row, view) +
+    column part (subpixel) through one byte of view: exactly the flat index table's texel, for
+    every subpixel, uint8 and float32 quilts."""
+    rng = np.random.default_rng(17)
+    for cal in (_random_cal(rng, **flags), FIX):
+        shape = (cal.quilt_height, cal.quilt_width, 3)
+        il = Interleaver(cal, shape, backend="numba")
+        assert il._rows is not None
+        for q in (rng.integers(0, 256, shape, dtype=np.uint8), rng.random(shape, dtype=np.float32)):
+            want = np.take(q.reshape(-1), il._idx0).reshape(il.shape)
+            np.testing.assert_array_equal(il(q), want)
+
+
 def test_fixture_full_size_every_subpixel():
     rng = np.random.default_rng(0)
     q = rng.integers(0, 256, (3360, 3360, 3), dtype=np.uint8)

@@ -266,7 +266,17 @@ def _numba_kernels():
                     if chosen[key0[s]] or (mode != 0 and chosen[key1[s]]):
                         _ONE_SUBPIXEL(src, i0, i1, w8, wf, s, out, mode)
 
-        _NUMBA_KERNELS = (gather, blend_u8, blend_f, update, update_keys)
+        @numba.njit(parallel=True, cache=True, boundscheck=False)
+        def gather_rows(src, view, rowpart, colpart, out):  # pragma: no cover - compiled
+            # out[y, s] = src[rowpart[y, view[y, s]] + colpart[s]]: the texel index from the row's
+            # tile offsets and the column's texel (one byte of view per subpixel read, not an index)
+            H, L = view.shape
+            for y in numba.prange(H):
+                rp = rowpart[y]
+                for s in range(L):
+                    out[y, s] = src[rp[view[y, s]] + colpart[s]]
+
+        _NUMBA_KERNELS = (gather, blend_u8, blend_f, update, update_keys, gather_rows)
     return _NUMBA_KERNELS
 
 
@@ -391,6 +401,17 @@ class Interleaver:
                 self._idx1[sl] = flat(v1)
                 self._w8[sl] = np.rint(w * 256.0).astype(np.uint16).ravel()
         self._wf = None
+        # nearest mode: the same indices as row part (per native row and view) + column part (per
+        # subpixel), read through one byte of view per subpixel (9 MB instead of the 38 MB index
+        # table; the full interleave 15 -> 9 ms on the Portrait, 2 cores)
+        self._rows = None
+        if not blend and n <= 256:
+            qrow = Hq - 1 - (tile_row0[None, :] + tex_row[:, None])  # (H, n)
+            rowpart = (qrow * Wq + tile_col0[None, :]) * 3
+            colpart = (tex_col[:, None] * 3 + ch[None, :]).reshape(-1)
+            if rowpart.max() + colpart.max() < np.iinfo(np.int32).max:
+                self._rows = (self.view_index.astype(np.uint8).reshape(H, W * 3), rowpart.astype(np.int32),
+                              colpart.astype(np.int32))
 
     # ------------------------------------------------------------------ apply
     def __call__(self, quilt: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
@@ -423,7 +444,10 @@ class Interleaver:
         flat_out = out.reshape(-1)
         nchunks = self.shape[0]
         if self.mode == "nearest":
-            if self.backend == "numba":
+            if self.backend == "numba" and self._rows is not None:
+                view8, rowpart, colpart = self._rows
+                _numba_kernels()[5](src, view8, rowpart, colpart, out.reshape(self.shape[0], -1))
+            elif self.backend == "numba":
                 _numba_kernels()[0](src, self._idx0, flat_out, nchunks)
             else:
                 np.take(src, self._idx0, out=flat_out)
