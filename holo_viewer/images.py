@@ -22,7 +22,6 @@ import numpy as np
 
 from .errors import ExportError, InputError
 
-
 __all__ = ["to_uint8"]
 
 
@@ -62,17 +61,16 @@ def to_uint8(images: np.ndarray, out: np.ndarray | None = None, *, name: str = "
     if not np.issubdtype(a.dtype, np.floating):
         raise ExportError(f"{name}: expected uint8 or float in [0, 1], found dtype {a.dtype}")
     dtype = np.result_type(a.dtype, np.float32)  # float32 stays float32, float64 stays float64
-    rows = _rows_view(out) if out is not None and a.ndim in (2, 3) else None
-    if a.ndim in (2, 3) and a.size and a.dtype == dtype and (out is None or rows is not None):  # the fused pass
-        if out is not None and out.dtype != np.uint8:
-            raise InputError(f"out: expected uint8, found {out.dtype}")
+    if a.ndim in (2, 3) and a.size and a.dtype == dtype and (out is None or out.dtype == np.uint8):
         dst = np.empty(a.shape, dtype=np.uint8) if out is None else out
-        from ._uint8 import to_uint8_rows  # numba: imported when first needed
+        rows = _rows_view(dst)
+        if rows is not None:  # the fused pass
+            from ._uint8 import to_uint8_rows  # numba: imported when first needed
 
-        if to_uint8_rows(np.ascontiguousarray(a).reshape(a.shape[0], -1), _rows_view(dst)):
-            raise ExportError(f"{name}: contains NaN/inf (or absurdly large) values; expected floats in [0, 1], "
-                              "refusing to write a wrong picture")
-        return dst
+            if to_uint8_rows(np.ascontiguousarray(a).reshape(a.shape[0], -1), rows):
+                raise ExportError(f"{name}: contains NaN/inf (or absurdly large) values; expected floats in [0, 1], "
+                                  "refusing to write a wrong picture")
+            return dst
     x = np.multiply(a, dtype.type(255.0), dtype=dtype)  # one temporary, updated in place
     if x.size and not np.isfinite(np.vdot(x, x)):  # NaN/inf propagate through the sum of squares
         raise ExportError(f"{name}: contains NaN/inf (or absurdly large) values; expected floats in [0, 1], "

@@ -210,8 +210,8 @@ def view_segments(calibration: DisplayCalibration, viewer: TrackedViewer, *, n_v
     reach = _view_reach(mode, sigma_views, threshold, n)
     if bounds is None:
         bounds = eye_view_bounds(cal, viewer, n_views=n, motion_m=motion_m, motion_distance_m=motion_distance_m)
-    elif bounds.shape != (len(eye_positions(viewer)), 2, cal.screen_w):
-        raise InputError(f"bounds: expected ({len(eye_positions(viewer))}, 2, {cal.screen_w}), found {bounds.shape}")
+    elif bounds.shape != (want := (len(eye_positions(viewer)), 2, cal.screen_w)):
+        raise InputError(f"bounds: expected {want}, found {bounds.shape}")
     # t_lo, t_hi fall with the column (the view coordinate turns away from the eye across the
     # panel), so view k (or k -+ n, circularly) is within reach on one run of columns:
     # t_hi(x) > k - reach on a prefix, t_lo(x) < k + reach on a suffix (the rule of view_columns)

@@ -486,10 +486,8 @@ class LiveRenderer:
         if self.tracked_method == "bands":
             self.interleaver.update_columns(self.quilt, self.native, none, block=self.tile)
             return
-        if self.refresh_columns > 0:
+        if self.refresh_columns > 0:  # slices
             self.interleaver.readers(none, block=self.tile)
-        if self.tracked_method != "slices":
-            return
         from ..display.slices import SubpixelBuckets
 
         V, H, W = len(self.cameras), self.cameras.height, self.cameras.width

@@ -257,12 +257,15 @@ def transform_splats(rig: SliceRig, eyes: list[EyeSlice], splats: SortedSplats,
         out = (np.empty((E, 3, mp)), np.empty((E, 6, mp)), np.empty((E, 3, mp), np.float32))
     coef = np.array([eye.coefficients(rig) for eye in eyes], dtype=np.float64).reshape(E, 5)
     ab = np.array([(eye.A, eye.B) for eye in eyes], dtype=np.float64).reshape(E, 2)
-    # camera position of s: -R^T (tx(s), ty, tz) = P0 + s P1
-    P0 = -rig.R.T @ np.array([rig.p0, rig.ty, rig.tz])
-    P1 = -rig.R.T @ np.array([rig.p1, 0.0, 0.0])
+    P0, P1 = _camera_line(rig)
     _transform(splats.pc, splats.cov, splats.means, splats.sh, splats.m, int(splats.degree), rig.ty, rig.tz, rig.fx,
                rig.cxm, rig.near, coef, ab, P0, P1, out[0], out[1], out[2])
     return out
+
+
+def _camera_line(rig: SliceRig) -> tuple[np.ndarray, np.ndarray]:
+    """P0, P1 with the camera position of column parameter s: -R^T (tx(s), ty, tz) = P0 + s P1."""
+    return -rig.R.T @ np.array([rig.p0, rig.ty, rig.tz]), -rig.R.T @ np.array([rig.p1, 0.0, 0.0])
 
 
 def slit_views(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray, t_min: float | None = None) -> SlitViews:
@@ -273,8 +276,7 @@ def slit_views(rig: SliceRig, eyes: list[EyeSlice], out: np.ndarray, t_min: floa
     E = len(eyes)
     if out.shape != (E, rig.height, rig.width, 3):
         raise InputError(f"out: expected {(E, rig.height, rig.width, 3)}, found {out.shape}")
-    P0 = -rig.R.T @ np.array([rig.p0, rig.ty, rig.tz])  # camera position of s: P0 + s P1
-    P1 = -rig.R.T @ np.array([rig.p1, 0.0, 0.0])
+    P0, P1 = _camera_line(rig)
     params = np.array([(*eye.coefficients(rig), eye.A, eye.B, *P0, *P1) for eye in eyes], dtype=np.float64)
     return SlitViews(cameras=slice_cameras(rig, E), params=params.reshape(E, 13), out=out, t_min=t_min)
 

@@ -536,8 +536,6 @@ __attribute__((target("avx2,fma"))) int64_t tile_avx2(const Job& J, int v, int t
 // software prefetch PREFETCH entries ahead (the record of a view is 6 MB for 100k splats:
 // without it the record loads' cache misses took half the time). Same arithmetic as the AVX2
 // path up to float rounding; 256-bit halves of the 512-bit ops on CPUs that split them.
-// GCC 12's avx512fintrin.h warns about its own _mm512_undefined_ps (a false positive)
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 
 HV_TARGET_AVX512 inline __m512 fast_exp2_16(__m512 t) {
     // same polynomial as fast_exp2_8; scalef applies 2^n
@@ -1491,9 +1489,9 @@ PyObject* prep_sorted(PyObject*, PyObject* args) {
 // ---- fast.depth_order: a stable argsort of float64 depths (numpy's argsort(kind="stable"),
 // identical: ties keep index order). LSD radix sort, 11 bits a pass, on the depths' bits mapped
 // to order-preserving unsigned keys (-0.0 and +0.0, which compare equal, mapped to one key; NaN
-// of either sign last, as numpy puts it);
-// the passes whose digit is the same for every key are skipped. ~4x numpy's timsort on 100k
-// depths of an animated avatar (where the previous frame's order is a poor hint).
+// of either sign last, as numpy puts it); the passes whose digit is the same for every key are
+// skipped. 1.3 ms against 3.9 ms for the hinted timsort on 100k depths of an animated avatar
+// (where the previous frame's order is a poor hint), 2.0 against 10 ms unhinted.
 PyObject* argsort_stable(PyObject*, PyObject* args) {
     Py_buffer zb{}, ob{};
     if (!PyArg_ParseTuple(args, "y*w*", &zb, &ob)) return nullptr;
