@@ -54,7 +54,10 @@ class LiveRenderer:
         See the module docstring.
     calibration : DisplayCalibration, optional
     render_threads : int, optional
-        Renderer threads (default: all cores but one).
+        Renderer threads (default: all cores). The tracker and reaction threads need a fifth of a
+        core and sleep between frames; the scheduler runs them as soon as they wake, so they are
+        not starved (no late reaction window in ``bench/live_latency.py``). Reserving them a core
+        left it mostly idle: on 2 cores the render took 84 ms a frame instead of 55.
     view_step : int or None
         ``all_views``: render every view_step-th view and synthesize the others by depth
         (:class:`holo_viewer.pipeline.live.LiveConfig`; None: the live default, 5; 1: every view).
@@ -68,8 +71,7 @@ class LiveRenderer:
         from ..pipeline import Pipeline, ViewSettings
         from ..render.config import RenderConfig
 
-        # leave one core to the tracker and reaction threads: rendering must never starve the stream
-        threads = max(1, (os.cpu_count() or 2) - 1) if render_threads is None else int(render_threads)
+        threads = max(1, os.cpu_count() or 1) if render_threads is None else int(render_threads)
         self.pipeline = Pipeline(calibration=calibration, view=ViewSettings(tile_scale=tile_scale), backend=backend,
                                  render_config=RenderConfig(num_threads=threads))
         self.native_enabled = bool(native)
