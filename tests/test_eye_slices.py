@@ -457,3 +457,17 @@ def test_prepare_tracked_builds_the_first_frames_tables(cams, tracked):
     live.frame(g, eyes.TrackedViewer(2.0, 0.6), mode="tracked")
     after = (live._buckets, getattr(il, "_readers", None), getattr(il, "_keys", None))
     assert all(a is b for a, b in zip(tables, after))  # nothing rebuilt
+
+
+@pytest.mark.parametrize("tracked", ["slices", "bands"])
+def test_prepare_tracked_after_frames_changes_no_image(cams, tracked):
+    """prepare_tracked also runs the slices frame's compiled kernels once (on no centre, no
+    subpixel, and one tile column of the quilt rewritten from its own views): the kept views, the
+    quilt and the native image are left exactly as they were."""
+    live = LiveRenderer(SMALL, cams, LiveConfig(tracked=tracked, refresh_columns=2))
+    live.frame(_scene(4, 500), eyes.TrackedViewer(0.0, 0.6), mode="tracked")  # everything
+    before = [a.copy() for a in (live.views, live.quilt, live.native)]
+    assert before[1].any() and before[2].any()
+    live.prepare_tracked()
+    for a, b in zip(before, (live.views, live.quilt, live.native)):
+        np.testing.assert_array_equal(a, b)

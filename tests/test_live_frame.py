@@ -34,7 +34,7 @@ from holo_viewer.display.lenticular import Interleaver  # noqa: E402
 from holo_viewer.display.quilt import tile_quilt  # noqa: E402
 from holo_viewer.display.simulate import VirtualDisplay  # noqa: E402
 from holo_viewer.errors import InputError, RenderError  # noqa: E402
-from holo_viewer.pipeline.live import LiveConfig, LiveRenderer, render_native  # noqa: E402
+from holo_viewer.pipeline.live import LiveConfig, LiveRenderer, read_pixels, render_native  # noqa: E402
 from holo_viewer.render import RenderConfig, fast  # noqa: E402
 from holo_viewer.render.lod import contribution, lod_keep  # noqa: E402
 
@@ -299,6 +299,47 @@ def test_full_quilt_and_all_views_modes(small_cameras):
         live.frame(g, mode="tracked")
     with pytest.raises(InputError, match="mode"):
         live.frame(g, mode="sparse")
+
+
+@pytest.mark.parametrize("mode", ["nearest", "blend"])
+def test_read_pixels_are_the_texels_the_interleave_reads(mode):
+    """read_pixels (the quilt's read mask through the tile layout) names exactly the view pixels
+    whose texels the interleave gathers (view_gather_indices, either texel of a blend). The
+    Portrait's own quilt, where the interleave reads about 60 % of the texels."""
+    from holo_viewer.display.device import view_gather_indices
+
+    V, H, W = CAL.cols * CAL.rows, CAL.quilt_height // CAL.rows, CAL.quilt_width // CAL.cols
+    il = Interleaver(CAL, (CAL.quilt_height, CAL.quilt_width, 3), mode=mode)
+    expected = np.zeros(V * H * W, dtype=bool)
+    for idx in view_gather_indices(il, V, H, W)[:2]:
+        if idx is not None:
+            expected[idx // 3] = True
+    got = read_pixels(il, CAL, V)
+    assert got.shape == (V, H, W) and 0.0 < got.mean() < 1.0
+    np.testing.assert_array_equal(got, expected.reshape(V, H, W))
+
+
+def test_prepare_all_views_changes_no_frame(small_cameras):
+    """prepare_all_views builds the synthesized frames' read table once, leaves the images as
+    they were, and the next all_views frames are those of a renderer that was not prepared."""
+    g = _scene(2)
+    live = LiveRenderer(SMALL, small_cameras, LiveConfig(view_step=3))
+    plain = LiveRenderer(SMALL, small_cameras, LiveConfig(view_step=3))
+    live.frame(g, mode="all_views")
+    plain.frame(g, mode="all_views")
+    table = live._sampled
+    before = [a.copy() for a in (live.quilt, live.native)]
+    live._sampled = None
+    live.prepare_all_views()
+    assert live._sampled is not None
+    for a, b in zip(table, live._sampled):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(before, (live.quilt, live.native)):
+        np.testing.assert_array_equal(a, b)
+    fresh = LiveRenderer(SMALL, small_cameras, LiveConfig(view_step=3))
+    fresh.prepare_all_views()
+    g2 = _moved(g, 0)
+    np.testing.assert_array_equal(fresh.frame(g2, mode="all_views").native, plain.frame(g2, mode="all_views").native)
 
 
 def test_eye_cameras_reproduce_the_quilt_cameras(small_cameras):

@@ -87,8 +87,12 @@ class LiveRenderer:
 
             self._live = FrameRenderer(self.pipeline.calibration, self.pipeline.cameras(),
                                        LiveConfig(render=RenderConfig(num_threads=threads), view_step=view_step))
-            if mode in ("auto", "tracked"):  # the one-off tables now, not at the first tracked face
+            # the one-off tables and kernel loads now, not at the first tracked face or the first
+            # frame without one (that froze the display for 1.5 s)
+            if mode in ("auto", "tracked"):
                 self._live.prepare_tracked()
+            if mode in ("auto", "all_views"):
+                self._live.prepare_all_views()
 
     def render(self, listener: Mapping[str, np.ndarray], pain: float, named: tuple[tuple[str, float], ...],
                viewer_angle_deg: float, viewer_distance_m: float, viewer_tracked: bool = True) -> RenderedFrame:

@@ -357,15 +357,9 @@ class LiveRenderer:
         for i, k in enumerate(src):
             rs, cs = tile_slices(Hq, Wq, self.calibration.cols, self.calibration.rows, int(k))
             to_uint8(self._source_images[i], out=self.quilt[rs, cs])
-        if self._sampled is None:  # once: only the quilt pixels the interleave reads are synthesized
-            from ..display.device import view_gather_indices
-
-            V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
-            read = np.zeros(V * H * W, dtype=bool)
-            for idx in view_gather_indices(self.interleaver, V, H, W)[:2]:
-                if idx is not None:
-                    read[idx // 3] = True
-            self._sampled = view_synthesis.sampled_columns(read.reshape(V, H, W))
+        if self._sampled is None:  # once (prepare_all_views): only the quilt pixels the interleave reads
+            self._sampled = view_synthesis.sampled_columns(read_pixels(self.interleaver, self.calibration,
+                                                                       len(self.cameras)))
         t3 = time.perf_counter()
         view_synthesis.warp_views(self._source_images, self._wmaps, src, self._rig, quilt=self.quilt, tiles=self._tiles,
                                   pixels=self._sampled, background=self.config.render.background)
@@ -477,8 +471,9 @@ class LiveRenderer:
         """Build the one-off tables of tracked frames now (otherwise the first tracked frame does,
         and takes ~0.5 s longer for the Portrait): the interleaver's per-subpixel tile-column keys
         (``bands``; ``slices``: the lists of the subpixels reading each tile column, for the
-        refresh) and, for ``slices``, the subpixels sorted by view (~2 s, ~60 MB). A live session
-        calls it while it warms up, a benchmark before it times."""
+        refresh) and, for ``slices``, the subpixels sorted by view (~2 s, ~60 MB), and load the
+        compiled kernels a slices frame calls (numba caches: the first call took ~20 ms more). A
+        live session calls it while it warms up, a benchmark before it times."""
         if self._tracked_ready:
             return
         self._tracked_ready = True
@@ -486,14 +481,43 @@ class LiveRenderer:
         if self.tracked_method == "bands":
             self.interleaver.update_columns(self.quilt, self.native, none, block=self.tile)
             return
+        from ..display.eyes import TrackedViewer, eye_positions
+        from ..display.slices import SubpixelBuckets
+        from ..render import crossed_slit
+
         if self.refresh_columns > 0:  # slices
             self.interleaver.readers(none, block=self.tile)
-        from ..display.slices import SubpixelBuckets
-
+            # the refresh's kernels, on no subpixel and on one tile column that already holds its
+            # views' values (the quilt is always the uint8 of the kept views)
+            one = none.copy()
+            one[0, 0] = True
+            self._columns_to_quilt(one)
+            self.interleaver.update(self.quilt, self.native, np.zeros(0, dtype=np.int32))
         V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
         self._buckets = SubpixelBuckets(self.interleaver, V, H, W)
         self._slices = np.zeros((2, H, W, 3), dtype=np.float32)
         self._slice_w = np.zeros((2, H, W), dtype=np.float32)
+        eyes_ = crossed_slit.eye_slices(self._slice_rig, eye_positions(TrackedViewer(0.0, 0.6)))
+        crossed_slit.slice_depth(np.zeros((1, 3)), np.zeros(1), self._slice_rig, eyes_,  # the z-buffer, no centre
+                                 out=self._slice_w[:len(eyes_)])
+
+    def prepare_all_views(self) -> None:
+        """Build the one-off tables of untracked (``all_views``) frames now and load their compiled
+        kernels: with view synthesis, the quilt pixels the interleave reads (otherwise the first
+        such frame of a session builds them and took 1.5 s instead of 0.14 s for the Portrait).
+        Changes no image. A live session calls it while it warms up."""
+        if self.view_step <= 1 or self.config.backend != "fast" or self._sampled is not None:
+            return
+        from ..render import view_synthesis
+
+        self._sampled = view_synthesis.sampled_columns(read_pixels(self.interleaver, self.calibration,
+                                                                   len(self.cameras)))
+        # the z-buffer and the warp, on no centre and no pixel
+        src, H = self._sources, self.cameras.height
+        view_synthesis.inverse_depth(np.zeros((1, 3)), np.zeros(1), self.cameras, src, rig=self._rig, out=self._wmaps)
+        none = (np.zeros(len(self.cameras) * H + 1, dtype=np.int64), np.zeros(0, dtype=np.int32))
+        view_synthesis.warp_views(self._source_images, self._wmaps, src, self._rig, quilt=self.quilt, tiles=self._tiles,
+                                  pixels=none, background=self.config.render.background)
 
     def _tracked_slices(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
         """A tracked frame from one crossed-slit image per eye (see the module docstring)."""
@@ -561,6 +585,21 @@ class LiveRenderer:
         t3 = time.perf_counter()
         timings.update(select=t1 - t, render=t2 - t1, interleave=t3 - t2)
         return len(cams) / len(self.cameras)
+
+
+def read_pixels(interleaver: Any, calibration: Any, n_views: int) -> np.ndarray:
+    """(n_views, H, W) bool: the views' pixels whose quilt texels the interleave reads (either
+    texel of a blend), through the quilt's tile layout (:func:`holo_viewer.display.quilt.tile_slices`)."""
+    from ..display.quilt import tile_slices
+
+    Hq, Wq, _ = interleaver.quilt_shape
+    read = np.zeros(Hq * Wq, dtype=bool)
+    for idx in interleaver.gather_indices()[:2]:
+        if idx is not None:
+            read[idx // 3] = True
+    read = read.reshape(Hq, Wq)
+    tiles = [tile_slices(Hq, Wq, calibration.cols, calibration.rows, k) for k in range(n_views)]
+    return np.stack([read[rs, cs] for rs, cs in tiles])
 
 
 _CACHE: dict[Any, LiveRenderer] = {}
