@@ -467,6 +467,29 @@ class LiveRenderer:
                              threshold=c.threshold, motion_m=self.motion_m, motion_distance_m=self.motion_distance_m,
                              bounds=bounds)
 
+    def _exact_wrapped(self, segments: np.ndarray, bounds: np.ndarray, colmask: np.ndarray) -> np.ndarray:
+        """Split off the segments an eye receives across the lobe boundary (near the cone's edge
+        it looks past the last view through part of the panel and gets the first views of the next
+        lobe, or the reverse): their subpixels show a view ~n views from the eye's slice, which
+        cannot stand in for it. Their views' tile columns (one texel to spare each side) are added
+        to ``colmask``, so they are rendered exactly through the quilt; returns the others."""
+        if segments.size == 0:
+            return segments
+        n, tw = len(self.cameras), self.cameras.width
+        e, k, x0, x1 = segments.T
+        xm = (x0 + x1 - 1) // 2
+        t_mid = 0.5 * (bounds[e, 0, xm] + bounds[e, 1, xm])  # the eye's view coordinate there
+        wrapped = np.rint((t_mid - k) / n) != 0
+        if not wrapped.any():
+            return segments
+        W = self.calibration.screen_w
+        for kk, a, b in zip(k[wrapped], x0[wrapped], x1[wrapped]):
+            # the texel columns native columns a..b-1 read (view_columns' rule), one to spare
+            c0 = max(int(np.floor((a + 0.5) / W * tw)) - 1, 0) // self.tile
+            c1 = min(int(np.floor((b - 0.5) / W * tw)) + 1, tw - 1) // self.tile
+            colmask[kk, c0:c1 + 1] = True
+        return segments[~wrapped]
+
     def prepare_tracked(self) -> None:
         """Build the one-off tables of tracked frames now (otherwise the first tracked frame does,
         and takes ~0.5 s longer for the Portrait): the interleaver's per-subpixel tile-column keys
@@ -535,6 +558,7 @@ class LiveRenderer:
                                  motion_distance_m=self.motion_distance_m)
         segments = self.tracked_segments(viewer, bounds)
         colmask = np.zeros((len(self.cameras), self.tiles_x), dtype=bool)
+        segments = self._exact_wrapped(segments, bounds, colmask)
         self._refresh(colmask)
         tile_mask = np.repeat(colmask[:, None, :], self.tiles_y, axis=1)
         t1 = time.perf_counter()
