@@ -314,3 +314,29 @@ def test_auto_render_mode_renders_for_the_eyes_only_while_a_face_is_tracked():
 
     with pytest.raises(InputError, match="auto"):
         LiveRenderer(tile_scale=0.1, mode="eyes")
+
+
+def test_render_pose_predicts_where_the_viewer_will_be(tmp_path):
+    """The loop renders for the newest tracked pose extrapolated over its age plus the median of
+    the last renders (predict_viewer, the default); without prediction, or for an untracked pose,
+    for the pose as it is."""
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveConfig, LiveSession
+    from holo_viewer.tracking.viewer import ViewerPose
+
+    now = [10.0]
+    for predict in (True, False):
+        session = LiveSession(LiveConfig(out=str(tmp_path / f"s{int(predict)}"), predict_viewer=predict),
+                              sources.ArrayAudio(np.zeros(16000, np.float32)), None, clock=lambda: now[0])
+        session._start = 0.0  # media time = clock
+        session.render_ms = [50.0, 70.0, 60.0]
+        pose = ViewerPose(5.0, 0.6, True, rate=(20.0, -0.1), lag_s=(0.05, 0.02))
+        session._viewer.put((9.96, pose))  # its webcam frame is 40 ms old
+        ang, dist, tracked = session._render_pose()
+        if predict:  # ahead: lag + 40 ms + 60 ms
+            assert ang == pytest.approx(5.0 + 20.0 * 0.15) and dist == pytest.approx(0.6 - 0.1 * 0.12)
+        else:
+            assert (ang, dist) == (5.0, 0.6)
+        assert tracked
+        session._viewer.put((9.96, ViewerPose(5.0, 0.6, False)))
+        assert session._render_pose() == (5.0, 0.6, False)

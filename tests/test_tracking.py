@@ -184,6 +184,73 @@ def test_viewer_pose_geometry_and_easing(tmp_path):
         WebcamMount.load(tmp_path / "missing.json")
 
 
+def _positions_at(angle_deg, distance_m):
+    """Webcam-frame eye midpoints (N, 3) of a viewer at these panel angles and distances (webcam
+    at the panel centre, upright: x_cam = -x_panel)."""
+    a = np.radians(np.asarray(angle_deg, dtype=np.float64))
+    d = np.broadcast_to(np.asarray(distance_m, dtype=np.float64), a.shape)
+    return np.stack([-d * np.sin(a), np.zeros_like(a), d * np.cos(a)], axis=-1)
+
+
+def test_viewer_prediction_is_exact_on_a_steady_motion():
+    """A viewer moving at a steady 12 deg/s and 5 cm/s: once the smoothing has settled, the pose
+    predicted for a frame shown 70 ms after its webcam frame is where the viewer then is (the
+    filtered pose alone trails by the smoothing's lag plus the 70 ms)."""
+    from holo_viewer.tracking.viewer import ViewerTracker, WebcamMount
+
+    tr = ViewerTracker(WebcamMount(position_m=(0.0, 0.0, 0.0)))
+    fps, lead = 25.0, 0.07
+    t = np.arange(100) / fps
+    ang, dist = -10.0 + 12.0 * t, 0.5 + 0.05 * t
+    pos = _positions_at(ang, dist)
+    for i in range(t.size):
+        pose = tr.update(pos[i:i + 1], float(t[i]))
+    truth = (-10.0 + 12.0 * (t[-1] + lead), 0.5 + 0.05 * (t[-1] + lead))
+    assert pose.rate[0] == pytest.approx(12.0, rel=1e-3) and pose.rate[1] == pytest.approx(0.05, rel=1e-2)
+    assert all(0.0 < lag < 0.2 for lag in pose.lag_s)
+    assert abs(pose.angle_deg - truth[0]) > 0.8  # the filtered pose trails
+    ahead = pose.predicted(lead)
+    assert ahead.angle_deg == pytest.approx(truth[0], abs=0.01)
+    assert ahead.distance_m == pytest.approx(truth[1], abs=1e-3)
+    # the look-ahead is capped, and an untracked pose is not moved
+    capped = pose.predicted(10.0)
+    assert capped.angle_deg == pytest.approx(pose.angle_deg + 12.0 * 0.3, rel=1e-3)
+    assert pose.predicted(10.0, max_lead_s=0.0) == pose
+    lost = tr.update(np.zeros((0, 3)), float(t[-1]) + 0.04)
+    assert not lost.tracked and lost.rate == (0.0, 0.0) and lost.predicted(0.1) == lost
+    with pytest.raises(InputError, match="lead_s"):
+        pose.predicted(float("nan"))
+
+
+def test_viewer_prediction_cuts_the_error_at_display_time():
+    """Where the eyes are when a frame is shown (70 ms after its webcam frame), against the pose
+    it was rendered for: on a slow sway and on walk-and-stop motions with 0.2 deg of tracking
+    noise the prediction cuts the RMS error of the filtered pose by more than a third (measured:
+    about half); for a viewer standing still it stays under 0.2 deg (2 mm at 0.6 m)."""
+    from holo_viewer.tracking.viewer import ViewerTracker, WebcamMount
+
+    fps, lead = 25.0, 0.07
+    t = np.arange(300) / fps
+    phase = t % 4.0
+    walk = np.where(phase < 2.0, 15.0 * np.minimum(phase, 1.0), 15.0 * np.maximum(0.0, 3.0 - phase)) - 7.5
+    rng = np.random.default_rng(0)
+    for name, ang in (("sway", 15.0 * np.sin(2 * np.pi * 0.3 * t)), ("walk", walk), ("still", np.zeros_like(t))):
+        tr = ViewerTracker(WebcamMount(position_m=(0.0, 0.0, 0.0)))
+        pos = _positions_at(ang + rng.normal(0.0, 0.2, t.size), 0.6)
+        shown = np.interp(t + lead, t, ang)
+        err = {"filtered": [], "predicted": []}
+        for i in range(t.size):
+            pose = tr.update(pos[i:i + 1], float(t[i]))
+            if i >= 25:
+                err["filtered"].append(pose.angle_deg - shown[i])
+                err["predicted"].append(pose.predicted(lead).angle_deg - shown[i])
+        rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in err.items()}
+        if name == "still":
+            assert rms["predicted"] < 0.2
+        else:
+            assert rms["predicted"] < 0.65 * rms["filtered"], (name, rms)
+
+
 # ----------------------------------------------------------------------------- closed loop on renders
 
 def _rotation_truth_in_camera(cam, rot):

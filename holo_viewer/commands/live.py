@@ -43,6 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ctl.add_argument("--pain", type=float, default=0.0, help="initial pain level in [0, 1] (keys Up/Down change it)")
     ctl.add_argument("--scenario", metavar="FILE.json", help="timeline of pain levels and named expressions")
     ctl.add_argument("--group", action="store_true", help="centre the view cone on all faces instead of the nearest")
+    ctl.add_argument("--no-viewer-prediction", action="store_true", help="render for the smoothed viewer pose as "
+                     "tracked, not extrapolated to when the frame is shown")
     ctl.add_argument("--temperature", type=float, default=0.0, help="reaction sampling temperature (0 = argmax)")
     ctl.add_argument("--seed", type=int, default=0)
 
@@ -81,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
                         not args.no_preview, panel=args.panel and not args.headless, monitor=args.monitor,
                         video_fps=args.video_fps, record_video=args.record_video, pain=args.pain,
                         temperature=args.temperature, seed=args.seed, hfov_deg=mount.hfov_deg, mount=mount,
-                        viewer_mode="group" if args.group else "nearest", scenario=scenario,
+                        viewer_mode="group" if args.group else "nearest",
+                        predict_viewer=not args.no_viewer_prediction, scenario=scenario,
                         max_seconds=args.seconds, settings=settings)
     session = LiveSession(config, audio, video, synthetic)
     renderer = LiveRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview, mode=args.render_mode)

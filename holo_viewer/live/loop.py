@@ -27,6 +27,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import HoloViewerError
+from ..tracking.viewer import ViewerPose
 from .controls import Controls, Scenario
 from .session import SessionRecorder
 
@@ -58,6 +59,9 @@ class LiveConfig:
     hfov_deg: float = 60.0
     mount: Any = None
     viewer_mode: str = "nearest"
+    #: render for where the tracked viewer will be when the frame is shown (the pose extrapolated
+    #: over the smoothing's lag, the pose's age and the expected render time; ViewerPose.predicted)
+    predict_viewer: bool = True
     scenario: Any = None
     max_seconds: float | None = None
     settings: dict = field(default_factory=dict)
@@ -103,7 +107,7 @@ class LiveSession:
         self.controls = Controls(pain=config.pain)
         self.scenario: Scenario | None = config.scenario
         self._speaker = _Slot((0.0, None, False))  # (media time, state or None, found)
-        self._viewer = _Slot((0.0, 0.0, 0.6, False))  # (media time, angle, distance, tracked)
+        self._viewer = _Slot((0.0, ViewerPose(0.0, 0.6, False)))  # (media time of its webcam frame, pose)
         self._listener = _Slot(None)  # (frame, flame dict, pain, named, media time ready)
         self._stop = threading.Event()
         self._media_done = threading.Event()
@@ -156,7 +160,7 @@ class LiveSession:
                 self.tracker_ms.append(1000 * (time.perf_counter() - t0))
                 self._speaker.put((last_t, tf.state, tf.found))
                 pose = viewer.update(tf.eye_positions, last_t)
-                self._viewer.put((last_t, pose.angle_deg, pose.distance_m, pose.tracked))
+                self._viewer.put((last_t, pose))
                 if self.config.record_video:
                     self._record_webcam(frame)
                 self.status["video"] = self.video.status if tf.found else f"{self.video.status}; no face"
@@ -201,7 +205,7 @@ class LiveSession:
                     state = self.synthetic.states[min(t, len(self.synthetic.states) - 1)]
                     found = True
                     ang, dist = self.synthetic.viewer(t / FPS)
-                    self._viewer.put((t / FPS, ang, dist, True))
+                    self._viewer.put((t / FPS, ViewerPose(ang, dist, True)))
                 else:
                     ts, st, found = self._speaker.get()
                     state = last_state if st is None else st
@@ -229,7 +233,8 @@ class LiveSession:
                         self.late_ms_max = max(self.late_ms_max, 1000 * late)
                 lf = faces.listener(listener)
                 sf = faces.speaker(last_state)
-                _, ang, dist, tracked = self._viewer.get()
+                _, vp = self._viewer.get()
+                ang, dist, tracked = vp.angle_deg, vp.distance_m, vp.tracked
                 self.recorder.add_frame(
                     time_s=t / FPS, viewer_angle_deg=ang, viewer_distance_m=dist, pain=pain, speaker_found=found,
                     window=window, **{f"speaker_{k_}": v for k_, v in sf.items()},
@@ -266,6 +271,16 @@ class LiveSession:
                 "late_reaction_window_max_ms": round(self.late_ms_max, 1),
                 "late_reaction_ticks": self.late_ticks, "reaction_windows": len(self.window_ms),
                 "displayed_frames": len(self.render_ms), "status": dict(self.status)}
+
+    def _render_pose(self) -> tuple[float, float, bool]:
+        """(angle, distance, tracked) to render the next frame for: the newest viewer pose, or
+        with ``predict_viewer`` where it will be when that frame is shown (its age now plus the
+        median of the last renders)."""
+        t_pose, pose = self._viewer.get()
+        if self.config.predict_viewer and pose.tracked:
+            render_s = float(np.median(self.render_ms[-9:])) / 1000.0 if self.render_ms else 0.0
+            pose = pose.predicted(max(0.0, self.now() - t_pose) + render_s)
+        return pose.angle_deg, pose.distance_m, pose.tracked
 
     def run(self, renderer: Any = None, panel: Any = None, preview: Any = None,
             on_frame: Callable[[Any], None] | None = None) -> dict:
@@ -326,7 +341,7 @@ class LiveSession:
                     time.sleep(0.005)
                     continue
                 frame, lf, pain, named, _ready = item
-                _, ang, dist, tracked = self._viewer.get()
+                ang, dist, tracked = self._render_pose()
                 if renderer is not None:
                     res = renderer.render(lf, pain, named, ang, dist, tracked)
                     self.render_ms.append(1000 * res.seconds)

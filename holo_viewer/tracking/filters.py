@@ -69,6 +69,12 @@ class OneEuroFilter:
         self._dx = np.zeros(self.dim)
         self._t: float | None = None if value is None else t
 
+    def lag_s(self) -> np.ndarray:
+        """(dim,) seconds the output trails a steady ramp at the current cutoff: a first-order
+        low-pass at cutoff f_c trails ``v / (2 pi f_c)`` behind a signal moving at speed ``v``
+        (exact for the discrete update at a constant step, once the cutoff has settled)."""
+        return 1.0 / (2.0 * math.pi * (self._min + self._beta * np.abs(self._dx)))
+
     def __call__(self, x: np.ndarray, t: float) -> np.ndarray:
         """Filter sample ``x`` (dim,) taken at time ``t`` seconds; returns the filtered (dim,)."""
         x = np.asarray(check_array(x, "x", (self.dim,)), dtype=np.float64)

@@ -16,11 +16,13 @@ Frames (docs/design.md "Webcam → viewer angle and distance"):
 
 :class:`ViewerTracker` picks the nearest face (or centres the cone on all faces in group
 mode), smooths with a One-Euro filter, holds the last pose for ``hold_s`` when the face is lost,
-then eases back to the default pose.
+then eases back to the default pose. Each tracked pose carries its smoothed rate and the filter's
+lag, so :meth:`ViewerPose.predicted` can extrapolate it to when a frame rendered for it is shown.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
@@ -35,7 +37,7 @@ from ..validation import check_array, check_finite_scalar
 from .filters import OneEuroConfig, OneEuroFilter
 
 __all__ = ["webcam_intrinsics", "WebcamMount", "viewer_position", "ViewerPose", "ViewerTrackerConfig",
-           "ViewerTracker", "IPD_M"]
+           "ViewerTracker", "IPD_M", "MAX_LEAD_S"]
 
 #: adult mean inter-pupillary distance prior (metres)
 IPD_M = 0.063
@@ -136,13 +138,38 @@ def viewer_position(landmarks: np.ndarray, K: np.ndarray, yaw_rad: float = 0.0, 
     return np.array([(mid[0] - K[0, 2]) * z / K[0, 0], (mid[1] - K[1, 2]) * z / K[1, 1], z])
 
 
+#: longest look-ahead of :meth:`ViewerPose.predicted` (seconds): the default smoothing's lag
+#: (at most 1 / (2 pi 1 Hz) = 0.16 s) plus a frame's latency stay under it; a stalled frame must
+#: not throw the views far ahead of the eyes
+MAX_LEAD_S = 0.3
+
+
 @dataclass(frozen=True)
 class ViewerPose:
-    """Viewer angle (degrees, + = right) and distance (metres), and whether a face drove it."""
+    """Viewer angle (degrees, + = right) and distance (metres), and whether a face drove it.
+
+    ``rate``: how fast the smoothed pose moves ((degrees/s, m/s), low-passed), ``lag_s``: how far
+    the smoothing trails a steady motion (seconds, per component); zero when no face drives it.
+    """
 
     angle_deg: float
     distance_m: float
     tracked: bool
+    rate: tuple[float, float] = (0.0, 0.0)
+    lag_s: tuple[float, float] = (0.0, 0.0)
+
+    def predicted(self, lead_s: float, max_lead_s: float = MAX_LEAD_S) -> "ViewerPose":
+        """The pose ``lead_s`` seconds after the webcam frame it came from (e.g. when the frame
+        rendered for it will be shown): extrapolated at ``rate`` over the smoothing's lag plus the
+        lead, each capped at ``max_lead_s``. Exact for a steady motion once the filter has settled;
+        an untracked pose is returned as it is."""
+        lead = check_finite_scalar(lead_s, "lead_s")
+        cap = check_finite_scalar(max_lead_s, "max_lead_s", low=0.0)
+        if not self.tracked:
+            return self
+        ahead = [min(max(lag + lead, 0.0), cap) for lag in self.lag_s]
+        return dataclasses.replace(self, angle_deg=self.angle_deg + self.rate[0] * ahead[0],
+                                   distance_m=self.distance_m + self.rate[1] * ahead[1])
 
 
 @dataclass(frozen=True)
@@ -188,6 +215,7 @@ class ViewerTracker:
         c = self.config
         self._pose = np.array([c.default_angle_deg, c.default_distance_m])
         self._filter.reset()
+        self._rate = np.zeros(2)
         self._last_seen: float | None = None
         self._t: float | None = None
 
@@ -208,11 +236,20 @@ class ViewerTracker:
         if len(pos) and np.isfinite(pos).all():
             target = self._target(self.mount.to_panel(pos))
             target = np.array([np.clip(target[0], -c.max_angle_deg, c.max_angle_deg), np.clip(target[1], lo, hi)])
+            before, was_tracked = self._pose, self._last_seen is not None and self._last_seen == self._t
             self._pose = self._filter(target, t)
+            if was_tracked and self._t is not None and t > self._t:
+                # the smoothed pose's speed, low-passed at the smoothing's derivative cutoff
+                dt = t - self._t
+                a = 1.0 / (1.0 + 1.0 / (2.0 * math.pi * c.smoothing.d_cutoff * dt))
+                self._rate = self._rate + a * ((self._pose - before) / dt - self._rate)
+            elif not was_tracked:
+                self._rate = np.zeros(2)
             self._last_seen = t
             tracked = True
         else:
             tracked = False
+            self._rate = np.zeros(2)
             if self._last_seen is None or t - self._last_seen > c.hold_s:
                 dt = 0.0 if self._t is None else max(0.0, t - self._t)
                 a = 1.0 - math.exp(-dt / c.ease_s)
@@ -220,4 +257,8 @@ class ViewerTracker:
                 self._pose = self._pose + a * (default - self._pose)
                 self._filter.reset(self._pose, t)
         self._t = t
-        return ViewerPose(angle_deg=float(self._pose[0]), distance_m=float(self._pose[1]), tracked=tracked)
+        if not tracked:
+            return ViewerPose(angle_deg=float(self._pose[0]), distance_m=float(self._pose[1]), tracked=False)
+        lag = self._filter.lag_s()
+        return ViewerPose(angle_deg=float(self._pose[0]), distance_m=float(self._pose[1]), tracked=True,
+                          rate=(float(self._rate[0]), float(self._rate[1])), lag_s=(float(lag[0]), float(lag[1])))
