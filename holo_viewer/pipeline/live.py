@@ -357,9 +357,8 @@ class LiveRenderer:
         for i, k in enumerate(src):
             rs, cs = tile_slices(Hq, Wq, self.calibration.cols, self.calibration.rows, int(k))
             to_uint8(self._source_images[i], out=self.quilt[rs, cs])
-        if self._sampled is None:  # once (prepare_all_views): only the quilt pixels the interleave reads
-            self._sampled = view_synthesis.sampled_columns(read_pixels(self.interleaver, self.calibration,
-                                                                       len(self.cameras)))
+        if self._sampled is None:  # once: only the quilt pixels the interleave reads are synthesized
+            self.prepare_all_views()
         t3 = time.perf_counter()
         view_synthesis.warp_views(self._source_images, self._wmaps, src, self._rig, quilt=self.quilt, tiles=self._tiles,
                                   pixels=self._sampled, background=self.config.render.background)
@@ -535,11 +534,13 @@ class LiveRenderer:
 
         self._sampled = view_synthesis.sampled_columns(read_pixels(self.interleaver, self.calibration,
                                                                    len(self.cameras)))
-        # the z-buffer and the warp, on no centre and no pixel
+        # the z-buffer and the warp, on no centre and no pixel, into scratch depth maps (this may
+        # run in the middle of a frame, whose depth maps are already in self._wmaps)
         src, H = self._sources, self.cameras.height
-        view_synthesis.inverse_depth(np.zeros((1, 3)), np.zeros(1), self.cameras, src, rig=self._rig, out=self._wmaps)
+        wmaps = view_synthesis.inverse_depth(np.zeros((1, 3)), np.zeros(1), self.cameras, src, rig=self._rig,
+                                             out=np.empty_like(self._wmaps))
         none = (np.zeros(len(self.cameras) * H + 1, dtype=np.int64), np.zeros(0, dtype=np.int32))
-        view_synthesis.warp_views(self._source_images, self._wmaps, src, self._rig, quilt=self.quilt, tiles=self._tiles,
+        view_synthesis.warp_views(self._source_images, wmaps, src, self._rig, quilt=self.quilt, tiles=self._tiles,
                                   pixels=none, background=self.config.render.background)
 
     def _tracked_slices(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
