@@ -142,7 +142,6 @@ def main(argv: list[str] | None = None) -> int:
                          "evaluated_every": every},
               "records": records, "seconds": time.perf_counter() - t_run, "load_average": os.getloadavg(),
               "cores": os.cpu_count()}
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(args.json, "w") as fh:
         json.dump(result, fh, indent=2)
     print(f"wrote {args.json} ({result['seconds']:.0f} s)")

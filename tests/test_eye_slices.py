@@ -406,6 +406,15 @@ def test_view_segments_are_the_view_columns_per_eye():
         cover = cover.sum(axis=0)
         cols = eyes.view_columns(SMALL, viewer, SMALL.screen_w, n_views=48, motion_m=0.01, motion_distance_m=0.04)
         np.testing.assert_array_equal(cover > 0, cols)  # together: view_columns at native resolution
+        # each row's lobe: the eye's view coordinate mid-row lies nearest view k + lobe * 48
+        same, lobe = eyes.view_segments(SMALL, viewer, n_views=48, motion_m=0.01, motion_distance_m=0.04, lobes=True)
+        np.testing.assert_array_equal(same, segs)
+        bounds = eyes.eye_view_bounds(SMALL, viewer, n_views=48, motion_m=0.01, motion_distance_m=0.04)
+        e, k, x0, x1 = segs.T
+        xm = (x0 + x1 - 1) // 2
+        t_mid = 0.5 * (bounds[e, 0, xm] + bounds[e, 1, xm])
+        np.testing.assert_array_equal(lobe, np.rint((t_mid - k) / 48))
+        assert (lobe != 0).any() == (abs(viewer.angle_deg) > 15)  # only the viewer at -19 deg wraps
 
 
 # ----------------------------------------------------------------------------- the live mode

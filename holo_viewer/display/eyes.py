@@ -192,7 +192,7 @@ def _near_views(cal: DisplayCalibration, viewer: TrackedViewer, n: int, mode: Mo
 def view_segments(calibration: DisplayCalibration, viewer: TrackedViewer, *, n_views: int | None = None,
                   mode: Mode = "nearest", sigma_views: float = 0.5, threshold: float = 0.01,
                   motion_m: float = 0.02, motion_distance_m: float = 0.05,
-                  bounds: np.ndarray | None = None) -> np.ndarray:
+                  bounds: np.ndarray | None = None, lobes: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Per eye and view, the native columns where a subpixel showing that view can send light to
     the eye (weight > ``threshold``) over the head-motion margin: the rule of :func:`view_columns`
     at native-column resolution, per eye. ``bounds``: the :func:`eye_view_bounds` of this viewer
@@ -204,6 +204,9 @@ def view_segments(calibration: DisplayCalibration, viewer: TrackedViewer, *, n_v
         (S, 4) int64 rows (eye, view, x0, x1): native columns ``x0 <= x < x1``; eye 0 is the left
         (:func:`eye_positions`). One eye's rows of a view are disjoint; the two eyes' may overlap
         (where a subpixel's lens coordinate decides which eye it lights).
+    numpy.ndarray, with ``lobes``
+        (S,) int64 per row: 0 where the eye's view coordinate reaches view k itself, -1 / +1
+        where it reaches it as k - n / k + n, across the lobe boundary (near the cone's edge).
     """
     cal = calibration
     n = cal.n_views if n_views is None else int(n_views)
@@ -227,9 +230,11 @@ def view_segments(calibration: DisplayCalibration, viewer: TrackedViewer, *, n_v
             x1 = np.searchsorted(-hi_desc, -(kk - reach), side="left")
             x0 = np.searchsorted(-lo_desc, -(kk + reach), side="right")
             ok = x0 < x1
-            rows.append(np.stack([np.full(int(ok.sum()), e), np.flatnonzero(ok), x0[ok], x1[ok]], axis=1))
-    out = np.concatenate(rows).astype(np.int64) if rows else np.zeros((0, 4), np.int64)
-    return out[np.lexsort((out[:, 2], out[:, 1], out[:, 0]))]
+            m = int(ok.sum())
+            rows.append(np.stack([np.full(m, e), np.flatnonzero(ok), x0[ok], x1[ok], np.full(m, shift // n)], axis=1))
+    out = np.concatenate(rows).astype(np.int64) if rows else np.zeros((0, 5), np.int64)
+    out = out[np.lexsort((out[:, 2], out[:, 1], out[:, 0]))]
+    return (np.ascontiguousarray(out[:, :4]), out[:, 4].copy()) if lobes else np.ascontiguousarray(out[:, :4])
 
 
 def column_tile_mask(columns: np.ndarray, tile_height: int, tile: int = 16) -> np.ndarray:

@@ -454,34 +454,31 @@ class LiveRenderer:
         timings.update(select=t1 - t, render=t2 - t1, quilt=t3 - t2, interleave=t4 - t3)
         return float(colmask.mean())
 
-    def tracked_segments(self, viewer: Any, bounds: np.ndarray | None = None) -> np.ndarray:
-        """(S, 4) (eye, view, x0, x1) native-column segments a ``slices`` frame writes for ``viewer``
+    def tracked_segments(self, viewer: Any, bounds: np.ndarray | None = None,
+                         lobes: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """(S, 4) (eye, view, x0, x1) native-column segments of ``viewer``'s eyes
         (:func:`~holo_viewer.display.eyes.view_segments` with this renderer's knobs; ``bounds``
-        its eyes' view-coordinate ranges when already computed)."""
+        its eyes' view-coordinate ranges when already computed; ``lobes``: also each row's lobe)."""
         from ..display.eyes import view_segments
 
         c = self.config
         return view_segments(self.calibration, viewer, n_views=len(self.cameras),
                              mode="blend" if c.blend else "nearest", sigma_views=c.sigma_views,
                              threshold=c.threshold, motion_m=self.motion_m, motion_distance_m=self.motion_distance_m,
-                             bounds=bounds)
+                             bounds=bounds, lobes=lobes)
 
-    def _exact_wrapped(self, segments: np.ndarray, bounds: np.ndarray, colmask: np.ndarray) -> np.ndarray:
-        """Split off the segments an eye receives across the lobe boundary (near the cone's edge
-        it looks past the last view through part of the panel and gets the first views of the next
-        lobe, or the reverse): their subpixels show a view ~n views from the eye's slice, which
-        cannot stand in for it. Their views' tile columns (one texel to spare each side) are added
-        to ``colmask``, so they are rendered exactly through the quilt; returns the others."""
-        if segments.size == 0:
-            return segments
-        n, tw = len(self.cameras), self.cameras.width
-        e, k, x0, x1 = segments.T
-        xm = (x0 + x1 - 1) // 2
-        t_mid = 0.5 * (bounds[e, 0, xm] + bounds[e, 1, xm])  # the eye's view coordinate there
-        wrapped = np.rint((t_mid - k) / n) != 0
+    def _exact_wrapped(self, segments: np.ndarray, lobe: np.ndarray, colmask: np.ndarray) -> np.ndarray:
+        """Split off the segments an eye receives across the lobe boundary (``lobe`` != 0: near
+        the cone's edge it looks past the last view through part of the panel and gets the first
+        views of the next lobe, or the reverse): their subpixels show a view ~n views from the
+        eye's slice, which cannot stand in for it. Their views' tile columns (one texel to spare
+        each side) are added to ``colmask``, so they are rendered exactly through the quilt;
+        returns the others."""
+        wrapped = lobe != 0
         if not wrapped.any():
             return segments
-        W = self.calibration.screen_w
+        tw, W = self.cameras.width, self.calibration.screen_w
+        _, k, x0, x1 = segments.T
         for kk, a, b in zip(k[wrapped], x0[wrapped], x1[wrapped]):
             # the texel columns native columns a..b-1 read (view_columns' rule), one to spare
             c0 = max(int(np.floor((a + 0.5) / W * tw)) - 1, 0) // self.tile
@@ -557,9 +554,9 @@ class LiveRenderer:
         c = self.config
         bounds = eye_view_bounds(self.calibration, viewer, n_views=len(self.cameras), motion_m=self.motion_m,
                                  motion_distance_m=self.motion_distance_m)
-        segments = self.tracked_segments(viewer, bounds)
+        segments, lobe = self.tracked_segments(viewer, bounds, lobes=True)
         colmask = np.zeros((len(self.cameras), self.tiles_x), dtype=bool)
-        segments = self._exact_wrapped(segments, bounds, colmask)
+        segments = self._exact_wrapped(segments, lobe, colmask)
         self._refresh(colmask)
         tile_mask = np.repeat(colmask[:, None, :], self.tiles_y, axis=1)
         t1 = time.perf_counter()

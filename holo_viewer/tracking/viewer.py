@@ -34,7 +34,7 @@ import numpy as np
 from ..errors import InputError, TrackingError
 from ..fileio import read_json
 from ..validation import check_array, check_finite_scalar
-from .filters import OneEuroConfig, OneEuroFilter
+from .filters import OneEuroConfig, OneEuroFilter, _alpha
 
 __all__ = ["webcam_intrinsics", "WebcamMount", "viewer_position", "ViewerPose", "ViewerTrackerConfig",
            "ViewerTracker", "IPD_M", "MAX_LEAD_S"]
@@ -241,7 +241,7 @@ class ViewerTracker:
             if was_tracked and self._t is not None and t > self._t:
                 # the smoothed pose's speed, low-passed at the smoothing's derivative cutoff
                 dt = t - self._t
-                a = 1.0 / (1.0 + 1.0 / (2.0 * math.pi * c.smoothing.d_cutoff * dt))
+                a = _alpha(np.array(c.smoothing.d_cutoff), dt)
                 self._rate = self._rate + a * ((self._pose - before) / dt - self._rate)
             elif not was_tracked:
                 self._rate = np.zeros(2)
