@@ -31,14 +31,19 @@ frame is **deformed Gaussians -> native image** (``LiveRenderer.frame``). All fr
   48 views (``extrapolated``: true); ``psnr_db`` of those views against full_quilt's views.
 * ``--device cuda``: ``all_views`` with gsplat (one batched call, ``viewmats`` [48, 4, 4]) and
   the quilt + interleave as one torch gather on the GPU (``backend``: gsplat), and the same with
-  view synthesis on the device (``view_step`` 5); skipped, and said so, without CUDA.
+  view synthesis on the device (``view_step`` 3 and 5), each also with the Gaussians already on the
+  GPU, and ``gpu_stages``: each stage of a GPU frame timed alone (validate, upload, gsplat for 48
+  views and for the 11 sources, the synthesis of the other 37, the interleave
+  gather, the download into pageable and page-locked memory); skipped, and said so, without CUDA.
+  ``--gpu-only`` runs only the full-quality reference on the CPU before them (a lent GPU's time
+  is short).
 
 Wall clock on a shared machine: the load average (1 min) before and after is recorded with the
 CPU seconds of every mode; compare ratios from one run.
 
 Usage::
 
-    python bench/live_frame.py [--quick] [--device cpu|cuda] [--json bench/results/live_frame.json]
+    python bench/live_frame.py [--quick] [--device cpu|cuda [--gpu-only]] [--json bench/results/live_frame.json]
 """
 
 from __future__ import annotations
@@ -65,6 +70,7 @@ from holo_viewer.pipeline.live import LiveConfig, LiveRenderer  # noqa: E402
 from holo_viewer.pipeline import Pipeline  # noqa: E402
 from holo_viewer.pipeline import FaceControls  # noqa: E402
 from holo_viewer.render import RenderConfig, render_views  # noqa: E402
+from holo_viewer.render.api import validate_inputs  # noqa: E402
 
 
 def frames_of_animation(pipe: Pipeline, n: int, params: list | None = None) -> list:
@@ -101,6 +107,59 @@ def deformer_on(device: str):
     return deform
 
 
+def gpu_stages(live: LiveRenderer, synth: LiveRenderer, frames: list, reps: int = 20, device: str = "cuda") -> dict:
+    """Where a GPU frame's time goes: each stage alone, synchronised before and after, median of
+    ``reps`` (ms). The stages overlap nothing here, so their sum is above a frame's own time."""
+    import torch
+
+    from holo_viewer.render import gsplat_backend, view_synthesis
+
+    cfg = live.config.render
+
+    def sync() -> None:
+        if device == "cuda":
+            torch.cuda.synchronize()
+
+    def ms(fn) -> float:
+        try:
+            fn(0)  # warm (and a stage the device refuses is recorded as such)
+        except Exception as exc:  # noqa: BLE001 - a profile only
+            return f"{type(exc).__name__}: {exc}"
+        out = []
+        for k in range(reps):
+            sync()
+            t0 = time.perf_counter()
+            fn(k)
+            sync()
+            out.append((time.perf_counter() - t0) * 1000.0)
+        return float(np.median(out))
+
+    host = [frames[1 + k % (len(frames) - 1)] for k in range(reps)]
+    dev = [g.torch(device=device, dtype=torch.float32) for g in host[:2]]
+    views = gsplat_backend.render_device(dev[0], live.cameras, cfg)
+    src_imgs = gsplat_backend.render_device(dev[0], synth._source_cams, cfg)
+    res = live._device(views, to_host=False)
+    pageable = np.empty(res.shape, dtype=np.uint8)
+    st: dict[str, float] = {}
+    st["validate"] = ms(lambda k: validate_inputs(host[k], live.cameras))
+    st["upload"] = ms(lambda k: host[k].torch(device=device, dtype=torch.float32))
+    st["rasterize_48"] = ms(lambda k: gsplat_backend.render_device(dev[k % 2], live.cameras, cfg))
+    st["rasterize_11"] = ms(lambda k: gsplat_backend.render_device(dev[k % 2], synth._source_cams, cfg))
+
+    def synthesize(k: int) -> None:
+        g = dev[k % 2]
+        w = view_synthesis.inverse_depth_torch(g.means, torch.sigmoid(g.opacity_logits), synth.cameras,
+                                               synth._sources, rig=synth._rig)
+        view_synthesis.warp_views_torch(src_imgs, w, synth._sources, synth._rig)
+    st["synthesize_37"] = ms(synthesize)
+    st["interleave_gather"] = ms(lambda k: live._device(views, to_host=False))
+    st["download_pageable"] = ms(lambda k: torch.from_numpy(pageable).copy_(res))
+    st["download_pinned"] = ms(lambda k: torch.from_numpy(live.native).copy_(res))
+    return {"mode": "gpu_stages", "device": torch.cuda.get_device_name(0) if device == "cuda" else device, "ms": st, "reps": reps,
+            "native_pinned": live._native_owner is not None,
+            "note": "each stage alone between synchronisations, median ms"}
+
+
 def load() -> float:
     return os.getloadavg()[0]
 
@@ -121,6 +180,9 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="fewer frames and knobs (< 3 min)")
     ap.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="also time the GPU path (cuda)")
+    ap.add_argument("--gpu-only", action="store_true",
+                    help="with --device cuda: only the full-quality reference on the CPU, then the GPU records "
+                         "(what a lent GPU machine runs first)")
     ap.add_argument("--json", default="bench/results/live_frame.json", help="output JSON file")
     ap.add_argument("--frames", type=int, default=None, help="frames per mode (default 6 quick, 10 full; the median of 4 was carried by one cold frame)")
     ap.add_argument("--ref-views", type=int, default=None, help="views checked against float64 (1 quick, 2)")
@@ -156,157 +218,158 @@ def main(argv: list[str] | None = None) -> int:
         print(f"full_quilt   {full_s:.3f} s/frame (best {min(secs):.3f}, cpu {cpu:.2f})  "
               f"views vs float64 {p64:.1f} dB", flush=True)
 
-        # ---- untracked, all views, by level of detail
-        for frac in ((1.0, 0.5) if args.quick else (1.0, 0.7, 0.5, 0.3)):
-            live = LiveRenderer(cal, cams, LiveConfig(lod_fraction=frac, view_step=1), rest=frames[0])
-            live.frame(frames[0], mode="all_views")
-            secs, natives, cpu = run_mode(live, frames[1:], "all_views")
-            p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
-            s = float(np.median(secs))
-            records.append({"mode": "all_views", "lod_fraction": frac, "seconds_per_frame": s,
-                            "best_seconds": float(min(secs)), "cpu_seconds_per_frame": cpu, "psnr_db": p,
-                            "rendered_fraction": 1.0, "ratio_to_full_quilt": full_s / s})
-            print(f"all_views    lod {frac:.1f}  {s:.3f} s/frame (cpu {cpu:.2f})  native {p:.1f} dB", flush=True)
-        # ---- untracked, all views, with the renderer's error-for-blends knobs (every Gaussian kept):
-        # a pixel stops after T < t_min (error < t_min there), splats fainter than alpha_threshold skip
-        for knobs in (dict(t_min=1e-2, alpha_threshold=2.0 / 255.0),):
-            live = LiveRenderer(cal, cams, LiveConfig(render=RenderConfig(**knobs), view_step=1))
-            live.frame(frames[0], mode="all_views")
-            secs, natives, cpu = run_mode(live, frames[1:], "all_views")
-            p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
-            s = float(np.median(secs))
-            records.append({"mode": "all_views", "lod_fraction": 1.0, "render_knobs": knobs, "seconds_per_frame": s,
-                            "best_seconds": float(min(secs)), "cpu_seconds_per_frame": cpu, "psnr_db": p,
-                            "rendered_fraction": 1.0, "ratio_to_full_quilt": full_s / s})
-            print(f"all_views    {knobs}  {s:.3f} s/frame (cpu {cpu:.2f})  native {p:.1f} dB", flush=True)
-
-        # ---- untracked, all views, with view synthesis: every view_step-th view rendered, the others
-        # warped from their rendered neighbours by depth; also the worst eye over a sweep of viewers
-        # (what a person anywhere in front of the panel sees), last frame
         sweep_viewers = [eyes.TrackedViewer(a, d) for a in (-12.0, -6.0, 0.0, 6.0, 12.0) for d in (0.45, 0.6, 0.9)]
-        for step in ((5,) if args.quick else (2, 3, 4, 5, 6, 8)):
-            live = LiveRenderer(cal, cams, LiveConfig(view_step=step))
-            fraction = live.frame(frames[0], mode="all_views").rendered_fraction
-            secs, natives, cpu = run_mode(live, frames[1:], "all_views")
-            p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
-            worst = min(eyes.eye_psnr(display, ref_natives[-1], natives[-1], v)
-                        for v in (sweep_viewers[::3] if args.quick else sweep_viewers))
-            s = float(np.median(secs))
-            records.append({"mode": "all_views", "lod_fraction": 1.0, "view_step": step,
-                            "seconds_per_frame": s, "best_seconds": float(min(secs)), "cpu_seconds_per_frame": cpu,
-                            "psnr_db": p, "worst_sweep_psnr_db": worst,
-                            "rendered_fraction": fraction, "ratio_to_full_quilt": full_s / s,
-                            "sweep": "eyes at -12..12 deg, 0.45-0.9 m"})
-            print(f"all_views    view_step {step}  {s:.3f} s/frame (cpu {cpu:.2f})  native {p:.1f} dB, "
-                  f"worst eye in sweep {worst:.1f} dB", flush=True)
+        if not args.gpu_only:  # the CPU modes (--gpu-only: only the reference above, then the GPU)
+            # ---- untracked, all views, by level of detail
+            for frac in ((1.0, 0.5) if args.quick else (1.0, 0.7, 0.5, 0.3)):
+                live = LiveRenderer(cal, cams, LiveConfig(lod_fraction=frac, view_step=1), rest=frames[0])
+                live.frame(frames[0], mode="all_views")
+                secs, natives, cpu = run_mode(live, frames[1:], "all_views")
+                p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
+                s = float(np.median(secs))
+                records.append({"mode": "all_views", "lod_fraction": frac, "seconds_per_frame": s,
+                                "best_seconds": float(min(secs)), "cpu_seconds_per_frame": cpu, "psnr_db": p,
+                                "rendered_fraction": 1.0, "ratio_to_full_quilt": full_s / s})
+                print(f"all_views    lod {frac:.1f}  {s:.3f} s/frame (cpu {cpu:.2f})  native {p:.1f} dB", flush=True)
+            # ---- untracked, all views, with the renderer's error-for-blends knobs (every Gaussian kept):
+            # a pixel stops after T < t_min (error < t_min there), splats fainter than alpha_threshold skip
+            for knobs in (dict(t_min=1e-2, alpha_threshold=2.0 / 255.0),):
+                live = LiveRenderer(cal, cams, LiveConfig(render=RenderConfig(**knobs), view_step=1))
+                live.frame(frames[0], mode="all_views")
+                secs, natives, cpu = run_mode(live, frames[1:], "all_views")
+                p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
+                s = float(np.median(secs))
+                records.append({"mode": "all_views", "lod_fraction": 1.0, "render_knobs": knobs, "seconds_per_frame": s,
+                                "best_seconds": float(min(secs)), "cpu_seconds_per_frame": cpu, "psnr_db": p,
+                                "rendered_fraction": 1.0, "ratio_to_full_quilt": full_s / s})
+                print(f"all_views    {knobs}  {s:.3f} s/frame (cpu {cpu:.2f})  native {p:.1f} dB", flush=True)
 
-        # ---- tracked viewer, by method and head motion margin
-        angles = np.linspace(-8.0, 8.0, n_frames + 1)
-        viewers = [eyes.TrackedViewer(float(a), 0.6) for a in angles]
-        # (method, sideways margin, depth margin); None: the method's defaults (TRACKED_DEFAULTS)
-        runs = ([("slices", None, None), ("bands", None, None)] if args.quick else
-                [("slices", 0.0, 0.0), ("slices", None, None), ("slices", 0.01, 0.05),
-                 ("bands", 0.0, 0.0), ("bands", None, None), ("bands", 0.02, 0.05)])
-        for method, motion, motion_d in runs:
-            cfg = LiveConfig(motion_m=motion, motion_distance_m=motion_d, tracked=method)
-            live = LiveRenderer(cal, cams, cfg)
-            live.frame(frames[0], viewers[0], mode="tracked")  # everything, once
-            live.prepare_tracked()  # the slices' one-off tables (a live session builds them while warming up)
-            secs, fracs, worst = [], [], math.inf
+            # ---- untracked, all views, with view synthesis: every view_step-th view rendered, the others
+            # warped from their rendered neighbours by depth; also the worst eye over a sweep of viewers
+            # (what a person anywhere in front of the panel sees), last frame
+            for step in ((5,) if args.quick else (2, 3, 4, 5, 6, 8)):
+                live = LiveRenderer(cal, cams, LiveConfig(view_step=step))
+                fraction = live.frame(frames[0], mode="all_views").rendered_fraction
+                secs, natives, cpu = run_mode(live, frames[1:], "all_views")
+                p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
+                worst = min(eyes.eye_psnr(display, ref_natives[-1], natives[-1], v)
+                            for v in (sweep_viewers[::3] if args.quick else sweep_viewers))
+                s = float(np.median(secs))
+                records.append({"mode": "all_views", "lod_fraction": 1.0, "view_step": step,
+                                "seconds_per_frame": s, "best_seconds": float(min(secs)), "cpu_seconds_per_frame": cpu,
+                                "psnr_db": p, "worst_sweep_psnr_db": worst,
+                                "rendered_fraction": fraction, "ratio_to_full_quilt": full_s / s,
+                                "sweep": "eyes at -12..12 deg, 0.45-0.9 m"})
+                print(f"all_views    view_step {step}  {s:.3f} s/frame (cpu {cpu:.2f})  native {p:.1f} dB, "
+                      f"worst eye in sweep {worst:.1f} dB", flush=True)
+
+            # ---- tracked viewer, by method and head motion margin
+            angles = np.linspace(-8.0, 8.0, n_frames + 1)
+            viewers = [eyes.TrackedViewer(float(a), 0.6) for a in angles]
+            # (method, sideways margin, depth margin); None: the method's defaults (TRACKED_DEFAULTS)
+            runs = ([("slices", None, None), ("bands", None, None)] if args.quick else
+                    [("slices", 0.0, 0.0), ("slices", None, None), ("slices", 0.01, 0.05),
+                     ("bands", 0.0, 0.0), ("bands", None, None), ("bands", 0.02, 0.05)])
+            for method, motion, motion_d in runs:
+                cfg = LiveConfig(motion_m=motion, motion_distance_m=motion_d, tracked=method)
+                live = LiveRenderer(cal, cams, cfg)
+                live.frame(frames[0], viewers[0], mode="tracked")  # everything, once
+                live.prepare_tracked()  # the slices' one-off tables (a live session builds them while warming up)
+                secs, fracs, worst = [], [], math.inf
+                c0 = time.process_time()
+                natives = []
+                for k in range(1, n_frames + 1):
+                    f = live.frame(frames[k], viewers[k], mode="tracked")
+                    secs.append(f.seconds)
+                    fracs.append(f.rendered_fraction)
+                    natives.append(f.native.copy())
+                cpu = (time.process_time() - c0) / n_frames
+                eval_frames = [n_frames - 1] if args.quick else list(range(0, n_frames, max(1, n_frames // 3)))
+                per_eye = min(eyes.eye_psnr(display, ref_natives[k], natives[k], viewers[k + 1]) for k in eval_frames)
+                v = viewers[-1]
+                # eyes displaced sideways (and in depth) from the tracked position: inside the margin
+                # every received subpixel is exact; outside it, stale ones start to be seen
+                sweep = [(dx, 0.0) for dx in ((-0.01, 0.01) if args.quick else (-0.02, -0.01, 0.01, 0.02))]
+                if not args.quick:
+                    sweep += [(0.0, -0.05), (0.0, 0.05)]
+                by_offset = {}
+                for dx, dd in sweep:
+                    x = v.centre_x_m + dx
+                    moved = eyes.TrackedViewer(math.degrees(math.atan2(x, v.distance_m + dd)), v.distance_m + dd)
+                    by_offset[f"{dx * 100:+.0f} cm, {dd * 100:+.0f} cm"] = p_moved = eyes.eye_psnr(
+                        display, ref_natives[-1], natives[-1], moved)
+                    worst = min(worst, p_moved)
+                s = float(np.median(secs))
+                records.append({"mode": "tracked", "method": method, "motion_m": live.motion_m,
+                                "motion_distance_m": live.motion_distance_m, "refresh_columns": live.refresh_columns,
+                                "defaults": motion is None,
+                                "seconds_per_frame": s, "best_seconds": float(min(secs)), "cpu_seconds_per_frame": cpu,
+                                "psnr_db": per_eye, "worst_sweep_psnr_db": worst, "sweep_psnr_db": by_offset,
+                                "rendered_fraction": float(np.mean(fracs)), "ratio_to_full_quilt": full_s / s,
+                                "viewer": "0.6 m, angle -8..8 deg"})
+                print(f"tracked      {method:6s} margin {live.motion_m * 100:.1f}/{live.motion_distance_m * 100:.0f} cm, "
+                      f"refresh {live.refresh_columns}  {s:.3f} s/frame (cpu {cpu:.2f}, "
+                      f"{np.mean(fracs) * 100:.0f} % of tiles)  per-eye {per_eye:.1f} dB, worst in sweep {worst:.1f} dB",
+                      flush=True)
+
+            # ---- tracked slices near the cone's edge: an eye looks past the last view through part of the
+            # panel and receives the next lobe's first views there (rendered exactly through the quilt)
+            live = LiveRenderer(cal, cams)
+            live.frame(frames[0], viewers[0], mode="tracked")
+            live.prepare_tracked()
+            for angle in ((17.0,) if args.quick else (15.0, 19.0)):
+                v = eyes.TrackedViewer(angle, 0.6)
+                secs, fracs = [], []
+                for k in range(1, n_frames + 1):
+                    f = live.frame(frames[k], v, mode="tracked")
+                    secs.append(f.seconds)
+                    fracs.append(f.rendered_fraction)
+                per_eye = eyes.eye_psnr(display, ref_natives[n_frames - 1], f.native, v)
+                s = float(np.median(secs))
+                records.append({"mode": "tracked", "method": live.tracked_method, "cone_edge": True, "defaults": True,
+                                "motion_m": live.motion_m, "motion_distance_m": live.motion_distance_m,
+                                "refresh_columns": live.refresh_columns, "seconds_per_frame": s,
+                                "best_seconds": float(min(secs)), "psnr_db": per_eye,
+                                "rendered_fraction": float(np.mean(fracs)), "ratio_to_full_quilt": full_s / s,
+                                "viewer": f"0.6 m, angle {angle:g} deg (eyes "
+                                          + ", ".join(f"{a:.1f}" for a, _ in eyes.eye_positions(v)) + " deg)"})
+                print(f"tracked      {live.tracked_method} at {angle:g} deg (cone edge)  {s:.3f} s/frame "
+                      f"({np.mean(fracs) * 100:.0f} % of tiles)  per-eye {per_eye:.1f} dB (last frame)", flush=True)
+
+            # ---- eye-centred: one perspective image per eye, scattered into the subpixels it receives
+            live = LiveRenderer(cal, cams)
+            live.frame(frames[0], mode="full_quilt")
+            secs, natives = [], []
             c0 = time.process_time()
-            natives = []
             for k in range(1, n_frames + 1):
-                f = live.frame(frames[k], viewers[k], mode="tracked")
+                f = live.frame(frames[k], viewers[k], mode="eye_centred")
                 secs.append(f.seconds)
-                fracs.append(f.rendered_fraction)
                 natives.append(f.native.copy())
             cpu = (time.process_time() - c0) / n_frames
-            eval_frames = [n_frames - 1] if args.quick else list(range(0, n_frames, max(1, n_frames // 3)))
-            per_eye = min(eyes.eye_psnr(display, ref_natives[k], natives[k], viewers[k + 1]) for k in eval_frames)
-            v = viewers[-1]
-            # eyes displaced sideways (and in depth) from the tracked position: inside the margin
-            # every received subpixel is exact; outside it, stale ones start to be seen
-            sweep = [(dx, 0.0) for dx in ((-0.01, 0.01) if args.quick else (-0.02, -0.01, 0.01, 0.02))]
-            if not args.quick:
-                sweep += [(0.0, -0.05), (0.0, 0.05)]
-            by_offset = {}
-            for dx, dd in sweep:
-                x = v.centre_x_m + dx
-                moved = eyes.TrackedViewer(math.degrees(math.atan2(x, v.distance_m + dd)), v.distance_m + dd)
-                by_offset[f"{dx * 100:+.0f} cm, {dd * 100:+.0f} cm"] = p_moved = eyes.eye_psnr(
-                    display, ref_natives[-1], natives[-1], moved)
-                worst = min(worst, p_moved)
+            k = n_frames - 1
+            per_eye = eyes.eye_psnr(display, ref_natives[k], natives[k], viewers[k + 1])
             s = float(np.median(secs))
-            records.append({"mode": "tracked", "method": method, "motion_m": live.motion_m,
-                            "motion_distance_m": live.motion_distance_m, "refresh_columns": live.refresh_columns,
-                            "defaults": motion is None,
-                            "seconds_per_frame": s, "best_seconds": float(min(secs)), "cpu_seconds_per_frame": cpu,
-                            "psnr_db": per_eye, "worst_sweep_psnr_db": worst, "sweep_psnr_db": by_offset,
-                            "rendered_fraction": float(np.mean(fracs)), "ratio_to_full_quilt": full_s / s,
-                            "viewer": "0.6 m, angle -8..8 deg"})
-            print(f"tracked      {method:6s} margin {live.motion_m * 100:.1f}/{live.motion_distance_m * 100:.0f} cm, "
-                  f"refresh {live.refresh_columns}  {s:.3f} s/frame (cpu {cpu:.2f}, "
-                  f"{np.mean(fracs) * 100:.0f} % of tiles)  per-eye {per_eye:.1f} dB, worst in sweep {worst:.1f} dB",
-                  flush=True)
+            records.append({"mode": "eye_centred", "seconds_per_frame": s, "best_seconds": float(min(secs)),
+                            "cpu_seconds_per_frame": cpu, "psnr_db": per_eye, "rendered_fraction": 2 / len(cams),
+                            "ratio_to_full_quilt": full_s / s, "viewer": "0.6 m, angle -8..8 deg"})
+            print(f"eye_centred  {s:.3f} s/frame (cpu {cpu:.2f})  per-eye {per_eye:.1f} dB", flush=True)
 
-        # ---- tracked slices near the cone's edge: an eye looks past the last view through part of the
-        # panel and receives the next lobe's first views there (rendered exactly through the quilt)
-        live = LiveRenderer(cal, cams)
-        live.frame(frames[0], viewers[0], mode="tracked")
-        live.prepare_tracked()
-        for angle in ((17.0,) if args.quick else (15.0, 19.0)):
-            v = eyes.TrackedViewer(angle, 0.6)
-            secs, fracs = [], []
-            for k in range(1, n_frames + 1):
-                f = live.frame(frames[k], v, mode="tracked")
-                secs.append(f.seconds)
-                fracs.append(f.rendered_fraction)
-            per_eye = eyes.eye_psnr(display, ref_natives[n_frames - 1], f.native, v)
-            s = float(np.median(secs))
-            records.append({"mode": "tracked", "method": live.tracked_method, "cone_edge": True, "defaults": True,
-                            "motion_m": live.motion_m, "motion_distance_m": live.motion_distance_m,
-                            "refresh_columns": live.refresh_columns, "seconds_per_frame": s,
-                            "best_seconds": float(min(secs)), "psnr_db": per_eye,
-                            "rendered_fraction": float(np.mean(fracs)), "ratio_to_full_quilt": full_s / s,
-                            "viewer": f"0.6 m, angle {angle:g} deg (eyes "
-                                      + ", ".join(f"{a:.1f}" for a, _ in eyes.eye_positions(v)) + " deg)"})
-            print(f"tracked      {live.tracked_method} at {angle:g} deg (cone edge)  {s:.3f} s/frame "
-                  f"({np.mean(fracs) * 100:.0f} % of tiles)  per-eye {per_eye:.1f} dB (last frame)", flush=True)
-
-        # ---- eye-centred: one perspective image per eye, scattered into the subpixels it receives
-        live = LiveRenderer(cal, cams)
-        live.frame(frames[0], mode="full_quilt")
-        secs, natives = [], []
-        c0 = time.process_time()
-        for k in range(1, n_frames + 1):
-            f = live.frame(frames[k], viewers[k], mode="eye_centred")
-            secs.append(f.seconds)
-            natives.append(f.native.copy())
-        cpu = (time.process_time() - c0) / n_frames
-        k = n_frames - 1
-        per_eye = eyes.eye_psnr(display, ref_natives[k], natives[k], viewers[k + 1])
-        s = float(np.median(secs))
-        records.append({"mode": "eye_centred", "seconds_per_frame": s, "best_seconds": float(min(secs)),
-                        "cpu_seconds_per_frame": cpu, "psnr_db": per_eye, "rendered_fraction": 2 / len(cams),
-                        "ratio_to_full_quilt": full_s / s, "viewer": "0.6 m, angle -8..8 deg"})
-        print(f"eye_centred  {s:.3f} s/frame (cpu {cpu:.2f})  per-eye {per_eye:.1f} dB", flush=True)
-
-        # ---- VTK (extrapolated)
-        try:
-            sub = cams[list(range(vtk_views + 1))]
-            render_views(frames[-1], sub[[0]], "vtk")  # warm-up: OSMesa context, shaders
-            t0, c0 = time.perf_counter(), time.process_time()
-            r = render_views(frames[-1], sub[list(range(1, vtk_views + 1))], "vtk")
-            s = (time.perf_counter() - t0) / vtk_views * len(cams)
-            cpu = (time.process_time() - c0) / vtk_views * len(cams)
-            p = min(eyes.psnr(full.views[i + 1], r.images[i]) for i in range(vtk_views))
-            records.append({"mode": "vtk", "seconds_per_frame": s, "cpu_seconds_per_frame": cpu, "psnr_db": p,
-                            "extrapolated": True, "views_timed": vtk_views, "ratio_to_full_quilt": full_s / s,
-                            "note": "views only (no quilt or interleave); psnr of those views"})
-            print(f"vtk          {s:.2f} s/frame (extrapolated from {vtk_views} views)  views {p:.1f} dB", flush=True)
-        except HoloViewerError as exc:
-            records.append({"mode": "vtk", "skipped": str(exc)})
-            print(f"vtk skipped: {exc}", flush=True)
+            # ---- VTK (extrapolated)
+            try:
+                sub = cams[list(range(vtk_views + 1))]
+                render_views(frames[-1], sub[[0]], "vtk")  # warm-up: OSMesa context, shaders
+                t0, c0 = time.perf_counter(), time.process_time()
+                r = render_views(frames[-1], sub[list(range(1, vtk_views + 1))], "vtk")
+                s = (time.perf_counter() - t0) / vtk_views * len(cams)
+                cpu = (time.process_time() - c0) / vtk_views * len(cams)
+                p = min(eyes.psnr(full.views[i + 1], r.images[i]) for i in range(vtk_views))
+                records.append({"mode": "vtk", "seconds_per_frame": s, "cpu_seconds_per_frame": cpu, "psnr_db": p,
+                                "extrapolated": True, "views_timed": vtk_views, "ratio_to_full_quilt": full_s / s,
+                                "note": "views only (no quilt or interleave); psnr of those views"})
+                print(f"vtk          {s:.2f} s/frame (extrapolated from {vtk_views} views)  views {p:.1f} dB", flush=True)
+            except HoloViewerError as exc:
+                records.append({"mode": "vtk", "skipped": str(exc)})
+                print(f"vtk skipped: {exc}", flush=True)
 
         # ---- GPU
         if args.device == "cuda":
@@ -324,17 +387,31 @@ def main(argv: list[str] | None = None) -> int:
                                 "seconds_per_frame": s, "best_seconds": float(min(secs)), "psnr_db": p,
                                 "frames_per_second": 1.0 / s})
                 print(f"all_views GPU  {s * 1000:.1f} ms/frame ({1 / s:.0f} fps)  native {p:.1f} dB", flush=True)
-                # view synthesis on the device: every 5th view rendered by gsplat, the others warped there
-                synth = LiveRenderer(cal, cams, LiveConfig(backend="gsplat", view_step=5))
-                synth.frame(frames[0], mode="all_views")
-                secs_v, natives_v, _ = run_mode(synth, frames[1:], "all_views")
-                p_v = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives_v))
-                s_v = float(np.median(secs_v))
-                records.append({"mode": "all_views", "backend": "gsplat", "view_step": 5,
-                                "device": torch.cuda.get_device_name(0), "seconds_per_frame": s_v,
-                                "best_seconds": float(min(secs_v)), "psnr_db": p_v, "frames_per_second": 1.0 / s_v})
-                print(f"all_views GPU, view_step 5  {s_v * 1000:.1f} ms/frame ({1 / s_v:.0f} fps)  native {p_v:.1f} dB",
-                      flush=True)
+                # view synthesis on the device: every step-th view rendered by gsplat, the others warped there
+                synths = {}
+                for step in (3, 5):
+                    synth = synths[step] = LiveRenderer(cal, cams, LiveConfig(backend="gsplat", view_step=step))
+                    synth.frame(frames[0], mode="all_views")
+                    secs_v, natives_v, _ = run_mode(synth, frames[1:], "all_views")
+                    p_v = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives_v))
+                    worst_v = min(eyes.eye_psnr(display, ref_natives[-1], natives_v[-1], v)
+                                  for v in sweep_viewers[::3])
+                    s_v = float(np.median(secs_v))
+                    records.append({"mode": "all_views", "backend": "gsplat", "view_step": step,
+                                    "device": torch.cuda.get_device_name(0), "seconds_per_frame": s_v,
+                                    "best_seconds": float(min(secs_v)), "psnr_db": p_v,
+                                    "frames_per_second": 1.0 / s_v, "worst_sweep_psnr_db": worst_v,
+                                    "sweep": "eyes at -12..12 deg, 0.45 m"})
+                    print(f"all_views GPU, view_step {step}  {s_v * 1000:.1f} ms/frame ({1 / s_v:.0f} fps)  "
+                          f"native {p_v:.1f} dB, worst eye in sweep {worst_v:.1f} dB", flush=True)
+                try:
+                    st = gpu_stages(live, synths[5], frames)
+                    records.append(st)
+                    print("GPU stages (ms, each alone): " + ", ".join(f"{k} {v}" for k, v in st["ms"].items()),
+                          flush=True)
+                except Exception as exc:  # a profile only: say why, keep the frame records
+                    records.append({"mode": "gpu_stages", "skipped": f"{type(exc).__name__}: {exc}"})
+                    print(f"GPU stage profile skipped: {exc}", flush=True)
                 try:
                     # the same frames with the Gaussians already on the GPU (what a frame costs when the
                     # deformation runs there too: the host -> device upload of ~24 MB of Gaussians is gone;
@@ -355,6 +432,16 @@ def main(argv: list[str] | None = None) -> int:
                                     "upload_seconds": upload_s})
                     print(f"all_views GPU, Gaussians on the GPU  {s * 1000:.1f} ms/frame ({1 / s:.0f} fps)  "
                           f"native {p:.1f} dB  (their upload: {upload_s * 1000:.1f} ms)", flush=True)
+                    synth = synths[5]
+                    synth.frame(resident[0], mode="all_views")
+                    secs, natives, _ = run_mode(synth, resident[1:], "all_views")
+                    p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
+                    s = float(np.median(secs))
+                    records.append({"mode": "all_views", "backend": "gsplat", "gaussians_on_device": True,
+                                    "view_step": 5, "device": torch.cuda.get_device_name(0), "seconds_per_frame": s,
+                                    "best_seconds": float(min(secs)), "psnr_db": p, "frames_per_second": 1.0 / s})
+                    print(f"all_views GPU, Gaussians on the GPU, view_step 5  {s * 1000:.1f} ms/frame "
+                          f"({1 / s:.0f} fps)  native {p:.1f} dB", flush=True)
                     # the whole frame on the GPU: FLAME LBS + binding there, then the same render
                     deform = deformer_on("cuda")
                     live.frame(deform(params[0]), mode="all_views")
@@ -376,8 +463,8 @@ def main(argv: list[str] | None = None) -> int:
                     records.append({"mode": "all_views", "backend": "gsplat", "gaussians_on_device": True,
                                     "skipped": f"{type(exc).__name__}: {exc}"})
                     print(f"GPU-resident run skipped: {exc}", flush=True)
-            except (HoloViewerError, ImportError) as exc:
-                records.append({"mode": "all_views", "backend": "gsplat", "skipped": str(exc)})
+            except Exception as exc:  # no CUDA, no gsplat, or a failure there: say why, keep the CPU records
+                records.append({"mode": "all_views", "backend": "gsplat", "skipped": f"{type(exc).__name__}: {exc}"})
                 print(f"GPU skipped: {exc}", flush=True)
     except HoloViewerError as exc:
         print(f"error: {exc}", file=sys.stderr)

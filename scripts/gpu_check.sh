@@ -24,9 +24,10 @@ t = time.perf_counter()
 from holo_viewer.render import gsplat_backend
 print("gsplat available:", gsplat_backend.is_available(), f"({time.perf_counter() - t:.1f} s incl. its CUDA build)")
 PY
+# most important first: a lent machine's time is short (the run may be cut off; every step writes to $out)
+python3 bench/live_frame.py --quick --device cuda --gpu-only --json "$out/live_frame_gpu.json" 2>&1 | tail -n 14
 python3 -m pytest -q -p no:cacheprovider tests/test_render_torch.py tests/test_flame_model.py tests/test_live_frame.py \
-  -k "cuda or gsplat or device" 2>&1 | tee "$out/gpu_tests.log" | tail -n 15
+  tests/test_view_synthesis.py -k "cuda or gsplat or device" 2>&1 | tee "$out/gpu_tests.log" | tail -n 15
 python3 bench/render_gpu.py --json "$out/render_gpu.json" 2>&1 | tail -n 12
-python3 bench/live_frame.py --quick --device cuda --json "$out/live_frame_gpu.json" 2>&1 | tail -n 25
 # the CPU path on this machine's cores: thread count x numba threading layer (docs/live_frame.md)
 python3 bench/cpu_scaling.py --frames 3 --json "$out/cpu_scaling.json" 2>&1 | tail -n 20

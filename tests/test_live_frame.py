@@ -400,7 +400,7 @@ def _devices() -> list[str]:
 def test_device_gather_equals_numpy_path(mode):
     import torch
 
-    from holo_viewer.display.device import DeviceInterleaver
+    from holo_viewer.display.device import DeviceInterleaver, pinned_native
 
     rng = np.random.default_rng(7)
     views = rng.random((48, 140, 105, 3)).astype(np.float32)
@@ -410,6 +410,12 @@ def test_device_gather_equals_numpy_path(mode):
     for dev in _devices():
         di = DeviceInterleaver(il, 48, 140, 105, device=dev)
         np.testing.assert_array_equal(di(torch.as_tensor(views, device=dev)), expected)
+        out, owner = pinned_native(il.shape)  # page-locked where CUDA runs, plain memory otherwise
+        assert out.shape == il.shape and not out.any()
+        assert di(torch.as_tensor(views, device=dev), out=out) is out
+        np.testing.assert_array_equal(out, expected)
+        with pytest.raises(InputError, match="out"):
+            di(torch.as_tensor(views, device=dev), out=np.zeros(il.shape, dtype=np.float32))
     with pytest.raises(InputError, match="views"):
         DeviceInterleaver(il, 48, 140, 100)
 

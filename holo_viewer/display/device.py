@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import InputError
 from .lenticular import Interleaver
 
-__all__ = ["view_gather_indices", "DeviceInterleaver"]
+__all__ = ["view_gather_indices", "DeviceInterleaver", "pinned_native"]
 
 
 def view_gather_indices(interleaver: Interleaver, n_views: int, height: int, width: int) -> tuple[np.ndarray, ...]:
@@ -77,10 +77,12 @@ class DeviceInterleaver:
         self._i1 = None if i1 is None else torch.as_tensor(i1, device=self.device)
         self._w8 = None if w8 is None else torch.as_tensor(w8, device=self.device)
 
-    def __call__(self, views: Any, to_host: bool = True) -> Any:
+    def __call__(self, views: Any, to_host: bool = True, out: np.ndarray | None = None) -> Any:
         """Native image of (V, H, W, 3) float views in [0, 1] (a torch tensor on the device).
 
-        Returns a (screen_h, screen_w, 3) uint8 numpy array (``to_host``), else a device tensor.
+        Returns a (screen_h, screen_w, 3) uint8 numpy array (``to_host``; written into ``out`` when
+        given, which is then returned), else a device tensor. The copy to the host is the frame's
+        one synchronisation; into page-locked memory (:func:`pinned_native`) it is a direct DMA.
         """
         import torch
 
@@ -89,10 +91,33 @@ class DeviceInterleaver:
         flat = views.reshape(-1)
         q = torch.clamp(torch.round(flat[self._i0].float() * 255.0), 0, 255)
         if self._i1 is None:
-            out = q.to(torch.uint8)
+            res = q.to(torch.uint8)
         else:
             a = q.to(torch.int32)
             b = torch.clamp(torch.round(flat[self._i1].float() * 255.0), 0, 255).to(torch.int32)
-            out = ((a * (256 - self._w8) + b * self._w8 + 128) >> 8).to(torch.uint8)
-        out = out.reshape(self.shape)
-        return out.cpu().numpy() if to_host else out
+            res = ((a * (256 - self._w8) + b * self._w8 + 128) >> 8).to(torch.uint8)
+        res = res.reshape(self.shape)
+        if not to_host:
+            return res
+        if out is None:
+            return res.cpu().numpy()
+        if out.shape != tuple(self.shape) or out.dtype != np.uint8 or not out.flags.c_contiguous:
+            raise InputError(f"out: expected a C-contiguous uint8 array of shape {tuple(self.shape)}, "
+                             f"found {out.dtype} {out.shape}")
+        torch.from_numpy(out).copy_(res)
+        return out
+
+
+def pinned_native(shape: tuple[int, ...]) -> tuple[np.ndarray, Any]:
+    """A zeroed uint8 host array in page-locked memory (and the torch tensor that owns it; keep it),
+    so that a device-to-host copy into it is one DMA instead of a copy through a staging buffer.
+    Falls back to ordinary memory (tensor None) where CUDA is unavailable."""
+    try:
+        import torch
+
+        if torch.cuda.is_available():
+            t = torch.zeros(tuple(shape), dtype=torch.uint8).pin_memory()
+            return t.numpy(), t
+    except (ImportError, RuntimeError):  # no torch, or a driver that refuses page-locked memory
+        pass
+    return np.zeros(tuple(shape), dtype=np.uint8), None

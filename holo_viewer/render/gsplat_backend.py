@@ -119,6 +119,26 @@ def render_device(gaussians: Any, cameras: Cameras, config: RenderConfig | None 
     return out[0] if len(out) == 1 else torch.cat(out, dim=0)
 
 
+#: the last cameras' device tensors (a live renderer passes the same Cameras every frame)
+_CAMERA_CACHE: list[tuple[Any, ...]] = []
+
+
+def _camera_tensors(torch: Any, cameras: Cameras, background: Any, dev: Any) -> tuple[Any, Any, Any]:
+    """(viewmats, Ks, background) as float32 tensors on ``dev``, cached for the last few
+    (cameras, background, device): building them is three small host-to-device copies, each a
+    synchronisation, every frame otherwise."""
+    bg_key = tuple(float(x) for x in np.ravel(background))
+    for cams, key, tensors in _CAMERA_CACHE:
+        if cams is cameras and key == (bg_key, str(dev)):
+            return tensors
+    tensors = (torch.tensor(np.array(cameras.world_to_cam), dtype=torch.float32, device=dev),
+               torch.tensor(np.array(cameras.K), dtype=torch.float32, device=dev),
+               torch.tensor(bg_key, dtype=torch.float32, device=dev))
+    _CAMERA_CACHE.insert(0, (cameras, (bg_key, str(dev)), tensors))
+    del _CAMERA_CACHE[4:]
+    return tensors
+
+
 def _rasterize(gaussians: Any, cameras: Cameras, config: RenderConfig, per_call: int, timings: dict[str, float],
                to_host: bool) -> tuple[list[Any], int, int]:
     torch, gsplat = _import()
@@ -138,11 +158,10 @@ def _rasterize(gaussians: Any, cameras: Cameras, config: RenderConfig, per_call:
         colors, sh_deg_arg = sh_colors(g.means, sh, degree, centre), None
     else:
         colors, sh_deg_arg = sh, degree
-    viewmats = torch.tensor(np.array(cameras.world_to_cam), dtype=torch.float32, device=dev)
-    Ks = torch.tensor(np.array(cameras.K), dtype=torch.float32, device=dev)
+    viewmats, Ks, bg = _camera_tensors(torch, cameras, config.background, dev)
     near = cameras.near if config.near is None else float(config.near)
-    bg = torch.tensor(config.background, dtype=torch.float32, device=dev)
-    torch.cuda.synchronize(dev)
+    if to_host:  # (the device path stays asynchronous until its caller copies the result to the host)
+        torch.cuda.synchronize(dev)
     timings["preprocess"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -158,7 +177,8 @@ def _rasterize(gaussians: Any, cameras: Cameras, config: RenderConfig, per_call:
             if config.clip_output:
                 img = img.clamp(0.0, 1.0)
             out.append(img.float().cpu().numpy() if to_host else img.float())
-    torch.cuda.synchronize(dev)
+    if to_host:
+        torch.cuda.synchronize(dev)
     timings["rasterize"] = time.perf_counter() - t0
     return out, len(g), degree
 
