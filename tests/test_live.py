@@ -316,6 +316,57 @@ def test_auto_render_mode_renders_for_the_eyes_only_while_a_face_is_tracked():
         LiveRenderer(tile_scale=0.1, mode="eyes")
 
 
+def test_live_backend_auto_is_fast_without_cuda_and_gsplat_needs_it(tmp_path, capsys):
+    """``--backend auto`` (the default) falls back to the CPU here; an explicit gsplat without CUDA
+    is a clear error (exit 1, no traceback); a misspelt backend is named."""
+    from holo_viewer.errors import InputError, RenderError
+    from holo_viewer.live.render import resolve_backend
+    from holo_viewer.render import gsplat_backend
+
+    if gsplat_backend.is_available():
+        pytest.skip("CUDA and gsplat present: auto picks gsplat")
+    assert resolve_backend("auto") == "fast" and resolve_backend("fast") == "fast"
+    with pytest.raises(RenderError, match="CUDA"):
+        resolve_backend("gsplat")
+    with pytest.raises(InputError, match="backend"):
+        resolve_backend("vulkan")
+    assert main(["live", "--synthetic", "--seconds", "1.0", "--headless", "--frames", "1", "--backend", "gsplat",
+                 "--out", str(tmp_path / "s")]) == 1
+    err = capsys.readouterr().err
+    assert "CUDA" in err and "Traceback" not in err
+
+
+def test_live_loop_on_gsplat_renders_every_view_on_the_device(monkeypatch):
+    """Where gsplat runs, ``auto`` picks it and every live frame is all 48 views rendered and
+    interleaved on the device, tracked face or not. Here CPU torch stands in for CUDA and the fast
+    renderer for gsplat: the native image must be the CPU path's exact all-views frame (every view
+    rendered) up to one level of rounding."""
+    torch = pytest.importorskip("torch")
+    from holo_viewer.live.render import LiveRenderer
+    from holo_viewer.render import fast, gsplat_backend
+
+    def cpu_render_device(g, cameras, config=None, views_per_call=None):
+        return torch.as_tensor(fast.render(g, cameras, config).images.copy())
+
+    monkeypatch.setattr(gsplat_backend, "is_available", lambda: True)
+    monkeypatch.setattr(gsplat_backend, "render_device", cpu_render_device)
+    r = LiveRenderer(tile_scale=0.1, native=True, preview=False, mode="auto")
+    assert r.backend == "gsplat" and r._live.config.backend == "gsplat"
+    calls = []
+    frame = r._live.frame
+    r._live.frame = lambda g, viewer, mode: calls.append((viewer, mode)) or frame(g, viewer, mode)
+    listener = {"expr": np.zeros(10), "jaw_pose": np.array([0.2, 0.0, 0.0])}
+    tracked = r.render(listener, 0.6, (), 5.0, 0.7, True).native
+    untracked = r.render(listener, 0.6, (), 5.0, 0.7, False).native
+    assert calls == [(None, "all_views"), (None, "all_views")]
+    exact = LiveRenderer(tile_scale=0.1, native=True, preview=False, mode="all_views", backend="fast", view_step=1)
+    ref = exact.render(listener, 0.6, (), 5.0, 0.7, False).native
+    for img in (tracked, untracked):
+        diff = np.abs(img.astype(int) - ref.astype(int))
+        assert diff.max() <= 1 and (diff > 0).mean() < 1e-3
+    assert ref.any()
+
+
 def test_render_pose_predicts_where_the_viewer_will_be(tmp_path):
     """The loop renders for the newest tracked pose extrapolated over its age plus the median of
     the last renders (predict_viewer, the default); without prediction, or for an untracked pose,

@@ -294,7 +294,7 @@ def test_device_path_glue_on_cpu_torch(cams, monkeypatch):
     monkeypatch.setattr(live_mod, "LIVE_T_MIN", 0.0)  # gsplat's termination is compiled in: compare at the config's
     g = _surface(4)
     cpu = LiveRenderer(SMALL, cams, LiveConfig(view_step=5)).frame(g, mode="all_views")
-    assert LiveRenderer(SMALL, cams, LiveConfig(backend="gsplat")).view_step == 1  # untimed on GPUs: opt-in
+    assert LiveRenderer(SMALL, cams, LiveConfig(backend="gsplat")).view_step == 1  # does not pay on GPUs: opt-in
     dev = LiveRenderer(SMALL, cams, LiveConfig(backend="gsplat", view_step=5))
     f = dev.frame(g, mode="all_views")
     assert f.rendered_fraction == cpu.rendered_fraction < 1.0

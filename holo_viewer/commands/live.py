@@ -29,6 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--no-preview", action="store_true", help="no desktop preview window")
     out.add_argument("--tile-scale", type=float, default=1.0, help="quilt tile size relative to the calibration's "
                      "(e.g. 0.5 renders 4x fewer pixels; default 1)")
+    out.add_argument("--backend", choices=("auto", "fast", "gsplat"), default="auto",
+                     help="renderer of the live frames: gsplat (CUDA: all 48 views on the GPU every frame, "
+                          "whatever the mode but cone), fast (CPU), or auto (default: gsplat where a CUDA GPU "
+                          "and the gsplat package are present, else fast)")
     out.add_argument("--render-mode", choices=("auto", "cone", "tracked", "all_views"), default="auto",
                      help="auto (default): tracked while a face is tracked, all_views otherwise; tracked: the "
                      "panel's default cone, only the subpixels the tracked eyes receive redrawn, from one image per "
@@ -86,8 +90,10 @@ def run(args: argparse.Namespace) -> int:
                         viewer_mode="group" if args.group else "nearest",
                         predict_viewer=not args.no_viewer_prediction, scenario=scenario,
                         max_seconds=args.seconds, settings=settings)
+    renderer = LiveRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview, mode=args.render_mode,
+                            backend=args.backend)
+    settings["render_backend"] = renderer.backend  # what "auto" chose (session.json)
     session = LiveSession(config, audio, video, synthetic)
-    renderer = LiveRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview, mode=args.render_mode)
     panel = preview = None
     if config.panel:
         from ..live.windows import open_panel

@@ -25,7 +25,7 @@ def replay_frames(session: str | os.PathLike, tile_scale: float | None = None, e
     meta, tr = load_session(session)
     scale = float(tile_scale if tile_scale is not None else meta.get("settings", {}).get("tile_scale", 1.0))
     mode = str(meta.get("settings", {}).get("render_mode", "cone"))
-    renderer = LiveRenderer(tile_scale=scale, native=True, preview=False,
+    renderer = LiveRenderer(tile_scale=scale, native=True, preview=False, backend="fast",  # exact, any machine
                             mode="all_views" if mode in ("tracked", "auto") else mode,
                             view_step=1)  # offline: every view rendered, no synthesis
     scenario = None
