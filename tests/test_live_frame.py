@@ -420,6 +420,26 @@ def test_device_gather_equals_numpy_path(mode):
         DeviceInterleaver(il, 48, 140, 100)
 
 
+def test_gsplat_camera_tensors_are_built_once_per_cameras():
+    """The live GPU frame reuses the cameras' device tensors (no per-frame copies): the same
+    Cameras and background give the same tensors, another background or Cameras new ones, equal to
+    the float32 arrays."""
+    torch = pytest.importorskip("torch")
+    from holo_viewer.render import gsplat_backend
+
+    cams = quilt_cameras(6, 72, 90)
+    a = gsplat_backend._camera_tensors(torch, cams, (0.0, 0.0, 0.0), "cpu")
+    assert all(x is y for x, y in zip(a, gsplat_backend._camera_tensors(torch, cams, (0.0, 0.0, 0.0), "cpu")))
+    b = gsplat_backend._camera_tensors(torch, cams, (1.0, 1.0, 1.0), "cpu")
+    assert b[2].tolist() == [1.0, 1.0, 1.0] and b[0] is not a[0]
+    np.testing.assert_array_equal(a[0].numpy(), cams.world_to_cam.astype(np.float32))
+    np.testing.assert_array_equal(a[1].numpy(), cams.K.astype(np.float32))
+    other = cams[[0, 1]]
+    c = gsplat_backend._camera_tensors(torch, other, (0.0, 0.0, 0.0), "cpu")
+    assert c[0].shape == (2, 4, 4)
+    assert len(gsplat_backend._CAMERA_CACHE) <= 4
+
+
 def test_gsplat_device_path_matches_fast_native():
     torch = pytest.importorskip("torch")
     from holo_viewer.render import gsplat_backend
