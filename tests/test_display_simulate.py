@@ -7,6 +7,7 @@ from holo_viewer.display.calibration import DisplayCalibration
 from holo_viewer.display.lenticular import Interleaver
 from holo_viewer.display.quilt import tile_quilt
 from holo_viewer.display.simulate import VirtualDisplay, identify_bar, id_pattern_views
+from holo_viewer.errors import InputError
 
 FIX = DisplayCalibration.from_file("/work/shared/fixtures/lkg_portrait_visual.json")
 
@@ -46,3 +47,41 @@ def test_all_views_and_finite_distance(setup):
     seen = vd.see(native, vd.view_angle(24), distance_m=0.6)
     centre = seen[:, seen.shape[1] // 2 - 20: seen.shape[1] // 2 + 20]
     assert identify_bar(np.pad(centre, ((0, 0), (172, 172), (0, 0))), 48)[0] == 24
+
+
+@pytest.mark.parametrize("shape, window, stride", [((37, 29, 3), (10, 7), 4), ((16, 12, 1), (20, 5), 3),
+                                                   ((9, 40, 2), (3, 50), 1), ((25, 25, 3), (1, 1), 5)])
+def test_window_sums_equal_exact_sums(shape, window, stride):
+    """The perceived image's window sums against math.fsum of each window (shifted inside the
+    image, never cut; windows larger than the image cover it): within 1e-12 relative."""
+    import math
+
+    from holo_viewer.display.simulate import _box
+
+    a = np.random.default_rng(sum(shape)).random(shape)
+    got = _box(a, window, stride)
+    H, W = shape[:2]
+    wy, wx = window
+    assert got.shape == (H // stride, W // stride, shape[2])
+    for i in range(H // stride):
+        for j in range(W // stride):
+            y0 = min(max(i * stride + stride // 2 - wy // 2, 0), max(H - wy, 0))
+            x0 = min(max(j * stride + stride // 2 - wx // 2, 0), max(W - wx, 0))
+            for c in range(shape[2]):
+                exact = math.fsum(a[y0:y0 + wy, x0:x0 + wx, c].ravel())
+                assert abs(got[i, j, c] - exact) <= 1e-12 * max(1.0, exact)
+
+
+def test_see_many_is_see_of_each(setup):
+    """One eye position, several images: the same perceived images as one see() each."""
+    disp = setup[0]
+    cal = disp.cal
+    rng = np.random.default_rng(3)
+    imgs = [rng.integers(0, 256, (cal.screen_h, cal.screen_w, 3), dtype=np.uint8) for _ in range(2)]
+    imgs.append(imgs[0] / 255.0)
+    many = disp.see_many(imgs, 7.0, 0.55)
+    for img, got in zip(imgs, many):
+        np.testing.assert_array_equal(got, disp.see(img, 7.0, 0.55))
+    np.testing.assert_array_equal(many[0], many[2])
+    with pytest.raises(InputError, match="native"):
+        disp.see_many([imgs[0], imgs[0][:-1]], 0.0)

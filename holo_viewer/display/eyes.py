@@ -441,6 +441,5 @@ def head_psnr(ref: np.ndarray, test: np.ndarray, background: tuple[float, float,
 def eye_psnr(display: VirtualDisplay, ref_native: np.ndarray, test_native: np.ndarray, viewer: TrackedViewer,
              background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> float:
     """Head-region PSNR of the per-eye images of ``test_native`` against ``ref_native``: the worse eye."""
-    refs = eye_images(display, ref_native, viewer)
-    tests = eye_images(display, test_native, viewer)
-    return min(head_psnr(r, t, background) for r, t in zip(refs, tests))
+    pairs = [display.see_many([ref_native, test_native], a, d) for a, d in eye_positions(viewer)]
+    return min(head_psnr(r, t, background) for r, t in pairs)
