@@ -27,8 +27,11 @@ frame is **deformed Gaussians -> native image** (``LiveRenderer.frame``). All fr
   the panel; ``psnr_db`` of the last frame.
 * ``eye_centred``: the same viewer path; one perspective image per eye (camera interpolated between
   the quilt cameras) written into the subpixels that eye receives. ``psnr_db`` as ``tracked``.
-* ``vtk``: the VTK point-Gaussian pass on ``--vtk-views`` views after a warm-up, extrapolated to
-  48 views (``extrapolated``: true); ``psnr_db`` of those views against full_quilt's views.
+* ``vtk``: the VTK point-Gaussian pass on ``--vtk-views`` views spread over the cone (the middles
+  of equal parts) after a warm-up, extrapolated to 48 views (``extrapolated``: true); ``psnr_db``
+  of those views against full_quilt's views. Each timed view is followed by one full quilt:
+  ``paired_ratios`` (48 x the view's time / that quilt's), which a change of the machine's load
+  between the full_quilt record and this one does not move.
 * ``--device cuda``: ``all_views`` with gsplat (one batched call, ``viewmats`` [48, 4, 4]) and
   the quilt + interleave as one torch gather on the GPU (``backend``: gsplat), and the same with
   view synthesis on the device (``view_step`` 3 and 5), each also with the Gaussians already on the
@@ -354,19 +357,32 @@ def main(argv: list[str] | None = None) -> int:
                             "ratio_to_full_quilt": full_s / s, "viewer": "0.6 m, angle -8..8 deg"})
             print(f"eye_centred  {s:.3f} s/frame (cpu {cpu:.2f})  per-eye {per_eye:.1f} dB", flush=True)
 
-            # ---- VTK (extrapolated)
+            # ---- VTK (extrapolated from views spread over the cone), each timed view paired with a full
+            # quilt timed right after it: the pairs' ratios do not drift with the machine's load
             try:
-                sub = cams[list(range(vtk_views + 1))]
-                render_views(frames[-1], sub[[0]], "vtk")  # warm-up: OSMesa context, shaders
-                t0, c0 = time.perf_counter(), time.process_time()
-                r = render_views(frames[-1], sub[list(range(1, vtk_views + 1))], "vtk")
-                s = (time.perf_counter() - t0) / vtk_views * len(cams)
-                cpu = (time.process_time() - c0) / vtk_views * len(cams)
-                p = min(eyes.psnr(full.views[i + 1], r.images[i]) for i in range(vtk_views))
+                V = len(cams)
+                timed = [int(x) for x in (np.arange(vtk_views) + 0.5) / vtk_views * V]
+                render_views(frames[-1], cams[[0]], "vtk")  # warm-up: OSMesa context, shaders
+                vtk_s, vtk_cpu, pair_full, imgs = [], 0.0, [], []
+                for j in timed:
+                    t0, c0 = time.perf_counter(), time.process_time()
+                    imgs.append(render_views(frames[-1], cams[[j]], "vtk").images[0])
+                    vtk_s.append(time.perf_counter() - t0)
+                    vtk_cpu += time.process_time() - c0
+                    pair_full.append(full.frame(frames[-1], mode="full_quilt").seconds)  # same views as before
+                s = float(np.mean(vtk_s)) * V
+                cpu = vtk_cpu / len(timed) * V
+                p = min(eyes.psnr(full.views[j], img) for j, img in zip(timed, imgs))
+                paired = [t * V / f for t, f in zip(vtk_s, pair_full)]
                 records.append({"mode": "vtk", "seconds_per_frame": s, "cpu_seconds_per_frame": cpu, "psnr_db": p,
-                                "extrapolated": True, "views_timed": vtk_views, "ratio_to_full_quilt": full_s / s,
-                                "note": "views only (no quilt or interleave); psnr of those views"})
-                print(f"vtk          {s:.2f} s/frame (extrapolated from {vtk_views} views)  views {p:.1f} dB", flush=True)
+                                "extrapolated": True, "views_timed": timed, "ratio_to_full_quilt": full_s / s,
+                                "paired_ratios": paired, "paired_ratio_median": float(np.median(paired)),
+                                "paired_full_quilt_seconds": pair_full,
+                                "note": "views only (no quilt or interleave); psnr of those views; each timed view "
+                                        "paired with a full quilt timed right after it (paired_ratios)"})
+                print(f"vtk          {s:.2f} s/frame (extrapolated from views {timed})  views {p:.1f} dB; "
+                      f"x{full_s and s / full_s:.1f} the full quilt, paired x{np.median(paired):.1f} "
+                      f"({', '.join(f'{x:.1f}' for x in paired)})", flush=True)
             except HoloViewerError as exc:
                 records.append({"mode": "vtk", "skipped": str(exc)})
                 print(f"vtk skipped: {exc}", flush=True)
