@@ -85,9 +85,14 @@ def to_uint8(images: np.ndarray, out: np.ndarray | None = None, *, name: str = "
 
 def _rows_view(a: np.ndarray) -> np.ndarray | None:
     """``a`` (H, ...) as an (H, L) view whose rows are contiguous (a quilt tile is), or None."""
-    v = a.view()
     try:
-        v.shape = (a.shape[0], -1)  # raises where that would need a copy
-    except AttributeError:
+        v = np.reshape(a, (a.shape[0], -1), copy=False)  # numpy >= 2.1: raises where that would need a copy
+    except ValueError:
         return None
+    except TypeError:  # older numpy: no copy argument; setting the shape raises instead (deprecated in 2.5)
+        v = a.view()
+        try:
+            v.shape = (a.shape[0], -1)
+        except AttributeError:
+            return None
     return v if v.strides[1] == v.itemsize or v.shape[1] <= 1 else None
