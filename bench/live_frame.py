@@ -31,7 +31,9 @@ frame is **deformed Gaussians -> native image** (``LiveRenderer.frame``). All fr
   of equal parts) after a warm-up, extrapolated to 48 views (``extrapolated``: true); ``psnr_db``
   of those views against full_quilt's views. Each timed view is followed by one full quilt:
   ``paired_ratios`` (48 x the view's time / that quilt's), which a change of the machine's load
-  between the full_quilt record and this one does not move.
+  between the full_quilt record and this one does not move; ``ratio_to_views_only``: against the
+  full quilt's 48 float views alone (``full_quilt``'s ``views_seconds_per_frame``: VTK's time too
+  is views only, no uint8 quilt and no interleave).
 * ``--device cuda``: ``all_views`` with gsplat (one batched call, ``viewmats`` [48, 4, 4]) and
   the quilt + interleave as one torch gather on the GPU (``backend``: gsplat), and the same with
   view synthesis on the device (``view_step`` 3 and 5), each also with the Gaussians already on the
@@ -167,14 +169,18 @@ def load() -> float:
     return os.getloadavg()[0]
 
 
-def run_mode(live: LiveRenderer, frames: list, mode: str, viewers: list | None = None) -> tuple[list, float, float]:
-    """Frame times (wall), natives (copies) and CPU seconds per frame."""
+def run_mode(live: LiveRenderer, frames: list, mode: str, viewers: list | None = None,
+             timings: list | None = None) -> tuple[list, float, float]:
+    """Frame times (wall), natives (copies) and CPU seconds per frame; each frame's
+    ``LiveFrame.timings`` appended to ``timings`` when given."""
     secs, natives = [], []
     c0 = time.process_time()
     for k, g in enumerate(frames):
         f = live.frame(g, viewers[k] if viewers else None, mode)
         secs.append(f.seconds)
         natives.append(f.native.copy())
+        if timings is not None:
+            timings.append(dict(f.timings))
     return secs, natives, (time.process_time() - c0) / len(frames)
 
 
@@ -210,13 +216,16 @@ def main(argv: list[str] | None = None) -> int:
         # ---- full quality (reference of every other mode)
         full = LiveRenderer(cal, cams)
         full.frame(frames[0], mode="full_quilt")  # warm-up (numba cache, buffers)
-        secs, ref_natives, cpu = run_mode(full, frames[1:], "full_quilt")
+        full_timings: list = []
+        secs, ref_natives, cpu = run_mode(full, frames[1:], "full_quilt", timings=full_timings)
+        views_s = float(np.median([t["render"] for t in full_timings]))  # the 48 float views alone
         ref_views_img = full.views[:ref_views].copy()  # last frame's views
         f64 = render_views(frames[-1], cams[list(range(ref_views))], "reference", RenderConfig()).images
         p64 = min(eyes.psnr(f64[i], ref_views_img[i]) for i in range(ref_views))
         full_s = float(np.median(secs))
         records.append({"mode": "full_quilt", "seconds_per_frame": full_s, "best_seconds": float(min(secs)),
-                        "cpu_seconds_per_frame": cpu, "psnr_db": math.inf, "psnr_vs_float64_db": p64,
+                        "cpu_seconds_per_frame": cpu, "views_seconds_per_frame": views_s,
+                        "psnr_db": math.inf, "psnr_vs_float64_db": p64,
                         "float64_views": ref_views, "rendered_fraction": 1.0})
         print(f"full_quilt   {full_s:.3f} s/frame (best {min(secs):.3f}, cpu {cpu:.2f})  "
               f"views vs float64 {p64:.1f} dB", flush=True)
@@ -377,12 +386,13 @@ def main(argv: list[str] | None = None) -> int:
                 records.append({"mode": "vtk", "seconds_per_frame": s, "cpu_seconds_per_frame": cpu, "psnr_db": p,
                                 "extrapolated": True, "views_timed": timed, "ratio_to_full_quilt": full_s / s,
                                 "paired_ratios": paired, "paired_ratio_median": float(np.median(paired)),
+                                "ratio_to_views_only": s / views_s,
                                 "paired_full_quilt_seconds": pair_full,
                                 "note": "views only (no quilt or interleave); psnr of those views; each timed view "
                                         "paired with a full quilt timed right after it (paired_ratios)"})
                 print(f"vtk          {s:.2f} s/frame (extrapolated from views {timed})  views {p:.1f} dB; "
-                      f"x{full_s and s / full_s:.1f} the full quilt, paired x{np.median(paired):.1f} "
-                      f"({', '.join(f'{x:.1f}' for x in paired)})", flush=True)
+                      f"x{s / full_s:.1f} the full quilt, paired x{np.median(paired):.1f} "
+                      f"({', '.join(f'{x:.1f}' for x in paired)}), x{s / views_s:.1f} its views alone", flush=True)
             except HoloViewerError as exc:
                 records.append({"mode": "vtk", "skipped": str(exc)})
                 print(f"vtk skipped: {exc}", flush=True)
