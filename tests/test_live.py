@@ -367,6 +367,31 @@ def test_live_loop_on_gsplat_renders_every_view_on_the_device(monkeypatch):
     assert ref.any()
 
 
+def test_live_backend_auto_falls_back_to_the_cpu_when_gsplat_fails(monkeypatch):
+    """gsplat builds its CUDA kernels on first use, which can fail (no compiler, a driver
+    mismatch): ``auto`` then renders on the CPU with a warning; an explicit ``gsplat`` says why."""
+    from holo_viewer.errors import RenderError
+    from holo_viewer.live.render import LiveRenderer
+    from holo_viewer.render import gsplat_backend
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("Error building extension 'gsplat_cuda': nvcc not found")
+
+    monkeypatch.setattr(gsplat_backend, "is_available", lambda: True)
+    monkeypatch.setattr(gsplat_backend, "_import", lambda: None)
+    monkeypatch.setattr(gsplat_backend, "render_device", broken)
+    with pytest.warns(RuntimeWarning, match="nvcc not found"):
+        r = LiveRenderer(tile_scale=0.1, native=True, preview=False, mode="auto")
+    assert r.backend == "fast" and r._live.config.backend == "fast" and r.pipeline.backend == "fast"
+    assert r.render({"expr": np.zeros(10)}, 0.3, (), 5.0, 0.7, True).native.shape == (2048, 1536, 3)
+    with pytest.raises(RenderError, match="nvcc not found.*--backend fast"):
+        LiveRenderer(tile_scale=0.1, native=True, preview=False, mode="auto", backend="gsplat")
+    monkeypatch.setattr(gsplat_backend, "render", broken)  # cone: the pipeline renders the views
+    with pytest.warns(RuntimeWarning, match="nvcc not found"):
+        cone = LiveRenderer(tile_scale=0.1, native=False, preview=True, mode="cone")
+    assert cone.backend == cone.pipeline.backend == "fast"
+
+
 def test_render_pose_predicts_where_the_viewer_will_be(tmp_path):
     """The loop renders for the newest tracked pose extrapolated over its age plus the median of
     the last renders (predict_viewer, the default); without prediction, or for an untracked pose,

@@ -74,8 +74,10 @@ class LiveRenderer:
     preview : bool
         Render the one view that faces the tracked viewer (the desktop preview).
     backend : {"auto", "fast", "gsplat"}
-        The live frames' renderer (module docstring); ``auto``: gsplat where it runs, else fast.
-        The resolved name is ``self.backend``.
+        The live frames' renderer (module docstring); ``auto``: gsplat where it runs, else fast,
+        and fast with a RuntimeWarning when gsplat's first frame fails (its CUDA kernels are built
+        on first use); an explicit ``gsplat`` raises RenderError then. The resolved name is
+        ``self.backend``.
     mode : {"cone", "auto", "tracked", "all_views"}
         See the module docstring.
     calibration : DisplayCalibration, optional
@@ -94,36 +96,60 @@ class LiveRenderer:
                  view_step: int | None = None) -> None:
         import os
 
-        from ..pipeline import Pipeline, ViewSettings
-        from ..render.config import RenderConfig
-
         threads = max(1, os.cpu_count() or 1) if render_threads is None else int(render_threads)
-        self.backend = resolve_backend(backend)
-        self.pipeline = Pipeline(calibration=calibration, view=ViewSettings(tile_scale=tile_scale),
-                                 backend=self.backend, render_config=RenderConfig(num_threads=threads))
-        self.native_enabled = bool(native)
-        self.preview_enabled = bool(preview)
         if mode not in ("cone", "auto", "tracked", "all_views"):
             from ..errors import InputError
 
             raise InputError(f"mode: expected 'cone', 'auto', 'tracked' or 'all_views', found {mode!r}")
         self.mode = mode
-        self._live = None
-        if mode != "cone":
-            from ..pipeline.live import LiveConfig, LiveRenderer as FrameRenderer
+        self.native_enabled = bool(native)
+        self.preview_enabled = bool(preview)
+        self.backend = resolve_backend(backend)
+        try:
+            self._build(tile_scale, calibration, threads, view_step)
+        except Exception as exc:  # noqa: BLE001 - gsplat's first use builds CUDA kernels, which can fail
+            from ..errors import HoloViewerError, RenderError
 
-            self._live = FrameRenderer(self.pipeline.calibration, self.pipeline.cameras(),
-                                       LiveConfig(render=RenderConfig(num_threads=threads), view_step=view_step,
-                                                  backend=self.backend))
-            # the one-off tables and kernel loads now, not at the first tracked face or the first
-            # frame without one (that froze the display for 1.5 s)
-            if self.backend == "gsplat":  # one frame: gsplat's kernels (built once per machine), the gather
-                self._live.frame(self.pipeline.gaussians(), None, "all_views")
-            else:
-                if mode in ("auto", "tracked"):
-                    self._live.prepare_tracked()
-                if mode in ("auto", "all_views"):
-                    self._live.prepare_all_views()
+            if self.backend != "gsplat":
+                raise
+            if backend != "auto":
+                if isinstance(exc, HoloViewerError):
+                    raise
+                raise RenderError(f"gsplat backend: the first frame failed ({type(exc).__name__}: {exc}); "
+                                  "use --backend fast to render on the CPU") from exc
+            import warnings
+
+            warnings.warn(f"gsplat failed on the first frame ({type(exc).__name__}: {exc}); the live frames "
+                          "render on the CPU (backend 'fast')", RuntimeWarning, stacklevel=2)
+            self.backend = "fast"
+            self._build(tile_scale, calibration, threads, view_step)
+
+    def _build(self, tile_scale: float, calibration: Any, threads: int, view_step: int | None) -> None:
+        """The pipeline and the frame renderer for ``self.backend``, warmed up: the one-off tables and
+        kernel loads now, not at the first tracked face or the first frame without one (that froze
+        the display for 1.5 s); with gsplat one frame (its kernels, built once per machine)."""
+        from ..pipeline import Pipeline, ViewSettings
+        from ..render.config import RenderConfig
+
+        self.pipeline = Pipeline(calibration=calibration, view=ViewSettings(tile_scale=tile_scale),
+                                 backend=self.backend, render_config=RenderConfig(num_threads=threads))
+        self._live = None
+        if self.mode == "cone":
+            if self.backend == "gsplat":
+                self.pipeline.render_view(0)
+            return
+        from ..pipeline.live import LiveConfig, LiveRenderer as FrameRenderer
+
+        self._live = FrameRenderer(self.pipeline.calibration, self.pipeline.cameras(),
+                                   LiveConfig(render=RenderConfig(num_threads=threads), view_step=view_step,
+                                              backend=self.backend))
+        if self.backend == "gsplat":
+            self._live.frame(self.pipeline.gaussians(), None, "all_views")
+        else:
+            if self.mode in ("auto", "tracked"):
+                self._live.prepare_tracked()
+            if self.mode in ("auto", "all_views"):
+                self._live.prepare_all_views()
 
     def render(self, listener: Mapping[str, np.ndarray], pain: float, named: tuple[tuple[str, float], ...],
                viewer_angle_deg: float, viewer_distance_m: float, viewer_tracked: bool = True) -> RenderedFrame:
