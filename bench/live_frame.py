@@ -125,7 +125,7 @@ def gpu_stages(live: LiveRenderer, synth: LiveRenderer, frames: list, reps: int 
         if device == "cuda":
             torch.cuda.synchronize()
 
-    def ms(fn) -> float:
+    def ms(fn) -> float | str:
         try:
             fn(0)  # warm (and a stage the device refuses is recorded as such)
         except Exception as exc:  # noqa: BLE001 - a profile only
@@ -145,7 +145,7 @@ def gpu_stages(live: LiveRenderer, synth: LiveRenderer, frames: list, reps: int 
     src_imgs = gsplat_backend.render_device(dev[0], synth._source_cams, cfg)
     res = live._device(views, to_host=False)
     pageable = np.empty(res.shape, dtype=np.uint8)
-    st: dict[str, float] = {}
+    st: dict[str, float | str] = {}  # ms, or why the stage failed
     st["validate"] = ms(lambda k: validate_inputs(host[k], live.cameras))
     st["upload"] = ms(lambda k: host[k].torch(device=device, dtype=torch.float32))
     st["rasterize_48"] = ms(lambda k: gsplat_backend.render_device(dev[k % 2], live.cameras, cfg))
@@ -160,8 +160,8 @@ def gpu_stages(live: LiveRenderer, synth: LiveRenderer, frames: list, reps: int 
     st["interleave_gather"] = ms(lambda k: live._device(views, to_host=False))
     st["download_pageable"] = ms(lambda k: torch.from_numpy(pageable).copy_(res))
     st["download_pinned"] = ms(lambda k: torch.from_numpy(live.native).copy_(res))
-    return {"mode": "gpu_stages", "device": torch.cuda.get_device_name(0) if device == "cuda" else device, "ms": st, "reps": reps,
-            "native_pinned": live._native_owner is not None,
+    return {"mode": "gpu_stages", "device": torch.cuda.get_device_name(0) if device == "cuda" else device,
+            "ms": st, "reps": reps, "native_pinned": live._native_owner is not None,
             "note": "each stage alone between synchronisations, median ms"}
 
 
@@ -193,7 +193,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="with --device cuda: only the full-quality reference on the CPU, then the GPU records "
                          "(what a lent GPU machine runs first)")
     ap.add_argument("--json", default="bench/results/live_frame.json", help="output JSON file")
-    ap.add_argument("--frames", type=int, default=None, help="frames per mode (default 6 quick, 10 full; the median of 4 was carried by one cold frame)")
+    ap.add_argument("--frames", type=int, default=None,
+                    help="frames per mode (default 6 quick, 10 full; the median of 4 was carried by one cold frame)")
     ap.add_argument("--ref-views", type=int, default=None, help="views checked against float64 (1 quick, 2)")
     ap.add_argument("--vtk-views", type=int, default=None, help="VTK views timed (1 quick, 3)")
     args = ap.parse_args(argv)

@@ -48,11 +48,13 @@ def to_uint8(images: np.ndarray, out: np.ndarray | None = None, *, name: str = "
     ExportError
         NaN/inf values, or a dtype that is neither uint8 nor floating point.
     InputError
-        ``out`` of another shape.
+        ``out`` of another shape or not uint8.
     """
     a = np.asarray(images)
     if out is not None and out.shape != a.shape:
         raise InputError(f"out: expected shape {a.shape}, found {out.shape}")
+    if out is not None and out.dtype != np.uint8:
+        raise InputError(f"out: expected uint8, found {out.dtype}")
     if a.dtype == np.uint8:
         if out is None:
             return a
@@ -61,7 +63,7 @@ def to_uint8(images: np.ndarray, out: np.ndarray | None = None, *, name: str = "
     if not np.issubdtype(a.dtype, np.floating):
         raise ExportError(f"{name}: expected uint8 or float in [0, 1], found dtype {a.dtype}")
     dtype = np.result_type(a.dtype, np.float32)  # float32 stays float32, float64 stays float64
-    if a.ndim in (2, 3) and a.size and a.dtype == dtype and (out is None or out.dtype == np.uint8):
+    if a.ndim in (2, 3) and a.size and a.dtype == dtype:
         dst = np.empty(a.shape, dtype=np.uint8) if out is None else out
         rows = _rows_view(dst)
         if rows is not None:  # the fused pass

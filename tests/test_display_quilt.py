@@ -55,6 +55,9 @@ def test_to_uint8_writes_into_a_strided_tile():
     assert (out[0] == 7).all() and (out[:, :2] == 7).all()
     with pytest.raises(InputError, match="out: expected shape"):
         to_uint8(img, out=out)
+    for src in (img, img.astype(np.float32), np.zeros((4, 3, 3), np.uint8)):  # every path
+        with pytest.raises(InputError, match="out: expected uint8"):
+            to_uint8(src, out=np.zeros((4, 3, 3), np.float32))
 
 
 def test_names():

@@ -110,11 +110,9 @@ class LiveRenderer:
         except Exception as exc:  # noqa: BLE001 - gsplat's first use builds CUDA kernels, which can fail
             from ..errors import HoloViewerError, RenderError
 
-            if self.backend != "gsplat":
+            if self.backend != "gsplat" or (backend != "auto" and isinstance(exc, HoloViewerError)):
                 raise
             if backend != "auto":
-                if isinstance(exc, HoloViewerError):
-                    raise
                 raise RenderError(f"gsplat backend: the first frame failed ({type(exc).__name__}: {exc}); "
                                   "use --backend fast to render on the CPU") from exc
             import warnings
