@@ -220,6 +220,13 @@ def test_cpp_project_bin_equals_numba(degree, shared, cull, threads, tile):
     assert np.array_equal(box, box2) and np.array_equal(seen, seen2)
     drawn = box[..., 0] < box[..., 1]
     assert drawn.sum() > 2000
+    # the scene reaches both binning paths: boxes over at most 2 x 2 tiles (one and two tile
+    # columns: the branch-free path when the tile is a power of two) and larger ones (entries_of)
+    b = box[drawn]
+    span_x, span_y = (b[:, 1] - 1) // tile - b[:, 0] // tile + 1, (b[:, 3] - 1) // tile - b[:, 2] // tile + 1
+    in4 = (span_x <= 2) & (span_y <= 2)
+    assert (in4 & (span_x == 1)).sum() > 100 and (in4 & (span_x == 2) & (span_y == 2)).sum() > 100
+    assert (~in4).sum() > 100
     np.testing.assert_allclose(rec2[..., :10][drawn], rec[..., :10][drawn], rtol=1e-6, atol=1e-6)
     assert np.array_equal(off, off2) and np.array_equal(base, base2) and np.array_equal(ids, ids2)
 
