@@ -378,8 +378,8 @@ def main(argv: list[str] | None = None) -> int:
                 check = [int(x) for x in (np.arange(3) + 0.5) / 3 * V]  # views whose PSNR is taken
                 render_views(frames[-1], cams[[0]], "vtk")  # warm-up: OSMesa context, shaders
                 vtk_s, vtk_cpu, pair_full, imgs = [], 0.0, [], {}
-                if vtk_views >= V:
-                    timed = list(range(V))
+                whole = vtk_views >= V
+                if whole:
                     for _ in range(1 if args.quick else 2):
                         before = full.frame(frames[-1], mode="full_quilt").seconds  # same views as before
                         t0, c0 = time.perf_counter(), time.process_time()
@@ -403,7 +403,6 @@ def main(argv: list[str] | None = None) -> int:
                     cpu = vtk_cpu / len(timed) * V
                     paired = [t * V / f for t, f in zip(vtk_s, pair_full)]
                 p = min(eyes.psnr(full.views[j], img) for j, img in imgs.items())
-                whole = vtk_views >= V
                 records.append({"mode": "vtk", "seconds_per_frame": s, "cpu_seconds_per_frame": cpu, "psnr_db": p,
                                 "extrapolated": not whole, "views_timed": "all, one call" if whole else timed,
                                 "pass_seconds": vtk_s if whole else None,
@@ -411,8 +410,8 @@ def main(argv: list[str] | None = None) -> int:
                                 "paired_ratios": paired, "paired_ratio_median": float(np.median(paired)),
                                 "ratio_to_views_only": s / views_s,
                                 "paired_full_quilt_seconds": pair_full,
-                                "note": ("the whole VTK pass (48 views, one call), twice, each between two full "
-                                         "quilts (paired_ratios: its time / their mean)" if whole else
+                                "note": (f"the whole VTK pass (48 views, one call), {len(vtk_s)} time(s), each between two "
+                                         "full quilts (paired_ratios: its time / their mean)" if whole else
                                          "views timed one call each, extrapolated to 48 (a call per view costs "
                                          "~20 % more than the whole pass); each paired with the full quilt "
                                          "timed right after it") + "; views only (no quilt or interleave)"})
