@@ -4,10 +4,10 @@ import json
 
 import pytest
 
-from holo_viewer.display.calibration import PRESETS, DisplayCalibration, preset_for_serial
+from holo_viewer.display.calibration import PRESETS, DisplayCalibration, default_calibration_path, preset_for_serial
 from holo_viewer.errors import CalibrationError
 
-FIXTURE = "/work/shared/fixtures/lkg_portrait_visual.json"
+FIXTURE = str(default_calibration_path())
 
 
 def _raw():

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from holo_viewer.camera import opencv_to_opengl
-from holo_viewer.display.calibration import DisplayCalibration
+from holo_viewer.display.calibration import DisplayCalibration, default_calibration_path
 from holo_viewer.display.cameras import fov_for_viewer_distance, make_quilt_cameras, sdk_view_projection
 from holo_viewer.errors import InputError
 
-CAL = DisplayCalibration.from_file("/work/shared/fixtures/lkg_portrait_visual.json")
+CAL = DisplayCalibration.from_file(str(default_calibration_path()))
 
 
 def _sdk_scalars(n, cone, fov, size, angle=0.0):

@@ -7,12 +7,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from holo_viewer.display.calibration import DisplayCalibration, QuiltLayout
+from holo_viewer.display.calibration import DisplayCalibration, QuiltLayout, default_calibration_path
 from holo_viewer.display.lenticular import Interleaver, interleave_reference, reference_views
 from holo_viewer.display.quilt import tile_quilt
 from holo_viewer.errors import InputError
 
-FIX = DisplayCalibration.from_file("/work/shared/fixtures/lkg_portrait_visual.json")
+FIX = DisplayCalibration.from_file(str(default_calibration_path()))
 FLAGS = [dict(flip_image_x=x, flip_image_y=y, inv_view=i, flip_subp=s)
          for x in (False, True) for y in (False, True) for i in (False, True) for s in (False, True)]
 

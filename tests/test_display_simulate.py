@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from holo_viewer.display.calibration import DisplayCalibration
+from holo_viewer.display.calibration import DisplayCalibration, default_calibration_path
 from holo_viewer.display.lenticular import Interleaver
 from holo_viewer.display.quilt import tile_quilt
 from holo_viewer.display.simulate import VirtualDisplay, identify_bar, id_pattern_views
 from holo_viewer.errors import InputError
 
-FIX = DisplayCalibration.from_file("/work/shared/fixtures/lkg_portrait_visual.json")
+FIX = DisplayCalibration.from_file(str(default_calibration_path()))
 
 
 @pytest.fixture(scope="module")

@@ -6,10 +6,11 @@ import struct
 import pytest
 
 from holo_viewer.cli import main
+from holo_viewer.display.calibration import default_calibration_path
 from holo_viewer.display.usb import PAGE_SIZE, find_volume_calibrations, read_hid_calibration, scan_devices
 from holo_viewer.errors import DeviceError
 
-FIXTURE = "/work/shared/fixtures/lkg_portrait_visual.json"
+FIXTURE = str(default_calibration_path())
 
 
 class FakeHid:

@@ -7,14 +7,14 @@ import sys
 import numpy as np
 import pytest
 
-from holo_viewer.display.calibration import DisplayCalibration
+from holo_viewer.display.calibration import DisplayCalibration, default_calibration_path
 from holo_viewer.display.export import save_native_png, save_quilt_png
 from holo_viewer.display.lenticular import Interleaver
 from holo_viewer.display.quilt import tile_quilt
 from holo_viewer.display.simulate import id_pattern_views
 from holo_viewer.fileio import load_image
 
-FIXTURE = "/work/shared/fixtures/lkg_portrait_visual.json"
+FIXTURE = str(default_calibration_path())
 pytestmark = pytest.mark.gui
 
 

@@ -12,7 +12,7 @@ Sources for the preset table (public; values cross-checked where two sources exi
 * Serial prefix -> quilt size, columns x rows: ``Looking-Glass/looking-glass-webxr``
   ``src/LookingGlassConfig.ts`` (``quiltResolution``, ``quiltWidth``, ``quiltHeight``).
 * Portrait lenticular values, 1536x2048 at 324 DPI, 40 deg cone: the public bug-report
-  calibration in ``shared/fixtures/lkg_portrait_visual.json`` (also ``assets/``).
+  calibration in ``assets/lkg_portrait_visual.json``.
 * Gen1 8.9" (2560x1600, 338 DPI, pitch 47.58427, slope -5.420652, center 0.042, cone 40):
   ``dormon/3DApps`` ``holoCalibration.h`` defaults ("our small LKG").
 * Go: 1440x2560, aspect 0.5625, view cone 54 deg: Looking Glass Unreal plugin
