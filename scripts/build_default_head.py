@@ -3,7 +3,7 @@
 Usage: python scripts/build_default_head.py [--ict PATH] [--out assets/default_head.npz] [--renders DIR]
 
 The source is ``ict_facekit_light.npz`` (ICT-FaceKit, MIT): ``--ict``, else ``$HOLO_VIEWER_ICT_FACEKIT``,
-else ``../shared/assets/ICT-FaceKit/ict_facekit_light.npz`` beside the repository. The build is
+else the copy shipped in ``assets/ICT-FaceKit/`` (licence, source commit and sha256 in its ``SOURCE.md``). The build is
 deterministic: running it twice gives the same bytes. It then paints the head's albedo textures into
 the same folder (``default_head_albedo_*.png`` + ``.json``, as scripts/build_head_textures.py; skip with
 ``--no-textures``). Rebuild the landmark embedding afterwards (scripts/build_landmark_embedding.py).

@@ -1,8 +1,8 @@
 """The embedded default head (converted from ICT Face Model Light): format, regions, UVs, hair shell, rig,
 action units, identity, determinism, the committed asset, preview.
 
-Tests on the committed asset always run; the ones that rebuild from the ICT-FaceKit source skip when it is
-absent (``$HOLO_VIEWER_ICT_FACEKIT`` or ``../shared/assets/ICT-FaceKit/ict_facekit_light.npz``).
+Tests on the committed asset always run; the ones that rebuild from the ICT-FaceKit source use the copy shipped
+in ``assets/ICT-FaceKit/`` (or ``$HOLO_VIEWER_ICT_FACEKIT``) and skip only when it has been removed.
 """
 
 from __future__ import annotations

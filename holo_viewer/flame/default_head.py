@@ -47,8 +47,9 @@ def _repo_asset() -> Path:
 
 
 def ict_facekit_path(required: bool = False) -> Path | None:
-    """The ICT-FaceKit source the head is built from: ``$HOLO_VIEWER_ICT_FACEKIT``, else
-    ``../shared/assets/ICT-FaceKit/ict_facekit_light.npz`` beside the checkout.
+    """The ICT-FaceKit source the head is built from: ``$HOLO_VIEWER_ICT_FACEKIT``, else the copy
+    shipped in the checkout, ``assets/ICT-FaceKit/ict_facekit_light.npz`` (licence, source commit and
+    checksum beside it).
 
     Parameters
     ----------
@@ -57,7 +58,7 @@ def ict_facekit_path(required: bool = False) -> Path | None:
     """
     env = os.environ.get(ICT_ENV)
     candidates = [Path(env)] if env else []
-    candidates.append(Path(__file__).resolve().parents[3] / "shared" / "assets" / "ICT-FaceKit" / ICT_NAME)
+    candidates.append(_repo_asset().parent / "ICT-FaceKit" / ICT_NAME)
     for c in candidates:
         if c.is_file():
             return c

@@ -38,7 +38,7 @@ def build_default_head(ict_path: str | os.PathLike | None = None, n_identity: in
     ----------
     ict_path : path, optional
         ``ict_facekit_light.npz``; default :func:`holo_viewer.flame.default_head.ict_facekit_path`
-        (``$HOLO_VIEWER_ICT_FACEKIT``, else ``../shared/assets/ICT-FaceKit/`` beside the checkout).
+        (``$HOLO_VIEWER_ICT_FACEKIT``, else the copy in ``assets/ICT-FaceKit/``).
     n_identity : int
         Identity (shape) components kept.
 

@@ -1,6 +1,6 @@
 """Convert ICT Face Model Light (ICT-FaceKit, MIT) into the default head (build time only).
 
-Input: ``ict_facekit_light.npz`` (see ``../shared/assets/ICT-FaceKit/SOURCE.md``): neutral vertices in
+Input: ``ict_facekit_light.npz`` (see ``assets/ICT-FaceKit/SOURCE.md``): neutral vertices in
 centimetres (+y up, +z toward the viewer), triangles with UDIM-style UVs, 57 ARKit-named expression
 deltas, 100 PCA identity deltas, the 68 dlib landmarks as vertex indices. Everything here is pure numpy
 (plus scipy's connected components, NNLS and k-d tree), deterministic, and runs only from
