@@ -45,7 +45,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from holo_viewer.errors import MissingDependencyError  # noqa: E402
-from holo_viewer.pipeline.fit_avatar import masked_psnr  # noqa: E402,F401  (one masked PSNR, shared with the fit)
+from holo_viewer.assets_build.fit_avatar import masked_psnr  # noqa: E402,F401  (one masked PSNR, shared with the fit)
 from holo_viewer.tracking.landmarks import predictor_path  # noqa: E402
 
 #: 68-point (iBUG 300-W, 0-based) index groups; "right" = the subject's right (image left)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from holo_viewer.flame.builder.head import build_default_head, write_default_head
+from holo_viewer.assets_build.head import build_default_head, write_default_head
 from holo_viewer.flame.default_head import _repo_asset
 
 

@@ -26,7 +26,7 @@ from holo_viewer.avatar.default_avatar import (  # noqa: E402
     DEFAULT_N_GAUSSIANS, fitted_asset_path, generate_default_gaussians, load_fitted_avatar, save_fitted_avatar)
 from holo_viewer.flame.default_head import load_default_model  # noqa: E402
 from holo_viewer.pipeline import FaceControls, Pipeline  # noqa: E402
-from holo_viewer.pipeline import fit_avatar as fa  # noqa: E402
+from holo_viewer.assets_build import fit_avatar as fa  # noqa: E402
 
 EVAL_VIEWS = (0, 24, 47)
 #: poses and views the fit never saw (held out): pain 0.6, a smile + surprise mix; quilt views 12 and 36

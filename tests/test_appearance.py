@@ -1,4 +1,4 @@
-"""The default head's generated appearance (flame.appearance, flame.head_textures) and the textured render.
+"""The default head's appearance (assets_build.texture_painter, flame.appearance, flame.head_textures) and its render.
 
 Uses the committed head and textures (``assets/``); nothing here needs the ICT source.
 """
@@ -38,7 +38,7 @@ def _args(inputs):
 @pytest.fixture(scope="module")
 def small(inputs):
     """A small generation (128-texel tiles) of the default head: fast, every code path."""
-    from holo_viewer.flame.appearance import generate_appearance
+    from holo_viewer.assets_build.texture_painter import generate_appearance
 
     return generate_appearance(**_args(inputs), seed=3, size=128, eye_size=64)
 
@@ -60,7 +60,7 @@ def test_rasterize_uv_interpolates_exactly_at_texel_centres():
     """A jittered grid of triangles in UV; positions an affine function of UV: the position map at
     every covered texel centre equals the function there (float64, 1e-9), every texel inside the
     grid is covered, and where triangles overlap the higher index wins."""
-    from holo_viewer.flame.appearance import rasterize_uv
+    from holo_viewer.assets_build.texture_painter import rasterize_uv
 
     rng = np.random.default_rng(0)
     n = 9
@@ -94,7 +94,8 @@ def test_rasterize_uv_interpolates_exactly_at_texel_centres():
 def test_texel_convention_and_albedo_at_agree(full, inputs):
     """For covered texels of every texture, the UV interpolated from the texel's triangle and
     barycentrics is the texel centre (1e-9), and albedo_at at that surface point returns the texel."""
-    from holo_viewer.flame.appearance import MATERIAL_TEXTURE, MATERIALS, TEXTURE_TILE, rasterize_uv
+    from holo_viewer.assets_build.texture_painter import rasterize_uv
+    from holo_viewer.flame.appearance import MATERIAL_TEXTURE, MATERIALS, TEXTURE_TILE
 
     rng = np.random.default_rng(1)
     uv, fuv = inputs["uv"], inputs["faces_uv"]
@@ -119,7 +120,8 @@ def test_texel_convention_and_albedo_at_agree(full, inputs):
 
 def test_position_map_reproduces_the_surface(full, inputs):
     """Rasterised positions at texel centres lie on the mesh: nearest vertex within the local edge length."""
-    from holo_viewer.flame.appearance import MATERIALS, rasterize_uv
+    from holo_viewer.assets_build.texture_painter import rasterize_uv
+    from holo_viewer.flame.appearance import MATERIALS
 
     v, f = inputs["vertices"], inputs["faces"]
     sel = full.material_faces("face")
@@ -137,7 +139,7 @@ def test_position_map_reproduces_the_surface(full, inputs):
 
 
 def test_deterministic_and_in_range(small, inputs):
-    from holo_viewer.flame.appearance import generate_appearance
+    from holo_viewer.assets_build.texture_painter import generate_appearance
 
     again = generate_appearance(**_args(inputs), seed=3, size=128, eye_size=64)
     other = generate_appearance(**_args(inputs), seed=4, size=128, eye_size=64)
@@ -211,7 +213,8 @@ def test_lips_redder_than_skin(full, inputs):
 
 def test_pupil_iris_sclera_on_the_eye_axis(full, inputs):
     """Outer-shell eye vertices: dark at the optical axis, iris-coloured inside the limbus, white beyond."""
-    from holo_viewer.flame.appearance import MATERIALS, _components, eye_axis, face_frame
+    from holo_viewer.assets_build.texture_painter import _components, eye_axis
+    from holo_viewer.flame.appearance import MATERIALS, face_frame
 
     v, f = inputs["vertices"], inputs["faces"]
     o, R, mm = face_frame(inputs["landmarks"])
@@ -239,7 +242,7 @@ def test_pupil_iris_sclera_on_the_eye_axis(full, inputs):
 
 
 def test_generator_rejects_bad_input(inputs):
-    from holo_viewer.flame.appearance import generate_appearance
+    from holo_viewer.assets_build.texture_painter import generate_appearance
 
     args = _args(inputs)
     with pytest.raises(InputError, match="landmarks"):
@@ -322,7 +325,7 @@ def test_stale_shipped_textures_are_repainted_and_cached(model, tmp_path, monkey
     monkeypatch.setattr(ht, "assets_dir", lambda: assets)
     monkeypatch.setenv("HOLO_VIEWER_CACHE", str(tmp_path / "cache"))
     calls = []
-    real = ht.generate_appearance
+    real = ht._appearance
 
     def small_gen(**kw):
         calls.append("textures" in kw and kw["textures"] is not None)
@@ -330,7 +333,7 @@ def test_stale_shipped_textures_are_repainted_and_cached(model, tmp_path, monkey
             kw.update(size=128, eye_size=64)
         return real(**kw)
 
-    monkeypatch.setattr(ht, "generate_appearance", small_gen)
+    monkeypatch.setattr(ht, "_appearance", small_gen)
     app = ht.head_appearance(model)
     assert calls == [False] and app.textures["face"].shape == (128, 128, 3)
     assert list((tmp_path / "cache" / "head_textures").glob("*/default_head_albedo.json"))

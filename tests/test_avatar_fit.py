@@ -1,4 +1,4 @@
-"""The Gaussian avatar fit (pipeline.fit_avatar) and the fitted default avatar asset (loader, digest check,
+"""The Gaussian avatar fit (assets_build.fit_avatar) and the fitted default avatar asset (loader, digest check,
 fallback, the shipped file)."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ pytest.importorskip("numba")
 from holo_viewer.avatar import RiggedAvatar  # noqa: E402
 from holo_viewer.errors import AvatarError  # noqa: E402
 from holo_viewer.pipeline import FaceControls, Pipeline, ViewSettings  # noqa: E402
-from holo_viewer.pipeline import fit_avatar as fa  # noqa: E402
+from holo_viewer.assets_build import fit_avatar as fa  # noqa: E402
 from holo_viewer.render.differentiable import render_view  # noqa: E402
 from holo_viewer.testing import random_flame_model, random_gaussians  # noqa: E402
 

@@ -36,7 +36,7 @@ def head():
 
 @pytest.fixture(scope="module")
 def built():
-    from holo_viewer.flame.builder.head import build_default_head
+    from holo_viewer.assets_build.head import build_default_head
 
     return build_default_head()
 
@@ -297,7 +297,7 @@ def test_neck_and_eyes_rotate(head):
 @needs_ict
 def test_jaw_rotation_reproduces_ict_jaw_open(built):
     """At ICT's own jawOpen angle, jaw_pose (rotation + correctives) gives exactly neutral + jawOpen."""
-    from holo_viewer.flame.builder import ict
+    from holo_viewer.assets_build import ict
 
     src = ict.load_ict(ict_facekit_path())
     h = ict._convert(src, 1)
@@ -479,7 +479,7 @@ def test_committed_asset_is_small():
 
 @needs_ict
 def test_rebuild_reproduces_the_committed_bytes(built, tmp_path):
-    from holo_viewer.flame.builder.head import build_default_head, write_default_head
+    from holo_viewer.assets_build.head import build_default_head, write_default_head
 
     again = build_default_head()
     for k in built:
@@ -526,7 +526,7 @@ def test_missing_source_and_asset_give_a_clear_error(tmp_path, monkeypatch):
 
 
 def test_load_ict_rejects_a_wrong_file(tmp_path):
-    from holo_viewer.flame.builder.ict import load_ict
+    from holo_viewer.assets_build.ict import load_ict
 
     with pytest.raises(FlameError, match="not found"):
         load_ict(tmp_path / "none.npz")
@@ -587,13 +587,15 @@ def test_write_head_renders(tmp_path, capsys):
 
 
 def test_loading_the_default_head_runs_no_build_code():
-    """The head builder is build-time code: loading the model imports nothing from flame.builder."""
+    """The head builder and the texture painter are build-time code: loading the model and its shipped
+    appearance imports nothing from assets_build."""
     import subprocess
     import sys
 
     code = ("import sys; from holo_viewer.flame.default_head import load_default_model; "
-            "from holo_viewer.flame.expressions import default_au_map; load_default_model(); default_au_map(); "
-            "print([m for m in sys.modules if m.startswith('holo_viewer.flame.builder')])")
+            "from holo_viewer.flame.expressions import default_au_map; from holo_viewer.flame.head_textures import "
+            "head_appearance; assert head_appearance(load_default_model()) is not None; default_au_map(); "
+            "print([m for m in sys.modules if m.startswith('holo_viewer.assets_build')])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"

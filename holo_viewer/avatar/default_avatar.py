@@ -33,7 +33,7 @@ a second or two for 100k Gaussians, so the cache only saves start-up time.
 Fitted Gaussians (shipped)
 --------------------------
 ``assets/default_avatar.npz`` holds the generator's Gaussians after a fit against renders of the
-head's own textured mesh (``scripts/fit_default_avatar.py``, :mod:`holo_viewer.pipeline.fit_avatar`,
+head's own textured mesh (``scripts/fit_default_avatar.py``, :mod:`holo_viewer.assets_build.fit_avatar`,
 docs/avatar_fit.md): same count and binding, refined offsets, scales, rotations, opacities and SH
 (degree 1), stored as float16. It is keyed by the SHA-256 of the default head file and a digest of
 the mesh colouring it was fitted to (:func:`appearance_digest`: texture version, mesh key and seed

@@ -2,7 +2,7 @@
 
 FLAME cannot be redistributed, so holo_viewer ships its own FLAME-format head: a conversion of ICT
 Face Model Light (ICT-FaceKit, MIT; ``assets/LICENSE-ICT-FaceKit.txt``) made by build-time code in
-:mod:`holo_viewer.flame.builder` and committed as ``assets/default_head.npz``;
+:mod:`holo_viewer.assets_build.head` and committed as ``assets/default_head.npz``;
 ``scripts/build_default_head.py`` regenerates it from ``ict_facekit_light.npz`` (see
 :func:`ict_facekit_path`) and the tests check that a rebuild reproduces it. If the asset is missing
 (e.g. a stripped checkout), :func:`load_default_model` rebuilds it when the ICT source is present and
@@ -102,7 +102,7 @@ def default_head_path(build_if_missing: bool = True) -> Path:
     if ict_facekit_path() is None:
         raise FlameError(f"default head: {asset} is missing and cannot be rebuilt: "
                          + str(_missing_source_message()))
-    from .builder.head import build_default_head, write_default_head  # rebuild a missing asset (build time code)
+    from ..assets_build.head import build_default_head, write_default_head  # rebuild a missing asset (build time)
 
     arrays = build_default_head()
     for target in (asset, cache):

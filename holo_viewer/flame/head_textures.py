@@ -1,9 +1,10 @@
-"""The default head's textures on disk: build, ship, load, cache (the I/O side of :mod:`.appearance`).
+"""The default head's textures on disk: ship, load, cache (the I/O side of :mod:`.appearance`).
 
 :func:`head_appearance` gives the :class:`~.appearance.HeadAppearance` of a FLAME-format model that
 carries texture coordinates (``uv`` / ``faces_uv`` and region labels in its metadata, as the default
 head does) and ``None`` for models without them (user FLAME models keep the region-colour preview).
-The textures are painted by :func:`~.appearance.generate_appearance` (about 20 s on one core) once:
+The textures are painted by the build-time painter
+:func:`holo_viewer.assets_build.texture_painter.generate_appearance` (about 20 s on one core) once:
 
 * at build time, ``scripts/build_head_textures.py`` (or :func:`build_head_textures`, which
   ``scripts/build_default_head.py`` may call) writes ``assets/default_head_albedo_{name}.png`` for
@@ -12,7 +13,9 @@ The textures are painted by :func:`~.appearance.generate_appearance` (about 20 s
   mesh they were painted for);
 * at run time the shipped PNGs are used when the manifest's mesh hash matches the model; otherwise
   (a rebuilt or different head) the textures are painted and cached under
-  :func:`holo_viewer.cache.cache_dir` ``/head_textures/{hash}/``.
+  :func:`holo_viewer.cache.cache_dir` ``/head_textures/{hash}/``: the one run-time use of the
+  painter, imported lazily (:func:`_appearance`). Loaded textures only go through
+  :func:`~.appearance.assemble_appearance` (materials and vertex colours).
 
 A missing, unreadable or wrongly sized texture file is a :class:`~holo_viewer.errors.FlameError`
 naming the file, what was expected and what was found.
@@ -29,7 +32,7 @@ import numpy as np
 
 from ..errors import ExportError, FlameError, HoloViewerError, InputError
 from .appearance import (APPEARANCE_VERSION, EYE_TEXTURE_SIZE, LASH_TEXTURE_SIZE, TEXTURE_SIZE, HeadAppearance,
-                         generate_appearance)
+                         assemble_appearance)
 
 __all__ = ["head_appearance", "appearance_inputs", "build_head_textures", "save_textures", "load_textures",
            "mesh_key", "TEXTURE_NAMES", "MANIFEST_NAME", "assets_dir"]
@@ -186,6 +189,16 @@ def load_textures(folder: str | Path, key: str | None = None) -> tuple[dict, dic
     return textures, alpha, int(man.get("seed", 0))
 
 
+def _appearance(**kw: Any) -> HeadAppearance:
+    """Assemble the appearance from ``textures`` when given; else paint them (build-time code, imported
+    lazily: a checkout whose shipped textures do not match its head paints once and caches)."""
+    if kw.get("textures") is not None:
+        return assemble_appearance(**kw)
+    from ..assets_build.texture_painter import generate_appearance
+
+    return generate_appearance(**kw)
+
+
 def head_appearance(model: Any, seed: int = 0, verbose: bool = False) -> HeadAppearance | None:
     """The appearance of ``model`` (shipped textures, else cached, else painted and cached), or
     None when the model carries no texture coordinates (see the module docstring)."""
@@ -208,10 +221,10 @@ def head_appearance(model: Any, seed: int = 0, verbose: bool = False) -> HeadApp
                 continue
             raise
         if s == seed:
-            return generate_appearance(**args, seed=seed, textures=textures, alpha=alpha)
+            return _appearance(**args, seed=seed, textures=textures, alpha=alpha)
     if verbose:
         print("head textures: painting (one-off, ~20 s) ...")
-    app = generate_appearance(**args, seed=seed)
+    app = _appearance(**args, seed=seed)
     try:
         save_textures(app, cache_dir() / "head_textures" / key, key)
     except (HoloViewerError, OSError) as exc:  # a read-only cache only costs the repaint next time
@@ -227,6 +240,6 @@ def build_head_textures(model: Any, out: str | Path | None = None, seed: int = 0
         raise InputError("build_head_textures: the model has no uv / faces_uv / vertex_region / region_names "
                          "metadata or no 68 landmarks; nothing to paint")
     key = mesh_key(inputs, seed)
-    app = generate_appearance(**{k: inputs[k] for k in ("vertices", "faces", "uv", "faces_uv", "vertex_region",
+    app = _appearance(**{k: inputs[k] for k in ("vertices", "faces", "uv", "faces_uv", "vertex_region",
                                                          "region_names", "landmarks")}, seed=seed)
     return save_textures(app, assets_dir() if out is None else out, key)

@@ -26,7 +26,8 @@ The GaussianAvatars training recipe [Qian et al. CVPR'24] with the mesh renders 
 Initial Gaussians come from the caller (the default avatar's generator) with their colours replaced by
 the mesh colouring at each Gaussian's surface point (:func:`surface_colors`).
 
-This module wires the face (flame, avatar) and the renderer together, so it lives in ``pipeline/``.
+Build-time code (``scripts/fit_default_avatar.py`` writes ``assets/default_avatar_fitted.npz``): it wires the
+face (flame, avatar) and the renderer together on top of :mod:`holo_viewer.pipeline`.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ from ..camera import Cameras
 from ..errors import InputError
 from ..render.config import RenderConfig
 from ..render.differentiable import render_view
-from .settings import FaceControls
+from ..pipeline.settings import FaceControls
 
 __all__ = ["FitConfig", "FitResult", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "surface_colors",
            "orbit_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity", "masked_psnr"]
@@ -510,7 +511,7 @@ def fidelity(avatar: Any, faces: dict[str, FaceControls], views: Sequence[int], 
     bench/face_realism.py; NaN when it does not finish in ``timeout_s``, rendered in a child process);
     ``images`` (optional) receives, per
     expression, the (len(views), H, 2W, 3) side-by-side pairs (Gaussians | mesh)."""
-    from .core import Pipeline
+    from ..pipeline.core import Pipeline
 
     pipe = Pipeline(avatar=avatar)
     cams = pipe.cameras()

@@ -17,8 +17,8 @@ from typing import Mapping
 
 import numpy as np
 
-from ...fileio import atomic_write
-from ..default_head import ict_facekit_path
+from ..fileio import atomic_write
+from ..flame.default_head import ict_facekit_path
 from .ict import N_IDENTITY, build_from_ict, load_ict
 
 __all__ = ["build_default_head", "write_default_head", "BUILDER_VERSION"]

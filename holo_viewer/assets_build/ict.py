@@ -36,8 +36,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ...errors import FlameError
-from ..default_head import EXPRESSION_NAMES
+from ..errors import FlameError
+from ..flame.default_head import EXPRESSION_NAMES
 
 __all__ = ["load_ict", "build_from_ict", "REGION_NAMES", "AU_TO_ICT", "N_IDENTITY", "EYE_MIDPOINT", "IPD",
            "KINTREE", "PARTS", "smoothstep"]
