@@ -27,7 +27,6 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..errors import InputError
 from ..flame.appearance import (_BROW, _HAIR, _LIP, _SKIN, _VERTEX_COLORS, EYE_TEXTURE_SIZE, LASH_TEXTURE_SIZE,
                                 MATERIAL_TEXTURE, MATERIALS, TEXTURE_SIZE, TEXTURE_TILE, AppearanceMesh, HeadAppearance,
                                 _signed_dist_polygon, _to_local, assemble_appearance, face_frame)
@@ -642,8 +641,11 @@ def eye_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 # ============================================================================== the generator
-def _paint(p: "_Painter", v, f, uvs, fuv, region, mat, seed, size, eye_size) -> tuple[dict, dict]:
-    """Paint every texture (see the module docstring)."""
+def _paint(p: _Painter, mesh: AppearanceMesh, size: int, eye_size: int) -> tuple[dict, dict]:
+    """Paint every texture of ``mesh`` (see the module docstring): skin/hair tiles ``size`` texels square,
+    eyes ``eye_size``, lashes :data:`LASH_TEXTURE_SIZE`; (textures, alpha) as float32 multiples of 1/255."""
+    v, f, uvs, fuv = mesh.vertices, mesh.faces, mesh.uv, mesh.faces_uv
+    region, mat, seed = mesh.region, mesh.material, p.seed
     brow = p.brow_map()
     has_scalp = p.rid("scalp") >= 0 and (region == p.rid("scalp")).any()
     soft_names = {"ears": ("ears",), "scalp": ("scalp",), "mouth_interior": ("mouth_interior",),
@@ -772,6 +774,5 @@ def generate_appearance(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray,
                                    alpha, seed=seed, size=size, eye_size=eye_size)
     mesh = AppearanceMesh.from_arrays(vertices, faces, uv, faces_uv, vertex_region, region_names, landmarks)
     p = _Painter(mesh.vertices, mesh.faces, mesh.region, mesh.region_names, mesh.landmarks, seed)
-    painted, painted_alpha = _paint(p, mesh.vertices, mesh.faces, mesh.uv, mesh.faces_uv, mesh.region, mesh.material,
-                                    seed, size, eye_size)
+    painted, painted_alpha = _paint(p, mesh, size, eye_size)
     return mesh.appearance(painted, painted_alpha, seed=seed, size=size, eye_size=eye_size)

@@ -15,7 +15,8 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["HeadAppearance", "AppearanceMesh", "assemble_appearance", "face_frame", "TEXTURE_SIZE", "EYE_TEXTURE_SIZE", "LASH_TEXTURE_SIZE", "TEXTURE_TILE", "MATERIALS",
+__all__ = ["HeadAppearance", "AppearanceMesh", "assemble_appearance", "face_frame", "TEXTURE_SIZE",
+           "EYE_TEXTURE_SIZE", "LASH_TEXTURE_SIZE", "TEXTURE_TILE", "MATERIALS",
            "MATERIAL_TEXTURE", "MATERIAL_SPECULAR", "APPEARANCE_VERSION"]
 
 #: Bumped whenever the painting changes (cached appearances carry it).
