@@ -25,9 +25,10 @@ from __future__ import annotations
 
 import builtins
 import collections
-import copyreg
+import io
 import os
 import pickle
+import struct
 import zipfile
 from pathlib import Path
 from typing import Any, Mapping
@@ -39,13 +40,27 @@ from ..fileio import atomic_write
 from ..validation import check_array
 
 __all__ = ["REQUIRED_KEYS", "N_JOINTS", "load_flame_arrays", "save_flame_npz", "validate_flame_arrays",
-           "ChumpyStub"]
+           "ChumpyStub", "SparseStub", "MAX_PICKLE_BYTES", "LOAD_BUDGET_BYTES", "MAX_DENSE_ELEMENTS", "MAX_NESTING"]
 
 REQUIRED_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table", "f")
 N_JOINTS = 5
 
 
 # --------------------------------------------------------------------------- pickle
+
+#: largest FLAME pickle read (FLAME 2020 is ~50 MB, FLAME 2023 ~100 MB); the file is read whole first
+MAX_PICKLE_BYTES = 256 << 20
+#: bytes the pickle's own calls may allocate beyond the file's bytes (``bytearray(n)``, array
+#: reconstruction, containers built from iterables): a 65-byte pickle cannot ask for gigabytes
+LOAD_BUDGET_BYTES = 768 << 20
+#: elements of one dense array built from a pickled sparse matrix (256 MiB of float64; FLAME's
+#: largest array, ``shapedirs``, has 6 M)
+MAX_DENSE_ELEMENTS = 1 << 25
+#: container nesting (FLAME needs 4: dict, state tuple, shape tuple); deeper data overflows
+#: C recursion in hashing, repr and numpy's conversion
+MAX_NESTING = 64
+#: objects a pickled value expands to when shared containers are counted every time they appear
+MAX_TREE_OBJECTS = 10_000_000
 
 
 class ChumpyStub:
@@ -83,15 +98,45 @@ class ChumpyStub:
         elif isinstance(state, (np.ndarray, ChumpyStub)):
             return _plain_array(state, key, source)
         if len(self._args) == 1 and isinstance(self._args[0], np.ndarray):
-            return np.asarray(self._args[0])
+            return self._args[0]
         raise FlameError(f"{source}: {key}: a pickled {self.chumpy_name} object without a stored array "
                          f"(expected a plain chumpy Ch holding an ndarray in its 'x' term)")
+
+
+class SparseStub:
+    """Captured state of a pickled scipy sparse matrix; scipy never sees it.
+
+    scipy checks ``indptr``/``indices`` only in its constructor, and unpickling bypasses the
+    constructor: its ``toarray`` then writes wherever the file's indices point. The loader
+    keeps the state here, :func:`_sparse_to_dense` checks it and builds the dense array
+    with numpy.
+    """
+
+    sparse_format = "csr"
+    sparse_name = "scipy.sparse.csr_matrix"
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> "SparseStub":
+        obj = super().__new__(cls)
+        obj._state = None
+        return obj
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        raise pickle.UnpicklingError(f"a pickle calls {self.sparse_name}(...); a pickled sparse matrix is "
+                                     f"restored from its state, not built by a call")
+
+    def __setstate__(self, state: Any) -> None:
+        self._state = state
 
 
 def _plain_array(value: Any, key: str, source: str) -> np.ndarray:
     if isinstance(value, ChumpyStub):
         return value.to_array(key, source)
-    return np.asarray(value)
+    if isinstance(value, SparseStub):
+        return _sparse_to_dense(value, key, source)
+    if not isinstance(value, np.ndarray):
+        raise FlameError(f"{source}: {key}: expected a numpy array (or a scipy sparse or chumpy array), "
+                         f"found {type(value).__name__}")
+    return value
 
 
 def _numpy_core() -> Any:
@@ -100,77 +145,107 @@ def _numpy_core() -> Any:
     return core if core is not None else np.core
 
 
+def _is_latin1(encoding: Any) -> bool:
+    return isinstance(encoding, str) and encoding.lower().replace("_", "-") in ("latin1", "latin-1", "iso-8859-1")
+
+
 def _latin1_encode(text: Any, encoding: str = "latin1", errors: str = "strict") -> bytes:
     """``_codecs.encode`` as protocol 0-2 pickles use it for ``bytes``: latin-1 only.
 
     Any other codec is refused: a codec lookup imports ``encodings.<name>`` modules.
     """
-    if not isinstance(text, str) or encoding.lower().replace("_", "-") not in ("latin1", "latin-1", "iso-8859-1"):
+    if not isinstance(text, str) or not _is_latin1(encoding):
         raise pickle.UnpicklingError(f"_codecs.encode with {encoding!r}: a FLAME pickle encodes bytes as latin1")
     return text.encode("latin1", errors)
 
 
-_NUMPY_CORE = {  # name -> resolver (the object lives in numpy's core, already imported with numpy)
-    "_reconstruct": lambda: _numpy_core().multiarray._reconstruct,
-    "scalar": lambda: _numpy_core().multiarray.scalar,
-    "_frombuffer": lambda: _numpy_core().numeric._frombuffer,
-}
 _SPARSE_CLASSES = {"csc": ("csc_matrix", "csc_array"), "csr": ("csr_matrix", "csr_array"),
                    "coo": ("coo_matrix", "coo_array")}
 _BUILTINS = ("object", "set", "frozenset", "list", "dict", "tuple", "int", "float", "complex", "bool", "str",
              "bytes", "bytearray", "slice")
+#: builtin types a pickle may call with an argument that allocates or hashes: checked wrappers
+_CHECKED_BUILTINS = ("set", "frozenset", "list", "dict", "tuple", "str", "bytes", "bytearray")
+_SCALAR_KEYS = (str, bytes, int, float, complex, bool, type(None))
 
 
-def _sparse_class(name: str) -> Any:
-    import scipy.sparse  # the only module this loader may import (a listed pair asks for it)
-
-    return getattr(scipy.sparse, name)
+def _sparse_stub(fmt: str, name: str) -> type:
+    return type(name, (SparseStub,), {"sparse_format": fmt, "sparse_name": f"scipy.sparse.{name}"})
 
 
-def _allowed_globals() -> dict[tuple[str, str], Any]:
-    """The exact (module, name) pairs a FLAME 2020/2023 pickle may reference -> resolver.
+_SPARSE_STUBS = {name: _sparse_stub(fmt, name) for fmt, names in _SPARSE_CLASSES.items() for name in names}
+
+
+def _allowed_globals() -> dict[tuple[str, str], str]:
+    """The exact (module, name) pairs a FLAME 2020/2023 pickle may reference -> what they resolve to.
 
     Written by Python 2 or 3, numpy 1.x or 2.x, scipy old (``scipy.sparse.csc``) or new
     (``scipy.sparse._csc``), pickle protocols 0 to 5. Nothing else resolves.
     """
-    table: dict[tuple[str, str], Any] = {}
+    table: dict[tuple[str, str], str] = {}
     for core in ("numpy.core", "numpy._core"):
-        table[(f"{core}.multiarray", "_reconstruct")] = _NUMPY_CORE["_reconstruct"]
-        table[(f"{core}.multiarray", "scalar")] = _NUMPY_CORE["scalar"]
-        table[(f"{core}.numeric", "_frombuffer")] = _NUMPY_CORE["_frombuffer"]
-    table[("numpy", "ndarray")] = lambda: np.ndarray
-    table[("numpy", "dtype")] = lambda: np.dtype
+        table[(f"{core}.multiarray", "_reconstruct")] = "_reconstruct"
+        table[(f"{core}.multiarray", "scalar")] = "scalar"
+        table[(f"{core}.numeric", "_frombuffer")] = "_frombuffer"
+    table[("numpy", "ndarray")] = "ndarray"
+    table[("numpy", "dtype")] = "dtype"
     for fmt, names in _SPARSE_CLASSES.items():
         for name in names:
             for module in ("scipy.sparse", f"scipy.sparse.{fmt}", f"scipy.sparse._{fmt}"):
-                table[(module, name)] = lambda name=name: _sparse_class(name)
+                table[(module, name)] = f"sparse:{name}"
     for module in ("builtins", "__builtin__"):
         for name in _BUILTINS:
-            table[(module, name)] = lambda name=name: getattr(builtins, name)
+            table[(module, name)] = f"builtin:{name}"
     for module in ("copyreg", "copy_reg"):
-        table[(module, "_reconstructor")] = lambda: copyreg._reconstructor
-    table[("_codecs", "encode")] = lambda: _latin1_encode
-    table[("collections", "OrderedDict")] = lambda: collections.OrderedDict
+        table[(module, "_reconstructor")] = "_reconstructor"
+    table[("_codecs", "encode")] = "encode"
+    table[("collections", "OrderedDict")] = "builtin:OrderedDict"
     return table
 
 
 _ALLOWED = _allowed_globals()
 
 
-class _FlameUnpickler(pickle.Unpickler):
-    """Unpickler resolving only an exact allow-list of (module, name) pairs.
+class _FlameUnpickler(pickle._Unpickler):  # type: ignore[name-defined]  # the pure-Python unpickler
+    """Unpickler resolving only an exact allow-list of (module, name) pairs, under budgets.
 
-    ``chumpy.*`` classes become :class:`ChumpyStub` subclasses; every other pair must be
-    in ``_ALLOWED`` (numpy's array and scalar reconstructors and ``dtype``, the
-    scipy.sparse csc/csr/coo classes, ``copyreg._reconstructor``, latin-1 ``_codecs.encode``,
-    ``OrderedDict`` and a few builtin types). The pair is checked before anything is
-    imported, so a pickle can neither run code, open files, nor import a module with
-    side effects.
+    ``chumpy.*`` classes become :class:`ChumpyStub` subclasses and scipy sparse classes
+    :class:`SparseStub` subclasses (scipy is never imported nor called); every other pair
+    must be in ``_ALLOWED`` (numpy's array and scalar reconstructors and ``dtype``,
+    ``copyreg._reconstructor``, latin-1 ``_codecs.encode``, ``OrderedDict`` and a few builtin
+    types). The pair is checked before anything is imported, so a pickle can neither run
+    code, open files, nor import a module with side effects.
+
+    The pure-Python unpickler is used because its opcodes can be checked one by one and it
+    reads a declared length from the in-memory file without allocating it first. Every call
+    a pickle makes that could allocate (``bytearray(n)``, ``_reconstruct(ndarray, shape)``,
+    ``list(iterable)``) is charged to :data:`LOAD_BUDGET_BYTES` before it runs; dict keys and
+    set members must be flat (a key nested 200 000 deep overflows the C stack when hashed);
+    arrays of Python objects and structured dtypes are refused. After loading,
+    :func:`_check_nesting` bounds depth and expanded size.
     """
+
+    dispatch = dict(pickle._Unpickler.dispatch)  # type: ignore[attr-defined]
 
     def __init__(self, fh: Any, source: str) -> None:
         super().__init__(fh, encoding="latin1")
         self._source = source
+        self._budget = LOAD_BUDGET_BYTES
+        core = _numpy_core()
+        self._resolved: dict[str, Any] = {
+            "_reconstruct": self._reconstruct, "scalar": self._scalar, "_frombuffer": self._frombuffer,
+            "ndarray": np.ndarray, "dtype": self._dtype, "_reconstructor": self._reconstructor,
+            "encode": _latin1_encode,
+        }
+        self._core = core
+
+    @classmethod
+    def loads(cls, data: bytes, source: str) -> Any:
+        """Unpickle ``data`` (already read, at most :data:`MAX_PICKLE_BYTES`) and bound its nesting."""
+        obj = cls(io.BytesIO(data), source).load()
+        _check_nesting(obj, source)
+        return obj
+
+    # ---- what names resolve to
 
     def find_class(self, module: str, name: str) -> Any:
         if module == "chumpy" or module.startswith("chumpy."):
@@ -178,22 +253,348 @@ class _FlameUnpickler(pickle.Unpickler):
                 raise FlameError(f"{self._source}: the pickle references a chumpy class named {name!r}; refusing "
                                  f"to load it")
             return type(name, (ChumpyStub,), {"chumpy_name": f"{module}.{name}"})
-        resolve = _ALLOWED.get((module, name))
-        if resolve is None:
+        what = _ALLOWED.get((module, name))
+        if what is None:
             raise FlameError(f"{self._source}: the pickle references {module}.{name}; a FLAME model file holds "
                              f"only numpy arrays, scipy sparse matrices and chumpy arrays, refusing to load it")
-        return resolve()
+        if what.startswith("sparse:"):
+            return _SPARSE_STUBS[what[7:]]
+        if what.startswith("builtin:"):
+            tp = collections.OrderedDict if what == "builtin:OrderedDict" else getattr(builtins, what[8:])
+            return self._checked(tp) if tp.__name__ in _CHECKED_BUILTINS + ("OrderedDict",) else tp
+        return self._resolved[what]
 
     def persistent_load(self, pid: Any) -> Any:
         raise FlameError(f"{self._source}: the pickle uses persistent ids; a FLAME model file has none, "
                          f"refusing to load it")
 
+    # ---- budgets and checks
+
+    def _refuse(self, what: str) -> FlameError:
+        return FlameError(f"{self._source}: {what}; refusing to load it")
+
+    def _charge(self, n_bytes: int, what: str) -> None:
+        """Take ``n_bytes`` from the load budget *before* allocating them."""
+        if n_bytes > self._budget:
+            raise self._refuse(f"{what} would allocate {n_bytes:,} bytes, over the loader's budget of "
+                               f"{LOAD_BUDGET_BYTES:,} bytes (flame.io.LOAD_BUDGET_BYTES)")
+        self._budget -= n_bytes
+
+    def _check_keys(self, keys: Any) -> None:
+        for key in keys:
+            flat = isinstance(key, _SCALAR_KEYS) or (
+                type(key) is tuple and len(key) <= 64 and all(isinstance(k, _SCALAR_KEYS) for k in key))
+            if not flat:
+                raise self._refuse(f"a dict key or set member of type {type(key).__name__} that is not a string, "
+                                   f"bytes, number or flat tuple of them (a FLAME pickle's keys are strings)")
+
+    def _checked_dtype(self, dtype: Any) -> np.dtype:
+        dt = dtype if isinstance(dtype, np.dtype) else self._dtype(dtype)
+        if dt.hasobject or dt.fields is not None or dt.subdtype is not None:
+            raise self._refuse(f"an array of dtype {dt} (Python objects or a structured dtype); a FLAME model "
+                               f"holds numeric and string arrays only")
+        return dt
+
+    def _checked(self, tp: type) -> Any:
+        """``tp`` (a builtin container or text type) called only with budgeted, hash-safe arguments."""
+        def call(*args: Any, **kwargs: Any) -> Any:
+            if kwargs:
+                raise self._refuse(f"a call of {tp.__name__} with keyword arguments")
+            if tp in (bytes, bytearray, str) and len(args) >= 2:
+                if not _is_latin1(args[1]):
+                    raise self._refuse(f"{tp.__name__}(..., {args[1]!r}): only latin-1 text is decoded")
+            elif tp in (bytes, bytearray) and args and isinstance(args[0], int):
+                self._charge(int(args[0]), f"{tp.__name__}({args[0]})")
+            elif tp is str and args and not isinstance(args[0], (str, bytes, int, float)):
+                raise self._refuse(f"str() of a {type(args[0]).__name__}")
+            if args and not isinstance(args[0], (str, bytes, bytearray, int)):
+                items = args[0]
+                if not isinstance(items, (list, tuple, dict, set, frozenset, collections.OrderedDict)):
+                    raise self._refuse(f"{tp.__name__}() of a {type(items).__name__}")
+                self._charge(64 * len(items), f"{tp.__name__}() of {len(items)} items")
+                if tp in (set, frozenset):
+                    self._check_keys(items)
+                elif tp in (dict, collections.OrderedDict) and not isinstance(items, dict):
+                    pairs = list(items)
+                    if not all(type(p) in (tuple, list) and len(p) == 2 for p in pairs):
+                        raise self._refuse(f"{tp.__name__}() of items that are not (key, value) pairs")
+                    self._check_keys(p[0] for p in pairs)
+                elif isinstance(items, dict):
+                    self._check_keys(items)
+            return tp(*args)
+
+        call.__name__ = tp.__name__
+        return call
+
+    # ---- numpy and copyreg entry points, checked
+
+    def _dtype(self, spec: Any, align: Any = False, copy: Any = False) -> np.dtype:
+        if not isinstance(spec, (str, bytes)) or not isinstance(align, (bool, int)) or not isinstance(copy, (bool, int)):
+            raise self._refuse(f"numpy.dtype({spec!r}, ...): expected a type code such as 'f8'")
+        try:
+            dt = np.dtype(spec.decode("latin1") if isinstance(spec, bytes) else spec, align=bool(align),
+                          copy=bool(copy))
+        except TypeError as exc:
+            raise pickle.UnpicklingError(f"numpy.dtype({spec!r}): {exc}") from exc
+        return self._checked_dtype(dt)
+
+    def _reconstruct(self, subtype: Any, shape: Any, dtype: Any) -> np.ndarray:
+        if subtype is not np.ndarray:
+            raise self._refuse(f"an array reconstructed as {getattr(subtype, '__name__', type(subtype).__name__)}")
+        dims = shape if isinstance(shape, tuple) else (shape,)
+        if not all(isinstance(d, int) and 0 <= d for d in dims) or len(dims) > 32:
+            raise self._refuse(f"an array of shape {shape!r}")
+        dt = self._checked_dtype(dtype)
+        self._charge(int(np.prod(dims, dtype=object)) * dt.itemsize, f"an array of shape {dims} and dtype {dt}")
+        return self._core.multiarray._reconstruct(subtype, dims, dt)
+
+    def _scalar(self, dtype: Any, *args: Any) -> Any:
+        return self._core.multiarray.scalar(self._checked_dtype(dtype), *args)
+
+    def _frombuffer(self, buf: Any, dtype: Any, shape: Any, order: Any) -> np.ndarray:
+        return self._core.numeric._frombuffer(buf, self._checked_dtype(dtype), shape, order)
+
+    def _reconstructor(self, cls: Any, base: Any, state: Any) -> Any:
+        if base is not object or not isinstance(cls, type) or not issubclass(cls, (ChumpyStub, SparseStub)):
+            raise self._refuse(f"copyreg._reconstructor({getattr(cls, '__name__', cls)!r}, "
+                               f"{getattr(base, '__name__', base)!r}, ...): only sparse and chumpy objects are "
+                               f"restored this way")
+        return object.__new__(cls)
+
+    # ---- opcodes that call, hash or set state
+
+    def _call(self, func: Any, args: Any) -> Any:
+        plain = (object, int, float, complex, bool, slice)
+        if isinstance(func, type) and not issubclass(func, (ChumpyStub, SparseStub)) and func not in plain:
+            raise self._refuse(f"a call of {getattr(func, '__name__', func)!r}")
+        if not isinstance(args, tuple):
+            raise pickle.UnpicklingError(f"call arguments must be a tuple, found {type(args).__name__}")
+        return func(*args)
+
+    def load_reduce(self) -> None:
+        args = self.stack.pop()
+        self.stack[-1] = self._call(self.stack[-1], args)
+
+    dispatch[pickle.REDUCE[0]] = load_reduce
+
+    def load_newobj(self) -> None:
+        args = self.stack.pop()
+        cls = self.stack.pop()
+        if not isinstance(cls, type) or not issubclass(cls, (ChumpyStub, SparseStub)):
+            raise self._refuse(f"a new object of {getattr(cls, '__name__', cls)!r} (only sparse and chumpy "
+                               f"objects are created this way)")
+        self.append(cls.__new__(cls, *args))
+
+    dispatch[pickle.NEWOBJ[0]] = load_newobj
+
+    def load_newobj_ex(self) -> None:
+        raise self._refuse("a NEWOBJ_EX opcode (keyword construction; FLAME pickles have none)")
+
+    dispatch[pickle.NEWOBJ_EX[0]] = load_newobj_ex
+
+    def load_setitem(self) -> None:
+        self._check_keys((self.stack[-2],))
+        super().load_setitem()
+
+    dispatch[pickle.SETITEM[0]] = load_setitem
+
+    def load_setitems(self) -> None:
+        items = self.pop_mark()
+        self._check_keys(items[0::2])
+        target = self.stack[-1]
+        for i in range(0, len(items), 2):
+            target[items[i]] = items[i + 1]
+
+    dispatch[pickle.SETITEMS[0]] = load_setitems
+
+    def load_dict(self) -> None:
+        items = self.pop_mark()
+        self._check_keys(items[0::2])
+        self.append({items[i]: items[i + 1] for i in range(0, len(items), 2)})
+
+    dispatch[pickle.DICT[0]] = load_dict
+
+    def load_additems(self) -> None:
+        items = self.pop_mark()
+        self._check_keys(items)
+        target = self.stack[-1]
+        if not isinstance(target, set):
+            raise pickle.UnpicklingError(f"ADDITEMS on a {type(target).__name__}")
+        target.update(items)
+
+    dispatch[pickle.ADDITEMS[0]] = load_additems
+
+    def load_frozenset(self) -> None:
+        items = self.pop_mark()
+        self._check_keys(items)
+        self.append(frozenset(items))
+
+    dispatch[pickle.FROZENSET[0]] = load_frozenset
+
+    def load_build(self) -> None:
+        state = self.stack[-1]
+        inst = self.stack[-2]
+        if isinstance(inst, np.ndarray):
+            if not (isinstance(state, tuple) and len(state) in (4, 5)):
+                raise pickle.UnpicklingError(f"array state: expected a 4 or 5-tuple, found {type(state).__name__}")
+            self._checked_dtype(state[-3])
+            if not isinstance(state[-1], (bytes, bytearray)):
+                raise self._refuse(f"array data of type {type(state[-1]).__name__} (arrays of Python objects)")
+        elif isinstance(inst, np.dtype):
+            if not (isinstance(state, tuple) and all(isinstance(s, (str, bytes, int, type(None))) for s in state)):
+                raise self._refuse("a structured or sub-array dtype; a FLAME model holds plain numeric arrays")
+        elif not isinstance(inst, (ChumpyStub, SparseStub)):
+            raise self._refuse(f"object state set on a {type(inst).__name__}")
+        super().load_build()
+
+    dispatch[pickle.BUILD[0]] = load_build
+
+    for _op in (pickle.INST, pickle.OBJ, pickle.EXT1, pickle.EXT2, pickle.EXT4):
+        dispatch.pop(_op[0], None)  # unknown opcode -> UnpicklingError (FLAME pickles have none)
+    del _op
+
+
+def _children(obj: Any) -> tuple | None:
+    """Contained objects the nesting check follows, or ``None`` for a leaf."""
+    if isinstance(obj, (list, tuple, set, frozenset)):
+        return tuple(obj)
+    if isinstance(obj, dict):
+        return tuple(obj.keys()) + tuple(obj.values())
+    if isinstance(obj, (ChumpyStub, SparseStub)):
+        return (obj._state, getattr(obj, "_args", ()))
+    return None
+
+
+def _check_nesting(root: Any, source: str) -> None:
+    """Refuse data nested deeper than :data:`MAX_NESTING`, cyclic, or expanding to too many objects.
+
+    Iterative (no recursion) over the object graph, each shared object once; ``size``
+    counts an object every time it appears (``[L, L]`` with ``L`` nested 40 deep is 2**40).
+    """
+    height: dict[int, int] = {}
+    size: dict[int, int] = {}
+    path: set[int] = set()
+    stack: list[tuple[Any, bool]] = [(root, False)]
+    while stack:
+        obj, finished = stack.pop()
+        kids = _children(obj)
+        if kids is None:
+            continue
+        oid = id(obj)
+        if finished:
+            path.discard(oid)
+            height[oid] = 1 + max((height.get(id(k), 0) for k in kids), default=0)
+            size[oid] = 1 + sum(size.get(id(k), 1) for k in kids)
+            if size[oid] > MAX_TREE_OBJECTS:
+                raise FlameError(f"{source}: a pickled value expands to more than {MAX_TREE_OBJECTS:,} objects "
+                                 f"(shared containers repeated); refusing to load it")
+            continue
+        if oid in height:
+            continue
+        if oid in path:
+            raise FlameError(f"{source}: a pickled container contains itself (a cycle); refusing to load it")
+        path.add(oid)
+        if len(path) > MAX_NESTING:
+            raise FlameError(f"{source}: data nested deeper than {MAX_NESTING} levels (a FLAME model needs 4); "
+                             f"refusing to load it")
+        stack.append((obj, True))
+        stack.extend((k, False) for k in kids if id(k) not in height)
+
+
+def _as_int_array(value: Any, name: str, key: str, source: str) -> np.ndarray:
+    if not isinstance(value, np.ndarray) or value.ndim != 1 or not np.issubdtype(value.dtype, np.integer):
+        found = (f"shape {value.shape}, dtype {value.dtype}" if isinstance(value, np.ndarray)
+                 else type(value).__name__)
+        raise FlameError(f"{source}: {key}: sparse {name}: expected a 1-D integer array, found {found}")
+    return value.astype(np.int64)
+
+
+def _sparse_to_dense(stub: SparseStub, key: str, source: str) -> np.ndarray:
+    """Check a pickled sparse matrix's state and build its dense float64 array.
+
+    ``indptr`` starts at 0, never decreases and ends at nnz; ``indices`` (csr/csc) or
+    ``row``/``col`` (coo) lie inside the shape; ``data`` is real and as long as the indices;
+    the dense size is budgeted (:data:`MAX_DENSE_ELEMENTS`) before anything is allocated.
+    Duplicate entries are summed, as scipy does.
+    """
+    what = f"{source}: {key}: {stub.sparse_name}"
+    state = stub._state
+    if isinstance(state, tuple) and len(state) == 2 and isinstance(state[0], dict):
+        state = state[0]
+    if not isinstance(state, dict):
+        raise FlameError(f"{what}: expected its pickled state as a dict, found {type(state).__name__}")
+    shape = state.get("_shape", state.get("shape"))
+    if not (isinstance(shape, tuple) and len(shape) == 2
+            and all(isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0 for s in shape)):
+        raise FlameError(f"{what}: expected a shape of two non-negative integers, found {shape!r}")
+    n_rows, n_cols = int(shape[0]), int(shape[1])
+    if n_rows * n_cols > MAX_DENSE_ELEMENTS:
+        raise FlameError(f"{what}: shape {(n_rows, n_cols)} would allocate {n_rows * n_cols:,} dense elements, over "
+                         f"the budget of {MAX_DENSE_ELEMENTS:,} (flame.io.MAX_DENSE_ELEMENTS)")
+    data = state.get("data")
+    if not isinstance(data, np.ndarray) or data.ndim != 1 or not (
+            np.issubdtype(data.dtype, np.floating) or np.issubdtype(data.dtype, np.integer)):
+        found = f"shape {data.shape}, dtype {data.dtype}" if isinstance(data, np.ndarray) else type(data).__name__
+        raise FlameError(f"{what}: data: expected a 1-D real array, found {found}")
+    if stub.sparse_format == "coo":
+        coords = state.get("coords", (state.get("row"), state.get("col")))
+        if not (isinstance(coords, tuple) and len(coords) == 2):
+            raise FlameError(f"{what}: expected (row, col) coordinates, found {type(coords).__name__}")
+        rows = _as_int_array(coords[0], "row", key, source)
+        cols = _as_int_array(coords[1], "col", key, source)
+        if not rows.size == cols.size == data.size:
+            raise FlameError(f"{what}: expected row, col and data of one length, found {rows.size}, {cols.size}, "
+                             f"{data.size}")
+    else:
+        n_major, n_minor = (n_rows, n_cols) if stub.sparse_format == "csr" else (n_cols, n_rows)
+        indptr = _as_int_array(state.get("indptr"), "indptr", key, source)
+        indices = _as_int_array(state.get("indices"), "indices", key, source)
+        if indptr.size != n_major + 1:
+            raise FlameError(f"{what}: indptr: expected length {n_major + 1} for shape {(n_rows, n_cols)}, "
+                             f"found {indptr.size}")
+        if indptr[0] != 0:
+            raise FlameError(f"{what}: indptr: expected to start at 0, found {indptr[0]}")
+        if np.any(np.diff(indptr) < 0):
+            raise FlameError(f"{what}: indptr: expected non-decreasing offsets, found {indptr[:8].tolist()}...")
+        nnz = int(indptr[-1])
+        if indices.size != nnz:
+            raise FlameError(f"{what}: indptr ends at nnz = {nnz}, but indices has {indices.size} entries")
+        if data.size != nnz:
+            raise FlameError(f"{what}: data: expected nnz = {nnz} values, found {data.size}")
+        major = np.repeat(np.arange(n_major, dtype=np.int64), np.diff(indptr))
+        rows, cols = (major, indices) if stub.sparse_format == "csr" else (indices, major)
+    for name, idx, bound in (("row", rows, n_rows), ("column", cols, n_cols)):
+        if idx.size and (idx.min() < 0 or idx.max() >= bound):
+            bad = int(idx.min()) if idx.min() < 0 else int(idx.max())
+            label = "indices" if stub.sparse_format != "coo" else ("row" if name == "row" else "col")
+            raise FlameError(f"{what}: {label}: expected {name} indices in [0, {bound}), found {bad}")
+    return _build_dense((n_rows, n_cols), rows, cols, data)
+
+
+def _build_dense(shape: tuple[int, int], rows: np.ndarray, cols: np.ndarray, data: np.ndarray) -> np.ndarray:
+    """The dense float64 array of checked coordinates (duplicates summed)."""
+    out = np.zeros(shape, dtype=np.float64)
+    np.add.at(out, (rows, cols), data.astype(np.float64))
+    return out
+
+
+def _read_limited(path: Path, limit: int, error: type[Exception], what: str) -> bytes:
+    """The bytes of ``path``, refused before reading when it is larger than ``limit``."""
+    with open(path, "rb") as fh:
+        size = os.fstat(fh.fileno()).st_size
+        if size > limit:
+            raise error(f"{path}: {what} of {size:,} bytes, over the limit of {limit:,} bytes")
+        data = fh.read(limit + 1)
+    if len(data) > limit:
+        raise error(f"{path}: {what} of more than {limit:,} bytes, over the limit")
+    return data
+
 
 def _load_pkl(path: Path) -> dict[str, Any]:
     source = str(path)
     try:
-        with open(path, "rb") as fh:
-            data = _FlameUnpickler(fh, source).load()
+        raw = _read_limited(path, MAX_PICKLE_BYTES, FlameError, "a FLAME pickle")
+        data = _FlameUnpickler.loads(raw, source)
     except FlameError:
         raise
     except FileNotFoundError as exc:
@@ -201,15 +602,15 @@ def _load_pkl(path: Path) -> dict[str, Any]:
     except IsADirectoryError as exc:
         raise FlameError(f"{source}: expected a FLAME .pkl or .npz file, found a directory") from exc
     except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, IndexError, KeyError,
-            ImportError, MemoryError, UnicodeDecodeError, OSError) as exc:
+            ImportError, MemoryError, UnicodeDecodeError, OSError, RecursionError, struct.error) as exc:
         raise FlameError(f"{source}: not a readable FLAME pickle ({type(exc).__name__}: {exc})") from exc
     if not isinstance(data, dict):
         raise FlameError(f"{source}: expected a pickled dict of FLAME arrays, found {type(data).__name__}")
     out: dict[str, Any] = {}
     for key, value in data.items():
         key = key.decode("latin1") if isinstance(key, bytes) else str(key)
-        if isinstance(value, ChumpyStub):
-            value = value.to_array(key, source)
+        if isinstance(value, (ChumpyStub, SparseStub)) or key in REQUIRED_KEYS:
+            value = _plain_array(value, key, source)
         out[key] = value
     return out
 
