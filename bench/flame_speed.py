@@ -32,7 +32,7 @@ from holo_viewer.fileio import atomic_write
 from holo_viewer.flame.io import load_flame_arrays
 from holo_viewer.flame.lbs import lbs_reference_np
 from holo_viewer.flame.model import FlameModel
-from holo_viewer.flame.testing import random_flame_arrays
+from holo_viewer.flame.synthetic import random_flame_arrays
 
 ROOT = Path(__file__).resolve().parents[1]
 PARENTS = (-1, 0, 1, 1, 1)

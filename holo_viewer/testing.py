@@ -7,7 +7,7 @@ Everything is seeded and small enough that a whole pipeline run takes millisecon
     Pipeline(model=model, avatar=avatar, view=ViewSettings(tile_scale=0.1)).native()
 
 ``tests/conftest.py`` wraps them in fixtures. The FLAME arrays themselves come from
-:func:`holo_viewer.flame.testing.random_flame_arrays`.
+:func:`holo_viewer.flame.synthetic.random_flame_arrays`.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ __all__ = ["random_flame_model", "random_gaussians", "random_rigged_avatar"]
 def random_flame_model(n_vertices: int = 300, n_shape: int = 8, n_expr: int = 6, seed: int = 1) -> "FlameModel":
     """A random FLAME-format model (5 joints, FLAME's kinematic tree) of ``n_vertices`` vertices."""
     from .flame.model import FlameModel
-    from .flame.testing import random_flame_arrays
+    from .flame.synthetic import random_flame_arrays
 
     return FlameModel.from_arrays(random_flame_arrays(n_vertices=n_vertices, n_shape=n_shape, n_expr=n_expr,
                                                       seed=seed))

@@ -12,7 +12,7 @@ from holo_viewer.avatar.binding import (bind_to_world, bind_to_world_np, face_fr
 from holo_viewer.avatar.gaussian_avatars import FlameParams, load_flame_params
 from holo_viewer.errors import AvatarError, PlyError
 from holo_viewer.flame.model import FlameModel
-from holo_viewer.flame.testing import random_flame_arrays
+from holo_viewer.flame.synthetic import random_flame_arrays
 from holo_viewer.geometry import quat_to_rotmat_np
 
 

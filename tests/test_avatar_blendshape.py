@@ -11,7 +11,7 @@ from holo_viewer.avatar.culling import face_visibility, visible_mask
 from holo_viewer.camera import Cameras, intrinsics, look_at
 from holo_viewer.errors import AvatarError, InputError
 from holo_viewer.flame.model import FlameModel
-from holo_viewer.flame.testing import random_flame_arrays
+from holo_viewer.flame.synthetic import random_flame_arrays
 
 
 @pytest.fixture(scope="module")

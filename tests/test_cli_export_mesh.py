@@ -13,7 +13,7 @@ import torch
 from holo_viewer.cli import main
 from holo_viewer.flame.io import save_flame_npz
 from holo_viewer.flame.model import FlameModel
-from holo_viewer.flame.testing import random_flame_arrays
+from holo_viewer.flame.synthetic import random_flame_arrays
 
 N_EXPR = 6
 NAMES = [f"E{i}" for i in range(N_EXPR)]

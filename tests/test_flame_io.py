@@ -17,7 +17,7 @@ import torch
 from holo_viewer.errors import FlameError
 from holo_viewer.flame.io import REQUIRED_KEYS, load_flame_arrays, save_flame_npz
 from holo_viewer.flame.model import FlameModel
-from holo_viewer.flame.testing import random_flame_arrays
+from holo_viewer.flame.synthetic import random_flame_arrays
 
 
 @pytest.fixture()

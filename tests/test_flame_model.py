@@ -14,7 +14,7 @@ from holo_viewer.errors import FlameError, InputError
 from holo_viewer.flame.lbs import lbs_reference_np
 from holo_viewer.flame.model import FlameModel
 from holo_viewer.geometry import rodrigues, rodrigues_np
-from holo_viewer.flame.testing import random_flame_arrays
+from holo_viewer.flame.synthetic import random_flame_arrays
 
 PARENTS = (-1, 0, 1, 1, 1)
 ROOT = Path(__file__).resolve().parents[1]

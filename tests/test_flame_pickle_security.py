@@ -21,7 +21,7 @@ import scipy.sparse
 from holo_viewer.cli import main
 from holo_viewer.errors import FlameError
 from holo_viewer.flame.io import load_flame_arrays
-from holo_viewer.flame.testing import random_flame_arrays
+from holo_viewer.flame.synthetic import random_flame_arrays
 
 SENTINEL = "HOLO_VIEWER_PAYLOAD_SENTINEL"
 

@@ -4,7 +4,7 @@ own event loop), plus direct callback calls; the offscreen (OSMesa) snapshot aga
 image; the command line (no display, --toolkit, shared ellipsoid options); the Open3D error path.
 Tests that need Xvfb or xdotool skip with a message naming the apt package.
 
-The scene is a small seeded FLAME-format model (``flame.testing``) with a few hundred Gaussians
+The scene is a small seeded FLAME-format model (``flame.synthetic``) with a few hundred Gaussians
 bound to its triangles, so the tests run in seconds and do not change when the default head
 or avatar is retuned. Regenerate the golden image with ``HOLO_UPDATE_GOLDEN=1``.
 """
@@ -30,7 +30,7 @@ GOLDEN_SIZE = (640, 360)
 def _small_scene(tile_scale: float = 0.25):
     from holo_viewer.avatar import Gaussians, RiggedAvatar
     from holo_viewer.flame.model import FlameModel
-    from holo_viewer.flame.testing import random_flame_arrays
+    from holo_viewer.flame.synthetic import random_flame_arrays
     from holo_viewer.pipeline import Pipeline, ViewSettings
 
     model = FlameModel.from_arrays(random_flame_arrays(n_vertices=300, n_shape=8, n_expr=6, seed=1))
@@ -488,7 +488,7 @@ def _image_top_pixel(panel) -> float:
 
 def test_avatar_none_explains_the_black_panels(xvfb, tmp_path):
     from holo_viewer.pipeline.scene import load_scene
-    from holo_viewer.gui.offscreen import offscreen_viewer
+    from holo_viewer.gui.offscreen_viewer import offscreen_viewer
 
     with offscreen_viewer(load_scene("none"), window_size=(640, 360)) as viewer:
         assert "--avatar none" in viewer.preview_panel.message.GetInput()
@@ -548,7 +548,7 @@ def test_view_and_snapshot_share_the_ellipsoid_options_and_defaults():
 
 
 def _snapshot_image() -> np.ndarray:
-    from holo_viewer.gui.offscreen import offscreen_viewer
+    from holo_viewer.gui.offscreen_viewer import offscreen_viewer
 
     with offscreen_viewer(_small_scene(), window_size=GOLDEN_SIZE, thumbnail_scale=0.1) as viewer:
         assert "OSOpenGL" in viewer.plotter.ren_win.GetClassName()
@@ -574,7 +574,7 @@ def test_offscreen_snapshot_matches_golden():
 def test_snapshot_detects_a_changed_scene():
     """The golden comparison can fail: a different expression gives a measurably different image."""
     from holo_viewer.fileio import load_image
-    from holo_viewer.gui.offscreen import offscreen_viewer
+    from holo_viewer.gui.offscreen_viewer import offscreen_viewer
 
     if not GOLDEN.exists():
         pytest.skip("no golden image yet")
@@ -620,7 +620,7 @@ def test_open3d_backend_missing_is_a_clear_error(monkeypatch, capsys):
 def test_load_scene_errors_name_the_problem(tmp_path):
     from holo_viewer.errors import InputError
     from holo_viewer.flame.io import save_flame_npz
-    from holo_viewer.flame.testing import random_flame_arrays
+    from holo_viewer.flame.synthetic import random_flame_arrays
     from holo_viewer.pipeline.scene import load_scene
 
     with pytest.raises(InputError, match="missing.ply: file not found"):
@@ -633,7 +633,7 @@ def test_load_scene_errors_name_the_problem(tmp_path):
 def test_load_scene_static_ply_and_mesh_only(tmp_path):
     from holo_viewer.avatar import save_ply
     from holo_viewer.flame.io import save_flame_npz
-    from holo_viewer.flame.testing import random_flame_arrays
+    from holo_viewer.flame.synthetic import random_flame_arrays
     from holo_viewer.pipeline.scene import StaticAvatar, load_scene
 
     model_path = save_flame_npz(tmp_path / "flame.npz", random_flame_arrays(n_vertices=200, n_shape=4, n_expr=3))
@@ -651,7 +651,7 @@ def test_load_scene_static_ply_and_mesh_only(tmp_path):
 def test_flame_params_sequence_adds_a_frame_slider(tmp_path):
     from holo_viewer.flame.default_head import load_default_model
     from holo_viewer.pipeline.scene import load_scene
-    from holo_viewer.gui.offscreen import offscreen_viewer
+    from holo_viewer.gui.offscreen_viewer import offscreen_viewer
 
     T, n_expr = 4, load_default_model().n_expr
     expr = np.zeros((T, n_expr))

@@ -1,6 +1,6 @@
 """Pipeline: stage caching (recompute log), framing, streaming with a frame budget.
 
-A small random FLAME-format model (``flame.testing``) with a few hundred Gaussians bound
+A small random FLAME-format model (``flame.synthetic``) with a few hundred Gaussians bound
 to its triangles keeps every stage fast; the default head is used where the expression
 map (pain, named expressions) is needed.
 """

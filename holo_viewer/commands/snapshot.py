@@ -27,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..pipeline.scene import load_scene
-    from ..gui.offscreen import offscreen_viewer
+    from ..gui.offscreen_viewer import offscreen_viewer
     from ..pipeline import FaceControls
 
     face = FaceControls(pain=args.pain, named=(("smile", args.smile),) if args.smile > 0 else ())

@@ -36,7 +36,7 @@ import numpy as np
 from ..display.quilt import to_uint8
 from ..errors import HoloViewerError, InputError
 from ..pipeline import FaceControls, Pipeline, apply_frame
-from .jobs import BackgroundJobs, Job
+from .background import BackgroundJobs, Job
 from .scene import (GLYPH_COLOR_MODES, au_label, focal_plane_polydata, frusta_arrays, glyph_colors, glyph_polydata,
                     glyph_selection, image_plane, mesh_polydata, scene_bounds, vertex_normals, view_colors)
 
