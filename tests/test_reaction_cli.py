@@ -43,12 +43,35 @@ def test_react_cli_writes_flame_params(speaker_files, tmp_path):
                "--listener-past", str(d / "past.npz"), "--out", str(out)])
     assert rc == 0
     z = np.load(out)
-    assert set(z.files) == FLAME_KEYS
+    assert set(z.files) == FLAME_KEYS | {"pain_shown"}  # the pain in the face per frame (behaviour layers)
     au = default_au_map()
     assert z["expr"].shape == (50, au.matrix.shape[1])
     assert z["jaw_pose"].shape == z["rotation"].shape == (50, 3) and z["eyes_pose"].shape == (50, 6)
     assert all(np.all(np.isfinite(z[k])) for k in z.files)
     assert float(pspi(z["expr"].astype(np.float64), au).mean()) > 4.0  # pain 0.7 shows
+
+
+def test_react_cli_behaviour_by_default_and_switches(speaker_files, tmp_path):
+    """Gaze, blinks, breathing and sway are on by default; each flag and --no-behaviour switch them off."""
+    d = speaker_files
+    base = ["react", "--audio", str(d / "s.wav"), "--speaker", str(d / "s.npz"), "--pain", "0.3"]
+    outs = {}
+    for name, flags in (("on", []), ("off", ["--no-behaviour"]), ("nogaze", ["--no-gaze", "--no-breathing"]),
+                        ("side", ["--viewer-angle", "20"])):
+        outs[name] = tmp_path / f"{name}.npz"
+        assert main(base + flags + ["--out", str(outs[name])]) == 0
+    on, off, nogaze, side = (np.load(outs[k]) for k in ("on", "off", "nogaze", "side"))
+    assert np.ptp(on["eyes_pose"], axis=0).max() > 1e-3 and np.ptp(on["neck_pose"], axis=0).max() > 1e-3
+    assert np.ptp(on["translation"][:, 1]) > 5e-4  # breathing
+    assert not np.any(off["eyes_pose"]) and not np.any(off["neck_pose"]) and "pain_shown" not in off.files
+    assert not np.any(nogaze["eyes_pose"]) and np.ptp(nogaze["translation"][:, 1]) < np.ptp(on["translation"][:, 1])
+    assert side["eyes_pose"][:, 1].mean() > on["eyes_pose"][:, 1].mean() + 0.1  # eyes turn to +x (yaw)
+    tl = tmp_path / "tl.json"
+    tl.write_text('[{"t": 0, "level": 0.0}, {"t": 1.0, "level": 0.8}]')
+    out = tmp_path / "tl.npz"
+    assert main(base + ["--pain-timeline", str(tl), "--out", str(out)]) == 0
+    shown = np.load(out)["pain_shown"]
+    assert shown[:25].max() == 0.0 and shown[25 + 12] > 0.6
 
 
 def test_react_cli_bad_inputs(speaker_files, tmp_path, capsys):

@@ -3,6 +3,9 @@
 * :func:`reaction_frames`: the shipped reaction model's listener reaction to a synthesized
   speaker clip, as per-frame FLAME parameters (the demo, ``apps/stream_sequence.py``);
 * :func:`react_to_speaker`: the reaction to a speaker's WAV and FLAME parameters (``react``);
+* :func:`with_behaviour`: the no-data behaviour layers (gaze, blinks, breathing, sway, pain
+  dynamics; :mod:`holo_viewer.behaviour`) composed on a reaction, which both of the above apply by
+  default;
 * :class:`FaceStateRenderer`: renders reaction face states through a pipeline from one frontal
   camera; the reaction evaluation (FRRea, :func:`holo_viewer.reaction.frrea.frrea`) is given
   one, so the reaction package never builds an avatar or a renderer.
@@ -21,21 +24,51 @@ from .settings import FaceControls, flame_sequence_frames
 if TYPE_CHECKING:  # pragma: no cover
     from ..camera import Cameras
 
-__all__ = ["reaction_frames", "react_to_speaker", "FaceStateRenderer"]
+__all__ = ["reaction_frames", "react_to_speaker", "with_behaviour", "FaceStateRenderer"]
+
+#: ``behaviour=DEFAULT_BEHAVIOUR`` (the default): every layer on with the default settings
+DEFAULT_BEHAVIOUR: Any = "default"
 
 
-def reaction_frames(seconds: float = 2.0, pain: float = 0.5, seed: int = 0,
-                    **kwargs: Any) -> tuple[list[dict[str, np.ndarray]], float]:
+def with_behaviour(params: dict[str, np.ndarray], behaviour: Any = DEFAULT_BEHAVIOUR, pain: Any = 0.0,
+                   target: Any = None, audio: np.ndarray | None = None, seed: int = 0) -> dict[str, np.ndarray]:
+    """A reaction's FLAME arrays with the behaviour layers composed on them.
+
+    ``behaviour``: a :class:`~holo_viewer.behaviour.BehaviourConfig` (or the default); ``pain``: the
+    instructor's level, a float or a :class:`~holo_viewer.behaviour.PainTimeline`; ``target``: the
+    point the eyes look at (avatar frame; default a viewer 0.6 m in front of the panel); ``audio``:
+    the speaker's 16 kHz samples, for the speech cues of blinks and gaze (None: speaking throughout).
+    ``seed`` seeds the default configuration (a given config has its own). The result has
+    ``pain_shown`` (T,): the pain in the face at each frame.
+    """
+    from ..behaviour import BehaviourConfig, apply_behaviour
+    from ..behaviour.speech import speech_cues
+
+    cfg = BehaviourConfig(seed=int(seed)) if isinstance(behaviour, str) else behaviour
+    T = int(np.asarray(params["expr"]).shape[0])
+    sp = po = None
+    if audio is not None:
+        sp, po = speech_cues(audio, T)
+    return apply_behaviour(params, cfg, pain=pain, target=target, speaking=sp, pause_onsets=po)
+
+
+def reaction_frames(seconds: float = 2.0, pain: Any = 0.5, seed: int = 0, behaviour: Any = DEFAULT_BEHAVIOUR,
+                    target: Any = None, **kwargs: Any) -> tuple[list[dict[str, np.ndarray]], float]:
     """Listener FLAME frames reacting to a synthesized speaker clip, and their frame rate.
 
     Parameters
     ----------
     seconds : float
         Clip length (T = round(25 * seconds) frames).
-    pain : float
-        Requested pain level in [0, 1] (the reaction model's conditioning).
+    pain : float or PainTimeline
+        The instructor's pain level in [0, 1] (or over time); with behaviour it drives the pain
+        dynamics layer and the model is conditioned on 0 (the pain face is the layer's); with
+        ``behaviour=None`` the model is conditioned on it (a float).
     seed : int
         Seeds the synthetic speaker and the sampling.
+    behaviour : BehaviourConfig or None
+        The no-data layers (:func:`with_behaviour`; default: all on); None: the model alone.
+    target : (3,) point the eyes look at (avatar frame), optional
     **kwargs
         Passed to :func:`holo_viewer.reaction.api.generate_demo_reaction` (temperature, top_k,
         checkpoint, warmup, smoothing).
@@ -49,7 +82,12 @@ def reaction_frames(seconds: float = 2.0, pain: float = 0.5, seed: int = 0,
     """
     from ..reaction.api import generate_demo_reaction
 
-    params = generate_demo_reaction(seconds=seconds, pain=pain, seed=seed, **kwargs)
+    if behaviour is None:
+        params = generate_demo_reaction(seconds=seconds, pain=pain, seed=seed, **kwargs)
+    else:
+        params = with_behaviour(generate_demo_reaction(seconds=seconds, pain=0.0, seed=seed, **kwargs), behaviour,
+                                pain=pain, target=target, seed=seed)
+        params.pop("pain_shown")
     fps = float(params.get("fps", 25.0)) if isinstance(params, dict) else 25.0
     return flame_sequence_frames(params, source="reaction model output"), fps
 
@@ -57,7 +95,8 @@ def reaction_frames(seconds: float = 2.0, pain: float = 0.5, seed: int = 0,
 def react_to_speaker(audio_path: str | os.PathLike, speaker_path: str | os.PathLike, *, pain: float = 0.0,
                      listener_past_path: str | os.PathLike | None = None, checkpoint: str | os.PathLike | None = None,
                      temperature: float = 0.0, top_k: int | None = 20, seed: int = 0,
-                     smoothing: float | None = None) -> tuple[dict[str, np.ndarray], int]:
+                     smoothing: float | None = None, behaviour: Any = DEFAULT_BEHAVIOUR,
+                     target: Any = None) -> tuple[dict[str, np.ndarray], int]:
     """The listener's FLAME parameters reacting to a speaker's audio and face.
 
     Parameters
@@ -66,8 +105,8 @@ def react_to_speaker(audio_path: str | os.PathLike, speaker_path: str | os.PathL
         Speaker audio, 16 kHz WAV.
     speaker_path : path
         Speaker FLAME parameters at 25 fps (``speaker.npz``, docs/reaction.md).
-    pain : float
-        Requested pain level in [0, 1].
+    pain : float or PainTimeline
+        The instructor's pain level (see :func:`reaction_frames`).
     listener_past_path : path or None
         Listener frames before the clip (same keys as the speaker file).
     checkpoint : path or None
@@ -76,11 +115,15 @@ def react_to_speaker(audio_path: str | os.PathLike, speaker_path: str | os.PathL
         Decoding (temperature 0 = argmax).
     smoothing : float or None
         Time constant (s) of the causal output smoothing (None = the animation default).
+    behaviour : BehaviourConfig or None
+        The no-data layers (default: all on; None: the model alone).
+    target : (3,) point the eyes look at (avatar frame), optional
 
     Returns
     -------
     params : dict of str to numpy.ndarray
-        ``flame_param.npz`` arrays (``expr`` (T, n_expr), ``jaw_pose`` (T, 3), ...).
+        ``flame_param.npz`` arrays (``expr`` (T, n_expr), ``jaw_pose`` (T, 3), ...; with behaviour
+        also ``pain_shown`` (T,), the pain in the face).
     n_frames : int
     """
     from ..flame.expressions import default_au_map
@@ -93,10 +136,13 @@ def react_to_speaker(audio_path: str | os.PathLike, speaker_path: str | os.PathL
     speaker = load_speaker_npz(speaker_path, au_map)
     past = load_speaker_npz(listener_past_path, au_map) if listener_past_path else None
     audio, sr = read_wav(audio_path)
-    states = react(bundle, audio, sr, speaker, pain=pain, listener_past=past, temperature=temperature,
-                   top_k=top_k or None, seed=seed,
+    states = react(bundle, audio, sr, speaker, pain=pain if behaviour is None else 0.0, listener_past=past,
+                   temperature=temperature, top_k=top_k or None, seed=seed,
                    smoothing=ANIMATION_SMOOTHING_S if smoothing is None else smoothing)
-    return flame_params_from_states(states, au_map), int(states.shape[0])
+    params = flame_params_from_states(states, au_map)
+    if behaviour is not None:
+        params = with_behaviour(params, behaviour, pain=pain, target=target, audio=audio, seed=seed)
+    return params, int(states.shape[0])
 
 
 class FaceStateRenderer:
