@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV="${VENV:-.venv}"
 PYTHON="${PYTHON:-python3}"
-APT_PKGS="libosmesa6 xvfb xdotool libusb-1.0-0 libgl1 libegl1 libxrender1 libportaudio2"
+APT_PKGS="libosmesa6 xvfb xdotool libusb-1.0-0 libgl1 libegl1 libxrender1 libportaudio2 espeak-ng"
 
 have_lib() { ldconfig -p 2>/dev/null | grep -q "$1"; }
 missing=""
@@ -19,6 +19,7 @@ have_lib libGL.so.1 || missing="$missing libgl1"
 have_lib libEGL.so.1 || missing="$missing libegl1"
 have_lib libXrender.so.1 || missing="$missing libxrender1"
 have_lib libportaudio.so.2 || missing="$missing libportaudio2"
+command -v espeak-ng >/dev/null 2>&1 || missing="$missing espeak-ng"
 if [ -n "$missing" ]; then
   if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
     echo "setup: installing system packages:$missing"
