@@ -275,3 +275,19 @@ def test_config_validation():
     with pytest.raises(InputError, match="pain"):
         apply_behaviour(_still(5), pain=1.5)
     assert math.isfinite(BehaviourConfig().blink_rate_per_min)
+
+
+# ------------------------------------------------------------------ integration: the demo's reaction frames
+def test_reaction_frames_use_the_layers_by_default():
+    from holo_viewer.pipeline import reaction_frames
+    from holo_viewer.reaction.api import default_checkpoint_path
+
+    if not default_checkpoint_path().is_file():
+        pytest.skip("no shipped reaction checkpoint")
+    on, fps = reaction_frames(seconds=2.0, pain=0.4, seed=1, warmup=0.5)
+    off, _ = reaction_frames(seconds=2.0, pain=0.4, seed=1, warmup=0.5, behaviour=None)
+    eyes_on = np.stack([f["eyes_pose"] for f in on])
+    assert fps == 25 and np.ptp(eyes_on, axis=0).max() > 1e-3 and "pain" not in on[0]
+    assert not np.any(np.stack([f["eyes_pose"] for f in off]))
+    nogaze, _ = reaction_frames(seconds=2.0, pain=0.4, seed=1, warmup=0.5, behaviour=BehaviourConfig(gaze=False))
+    assert not np.any(np.stack([f["eyes_pose"] for f in nogaze]))

@@ -52,6 +52,7 @@ def test_demo_writes_quilt_native_video_and_timings(tmp_path, capsys):
     assert video.shape[1:3] == (6 * round(560 * 0.1), 8 * round(420 * 0.1))
     rec = json.loads((out / "timings.json").read_text())
     assert rec["video"]["frames"] == 2 and rec["first_quilt_stage_seconds"]["views"] > 0
+    assert rec["config"]["behaviour"]["gaze"] and rec["config"]["behaviour"]["blinks"]  # on by default
     printed = capsys.readouterr().out
     assert "pipeline stages" in printed and "reaction quilt video" in printed
     assert not list(out.glob("*.tmp*"))

@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--renderer", default="fast", help="splat renderer backend (default fast)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthesized speaker clip")
     parser.add_argument("--skip-head-renders", action="store_true", help="do not write head/ (faster)")
+    from .behaviour_args import add_behaviour_arguments
+
+    add_behaviour_arguments(parser, pain_timeline=False)
 
 
 def format_timing_table(rows: list[tuple[str, float, str]]) -> str:
@@ -49,13 +52,14 @@ def format_timing_table(rows: list[tuple[str, float, str]]) -> str:
     return "\n".join(lines)
 
 
-def _reaction_frames(seconds: float, pain: float, seed: int) -> tuple[list[dict], float]:
-    """Listener FLAME frames (and their rate) from the reaction model for a synthesized speaker clip."""
+def _reaction_frames(seconds: float, pain: float, seed: int, behaviour: object = "default") -> tuple[list[dict], float]:
+    """Listener FLAME frames (and their rate) from the reaction model for a synthesized speaker clip,
+    with the behaviour layers (``behaviour``: a BehaviourConfig, "default", or None for the model alone)."""
     from ..errors import ReactionError
     from ..pipeline import reaction_frames
 
     try:
-        return reaction_frames(seconds=seconds, pain=pain, seed=seed)
+        return reaction_frames(seconds=seconds, pain=pain, seed=seed, behaviour=behaviour)
     except ImportError as exc:
         raise ReactionError("demo: the reaction video needs the listener-reaction model "
                             f"(holo_viewer.reaction), which cannot be imported ({exc})") from exc
@@ -133,11 +137,14 @@ def run(args: argparse.Namespace) -> int:
 
     # 5. reaction to a synthesized speaker clip
     t0 = time.perf_counter()
-    src_frames, src_fps = _reaction_frames(args.seconds, args.pain, args.seed)
+    from .behaviour_args import behaviour_from_args
+
+    behaviour = behaviour_from_args(args, seed=args.seed)
+    src_frames, src_fps = _reaction_frames(args.seconds, args.pain, args.seed, behaviour)
     step("reaction model", t0, f"{len(src_frames)} frames at {src_fps:g} fps for a synthesized speaker clip")
 
     # the frame rate the time budget allows, from the (warm) time of the video's first quilt
-    base = FaceControls()  # the reaction model's expressions already carry the requested pain
+    base = FaceControls()  # the frames' expressions already carry the requested pain (behaviour layer or model)
     if args.video_scale != 1.0:
         pipe.set_view(tile_scale=args.video_scale)
     fps = float(args.fps)
@@ -194,6 +201,7 @@ def run(args: argparse.Namespace) -> int:
                                                     for k, v in per.as_dict().items()},
                         "late_frames": len(report.late), "achieved_fps": report.achieved_fps},
               "config": {"smile": args.smile, "pain": args.pain, "seconds": args.seconds,
+                         "behaviour": None if behaviour is None else behaviour.to_dict(),
                          "renderer": args.renderer, "n_gaussians": len(pipe.avatar)}}
     with atomic_write(out / "timings.json", "w") as fh:
         json.dump(record, fh, indent=2, default=lambda o: float(o) if isinstance(o, np.floating) else str(o))
