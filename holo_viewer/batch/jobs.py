@@ -169,24 +169,38 @@ def load_frames(job: ResolvedJob) -> list[dict[str, Any]]:
     from ..pipeline import flame_sequence_frames
 
     spec = job.spec
+    pain: Any = spec.pain
+    if spec.pain_timeline is not None:
+        from ..behaviour import PainKey, PainTimeline
+
+        pain = PainTimeline(PainKey(t, v) for t, v in spec.pain_timeline)
+    behaviour = None
+    if spec.behaviour is not None:
+        from ..behaviour import BehaviourConfig
+
+        behaviour = BehaviourConfig.from_dict(dict(spec.behaviour), source=f"{spec.label}: behaviour")
     if spec.driver == "flame_params":
         frames = _sequence(spec)
     elif spec.driver == "reaction":
         from ..pipeline.reactions import react_to_speaker
 
-        params, _ = react_to_speaker(spec.speaker_audio, spec.speaker_params, pain=spec.pain, seed=spec.seed,
-                                     temperature=spec.temperature or 0.0)
+        params, _ = react_to_speaker(spec.speaker_audio, spec.speaker_params, pain=pain, seed=spec.seed,
+                                     temperature=spec.temperature or 0.0, behaviour=behaviour)
+        params.pop("pain_shown", None)  # already in the expressions
         frames = flame_sequence_frames(params, source=spec.speaker_params)
     elif spec.driver == "synthetic_reaction":
         from ..pipeline.reactions import reaction_frames
 
         kw = {} if spec.temperature is None else {"temperature": spec.temperature}
-        frames, _ = reaction_frames(seconds=spec.seconds, pain=spec.pain, seed=spec.seed, **kw)
+        frames, _ = reaction_frames(seconds=spec.seconds, pain=pain, seed=spec.seed, behaviour=behaviour, **kw)
     else:
         frames = [{} for _ in range(spec.frames)]
     if len(frames) != job.n_frames:
         raise InputError(f"{spec.label}: the driver gave {len(frames)} frames, expected {job.n_frames}")
-    if spec.scenario != "constant":
+    if spec.pain_timeline is not None and spec.driver in ("flame_params", "still"):
+        levels = pain.levels(len(frames), job.fps)  # no behaviour layers here: the level itself per frame
+        frames = [dict(f, pain=np.float64(levels[k])) for k, f in enumerate(frames)]
+    elif spec.scenario != "constant":
         profile = SCENARIOS[spec.scenario]
         n = len(frames)
         frames = [dict(f, pain=np.float64(spec.pain * profile(k / max(1, n - 1)))) for k, f in enumerate(frames)]

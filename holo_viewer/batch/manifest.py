@@ -14,8 +14,13 @@ A row names
   - none of these: a still face held for ``frames`` frames (``expressions``, ``pain``);
 
 * the **face**: ``pain`` in [0, 1], ``scenario`` (``constant`` | ``rising`` | ``falling`` | ``pulse``:
-  the pain level over the clip; sequences and stills only, the reaction model takes one pain level
-  per clip) and ``expressions`` (``{"smile": 0.8}``; in CSV ``smile=0.8;mouth_open=0.2``);
+  the pain level over the clip; sequences and stills only) or ``pain_timeline`` (the pain-timeline
+  schema of :mod:`holo_viewer.behaviour.timeline`, ``[{"t": 0, "level": 0.2}, ...]``, or a path to
+  a JSON file holding one; in CSV a path or the JSON text; it replaces ``pain``) and
+  ``expressions`` (``{"smile": 0.8}``; in CSV ``smile=0.8;mouth_open=0.2``);
+* the **behaviour** of a reaction (reaction drivers only): ``behaviour``, an object of
+  :class:`~holo_viewer.behaviour.BehaviourConfig` settings (``{"gaze": false}``; in CSV its JSON
+  text), or ``false`` for the reaction model alone; default: every layer on, seeded by ``seed``;
 * the **display**: ``calibration`` (a ``visual.json`` or a preset name; default the shipped
   Portrait), ``tile_scale`` (quilt tile size relative to the calibration's), ``renderer``;
 * the **outputs**: ``outputs``, a list of ``quilt_mp4``, ``native_mp4``, ``quilt_png``,
@@ -46,12 +51,15 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..errors import ManifestError
+from ..fileio import MAX_JSON_DEPTH, json_depth
 
 __all__ = ["JobSpec", "RowError", "read_manifest", "job_hash", "FORMAT_VERSION", "OUTPUT_KINDS", "SCENARIOS",
            "EXPRESSIONS", "FileDigests", "SHIPPED_ASSETS", "assets_dir"]
 
 #: bump when the meaning of a job's fields or the output layout changes (invalidates finished jobs)
 FORMAT_VERSION = 1
+#: bump when the behaviour layers' output changes (invalidates finished reaction jobs only)
+BEHAVIOUR_VERSION = 1
 #: what a job can ask for
 OUTPUT_KINDS: tuple[str, ...] = ("quilt_mp4", "native_mp4", "quilt_png", "native_png")
 #: pain over the clip: factor of ``pain`` at clip time t in [0, 1]
@@ -105,6 +113,10 @@ class JobSpec:
     outputs: tuple[str, ...] = ("quilt_mp4",)
     crf: int = 18
     native_crf: int = 0
+    #: reaction drivers: the BehaviourConfig as sorted (key, value) pairs; None = the model alone
+    behaviour: tuple[tuple[str, Any], ...] | None = None
+    #: the pain timeline as ((t, level), ...); None = ``pain`` (and ``scenario``)
+    pain_timeline: tuple[tuple[float, float], ...] | None = None
 
     @property
     def label(self) -> str:
@@ -166,6 +178,10 @@ def read_manifest(path: str | os.PathLike) -> list[JobSpec | RowError]:
         for n, line in enumerate(text.splitlines(), start=1):
             s = line.strip()
             if not s or s.startswith("#"):
+                continue
+            if json_depth(s) > MAX_JSON_DEPTH:
+                raw.append((n, f"expected a JSON object, found JSON nested {json_depth(s)} levels deep (at most "
+                               f"{MAX_JSON_DEPTH}, fileio.MAX_JSON_DEPTH)"))
                 continue
             try:
                 obj = json.loads(s)
@@ -283,6 +299,13 @@ def _parse_row(row: dict[str, Any], line: int, base: Path, from_csv: bool) -> Jo
     kw["outputs"] = r.outputs("outputs")
     kw["crf"] = r.int("crf", 18, 0, 51)
     kw["native_crf"] = r.int("native_crf", 0, 0, 51)
+    kw["pain_timeline"] = r.pain_timeline("pain_timeline") if "pain_timeline" in row else None
+    if kw["pain_timeline"] is not None and ("pain" in row or scenario != "constant"):
+        raise ManifestError("pain_timeline: expected it instead of pain/scenario, found both")
+    if driver in ("reaction", "synthetic_reaction"):
+        kw["behaviour"] = r.behaviour("behaviour", kw["seed"])
+    elif "behaviour" in row:
+        raise ManifestError(f"behaviour: expected only with a reaction driver, found it with {driver}")
     return JobSpec(**kw)
 
 
@@ -363,6 +386,46 @@ class _Row:
             out.append((name, float(w)))
         return tuple(out)
 
+    def _json_or_text(self, key: str) -> Any:
+        v = self._raw(key, None)
+        if isinstance(v, str) and self.csv and (v.strip()[:1] in ("[", "{") or v.strip() in ("true", "false")):
+            try:
+                return json.loads(v)
+            except json.JSONDecodeError as exc:
+                raise ManifestError(f"{key}: expected JSON, found {v!r:.60} ({exc})") from None
+        return v
+
+    def pain_timeline(self, key: str) -> tuple[tuple[float, float], ...]:
+        from ..behaviour import PainTimeline
+        from ..errors import InputError
+
+        v = self._json_or_text(key)
+        try:
+            tl = PainTimeline.load(self.path(key, must_exist=True)) if isinstance(v, str) else \
+                PainTimeline.from_json(v, source=key)
+        except ManifestError:
+            raise
+        except InputError as exc:
+            raise ManifestError(str(exc)) from None
+        return tuple((k.t, k.level) for k in tl.keys)
+
+    def behaviour(self, key: str, seed: int) -> tuple[tuple[str, Any], ...] | None:
+        from ..behaviour import BehaviourConfig
+        from ..errors import InputError
+
+        v = self._json_or_text(key)
+        if v is False:
+            return None
+        if v is None or v is True:
+            v = {}
+        if not isinstance(v, dict):
+            raise ManifestError(f"{key}: expected an object of behaviour settings or false, found {v!r:.60}")
+        try:
+            cfg = BehaviourConfig.from_dict({"seed": seed, **v}, source=key)
+        except InputError as exc:
+            raise ManifestError(str(exc)) from None
+        return tuple(sorted((k, tuple(x) if isinstance(x, list) else x) for k, x in cfg.to_dict().items()))
+
     def outputs(self, key: str) -> tuple[str, ...]:
         v = self._raw(key, ["quilt_mp4"])
         if isinstance(v, str):
@@ -373,6 +436,21 @@ class _Row:
         if bad:
             raise ManifestError(f"{key}: expected items of {OUTPUT_KINDS}, found {bad}")
         return tuple(k for k in OUTPUT_KINDS if k in v)  # canonical order: the hash ignores list order
+
+
+def switch_behaviour_off(spec: JobSpec, layers: tuple[str, ...]) -> JobSpec:
+    """``spec`` with behaviour layers off (``"behaviour"``: all, the model alone); non-reaction jobs as they are."""
+    from dataclasses import replace
+
+    from ..behaviour import BehaviourConfig
+
+    if spec.behaviour is None:
+        return spec
+    if "behaviour" in layers:
+        return replace(spec, behaviour=None)
+    cfg = BehaviourConfig.from_dict(dict(spec.behaviour)).without(*layers)
+    return replace(spec, behaviour=tuple(sorted((k, tuple(x) if isinstance(x, list) else x)
+                                                for k, x in cfg.to_dict().items())))
 
 
 # =============================================================================== hashing
@@ -431,6 +509,10 @@ def job_hash(spec: JobSpec, digests: FileDigests | None = None) -> str:
         if f.name in ("line", "id"):
             continue
         value = getattr(spec, f.name)
+        if f.name in ("behaviour", "pain_timeline") and value is None:
+            continue  # fields added later: jobs without them keep their hashes
+        if f.name == "behaviour":
+            record["behaviour_version"] = BEHAVIOUR_VERSION
         record[f.name] = {"sha256": digests(value)} if f.name in files else value
     record["shipped"] = {k: digests(v) if v.is_file() else "missing" for k, v in _shipped_inputs(spec).items()}
     blob = json.dumps(record, sort_keys=True, separators=(",", ":")).encode()

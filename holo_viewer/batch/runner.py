@@ -131,7 +131,7 @@ class _Job:
 
 def run_batch(manifest: str | os.PathLike, out: str | os.PathLike, executor: Executor, *,
               chunk_frames: int = DEFAULT_CHUNK_FRAMES, progress: bool = True,
-              log: Callable[[str], None] = print) -> BatchSummary:
+              log: Callable[[str], None] = print, behaviour_off: tuple[str, ...] = ()) -> BatchSummary:
     """Render every job of ``manifest`` into ``out`` (see the module docstring).
 
     Parameters
@@ -146,6 +146,9 @@ def run_batch(manifest: str | os.PathLike, out: str | os.PathLike, executor: Exe
         Frames per chunk; longer clips are split and their chunks rendered in parallel.
     progress : bool
         One tqdm bar over the frames of all jobs.
+    behaviour_off : tuple of str
+        Behaviour layers to switch off in every reaction job (``render-batch --no-gaze`` ...;
+        "behaviour": all of them, the model alone); part of each job's hash.
 
     Returns
     -------
@@ -159,6 +162,10 @@ def run_batch(manifest: str | os.PathLike, out: str | os.PathLike, executor: Exe
     """
     t_start = time.perf_counter()
     rows = read_manifest(manifest)
+    if behaviour_off:
+        from .manifest import switch_behaviour_off
+
+        rows = [r if isinstance(r, RowError) else switch_behaviour_off(r, behaviour_off) for r in rows]
     root = ensure_dir(out, "output directory (--out)")
     work_root = root / ".work"
     _remove_stale_temps(work_root)

@@ -25,6 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--in-process", action="store_true",
                         help="render here, one chunk after another, even when Ray is installed")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    from .behaviour_args import add_behaviour_arguments
+
+    add_behaviour_arguments(parser, pain_timeline=False)  # a row's own pain_timeline / behaviour field
 
 
 def run(args: argparse.Namespace) -> int:
@@ -43,11 +46,14 @@ def run(args: argparse.Namespace) -> int:
     def log(msg: str) -> None:
         tqdm.write(msg, file=sys.stderr)
 
+    from ..behaviour import LAYERS
+
+    off = ("behaviour",) if args.no_behaviour else tuple(n for n in LAYERS if getattr(args, f"no_{n}"))
     executor = make_executor(args.address, args.workers, args.threads_per_worker, in_process=args.in_process,
                              log=log)
     try:
         summary = run_batch(args.manifest, args.out, executor, chunk_frames=args.chunk_frames or DEFAULT_CHUNK_FRAMES,
-                            progress=not args.no_progress, log=log)
+                            progress=not args.no_progress, log=log, behaviour_off=off)
     finally:
         executor.close()
     counts = ", ".join(f"{n} {k}" for k, n in sorted(summary.counts().items()))
