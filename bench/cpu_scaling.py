@@ -43,7 +43,7 @@ def child(threads: list[int], frames: int, views_out: str) -> dict:
     from bench.live_frame import frames_of_animation
     from holo_viewer.display.eyes import TrackedViewer
     from holo_viewer.pipeline import Pipeline
-    from holo_viewer.pipeline.live import LiveConfig, LiveRenderer
+    from holo_viewer.pipeline.live import NativeFrameConfig, NativeFrameRenderer
     from holo_viewer.render import RenderConfig
 
     pipe = Pipeline()
@@ -52,10 +52,10 @@ def child(threads: list[int], frames: int, views_out: str) -> dict:
     out = {}
     first = None
     for n in threads:
-        cfg = LiveConfig(render=RenderConfig(num_threads=n))
+        cfg = NativeFrameConfig(render=RenderConfig(num_threads=n))
         rec = {}
         for mode in ("full_quilt", "tracked"):
-            live = LiveRenderer(cal, cams, cfg)
+            live = NativeFrameRenderer(cal, cams, cfg)
             viewer = TrackedViewer(0.0, 0.6) if mode == "tracked" else None
             live.frame(anim[0], viewer, mode)  # warm-up; the first tracked frame renders everything
             secs = []

@@ -2,7 +2,7 @@
 
 Default avatar (Pipeline defaults, 100k Gaussians), Portrait calibration, 48 views 420x560. A
 short animation (smile and jaw changing every frame) is deformed first; the timed part of every
-frame is **deformed Gaussians -> native image** (``LiveRenderer.frame``). All from one run:
+frame is **deformed Gaussians -> native image** (``NativeFrameRenderer.frame``). All from one run:
 
 * ``full_quilt``: every view in full, uint8 quilt, interleave (the quality reference). Its views
   are also compared with the float64 reference renderer on ``--ref-views`` views (PSNR).
@@ -74,7 +74,7 @@ from holo_viewer.display.calibration import DisplayCalibration  # noqa: E402
 from holo_viewer.display.simulate import VirtualDisplay  # noqa: E402
 from holo_viewer.errors import HoloViewerError  # noqa: E402
 from holo_viewer.fileio import atomic_write  # noqa: E402
-from holo_viewer.pipeline.live import LiveConfig, LiveRenderer  # noqa: E402
+from holo_viewer.pipeline.live import NativeFrameConfig, NativeFrameRenderer  # noqa: E402
 from holo_viewer.pipeline import Pipeline  # noqa: E402
 from holo_viewer.pipeline import FaceControls  # noqa: E402
 from holo_viewer.render import RenderConfig, render_views  # noqa: E402
@@ -115,7 +115,7 @@ def deformer_on(device: str):
     return deform
 
 
-def gpu_stages(live: LiveRenderer, synth: LiveRenderer, frames: list, reps: int = 20, device: str = "cuda") -> dict:
+def gpu_stages(live: NativeFrameRenderer, synth: NativeFrameRenderer, frames: list, reps: int = 20, device: str = "cuda") -> dict:
     """Where a GPU frame's time goes: each stage alone, synchronised before and after, median of
     ``reps`` (ms). The stages overlap nothing here, so their sum is above a frame's own time."""
     import torch
@@ -172,7 +172,7 @@ def load() -> float:
     return os.getloadavg()[0]
 
 
-def run_mode(live: LiveRenderer, frames: list, mode: str, viewers: list | None = None,
+def run_mode(live: NativeFrameRenderer, frames: list, mode: str, viewers: list | None = None,
              timings: list | None = None) -> tuple[list, float, float]:
     """Frame times (wall), natives (copies) and CPU seconds per frame; each frame's
     ``LiveFrame.timings`` appended to ``timings`` when given."""
@@ -219,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{n_frames} frames per mode, load {load_before:.2f}", flush=True)
 
         # ---- full quality (reference of every other mode)
-        full = LiveRenderer(cal, cams)
+        full = NativeFrameRenderer(cal, cams)
         full.frame(frames[0], mode="full_quilt")  # warm-up (numba cache, buffers)
         full_timings: list = []
         secs, ref_natives, cpu = run_mode(full, frames[1:], "full_quilt", timings=full_timings)
@@ -239,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
         if not args.gpu_only:  # the CPU modes (--gpu-only: only the reference above, then the GPU)
             # ---- untracked, all views, by level of detail
             for frac in ((1.0, 0.5) if args.quick else (1.0, 0.7, 0.5, 0.3)):
-                live = LiveRenderer(cal, cams, LiveConfig(lod_fraction=frac, view_step=1), rest=frames[0])
+                live = NativeFrameRenderer(cal, cams, NativeFrameConfig(lod_fraction=frac, view_step=1), rest=frames[0])
                 live.frame(frames[0], mode="all_views")
                 secs, natives, cpu = run_mode(live, frames[1:], "all_views")
                 p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
@@ -251,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
             # ---- untracked, all views, with the renderer's error-for-blends knobs (every Gaussian kept):
             # a pixel stops after T < t_min (error < t_min there), splats fainter than alpha_threshold skip
             for knobs in (dict(t_min=1e-2, alpha_threshold=2.0 / 255.0),):
-                live = LiveRenderer(cal, cams, LiveConfig(render=RenderConfig(**knobs), view_step=1))
+                live = NativeFrameRenderer(cal, cams, NativeFrameConfig(render=RenderConfig(**knobs), view_step=1))
                 live.frame(frames[0], mode="all_views")
                 secs, natives, cpu = run_mode(live, frames[1:], "all_views")
                 p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
@@ -265,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
             # warped from their rendered neighbours by depth; also the worst eye over a sweep of viewers
             # (what a person anywhere in front of the panel sees), last frame
             for step in ((5,) if args.quick else (2, 3, 4, 5, 6, 8)):
-                live = LiveRenderer(cal, cams, LiveConfig(view_step=step))
+                live = NativeFrameRenderer(cal, cams, NativeFrameConfig(view_step=step))
                 fraction = live.frame(frames[0], mode="all_views").rendered_fraction
                 secs, natives, cpu = run_mode(live, frames[1:], "all_views")
                 p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
@@ -288,8 +288,8 @@ def main(argv: list[str] | None = None) -> int:
                     [("slices", 0.0, 0.0), ("slices", None, None), ("slices", 0.01, 0.05),
                      ("bands", 0.0, 0.0), ("bands", None, None), ("bands", 0.02, 0.05)])
             for method, motion, motion_d in runs:
-                cfg = LiveConfig(motion_m=motion, motion_distance_m=motion_d, tracked=method)
-                live = LiveRenderer(cal, cams, cfg)
+                cfg = NativeFrameConfig(motion_m=motion, motion_distance_m=motion_d, tracked=method)
+                live = NativeFrameRenderer(cal, cams, cfg)
                 live.frame(frames[0], viewers[0], mode="tracked")  # everything, once
                 live.prepare_tracked()  # the slices' one-off tables (a live session builds them while warming up)
                 secs, fracs, worst = [], [], math.inf
@@ -331,7 +331,7 @@ def main(argv: list[str] | None = None) -> int:
 
             # ---- tracked slices near the cone's edge: an eye looks past the last view through part of the
             # panel and receives the next lobe's first views there (rendered exactly through the quilt)
-            live = LiveRenderer(cal, cams)
+            live = NativeFrameRenderer(cal, cams)
             live.frame(frames[0], viewers[0], mode="tracked")
             live.prepare_tracked()
             for angle in ((17.0,) if args.quick else (15.0, 19.0)):
@@ -354,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
                       f"({np.mean(fracs) * 100:.0f} % of tiles)  per-eye {per_eye:.1f} dB (last frame)", flush=True)
 
             # ---- eye-centred: one perspective image per eye, scattered into the subpixels it receives
-            live = LiveRenderer(cal, cams)
+            live = NativeFrameRenderer(cal, cams)
             live.frame(frames[0], mode="full_quilt")
             secs, natives = [], []
             c0 = time.process_time()
@@ -430,7 +430,7 @@ def main(argv: list[str] | None = None) -> int:
 
                 if not torch.cuda.is_available():
                     raise HoloViewerError("no CUDA device")
-                live = LiveRenderer(cal, cams, LiveConfig(backend="gsplat"))
+                live = NativeFrameRenderer(cal, cams, NativeFrameConfig(backend="gsplat"))
                 live.frame(frames[0], mode="all_views")
                 secs, natives, cpu = run_mode(live, frames[1:], "all_views")
                 p = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives))
@@ -442,7 +442,7 @@ def main(argv: list[str] | None = None) -> int:
                 # view synthesis on the device: every step-th view rendered by gsplat, the others warped there
                 synths = {}
                 for step in (3, 5):
-                    synth = synths[step] = LiveRenderer(cal, cams, LiveConfig(backend="gsplat", view_step=step))
+                    synth = synths[step] = NativeFrameRenderer(cal, cams, NativeFrameConfig(backend="gsplat", view_step=step))
                     synth.frame(frames[0], mode="all_views")
                     secs_v, natives_v, _ = run_mode(synth, frames[1:], "all_views")
                     p_v = min(eyes.head_psnr(r / 255.0, n / 255.0) for r, n in zip(ref_natives, natives_v))

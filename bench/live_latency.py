@@ -64,13 +64,13 @@ def onset_latency(tracks: dict, onsets: list[int], k: int) -> list[float]:
 
 def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: str = "auto") -> dict:
     from holo_viewer.live import sources
-    from holo_viewer.live.loop import LiveConfig, LiveSession
-    from holo_viewer.live.render import LiveRenderer
+    from holo_viewer.live.loop import LiveSessionConfig, LiveSession
+    from holo_viewer.live.render import LiveAvatarRenderer
     from holo_viewer.reaction.audio import read_wav
 
-    cfg = LiveConfig(out=str(out), tile_scale=tile_scale, write_native_video=False, flush_s=60.0)
+    cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=False, flush_s=60.0)
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
-    renderer = LiveRenderer(tile_scale=tile_scale, mode=mode) if render else None
+    renderer = LiveAvatarRenderer(tile_scale=tile_scale, mode=mode) if render else None
     t0 = time.perf_counter()
     summary = session.run(renderer)
     wall = time.perf_counter() - t0
@@ -103,12 +103,12 @@ def fit_speed(n: int = 60) -> dict:
     """ms per landmark fit (warm start and cold start) on exact model landmarks + 1 px noise."""
     from holo_viewer.flame.default_head import load_default_model
     from holo_viewer.flame.expressions import default_au_map
-    from holo_viewer.tracking.fit import FitConfig, fit_landmarks, reduction
+    from holo_viewer.tracking.fit import TrackerFitConfig, fit_landmarks, reduction
     from holo_viewer.tracking.head_model import LandmarkHeadModel
 
     hm = LandmarkHeadModel(load_default_model(), default_au_map())
     K = np.array([[554.0, 0, 320], [0, 554, 240], [0, 0, 1]])
-    M = reduction(hm, FitConfig())
+    M = reduction(hm, TrackerFitConfig())
     rng = np.random.default_rng(0)
     warm, cold = [], []
     for _ in range(n):
@@ -132,11 +132,11 @@ def fit_speed(n: int = 60) -> dict:
 
 def rss_run(seconds: float, out: Path) -> dict:
     from holo_viewer.live import sources
-    from holo_viewer.live.loop import LiveConfig, LiveSession
+    from holo_viewer.live.loop import LiveSessionConfig, LiveSession
     from holo_viewer.pipeline.live_support import SyntheticSpeaker
 
     syn = SyntheticSpeaker(seconds)
-    session = LiveSession(LiveConfig(out=str(out), flush_s=5.0), sources.ArrayAudio(syn.waveform), None, syn)
+    session = LiveSession(LiveSessionConfig(out=str(out), flush_s=5.0), sources.ArrayAudio(syn.waveform), None, syn)
     samples = []
     stop = threading.Event()
 

@@ -2,7 +2,7 @@
 
 The live loop renders each frame for the newest viewer pose, which comes from a webcam frame that
 is already some milliseconds old and is smoothed by a One-Euro filter (which trails a moving
-viewer); the frame is shown a render later. ``LiveConfig.predict_viewer`` (default on) renders for
+viewer); the frame is shown a render later. ``LiveSessionConfig.predict_viewer`` (default on) renders for
 the pose extrapolated over the filter's lag plus that lead (``ViewerPose.predicted``).
 
 A viewer at 0.6 m moves along one of three paths, measured by the webcam at 25 fps with
@@ -44,7 +44,7 @@ from holo_viewer.display.calibration import DisplayCalibration  # noqa: E402
 from holo_viewer.display.simulate import VirtualDisplay  # noqa: E402
 from holo_viewer.fileio import atomic_write  # noqa: E402
 from holo_viewer.pipeline import FaceControls, Pipeline  # noqa: E402
-from holo_viewer.pipeline.live import LiveRenderer  # noqa: E402
+from holo_viewer.pipeline.live import NativeFrameRenderer  # noqa: E402
 from holo_viewer.tracking.viewer import ViewerTracker, WebcamMount  # noqa: E402
 
 FPS = 25.0
@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     # an earlier face; the full quilt of the evaluated frames is the reference
     frames = [frame_at(pipe, i / FPS) for i in range(n)]
     evaluated = list(range(int(FPS), n, every))
-    full = LiveRenderer(cal, cams)
+    full = NativeFrameRenderer(cal, cams)
     refs = {i: full.frame(frames[i], mode="full_quilt").native.copy() for i in evaluated}
     display = VirtualDisplay(cal)
 
@@ -112,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         ahead = [p.predicted(args.lead) for p in poses]
         predict_us = (time.perf_counter() - t0) / n * 1e6
         for variant, used in (("filtered", poses), ("predicted", ahead)):
-            live = LiveRenderer(cal, cams)
+            live = NativeFrameRenderer(cal, cams)
             live.prepare_tracked()
             live.frame(frames[0], eyes.TrackedViewer(float(used[0].angle_deg), DISTANCE_M), mode="tracked")
             err = np.array([u.angle_deg for u in used]) - shown

@@ -51,7 +51,7 @@ def test_fit_reduces_the_loss_on_a_tiny_synthetic_case():
     poses = [fa.TrainingPose("neutral", FaceControls()),
              fa.TrainingPose("a", FaceControls(expr=np.array([1.0, -0.5, 0.0, 0.3]))),
              fa.TrainingPose("b", FaceControls(expr=np.array([-0.8, 0.2, 0.6, 0.0]), jaw_pose=[0.2, 0, 0]))]
-    cfg = fa.FitConfig(iterations=150, views_per_step=2, train_scale=1.0, quilt_views=(0, 24, 47),
+    cfg = fa.AvatarFitConfig(iterations=150, views_per_step=2, train_scale=1.0, quilt_views=(0, 24, 47),
                        orbit=((20.0, 0.0),), lr_sh_dc=0.05, lr_opacity=0.05, ssim_weight=0.0,
                        render_timeout_s=None)
     data = fa.build_dataset(pipe, poses, render, cfg, progress=False)

@@ -42,7 +42,7 @@ from holo_viewer.display.simulate import VirtualDisplay  # noqa: E402
 from holo_viewer.display.slices import SubpixelBuckets, scatter_slices  # noqa: E402
 from holo_viewer.display.slices import cpp_available as slices_cpp_available  # noqa: E402
 from holo_viewer.errors import InputError, RenderError  # noqa: E402
-from holo_viewer.pipeline.live import LiveConfig, LiveRenderer  # noqa: E402
+from holo_viewer.pipeline.live import NativeFrameConfig, NativeFrameRenderer  # noqa: E402
 from holo_viewer.render import RenderConfig, crossed_slit as cs, fast  # noqa: E402
 from holo_viewer.render.reference import view_colors  # noqa: E402
 
@@ -182,12 +182,12 @@ def test_slice_rig_refuses_other_cameras(cams):
     with pytest.raises(InputError, match="affine"):  # another panel's cone: not its quilt cameras
         cs.slice_rig(cams, dataclasses.replace(SMALL, view_cone=30.0))
     with pytest.raises(InputError, match="slices"):
-        LiveRenderer(SMALL, Cameras(w2c, cams.K, cams.width, cams.height, cams.near, cams.far),
-                     LiveConfig(tracked="slices"))
+        NativeFrameRenderer(SMALL, Cameras(w2c, cams.K, cams.width, cams.height, cams.near, cams.far),
+                     NativeFrameConfig(tracked="slices"))
     with pytest.raises(InputError, match="tracked"):
-        LiveConfig(tracked="eyes")
+        NativeFrameConfig(tracked="eyes")
     # not a rig: the default falls back to the exact bands
-    live = LiveRenderer(SMALL, Cameras(w2c, cams.K, cams.width, cams.height, cams.near, cams.far))
+    live = NativeFrameRenderer(SMALL, Cameras(w2c, cams.K, cams.width, cams.height, cams.near, cams.far))
     assert live.tracked_method == "bands"
 
 
@@ -421,10 +421,10 @@ def test_view_segments_are_the_view_columns_per_eye():
 @pytest.mark.parametrize("blend", [False, True])
 def test_tracked_slices_frame_against_the_full_path(cams, blend):
     display = VirtualDisplay(SMALL)
-    cfg = LiveConfig(blend=blend, motion_m=0.01, motion_distance_m=0.04, refresh_columns=3)
-    live = LiveRenderer(SMALL, cams, cfg)
+    cfg = NativeFrameConfig(blend=blend, motion_m=0.01, motion_distance_m=0.04, refresh_columns=3)
+    live = NativeFrameRenderer(SMALL, cams, cfg)
     assert live.tracked_method == "slices"
-    reference = LiveRenderer(SMALL, cams, LiveConfig(blend=blend))
+    reference = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(blend=blend))
     g0 = _scene(5, 3000, log_scale=(-6.0, -4.5))
     rng = np.random.default_rng(7)
     live.frame(g0, eyes.TrackedViewer(0.0, 0.6))
@@ -447,8 +447,8 @@ def test_tracked_slices_at_the_cone_edge(cams, angle, blend):
     views the eye's slice cannot hold, so they are rendered exactly through the quilt. Per eye
     > 40 dB against the full path (the slices alone gave 15-34 dB here)."""
     display = VirtualDisplay(SMALL)
-    live = LiveRenderer(SMALL, cams, LiveConfig(blend=blend, motion_m=0.005, motion_distance_m=0.02, refresh_columns=0))
-    reference = LiveRenderer(SMALL, cams, LiveConfig(blend=blend))
+    live = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(blend=blend, motion_m=0.005, motion_distance_m=0.02, refresh_columns=0))
+    reference = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(blend=blend))
     g = _scene(6, 3000, log_scale=(-6.0, -4.5))
     live.frame(_moved(g, 0), eyes.TrackedViewer(0.0, 0.6))  # everything, from another frame
     viewer = eyes.TrackedViewer(angle, 0.6)
@@ -470,7 +470,7 @@ def test_prepare_tracked_builds_the_first_frames_tables(cams, tracked):
     """prepare_tracked builds every one-off table a tracked frame needs (the slices' subpixel
     buckets; the interleaver's column readers or keys), so the first tracked frame of a live
     session builds none of them, and it runs once."""
-    live = LiveRenderer(SMALL, cams, LiveConfig(tracked=tracked, refresh_columns=2))
+    live = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(tracked=tracked, refresh_columns=2))
     il = live.interleaver
     assert getattr(il, "_readers", None) is None and getattr(il, "_keys", None) is None
     live.prepare_tracked()
@@ -491,7 +491,7 @@ def test_prepare_tracked_after_frames_changes_no_image(cams, tracked):
     """prepare_tracked also runs the slices frame's compiled kernels once (on no centre, no
     subpixel, and one tile column of the quilt rewritten from its own views): the kept views, the
     quilt and the native image are left exactly as they were."""
-    live = LiveRenderer(SMALL, cams, LiveConfig(tracked=tracked, refresh_columns=2))
+    live = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(tracked=tracked, refresh_columns=2))
     live.frame(_scene(4, 500), eyes.TrackedViewer(0.0, 0.6), mode="tracked")  # everything
     before = [a.copy() for a in (live.views, live.quilt, live.native)]
     assert before[1].any() and before[2].any()

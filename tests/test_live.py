@@ -99,11 +99,11 @@ def test_missing_devices_are_named(tmp_path, capsys, monkeypatch):
 def test_ctrl_c_keeps_the_session(tmp_path):
     """An interruption mid-session leaves a complete folder up to that point."""
     from holo_viewer.live import sources
-    from holo_viewer.live.loop import LiveConfig, LiveSession
+    from holo_viewer.live.loop import LiveSessionConfig, LiveSession
     from holo_viewer.pipeline.live_support import SyntheticSpeaker
 
     syn = SyntheticSpeaker(3.0)
-    session = LiveSession(LiveConfig(out=str(tmp_path / "s")), sources.ArrayAudio(syn.waveform), None, syn)
+    session = LiveSession(LiveSessionConfig(out=str(tmp_path / "s")), sources.ArrayAudio(syn.waveform), None, syn)
 
     class Interrupting:  # a renderer that is interrupted on its second real frame (the first is the warm-up)
         calls = 0
@@ -172,16 +172,16 @@ _PREVIEW_SCRIPT = r"""
 import sys, subprocess, time, threading
 import numpy as np
 from holo_viewer.live import sources
-from holo_viewer.live.loop import LiveConfig, LiveSession
-from holo_viewer.live.render import LiveRenderer
+from holo_viewer.live.loop import LiveSessionConfig, LiveSession
+from holo_viewer.live.render import LiveAvatarRenderer
 from holo_viewer.live.windows import open_preview
 from holo_viewer.pipeline.live_support import SyntheticSpeaker
 
 syn = SyntheticSpeaker(4.0)
 preview = open_preview(210, 280)
-session = LiveSession(LiveConfig(out=sys.argv[1], tile_scale=0.1, preview=True, pain=0.2),
+session = LiveSession(LiveSessionConfig(out=sys.argv[1], tile_scale=0.1, preview=True, pain=0.2),
                       sources.ArrayAudio(syn.waveform), None, syn)
-renderer = LiveRenderer(tile_scale=0.1, native=False, preview=True)
+renderer = LiveAvatarRenderer(tile_scale=0.1, native=False, preview=True)
 pressed = []
 def press(keys):
     time.sleep(1.5)
@@ -226,7 +226,7 @@ def test_webcam_lost_mid_session_degrades(clip, tmp_path):
     """The video stops after 0.4 s (a webcam unplugged): the session goes on with the audio, the face
     is marked lost and the status says so."""
     from holo_viewer.live import sources
-    from holo_viewer.live.loop import LiveConfig, LiveSession
+    from holo_viewer.live.loop import LiveSessionConfig, LiveSession
     from holo_viewer.tracking.video import iter_video_frames
 
     frames = [(t, f) for t, f in iter_video_frames(clip["video"]) if t < 0.4]
@@ -246,7 +246,7 @@ def test_webcam_lost_mid_session_degrades(clip, tmp_path):
                 self.status = "webcam lost"
             return seen[-1] if seen else None
 
-    session = LiveSession(LiveConfig(out=str(tmp_path / "s")), sources.WavReplay(clip["wav"]), Unplugged())
+    session = LiveSession(LiveSessionConfig(out=str(tmp_path / "s")), sources.WavReplay(clip["wav"]), Unplugged())
     summary = session.run(None)
     s = _check_session(tmp_path / "s", n_frames=40)
     found = s["tracks"]["speaker_found"]
@@ -299,9 +299,9 @@ def test_panel_window_under_xvfb(tmp_path, xvfb_server):
 
 def test_auto_render_mode_renders_for_the_eyes_only_while_a_face_is_tracked():
     """The live command's default: tracked frames while the tracker sees a face, all views otherwise."""
-    from holo_viewer.live.render import LiveRenderer
+    from holo_viewer.live.render import LiveAvatarRenderer
 
-    r = LiveRenderer(tile_scale=0.1, native=True, preview=False, mode="auto")
+    r = LiveAvatarRenderer(tile_scale=0.1, native=True, preview=False, mode="auto")
     calls = []
     frame = r._live.frame
     r._live.frame = lambda g, viewer, mode: calls.append((viewer, mode)) or frame(g, viewer, mode)
@@ -313,7 +313,7 @@ def test_auto_render_mode_renders_for_the_eyes_only_while_a_face_is_tracked():
     from holo_viewer.errors import InputError
 
     with pytest.raises(InputError, match="auto"):
-        LiveRenderer(tile_scale=0.1, mode="eyes")
+        LiveAvatarRenderer(tile_scale=0.1, mode="eyes")
 
 
 def test_live_backend_auto_is_fast_without_cuda_and_gsplat_needs_it(tmp_path, capsys):
@@ -342,7 +342,7 @@ def test_live_loop_on_gsplat_renders_every_view_on_the_device(monkeypatch):
     renderer for gsplat: the native image must be the CPU path's exact all-views frame (every view
     rendered) up to one level of rounding."""
     torch = pytest.importorskip("torch")
-    from holo_viewer.live.render import LiveRenderer
+    from holo_viewer.live.render import LiveAvatarRenderer
     from holo_viewer.render import fast, gsplat_backend
 
     def cpu_render_device(g, cameras, config=None, views_per_call=None):
@@ -350,7 +350,7 @@ def test_live_loop_on_gsplat_renders_every_view_on_the_device(monkeypatch):
 
     monkeypatch.setattr(gsplat_backend, "is_available", lambda: True)
     monkeypatch.setattr(gsplat_backend, "render_device", cpu_render_device)
-    r = LiveRenderer(tile_scale=0.1, native=True, preview=False, mode="auto")
+    r = LiveAvatarRenderer(tile_scale=0.1, native=True, preview=False, mode="auto")
     assert r.backend == "gsplat" and r._live.config.backend == "gsplat"
     calls = []
     frame = r._live.frame
@@ -359,7 +359,7 @@ def test_live_loop_on_gsplat_renders_every_view_on_the_device(monkeypatch):
     tracked = r.render(listener, 0.6, (), 5.0, 0.7, True).native
     untracked = r.render(listener, 0.6, (), 5.0, 0.7, False).native
     assert calls == [(None, "all_views"), (None, "all_views")]
-    exact = LiveRenderer(tile_scale=0.1, native=True, preview=False, mode="all_views", backend="fast", view_step=1)
+    exact = LiveAvatarRenderer(tile_scale=0.1, native=True, preview=False, mode="all_views", backend="fast", view_step=1)
     ref = exact.render(listener, 0.6, (), 5.0, 0.7, False).native
     for img in (tracked, untracked):
         diff = np.abs(img.astype(int) - ref.astype(int))
@@ -371,7 +371,7 @@ def test_live_backend_auto_falls_back_to_the_cpu_when_gsplat_fails(monkeypatch):
     """gsplat builds its CUDA kernels on first use, which can fail (no compiler, a driver
     mismatch): ``auto`` then renders on the CPU with a warning; an explicit ``gsplat`` says why."""
     from holo_viewer.errors import RenderError
-    from holo_viewer.live.render import LiveRenderer
+    from holo_viewer.live.render import LiveAvatarRenderer
     from holo_viewer.render import gsplat_backend
 
     def broken(*args, **kwargs):
@@ -381,14 +381,14 @@ def test_live_backend_auto_falls_back_to_the_cpu_when_gsplat_fails(monkeypatch):
     monkeypatch.setattr(gsplat_backend, "_import", lambda: None)
     monkeypatch.setattr(gsplat_backend, "render_device", broken)
     with pytest.warns(RuntimeWarning, match="nvcc not found"):
-        r = LiveRenderer(tile_scale=0.1, native=True, preview=False, mode="auto")
+        r = LiveAvatarRenderer(tile_scale=0.1, native=True, preview=False, mode="auto")
     assert r.backend == "fast" and r._live.config.backend == "fast" and r.pipeline.backend == "fast"
     assert r.render({"expr": np.zeros(10)}, 0.3, (), 5.0, 0.7, True).native.shape == (2048, 1536, 3)
     with pytest.raises(RenderError, match="nvcc not found.*--backend fast"):
-        LiveRenderer(tile_scale=0.1, native=True, preview=False, mode="auto", backend="gsplat")
+        LiveAvatarRenderer(tile_scale=0.1, native=True, preview=False, mode="auto", backend="gsplat")
     monkeypatch.setattr(gsplat_backend, "render", broken)  # cone: the pipeline renders the views
     with pytest.warns(RuntimeWarning, match="nvcc not found"):
-        cone = LiveRenderer(tile_scale=0.1, native=False, preview=True, mode="cone")
+        cone = LiveAvatarRenderer(tile_scale=0.1, native=False, preview=True, mode="cone")
     assert cone.backend == cone.pipeline.backend == "fast"
 
 
@@ -397,12 +397,12 @@ def test_render_pose_predicts_where_the_viewer_will_be(tmp_path):
     the last renders (predict_viewer, the default); without prediction, or for an untracked pose,
     for the pose as it is."""
     from holo_viewer.live import sources
-    from holo_viewer.live.loop import LiveConfig, LiveSession
+    from holo_viewer.live.loop import LiveSessionConfig, LiveSession
     from holo_viewer.tracking.viewer import ViewerPose
 
     now = [10.0]
     for predict in (True, False):
-        session = LiveSession(LiveConfig(out=str(tmp_path / f"s{int(predict)}"), predict_viewer=predict),
+        session = LiveSession(LiveSessionConfig(out=str(tmp_path / f"s{int(predict)}"), predict_viewer=predict),
                               sources.ArrayAudio(np.zeros(16000, np.float32)), None, clock=lambda: now[0])
         session._start = 0.0  # media time = clock
         session.render_ms = [50.0, 70.0, 60.0]

@@ -34,7 +34,7 @@ from holo_viewer.display.lenticular import Interleaver  # noqa: E402
 from holo_viewer.display.quilt import tile_quilt  # noqa: E402
 from holo_viewer.display.simulate import VirtualDisplay  # noqa: E402
 from holo_viewer.errors import InputError, RenderError  # noqa: E402
-from holo_viewer.pipeline.live import LiveConfig, LiveRenderer, read_pixels, render_native  # noqa: E402
+from holo_viewer.pipeline.live import NativeFrameConfig, NativeFrameRenderer, read_pixels, render_native  # noqa: E402
 from holo_viewer.render import RenderConfig, fast  # noqa: E402
 from holo_viewer.render.lod import contribution, lod_keep  # noqa: E402
 
@@ -260,9 +260,9 @@ def small_cameras():
 @pytest.mark.parametrize("blend", [False, True])
 def test_tracked_frame_matches_full_path_where_eyes_see(display, small_cameras, blend):
     rng = np.random.default_rng(int(blend))
-    cfg = LiveConfig(blend=blend, motion_m=0.01, motion_distance_m=0.04, refresh_columns=5, tracked="bands")
-    live = LiveRenderer(SMALL, small_cameras, cfg)
-    reference = LiveRenderer(SMALL, small_cameras, cfg)
+    cfg = NativeFrameConfig(blend=blend, motion_m=0.01, motion_distance_m=0.04, refresh_columns=5, tracked="bands")
+    live = NativeFrameRenderer(SMALL, small_cameras, cfg)
+    reference = NativeFrameRenderer(SMALL, small_cameras, cfg)
     g0 = _scene(0)
     first = live.frame(g0, eyes.TrackedViewer(0.0, 0.6))
     assert first.mode == "full_quilt" and first.rendered_fraction == 1.0  # nothing to keep yet
@@ -285,14 +285,14 @@ def test_tracked_frame_matches_full_path_where_eyes_see(display, small_cameras, 
 
 def test_full_quilt_and_all_views_modes(small_cameras):
     g = _scene(1)
-    live = LiveRenderer(SMALL, small_cameras, LiveConfig(view_step=1))  # every view: exact
+    live = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(view_step=1))  # every view: exact
     f = live.frame(g, mode="full_quilt")
     views = fast.render(g, small_cameras, RenderConfig()).images
     expected = Interleaver(SMALL, (840, 840, 3))(tile_quilt(views, 8, 6, as_uint8=True))
     np.testing.assert_array_equal(f.native, expected)
     assert live.frame(g).mode == "all_views"
     np.testing.assert_array_equal(live.frame(g, mode="all_views").native, expected)
-    lod = LiveRenderer(SMALL, small_cameras, LiveConfig(lod_fraction=0.5, view_step=1)).frame(g)
+    lod = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(lod_fraction=0.5, view_step=1)).frame(g)
     assert lod.mode == "all_views" and not np.array_equal(lod.native, expected)
     assert eyes.psnr(expected / 255.0, lod.native / 255.0) > 15.0
     with pytest.raises(InputError, match="viewer"):
@@ -323,8 +323,8 @@ def test_prepare_all_views_changes_no_frame(small_cameras):
     """prepare_all_views builds the synthesized frames' read table once, leaves the images as
     they were, and the next all_views frames are those of a renderer that was not prepared."""
     g = _scene(2)
-    live = LiveRenderer(SMALL, small_cameras, LiveConfig(view_step=3))
-    plain = LiveRenderer(SMALL, small_cameras, LiveConfig(view_step=3))
+    live = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(view_step=3))
+    plain = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(view_step=3))
     live.frame(g, mode="all_views")
     plain.frame(g, mode="all_views")
     table = live._sampled
@@ -338,9 +338,9 @@ def test_prepare_all_views_changes_no_frame(small_cameras):
         np.testing.assert_array_equal(a, b)
     # a prepared renderer's first frame is the first frame of one that builds the table lazily
     # (mid-frame, after the frame's depth maps: the warm-up must not touch them)
-    fresh = LiveRenderer(SMALL, small_cameras, LiveConfig(view_step=3))
+    fresh = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(view_step=3))
     fresh.prepare_all_views()
-    lazy = LiveRenderer(SMALL, small_cameras, LiveConfig(view_step=3))
+    lazy = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(view_step=3))
     g2 = _moved(g, 0)
     np.testing.assert_array_equal(fresh.frame(g2, mode="all_views").native, lazy.frame(g2, mode="all_views").native)
     np.testing.assert_array_equal(fresh.native, plain.frame(g2, mode="all_views").native)
@@ -361,8 +361,8 @@ def test_eye_cameras_reproduce_the_quilt_cameras(small_cameras):
 
 def test_eye_centred_writes_only_received_subpixels(display, small_cameras):
     g = _scene(4)
-    cfg = LiveConfig()
-    live = LiveRenderer(SMALL, small_cameras, cfg)
+    cfg = NativeFrameConfig()
+    live = NativeFrameRenderer(SMALL, small_cameras, cfg)
     before = live.frame(g, mode="full_quilt").native.copy()
     viewer = eyes.TrackedViewer(4.0, 0.6)
     f = live.frame(_moved(g, 4), viewer, mode="eye_centred")
@@ -448,11 +448,11 @@ def test_gsplat_device_path_matches_fast_native():
         pytest.skip("needs CUDA and gsplat")
     g = _scene(3)
     cams = make_quilt_cameras(SMALL, focal_center=(0.0, 0.0, 0.0), size=0.12, near=0.01, far=10.0)
-    fast_native = LiveRenderer(SMALL, cams).frame(g, mode="full_quilt").native.copy()
-    gpu = LiveRenderer(SMALL, cams, LiveConfig(backend="gsplat")).frame(g, mode="full_quilt").native
+    fast_native = NativeFrameRenderer(SMALL, cams).frame(g, mode="full_quilt").native.copy()
+    gpu = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(backend="gsplat")).frame(g, mode="full_quilt").native
     assert eyes.psnr(fast_native / 255.0, gpu / 255.0) > 40.0
     # view synthesis on the device against the same on the CPU (renders differ as above; the
     # synthesis is the same algorithm, float32 there)
-    fast_synth = LiveRenderer(SMALL, cams, LiveConfig(view_step=5)).frame(g, mode="all_views").native.copy()
-    gpu_synth = LiveRenderer(SMALL, cams, LiveConfig(backend="gsplat", view_step=5)).frame(g, mode="all_views").native
+    fast_synth = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(view_step=5)).frame(g, mode="all_views").native.copy()
+    gpu_synth = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(backend="gsplat", view_step=5)).frame(g, mode="all_views").native
     assert eyes.psnr(fast_synth / 255.0, gpu_synth / 255.0) > 35.0

@@ -84,11 +84,11 @@ def test_embedding_back_projection_is_exact():
 
 def test_fit_recovers_synthetic_landmarks(head):
     """On the model's own projections + 0.5 px noise the fit recovers rotation within 1 deg, jaw 1.5 deg."""
-    from holo_viewer.tracking.fit import FitConfig, fit_landmarks, reduction
+    from holo_viewer.tracking.fit import TrackerFitConfig, fit_landmarks, reduction
 
     rng = np.random.default_rng(2)
     K = np.array([[550.0, 0, 320], [0, 550, 240], [0, 0, 1]])
-    M = reduction(head, FitConfig())
+    M = reduction(head, TrackerFitConfig())
     for _ in range(5):
         q = np.zeros(M.shape[1])
         nqa = M.shape[1] - 7
@@ -110,7 +110,7 @@ def test_fit_recovers_synthetic_landmarks(head):
 
 
 def test_fit_rejects_bad_landmarks(head):
-    from holo_viewer.tracking.fit import FitConfig, fit_landmarks
+    from holo_viewer.tracking.fit import TrackerFitConfig, fit_landmarks
 
     K = np.eye(3)
     with pytest.raises(InputError, match="landmarks"):
@@ -120,7 +120,7 @@ def test_fit_rejects_bad_landmarks(head):
     with pytest.raises(TrackingError, match="inter-ocular"):
         fit_landmarks(head, np.zeros((68, 2)), K)
     with pytest.raises(InputError, match="AU26"):
-        FitConfig(aus=("AU26",))
+        TrackerFitConfig(aus=("AU26",))
 
 
 def test_one_euro_filter_smooths_and_lags_little():

@@ -30,7 +30,7 @@ from holo_viewer.display import eyes  # noqa: E402
 from holo_viewer.display.calibration import DisplayCalibration  # noqa: E402
 from holo_viewer.display.cameras import make_quilt_cameras  # noqa: E402
 from holo_viewer.errors import InputError  # noqa: E402
-from holo_viewer.pipeline.live import AUTO_VIEW_STEP, LiveConfig, LiveRenderer  # noqa: E402
+from holo_viewer.pipeline.live import AUTO_VIEW_STEP, NativeFrameConfig, NativeFrameRenderer  # noqa: E402
 from holo_viewer.render import view_synthesis as vs  # noqa: E402
 
 CAL = DisplayCalibration.load(None)
@@ -212,11 +212,11 @@ def _surface(seed: int, n: int = 6000) -> Gaussians:
 
 def test_all_views_with_synthesis_against_every_view(cams):
     g = _surface(0)
-    exact = LiveRenderer(SMALL, cams, LiveConfig(view_step=1))
+    exact = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(view_step=1))
     ref = exact.frame(g, mode="all_views")
     assert exact.view_step == 1 and ref.rendered_fraction == 1.0
     np.testing.assert_array_equal(ref.native, exact.frame(g, mode="full_quilt").native)
-    live = LiveRenderer(SMALL, cams, LiveConfig(view_step=2))
+    live = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(view_step=2))
     f = live.frame(g, mode="all_views")
     assert f.mode == "all_views" and f.rendered_fraction == len(vs.source_views(len(cams), 2)) / len(cams)
     assert {"depth", "warp"} <= set(f.timings)
@@ -224,7 +224,7 @@ def test_all_views_with_synthesis_against_every_view(cams):
     assert 40.0 < p2 < np.inf
     # a plain cross-fade (the same sources, depth ignored: every pixel at the zero-disparity
     # plane) is worse: the depth compensation is what the warp adds
-    flat = LiveRenderer(SMALL, cams, LiveConfig(view_step=2))
+    flat = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(view_step=2))
     flat.frame(g, mode="all_views")
     orig = vs.inverse_depth
 
@@ -243,15 +243,15 @@ def test_all_views_with_synthesis_against_every_view(cams):
 
 
 def test_view_step_default_and_errors(cams):
-    assert LiveRenderer(SMALL, cams).view_step == AUTO_VIEW_STEP
+    assert NativeFrameRenderer(SMALL, cams).view_step == AUTO_VIEW_STEP
     w2c = cams.world_to_cam.copy()
     w2c[1, 1, 3] += 0.01  # one camera raised: not a horizontal rig
     odd = dataclasses.replace(cams, world_to_cam=w2c)
-    assert LiveRenderer(SMALL, odd).view_step == 1  # default: renders every view
+    assert NativeFrameRenderer(SMALL, odd).view_step == 1  # default: renders every view
     with pytest.raises(InputError, match="horizontal rig"):
-        LiveRenderer(SMALL, odd, LiveConfig(view_step=3))
+        NativeFrameRenderer(SMALL, odd, NativeFrameConfig(view_step=3))
     with pytest.raises(InputError, match="view_step"):
-        LiveConfig(view_step=0)
+        NativeFrameConfig(view_step=0)
 
 
 def test_torch_twins_match_the_numba_path(cams):
@@ -293,9 +293,9 @@ def test_device_path_glue_on_cpu_torch(cams, monkeypatch):
 
     monkeypatch.setattr(live_mod, "LIVE_T_MIN", 0.0)  # gsplat's termination is compiled in: compare at the config's
     g = _surface(4)
-    cpu = LiveRenderer(SMALL, cams, LiveConfig(view_step=5)).frame(g, mode="all_views")
-    assert LiveRenderer(SMALL, cams, LiveConfig(backend="gsplat")).view_step == 1  # does not pay on GPUs: opt-in
-    dev = LiveRenderer(SMALL, cams, LiveConfig(backend="gsplat", view_step=5))
+    cpu = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(view_step=5)).frame(g, mode="all_views")
+    assert NativeFrameRenderer(SMALL, cams, NativeFrameConfig(backend="gsplat")).view_step == 1  # does not pay on GPUs: opt-in
+    dev = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(backend="gsplat", view_step=5))
     f = dev.frame(g, mode="all_views")
     assert f.rendered_fraction == cpu.rendered_fraction < 1.0
     diff = np.abs(f.native.astype(int) - cpu.native.astype(int))
@@ -303,7 +303,7 @@ def test_device_path_glue_on_cpu_torch(cams, monkeypatch):
 
 
 def test_live_loop_all_views_uses_synthesis_and_replay_renders_every_view():
-    from holo_viewer.live.render import LiveRenderer as LoopRenderer
+    from holo_viewer.live.render import LiveAvatarRenderer as LoopRenderer
 
     listener = {"expr": np.zeros(50), "jaw_pose": np.array([0.1, 0.0, 0.0]), "rotation": np.zeros(3)}
     loop = LoopRenderer(tile_scale=0.25, native=True, preview=False, mode="all_views", render_threads=1)

@@ -17,7 +17,7 @@ The GaussianAvatars training recipe [Qian et al. CVPR'24] with the mesh renders 
    0 by default: SSIM's convolutions cost as much as the render on this CPU) plus GaussianAvatars'
    regularisers ``w_pos mean(relu(|mu| - eps_pos))`` and ``w_scale mean(relu(exp(log_s) -
    eps_scale))`` (local units: the face scale).
-4. *Optimiser.* Adam, per-parameter learning rates (:class:`FitConfig`), position learning rate
+4. *Optimiser.* Adam, per-parameter learning rates (:class:`AvatarFitConfig`), position learning rate
    decayed exponentially; one (pose, camera) image per step; the first ``1 - crop_fraction`` of
    the steps on the whole image at ``train_scale`` (box-downsampled target), the rest on
    full-resolution crops of the same pixel count centred on a random mesh pixel. Rendering with
@@ -49,7 +49,7 @@ from ..render.config import RenderConfig
 from ..render.differentiable import render_view
 from ..pipeline.settings import FaceControls
 
-__all__ = ["FitConfig", "FitResult", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "surface_colors",
+__all__ = ["AvatarFitConfig", "AvatarFit", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "surface_colors",
            "orbit_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity", "masked_psnr"]
 
 #: (mesh vertices, faces, cameras, indices) -> ((n, H, W, 3) float images in [0, 1], (n, H, W) bool masks)
@@ -57,7 +57,7 @@ TargetRenderer = Callable[[np.ndarray, np.ndarray, Cameras, Sequence[int]], "tup
 
 
 @dataclass(frozen=True)
-class FitConfig:
+class AvatarFitConfig:
     """Fit settings (defaults: the shipped default avatar; see docs/avatar_fit.md)."""
 
     iterations: int = 3000
@@ -96,7 +96,7 @@ class TrainingPose:
 
 
 @dataclass
-class FitResult:
+class AvatarFit:
     """The fitted local Gaussians (numpy float32), the loss per iteration and the timings (s)."""
 
     local: Gaussians
@@ -319,7 +319,7 @@ def _render_isolated(target_renderer: TargetRenderer, verts: np.ndarray, faces: 
 
 
 def build_dataset(pipe: Any, poses: Sequence[TrainingPose], target_renderer: TargetRenderer,
-                  config: FitConfig, progress: bool = True) -> Dataset:
+                  config: AvatarFitConfig, progress: bool = True) -> Dataset:
     """Render every pose through the training cameras (quilt subset + orbit), full resolution.
 
     ``pipe`` is a mesh pipeline (``Pipeline(model, avatar=False)``) of the head the avatar is bound to.
@@ -383,8 +383,9 @@ def _ssim(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 # =============================================================================== fit
 
 
-def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset, config: FitConfig = FitConfig(),
-                  progress: bool = True, render_config: RenderConfig | None = None) -> FitResult:
+def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
+                  config: AvatarFitConfig = AvatarFitConfig(), progress: bool = True,
+                  render_config: RenderConfig | None = None) -> AvatarFit:
     """Optimise the local Gaussians against ``data`` (see the module docstring).
 
     Parameters
@@ -473,7 +474,7 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset, config: 
                         params["log_scales"].numpy().astype(np.float32),
                         params["opacity"].numpy().astype(np.float32), sh.numpy().astype(np.float32),
                         extra=dict(local.extra))
-    return FitResult(out, losses, {"fit": time.perf_counter() - t0}, int(n_pose * n_cam))
+    return AvatarFit(out, losses, {"fit": time.perf_counter() - t0}, int(n_pose * n_cam))
 
 
 def initial_with_surface_colors(local: Gaussians, binding: np.ndarray, model: Any,
@@ -531,6 +532,6 @@ def fidelity(avatar: Any, faces: dict[str, FaceControls], views: Sequence[int], 
     return out
 
 
-def replace_config(config: FitConfig, **changes: Any) -> FitConfig:
+def replace_config(config: AvatarFitConfig, **changes: Any) -> AvatarFitConfig:
     """A copy of ``config`` with some fields replaced."""
     return dataclasses.replace(config, **changes)

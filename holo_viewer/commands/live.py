@@ -58,8 +58,8 @@ def run(args: argparse.Namespace) -> int:
     (through HoloViewerError) for a missing device or bad input."""
     from ..errors import InputError
     from ..live.controls import Scenario
-    from ..live.loop import LiveConfig, LiveSession
-    from ..live.render import LiveRenderer
+    from ..live.loop import LiveSessionConfig, LiveSession
+    from ..live.render import LiveAvatarRenderer
     from ..live import sources
     from ..pipeline.live_support import SyntheticSpeaker
     from ..tracking.viewer import WebcamMount
@@ -83,15 +83,16 @@ def run(args: argparse.Namespace) -> int:
         video = sources.VideoReplay(args.video) if args.video else sources.Webcam(args.camera)
     settings = {k: v for k, v in vars(args).items() if not k.startswith("_") and k != "command"}
     settings["sources"] = {"audio": audio.name, "video": None if video is None else video.name}
-    config = LiveConfig(out=args.out, frames=args.frames, tile_scale=args.tile_scale, preview=not args.headless and
-                        not args.no_preview, panel=args.panel and not args.headless, monitor=args.monitor,
-                        video_fps=args.video_fps, record_video=args.record_video, pain=args.pain,
-                        temperature=args.temperature, seed=args.seed, hfov_deg=mount.hfov_deg, mount=mount,
-                        viewer_mode="group" if args.group else "nearest",
-                        predict_viewer=not args.no_viewer_prediction, scenario=scenario,
-                        max_seconds=args.seconds, settings=settings)
-    renderer = LiveRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview, mode=args.render_mode,
-                            backend=args.backend)
+    config = LiveSessionConfig(out=args.out, frames=args.frames, tile_scale=args.tile_scale,
+                               preview=not args.headless and not args.no_preview,
+                               panel=args.panel and not args.headless, monitor=args.monitor,
+                               video_fps=args.video_fps, record_video=args.record_video, pain=args.pain,
+                               temperature=args.temperature, seed=args.seed, hfov_deg=mount.hfov_deg, mount=mount,
+                               viewer_mode="group" if args.group else "nearest",
+                               predict_viewer=not args.no_viewer_prediction, scenario=scenario,
+                               max_seconds=args.seconds, settings=settings)
+    renderer = LiveAvatarRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview,
+                                  mode=args.render_mode, backend=args.backend)
     settings["render_backend"] = renderer.backend  # what "auto" chose (session.json)
     session = LiveSession(config, audio, video, synthetic)
     panel = preview = None

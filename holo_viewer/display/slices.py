@@ -1,6 +1,6 @@
 """Eye slices straight into the native subpixels a tracked viewer's eyes receive (pure array code).
 
-A tracked frame (``LiveConfig(tracked="slices")``) renders one crossed-slit image per eye
+A tracked frame (``NativeFrameConfig(tracked="slices")``) renders one crossed-slit image per eye
 (:mod:`holo_viewer.render.crossed_slit`) instead of bands of the 48 views. Every native subpixel
 that can send light to an eye (:func:`~holo_viewer.display.eyes.view_segments`: the views within
 reach of the eye's view coordinate, per native column, over the head-motion margin) gets the

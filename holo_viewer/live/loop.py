@@ -5,7 +5,7 @@ Threads (docs/design.md "A live loop that never waits")::
     tracker thread   newest video frame -> FaceTracker -> latest speaker state + ViewerTracker pose
     reaction thread  25 fps clock: audio up to the frame + latest speaker state -> ReactionStream
                      (one model step every k frames) -> listener frame t, recorded in the session
-    main thread      latest listener frame + viewer pose + pain -> LiveRenderer -> panel window /
+    main thread      latest listener frame + viewer pose + pain -> LiveAvatarRenderer -> panel window /
                      preview window / native.mp4; keys; stops when the sources end, at --frames,
                      on q/Esc or Ctrl-C
 
@@ -31,7 +31,7 @@ from ..tracking.viewer import ViewerPose
 from .controls import Controls, Scenario
 from .session import SessionRecorder
 
-__all__ = ["LiveConfig", "LiveSession"]
+__all__ = ["LiveSessionConfig", "LiveSession"]
 
 FPS = 25
 #: seconds without a new tracked frame after which the speaker face decays to neutral
@@ -39,7 +39,7 @@ STALE_S = 0.5
 
 
 @dataclass(frozen=True)
-class LiveConfig:
+class LiveSessionConfig:
     """Settings of a live session (see ``holo-viewer live --help``)."""
 
     out: str = "session"
@@ -88,7 +88,7 @@ class LiveSession:
 
     Parameters
     ----------
-    config : LiveConfig
+    config : LiveSessionConfig
     audio : audio source (``sources.ArrayAudio`` / ``WavReplay`` / ``Microphone``)
     video : video source (``sources.VideoReplay`` / ``Webcam``) or None (synthetic speaker / audio only)
     synthetic : holo_viewer.pipeline.live_support.SyntheticSpeaker or None
@@ -97,7 +97,7 @@ class LiveSession:
         Seconds (``time.perf_counter``).
     """
 
-    def __init__(self, config: LiveConfig, audio: Any, video: Any = None, synthetic: Any = None,
+    def __init__(self, config: LiveSessionConfig, audio: Any, video: Any = None, synthetic: Any = None,
                  clock: Callable[[], float] = time.perf_counter) -> None:
         self.config = config
         self.audio = audio
@@ -286,7 +286,7 @@ class LiveSession:
             on_frame: Callable[[Any], None] | None = None) -> dict:
         """Run until the sources end, ``frames`` are displayed, quit, or Ctrl-C; returns the summary.
 
-        ``renderer``: a :class:`~holo_viewer.live.render.LiveRenderer` (None: no rendering, the
+        ``renderer``: a :class:`~holo_viewer.live.render.LiveAvatarRenderer` (None: no rendering, the
         session is still recorded); ``panel``/``preview``: objects with ``show(image)`` (and an
         optional ``poll()`` returning key symbols).
         """

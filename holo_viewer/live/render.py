@@ -31,7 +31,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ["LiveRenderer", "RenderedFrame", "resolve_backend"]
+__all__ = ["LiveAvatarRenderer", "RenderedFrame", "resolve_backend"]
 
 BACKENDS = ("auto", "fast", "gsplat")
 
@@ -62,7 +62,7 @@ class RenderedFrame:
     seconds: float
 
 
-class LiveRenderer:
+class LiveAvatarRenderer:
     """Render the default avatar for the live loop through :class:`holo_viewer.pipeline.Pipeline`.
 
     Parameters
@@ -88,7 +88,7 @@ class LiveRenderer:
         left it mostly idle: on 2 cores the render took 84 ms a frame instead of 55.
     view_step : int or None
         ``all_views``: render every view_step-th view and synthesize the others by depth
-        (:class:`holo_viewer.pipeline.live.LiveConfig`; None: the live default, 5; 1: every view).
+        (:class:`holo_viewer.pipeline.live.NativeFrameConfig`; None: the live default, 5; 1: every view).
     """
 
     def __init__(self, tile_scale: float = 1.0, native: bool = True, preview: bool = False, backend: str = "auto",
@@ -136,11 +136,10 @@ class LiveRenderer:
             if self.backend == "gsplat":
                 self.pipeline.render_view(0)
             return
-        from ..pipeline.live import LiveConfig, LiveRenderer as FrameRenderer
+        from ..pipeline.live import NativeFrameConfig, NativeFrameRenderer
 
-        self._live = FrameRenderer(self.pipeline.calibration, self.pipeline.cameras(),
-                                   LiveConfig(render=RenderConfig(num_threads=threads), view_step=view_step,
-                                              backend=self.backend))
+        config = NativeFrameConfig(render=RenderConfig(num_threads=threads), view_step=view_step, backend=self.backend)
+        self._live = NativeFrameRenderer(self.pipeline.calibration, self.pipeline.cameras(), config)
         if self.backend == "gsplat":
             self._live.frame(self.pipeline.gaussians(), None, "all_views")
         else:

@@ -20,12 +20,12 @@ __all__ = ["replay_frames", "replay_session"]
 
 def replay_frames(session: str | os.PathLike, tile_scale: float | None = None, every: int = 1) -> Iterator[np.ndarray]:
     """Native images (H, W, 3) uint8 of every ``every``-th recorded 25 fps frame."""
-    from .render import LiveRenderer
+    from .render import LiveAvatarRenderer
 
     meta, tr = load_session(session)
     scale = float(tile_scale if tile_scale is not None else meta.get("settings", {}).get("tile_scale", 1.0))
     mode = str(meta.get("settings", {}).get("render_mode", "cone"))
-    renderer = LiveRenderer(tile_scale=scale, native=True, preview=False, backend="fast",  # exact, any machine
+    renderer = LiveAvatarRenderer(tile_scale=scale, native=True, preview=False, backend="fast",  # exact, any machine
                             mode="all_views" if mode in ("tracked", "auto") else mode,
                             view_step=1)  # offline: every view rendered, no synthesis
     scenario = None

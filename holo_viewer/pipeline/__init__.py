@@ -19,7 +19,7 @@ module                     what
 ``pipeline.rendering``     :func:`render_quilt`: Gaussians + cameras -> views -> uint8 quilt
 ``pipeline.scene``         :func:`load_scene`: a pipeline from files (model, avatar, sequence)
 ``pipeline.reactions``     listener reactions as FLAME frames; rendering face states for FRRea
-``pipeline.live``          :class:`LiveRenderer`, :func:`render_native`: live native frames by mode
+``pipeline.live``          :class:`NativeFrameRenderer`, :func:`render_native`: live native frames by mode
                            (tracked viewer / all views / full quilt; docs/live_frame.md)
 =========================  ==========================================================================
 

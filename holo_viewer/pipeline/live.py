@@ -1,20 +1,20 @@
 """Live native frames: render only what the viewers can see (``holo_viewer.pipeline.live``).
 
-Modes (``LiveRenderer.frame`` / :func:`render_native`), all producing the panel's native image:
+Modes (``NativeFrameRenderer.frame`` / :func:`render_native`), all producing the panel's native image:
 
 ``full_quilt``
     Every view in full (the quality reference): render -> uint8 quilt -> interleave.
 ``all_views``
-    Untracked: every view, optionally with a level of detail (``LiveConfig.lod_fraction``, the
+    Untracked: every view, optionally with a level of detail (``NativeFrameConfig.lod_fraction``, the
     Gaussians that contribute most over the cone, chosen once per avatar), and by default with
-    only every ``LiveConfig.view_step``-th view rendered and the others synthesized by a
+    only every ``NativeFrameConfig.view_step``-th view rendered and the others synthesized by a
     depth-compensated warp of their rendered neighbours (:mod:`holo_viewer.render.view_synthesis`;
     ``view_step=1`` renders every view). The interleave samples 59 % of the quilt's pixels but
     some pixel of every 16x16 tile of every view (measured on the Portrait), so a per-calibration
     tile mask saves nothing with row-vector compositing; see docs/live_frame.md.
 ``tracked``
     A tracked viewer (:class:`~holo_viewer.display.eyes.TrackedViewer`); two methods
-    (``LiveConfig.tracked``), both writing only the native subpixels whose light can reach the
+    (``NativeFrameConfig.tracked``), both writing only the native subpixels whose light can reach the
     two eyes (beam weight > ``threshold``, over the head motion margin) plus ``refresh_columns``
     tile columns of the other views in round-robin order (rendered exactly, so other people in
     the room still see a hologram); the other subpixels hold older frames.
@@ -40,7 +40,7 @@ Modes (``LiveRenderer.frame`` / :func:`render_native`), all producing the panel'
 ``auto``
     ``tracked`` when a viewer is given, ``all_views`` otherwise.
 
-The first frame of a :class:`LiveRenderer` (or after a change of avatar size) renders everything.
+The first frame of a :class:`NativeFrameRenderer` (or after a change of avatar size) renders everything.
 """
 
 from __future__ import annotations
@@ -57,9 +57,10 @@ from ..camera import Cameras
 from ..errors import InputError
 from ..render.config import RenderConfig
 
-__all__ = ["LiveConfig", "LiveFrame", "LiveRenderer", "render_native", "MODES", "TRACKED_DEFAULTS", "LIVE_T_MIN"]
+__all__ = ["NativeFrameConfig", "LiveFrame", "NativeFrameRenderer", "render_native", "MODES", "TRACKED_DEFAULTS",
+           "LIVE_T_MIN"]
 
-AUTO_VIEW_STEP = 5  # LiveConfig.view_step=None on a horizontal rig
+AUTO_VIEW_STEP = 5  # NativeFrameConfig.view_step=None on a horizontal rig
 #: fixed-point steps of the slices' warp after the first guess: 0 (the default avatar at 0.6 m: per
 #: eye 52.1 dB against 52.2 with one step, the worst eye 1 cm off 43.4 against 43.9 dB; -20 % scatter)
 SLICE_WARP_ITERS = 0
@@ -70,7 +71,7 @@ SLICE_WARP_ITERS = 0
 #: 44.3 dB against 44.5 dB, -6 %. Exports (full_quilt), the exact all views and bands keep the config's,
 #: and so does gsplat (its T < 1e-4 is compiled in).
 LIVE_T_MIN = 3e-3
-#: LiveConfig's None for (motion_m, motion_distance_m, refresh_columns), per tracked method
+#: NativeFrameConfig's None for (motion_m, motion_distance_m, refresh_columns), per tracked method
 TRACKED_DEFAULTS = {"bands": (0.01, 0.05, 8), "slices": (0.005, 0.02, 2)}
 
 Mode = Literal["auto", "tracked", "all_views", "full_quilt", "eye_centred"]
@@ -78,8 +79,8 @@ MODES = ("auto", "tracked", "all_views", "full_quilt", "eye_centred")
 
 
 @dataclass(frozen=True)
-class LiveConfig:
-    """Knobs of :class:`LiveRenderer`.
+class NativeFrameConfig:
+    """Knobs of :class:`NativeFrameRenderer`.
 
     Parameters
     ----------
@@ -164,7 +165,7 @@ class LiveFrame:
     rendered_fraction: float
 
 
-class LiveRenderer:
+class NativeFrameRenderer:
     """Renders native frames for one calibration and one set of quilt cameras, keeping the last
     views, quilt and native image between frames (see the module docstring).
 
@@ -173,7 +174,7 @@ class LiveRenderer:
     calibration : DisplayCalibration
     cameras : Cameras
         The quilt cameras (V <= cols x rows views, each the size of a quilt tile).
-    config : LiveConfig, optional
+    config : NativeFrameConfig, optional
     rest : Gaussians, optional
         The avatar at rest, for the level of detail (default: the first frame's Gaussians).
 
@@ -185,7 +186,7 @@ class LiveRenderer:
     frame renders all views (a tracked frame on the CPU path needs the kept host views).
     """
 
-    def __init__(self, calibration: Any, cameras: Cameras, config: LiveConfig | None = None,
+    def __init__(self, calibration: Any, cameras: Cameras, config: NativeFrameConfig | None = None,
                  rest: Any = None) -> None:
         from ..display.calibration import DisplayCalibration
         from ..display.lenticular import Interleaver
@@ -194,7 +195,7 @@ class LiveRenderer:
             raise InputError(f"calibration: expected a DisplayCalibration, found {type(calibration).__name__}")
         if not isinstance(cameras, Cameras):
             raise InputError(f"cameras: expected holo_viewer.camera.Cameras, found {type(cameras).__name__}")
-        self.config = config or LiveConfig()
+        self.config = config or NativeFrameConfig()
         self.calibration = calibration
         self.cameras = cameras
         V, H, W = len(cameras), cameras.height, cameras.width
@@ -250,7 +251,7 @@ class LiveRenderer:
                     raise
         self.tracked_method = "slices" if self._slice_rig is not None else "bands"
         c, d = self.config, TRACKED_DEFAULTS[self.tracked_method]
-        #: the effective margins and refresh of tracked frames (LiveConfig's, or the method's defaults)
+        #: the effective margins and refresh of tracked frames (NativeFrameConfig's, or the method's defaults)
         self.motion_m = d[0] if c.motion_m is None else float(c.motion_m)
         self.motion_distance_m = d[1] if c.motion_distance_m is None else float(c.motion_distance_m)
         self.refresh_columns = d[2] if c.refresh_columns is None else int(c.refresh_columns)
@@ -631,16 +632,16 @@ def read_pixels(interleaver: Any, calibration: Any, n_views: int) -> np.ndarray:
     return np.stack([read[rs, cs] for rs, cs in tiles])
 
 
-_CACHE: dict[Any, LiveRenderer] = {}
+_CACHE: dict[Any, NativeFrameRenderer] = {}
 
 
 def render_native(gaussians: Any, cameras: Cameras, calibration: Any, viewer: Any = None, mode: Mode = "auto",
-                  config: LiveConfig | None = None) -> LiveFrame:
+                  config: NativeFrameConfig | None = None) -> LiveFrame:
     """One native frame; the mode chooser for the pipeline and the live loop.
 
     ``tracked`` while a viewer is given (a face is tracked), ``all_views`` otherwise (``mode="auto"``).
-    Keeps one :class:`LiveRenderer` per (calibration, cameras, config) between calls, so a tracked
-    frame reuses the previous frames' views; hold your own ``LiveRenderer`` to control that state.
+    Keeps one :class:`NativeFrameRenderer` per (calibration, cameras, config) between calls, so a tracked
+    frame reuses the previous frames' views; hold your own ``NativeFrameRenderer`` to control that state.
 
     Parameters
     ----------
@@ -650,17 +651,17 @@ def render_native(gaussians: Any, cameras: Cameras, calibration: Any, viewer: An
     calibration : DisplayCalibration
     viewer : TrackedViewer or None
     mode : {"auto", "tracked", "all_views", "full_quilt"}
-    config : LiveConfig, optional
+    config : NativeFrameConfig, optional
 
     Returns
     -------
     LiveFrame
     """
-    config = config or LiveConfig()
+    config = config or NativeFrameConfig()
     key = (id(calibration), cameras.width, cameras.height, np.asarray(cameras.world_to_cam).tobytes(),
            np.asarray(cameras.K).tobytes(), config)
     renderer = _CACHE.get(key)
     if renderer is None or renderer.calibration is not calibration:
         _CACHE.clear()  # one live state at a time (each holds ~200 MB of views and quilt)
-        renderer = _CACHE[key] = LiveRenderer(calibration, cameras, config)
+        renderer = _CACHE[key] = NativeFrameRenderer(calibration, cameras, config)
     return renderer.frame(gaussians, viewer, mode)

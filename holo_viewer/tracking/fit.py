@@ -19,7 +19,7 @@ points), so ``au_reg`` keeps them near 0 rather than letting them absorb noise.
 
 Reduced parameters. Many AUs move the 68 detector points by a pixel or two, or in the same
 direction as another AU (measured on renders of the default head: docs/live.md), so only
-``FitConfig.aus`` are unknowns (the others stay 0), and AU26 (jaw drop) is tied to the jaw
+``TrackerFitConfig.aus`` are unknowns (the others stay 0), and AU26 (jaw drop) is tied to the jaw
 pitch, ``AU26 state = au26_per_jaw * jaw``: the project's speaker model opens the mouth with
 both together (AU26 intensity 3.5 and jaw 0.3 rad at full opening: 0.7 / 0.3 = 7/3), and the
 landmarks cannot tell them apart. The fit solves for ``q`` with ``params = M q``.
@@ -36,14 +36,14 @@ from ..validation import check_array, check_finite_scalar
 from .head_model import CAMERA_FROM_FLAME, N_POSE_PARAMS, LandmarkHeadModel
 from .landmarks import LEFT_EYE, RIGHT_EYE
 
-__all__ = ["FitConfig", "FitResult", "fit_landmarks", "initial_params", "reduction", "JAW_RANGE"]
+__all__ = ["TrackerFitConfig", "TrackerFit", "fit_landmarks", "initial_params", "reduction", "JAW_RANGE"]
 
 #: jaw pitch bounds (rad): slightly closed .. wide open
 JAW_RANGE = (-0.05, 0.5)
 
 
 @dataclass(frozen=True)
-class FitConfig:
+class TrackerFitConfig:
     """Weights and iteration count of :func:`fit_landmarks` (see the module docstring)."""
 
     iterations: int = 4
@@ -58,22 +58,22 @@ class FitConfig:
 
     def __post_init__(self) -> None:
         if int(self.iterations) < 1:
-            raise InputError(f"FitConfig.iterations: expected >= 1, found {self.iterations}")
+            raise InputError(f"TrackerFitConfig.iterations: expected >= 1, found {self.iterations}")
         for name in ("au_reg", "jaw_reg", "rot_reg", "temporal_reg", "damping"):
-            check_finite_scalar(getattr(self, name), f"FitConfig.{name}", low=0.0)
-        check_finite_scalar(self.fd_step, "FitConfig.fd_step", low=0.0, low_open=True)
-        check_finite_scalar(self.au26_per_jaw, "FitConfig.au26_per_jaw", low=0.0)
+            check_finite_scalar(getattr(self, name), f"TrackerFitConfig.{name}", low=0.0)
+        check_finite_scalar(self.fd_step, "TrackerFitConfig.fd_step", low=0.0, low_open=True)
+        check_finite_scalar(self.au26_per_jaw, "TrackerFitConfig.au26_per_jaw", low=0.0)
         if "AU26" in self.aus and self.au26_per_jaw > 0:
-            raise InputError("FitConfig.aus: AU26 is tied to the jaw (au26_per_jaw > 0); leave it out or set "
+            raise InputError("TrackerFitConfig.aus: AU26 is tied to the jaw (au26_per_jaw > 0); leave it out or set "
                              "au26_per_jaw=0")
 
 
-def reduction(model: LandmarkHeadModel, config: FitConfig) -> np.ndarray:
+def reduction(model: LandmarkHeadModel, config: TrackerFitConfig) -> np.ndarray:
     """(n_params, n_q) matrix ``M`` with ``params = M q`` (see the module docstring)."""
     names = list(model.au_names)
     missing = [a for a in config.aus if a not in names]
     if missing:
-        raise InputError(f"FitConfig.aus: {missing} not in the model's AUs {names}")
+        raise InputError(f"TrackerFitConfig.aus: {missing} not in the model's AUs {names}")
     na = model.n_au
     cols = [names.index(a) for a in config.aus]
     nq = len(cols) + N_POSE_PARAMS
@@ -87,7 +87,7 @@ def reduction(model: LandmarkHeadModel, config: FitConfig) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class FitResult:
+class TrackerFit:
     """One fitted frame.
 
     Attributes
@@ -125,7 +125,7 @@ def initial_params(model: LandmarkHeadModel, landmarks: np.ndarray, K: np.ndarra
 
 
 def fit_landmarks(model: LandmarkHeadModel, landmarks: np.ndarray, K: np.ndarray, prev: np.ndarray | None = None,
-                  config: FitConfig = FitConfig()) -> FitResult:
+                  config: TrackerFitConfig = TrackerFitConfig()) -> TrackerFit:
     """Fit one frame's landmarks (see the module docstring).
 
     Parameters
@@ -135,11 +135,11 @@ def fit_landmarks(model: LandmarkHeadModel, landmarks: np.ndarray, K: np.ndarray
     K : numpy.ndarray, shape (3, 3)            camera intrinsics
     prev : numpy.ndarray, shape (n_params,), optional
         Previous frame's solution: the start point and the temporal prior (None: first frame).
-    config : FitConfig
+    config : TrackerFitConfig
 
     Returns
     -------
-    FitResult
+    TrackerFit
     """
     lm = np.asarray(check_array(landmarks, "landmarks", (68, 2)), dtype=np.float64)
     K = np.asarray(check_array(K, "K", (3, 3)), dtype=np.float64)
@@ -189,4 +189,4 @@ def fit_landmarks(model: LandmarkHeadModel, landmarks: np.ndarray, K: np.ndarray
     x = model.project(p, K)[0]
     res = np.linalg.norm(x - lm, axis=1)
     rms = float(np.sqrt(np.sum(model.weights * res ** 2) / max(np.sum(model.weights), 1e-12)))
-    return FitResult(params=p, rms_px=rms)
+    return TrackerFit(params=p, rms_px=rms)

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import InputError
 from ..validation import check_finite_scalar
 from .filters import OneEuroConfig, OneEuroFilter
-from .fit import FitConfig, fit_landmarks
+from .fit import TrackerFitConfig, fit_landmarks
 from .head_model import LandmarkHeadModel
 from .landmarks import FaceDetection, LandmarkDetector, check_frame
 from .viewer import viewer_position, webcam_intrinsics
@@ -40,7 +40,7 @@ class TrackerConfig:
     """
 
     hfov_deg: float = 60.0
-    fit: FitConfig = field(default_factory=FitConfig)
+    fit: TrackerFitConfig = field(default_factory=TrackerFitConfig)
     smoothing: OneEuroConfig | None = field(default_factory=lambda: OneEuroConfig(min_cutoff=2.0, beta=1.0))
     hold_s: float = 0.3
     decay_s: float = 0.5
