@@ -10,6 +10,8 @@ import re
 import subprocess
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 #: folders whose text must not point outside the clone (bench/results logs record a machine's run and are exempt)
 CHECKED = ("holo_viewer", "tests", "docs", "scripts")
@@ -65,3 +67,47 @@ def test_the_ict_facekit_source_ships_with_its_checksum(monkeypatch):
     assert digest == ICT_SHA256, f"assets/ICT-FaceKit/ict_facekit_light.npz: sha256 {digest}, expected {ICT_SHA256}"
     monkeypatch.delenv("HOLO_VIEWER_ICT_FACEKIT", raising=False)
     assert ict_facekit_path(required=True).resolve() == (folder / "ict_facekit_light.npz").resolve()
+
+
+#: a sample of the suite that touches every file a fresh clone lacks when it leans on folders outside it:
+#: the Portrait calibration, the ICT-FaceKit rebuild of the default head and its landmark embedding
+CLONE_SAMPLE = ("tests/test_display_calibration.py", "tests/test_display_usb.py",
+                "tests/test_default_head.py::test_rebuild_reproduces_the_committed_bytes",
+                "tests/test_default_head.py::test_jaw_rotation_reproduces_ict_jaw_open",
+                "tests/test_default_head.py::test_landmark_embedding_matches_the_head",
+                "tests/test_golden_images.py::test_a_changed_region_fails")
+
+
+def copy_clone(target: Path) -> Path:
+    """The tracked files (as they are in the working tree) and the built extensions, copied to ``target``."""
+    import shutil
+
+    out = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True)
+    names = [p for p in out.stdout.decode().split("\0") if p]
+    names += [str(p.relative_to(ROOT)) for p in (ROOT / "holo_viewer").rglob("*.so")]  # compiled kernels
+    for name in names:
+        src = ROOT / name
+        if src.is_file():  # a file deleted in the working tree but not yet in git's index is skipped
+            (target / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, target / name)
+    return target
+
+
+@pytest.mark.slow
+def test_a_copy_with_nothing_beside_it_passes_a_sample(tmp_path):
+    """The repository copied to a temporary folder (no ``shared/`` or anything else beside it) imports its
+    own package and passes a sample of the suite that needs the calibration and the ICT-FaceKit source."""
+    import os
+    import sys
+
+    clone = copy_clone(tmp_path / "clone")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clone"]
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("HOLO_VIEWER_", "PYTEST_"))}
+    env.update(PYTHONPATH=str(clone), HOLO_VIEWER_CACHE=str(tmp_path / "cache"))
+    where = subprocess.run([sys.executable, "-c", "import holo_viewer; print(holo_viewer.__file__)"], cwd=clone,
+                           env=env, capture_output=True, text=True, check=True).stdout.strip()
+    assert Path(where).resolve().is_relative_to(clone.resolve()), where
+    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist",
+                          *CLONE_SAMPLE], cwd=clone, env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    assert " passed" in run.stdout and "skipped" not in run.stdout, run.stdout[-1000:]
