@@ -426,13 +426,61 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
+#: the pain legibility levels of ``--quick`` (issue 36: monotone from 0.2 to 1.0 at the centre views)
+QUICK_PAIN_LEVELS = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0)
+
+
+def run_quick(levels: Sequence[float] = QUICK_PAIN_LEVELS) -> dict[str, Any]:
+    """Pain legibility only: the Gaussians' centre views (the +0 deg window), measures per pain level
+    as ratios to neutral, and whether each measure is monotone over the levels (~1 min instead of ~2)."""
+    from holo_viewer.pipeline import FaceControls, Pipeline
+
+    det = Detector()
+    t0 = time.perf_counter()
+    pipe = Pipeline()
+    cams = pipe.cameras()
+    (framing,), _ = pipe.compute("framing")
+    views = view_window(camera_angles(cams, np.asarray(framing[0])), 0.0)
+    per = {}
+    for p in levels:
+        pipe.set_face(FaceControls(pain=float(p)))
+        got = []
+        for i in views:
+            r = det(pipe.render_view(i))
+            got.append(None if r is None else face_measures(r[0]))
+        per[float(p)] = median_measures(got)
+    base = per[float(levels[0])]
+    ratios = {m: [None if per[float(p)] is None else per[float(p)][m] / base[m] for p in levels] for m in MEASURES}
+    mono = {m: monotone([x for x in ratios[m][1:]], -1 if m != "mouth_width" else 0) and None not in ratios[m]
+            for m in MEASURES}
+    return {"levels": list(levels), "views": views, "ratios_to_neutral": ratios, "monotone_from_0.2": mono,
+            "raw": {str(k): v for k, v in per.items()}, "seconds": time.perf_counter() - t0}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "face_realism.json"))
     ap.add_argument("--images", default=None, help="write the measured views (Gaussians | mesh) here")
     ap.add_argument("--sheet", default=None, help="write a labelled contact sheet (mesh | Gaussians per "
                     "expression and fidelity view, PSNR under each pair) to this image file (.png/.jpg)")
+    ap.add_argument("--quick", action="store_true", help="pain legibility only: centre views, pain 0, 0.2 ... 1.0 "
+                    "(writes bench/results/face_realism_quick.json unless --json is given)")
     args = ap.parse_args(argv)
+    if args.quick:
+        from holo_viewer.fileio import atomic_write
+
+        q = run_quick()
+        print(f"{'measure (ratio to neutral, centre views)':<42} " + " ".join(f"{p:>6g}" for p in q["levels"][1:])
+              + "  monotone")
+        for m in MEASURES:
+            print(f"{m:<42} " + " ".join("     -" if x is None else f"{x:6.3f}" for x in q["ratios_to_neutral"][m][1:])
+                  + f"  {q['monotone_from_0.2'][m]}")
+        path = args.json if "--json" in (argv or sys.argv) else str(Path(__file__).parent / "results" /
+                                                                    "face_realism_quick.json")
+        with atomic_write(path, "w") as fh:
+            json.dump({**q, "host": platform.node()}, fh, indent=1)
+        print(f"{q['seconds']:.0f} s; wrote {path}")
+        return 0
     res = run(Path(args.images) if args.images else None)
     if args.sheet:
         from holo_viewer.fileio import save_image

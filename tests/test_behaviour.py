@@ -291,3 +291,12 @@ def test_reaction_frames_use_the_layers_by_default():
     assert not np.any(np.stack([f["eyes_pose"] for f in off]))
     nogaze, _ = reaction_frames(seconds=2.0, pain=0.4, seed=1, warmup=0.5, behaviour=BehaviourConfig(gaze=False))
     assert not np.any(np.stack([f["eyes_pose"] for f in nogaze]))
+
+
+def test_pain_face_upper_lip_follows_the_other_action_units():
+    from holo_viewer.flame.expressions import PAIN_PEAK, pain_aus
+
+    for p in (0.2, 0.4):
+        rel = {k: v / PAIN_PEAK[k] for k, v in pain_aus(p).items()}
+        assert rel["AU10"] < 0.5 * rel["AU4"] and rel["AU10"] < rel["AU7"] < rel["AU4"] and rel["AU9"] < rel["AU6"]
+    assert pain_aus(1.0) == PAIN_PEAK

@@ -33,7 +33,11 @@ PSPI = AU4 + max(AU6, AU7) + max(AU9, AU10) + AU43 (0..16) [Prkachin & Solomon].
 :func:`pain_aus` maps pain p in [0, 1] to a canonical pain face dominated by the
 PSPI action units (brow lowering, orbital tightening, levator contraction, eye
 closure) with lighter AU20/AU25/AU26; PSPI(p = 1) = 13.3, PSPI(0) = 0, strictly
-increasing in p. The eyes narrow to a slit (orbital tightening AU6/AU7, the most reliable pain
+increasing in p. Each AU grows as ``peak x p^e`` (:data:`PAIN_EXPONENT`): the brows lead
+(e = 0.8), orbital tightening follows (1.2, 1.5), the nose wrinkle and upper-lip raise come last
+(1.8, 2.2: no bared teeth at low levels, the lip follows the other action units), so that the
+landmark detector's eye aperture, brow-to-eye and nose-to-lip gaps fall monotonically from
+pain 0.2 to 1.0 (docs/behaviour.md). The eyes narrow to a slit (orbital tightening AU6/AU7, the most reliable pain
 sign) rather than shutting: full closure reads as sleep, and an independent landmark detector
 reads a squeezed slit as narrower than closed lids (docs/face_realism.md).
 """
@@ -54,7 +58,8 @@ from ..fileio import atomic_write
 
 __all__ = ["AU_NAMES", "AU_MAX", "REACT_AUS", "AUMap", "default_au_map", "au_map_for", "expression_from_aus",
            "pain_aus", "pain_expression", "estimate_aus", "pspi", "pspi_from_aus", "named_expression",
-           "jaw_for_expression", "EXPRESSION_NAMES_KNOWN", "NAMED_EXPRESSIONS", "PAIN_PEAK", "PAIN_RANGE"]
+           "jaw_for_expression", "EXPRESSION_NAMES_KNOWN", "NAMED_EXPRESSIONS", "PAIN_PEAK", "PAIN_EXPONENT",
+           "PAIN_RANGE"]
 
 AU_NAMES: tuple[str, ...] = ("AU1", "AU2", "AU4", "AU5", "AU6", "AU7", "AU9", "AU10", "AU12", "AU14", "AU15",
                              "AU16", "AU17", "AU18", "AU20", "AU23", "AU24", "AU25", "AU26", "AU43")
@@ -75,6 +80,9 @@ _DEFAULT_COMPONENTS = {
 #: Canonical pain face at p = 1 (PSPI = 5 + 4 + 4 + 0.3 = 13.3).
 PAIN_PEAK = {"AU4": 5.0, "AU6": 3.5, "AU7": 4.0, "AU9": 3.0, "AU10": 4.0, "AU43": 0.3,
              "AU20": 1.0, "AU25": 1.5, "AU26": 1.0}
+#: pain_aus(p)[au] = PAIN_PEAK[au] * p ** PAIN_EXPONENT[au] (brows lead, the upper lip follows)
+PAIN_EXPONENT = {"AU4": 0.8, "AU6": 1.2, "AU7": 1.5, "AU9": 1.8, "AU10": 2.2, "AU43": 3.0,
+                 "AU20": 1.5, "AU25": 2.0, "AU26": 2.0}
 _PSPI_CORE = ("AU4", "AU43")
 
 #: The named expressions, declared once: name -> (AU intensities at intensity 1, jaw opening in
@@ -303,9 +311,10 @@ def _check_p(p: Any) -> np.ndarray:
 def pain_aus(p: float) -> dict[str, float]:
     """AU intensities of the canonical pain face at pain ``p`` in [0, 1].
 
-    The PSPI action units grow linearly with p; eye closure (AU43) follows
-    ``0.3 p^2`` (the lids narrow by AU6/AU7 first and only drop a little late);
-    AU20/AU25/AU26 grow linearly. PSPI(p) = 13 p + 0.3 p^2: 0 at p = 0, 13.3 at p = 1,
+    Each AU is ``PAIN_PEAK[au] * p ** PAIN_EXPONENT[au]``: brow lowering (AU4) leads, orbital
+    tightening (AU6/AU7) follows, the nose wrinkle and upper-lip raise (AU9/AU10) come last, eye
+    closure (AU43, 0.3 p^3) only drops a little at the top. PSPI(p) = 5 p^0.8 +
+    max(3.5 p^1.2, 4 p^1.5) + max(3 p^1.8, 4 p^2.2) + 0.3 p^3: 0 at p = 0, 13.3 at p = 1,
     strictly increasing.
     """
     return _pain_aus(float(_check_p(p)))
@@ -313,9 +322,7 @@ def pain_aus(p: float) -> dict[str, float]:
 
 def _pain_aus(x: float) -> dict[str, float]:
     """:func:`pain_aus` for an already validated ``x``."""
-    out = {k: v * x for k, v in PAIN_PEAK.items()}
-    out["AU43"] = PAIN_PEAK["AU43"] * x ** 2
-    return out
+    return {k: v * x ** PAIN_EXPONENT[k] for k, v in PAIN_PEAK.items()}
 
 
 def pain_expression(p: Any, au_map: AUMap) -> np.ndarray:
