@@ -129,6 +129,16 @@ def flame_params_from_states(states: np.ndarray, au_map, n_shape: int | None = N
     return FlameParams.from_frames(shape=np.zeros(n_shape, np.float32), **fl).as_dict()
 
 
+def speaker_audio_features(audio: np.ndarray, sample_rate: int, n_frames: int, config) -> torch.Tensor:
+    """What a model with ModelConfig ``config`` hears of a clip: (n_frames, n_mels) float32 tensor,
+    log-mel bands or the speech channels of :mod:`.speech` (``config.audio_features``)."""
+    if getattr(config, "audio_features", "log_mel") == "speech":
+        from .speech import speech_features
+
+        return torch.from_numpy(speech_features(audio, sample_rate, n_frames))
+    return log_mel(audio, sample_rate, n_frames, AudioConfig(n_mels=config.n_mels))
+
+
 def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_state: np.ndarray,
           pain: float = 0.0, listener_past: np.ndarray | None = None, temperature: float = 0.0,
           top_k: int | None = None, seed: int = 0, smoothing: float = 0.0) -> np.ndarray:
@@ -154,7 +164,7 @@ def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_s
     speaker_state = check_array(speaker_state, "speaker_state", ("T", S))
     T = speaker_state.shape[0]
     pain = check_finite_scalar(pain, "pain", low=0.0, high=1.0)
-    feats = log_mel(audio, sample_rate, T, AudioConfig(n_mels=cfg.n_mels))
+    feats = speaker_audio_features(audio, sample_rate, T, cfg)
     past = None
     if listener_past is not None:
         lp = check_array(listener_past, "listener_past", ("P", S))

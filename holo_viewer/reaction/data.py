@@ -36,7 +36,8 @@ from .audio import AudioConfig, log_mel
 from .features import FPS, attributes_from_state, au_scales
 
 __all__ = ["SyntheticConfig", "ReactionSplit", "STYLES", "make_synthetic_split", "make_synthetic_dataset",
-           "synth_speaker", "SpeakerClip"]
+           "synth_speaker", "SpeakerClip", "tts_speaker", "listener_cues", "audio_features", "check_data_kinds",
+           "VOICES", "AUDIO_FEATURES"]
 
 STYLES: tuple[str, ...] = ("mirror", "backchannel", "mixed")
 _SPLIT_IDS = {"train": 0, "val": 1, "test": 2}
@@ -54,6 +55,13 @@ class SyntheticConfig:
     listeners_per_context: int = 4
     pain_zero_fraction: float = 0.25
     audio: AudioConfig = field(default_factory=AudioConfig)
+    #: speaker voices: "harmonic" (the synthetic voice below) or "tts" (espeak-ng voices in rooms,
+    #: :mod:`.tts`, listeners reacting to the pauses and low-pitch regions detected in that audio)
+    voices: str = "harmonic"
+    #: what the model hears: "log_mel" (:func:`.audio.log_mel`) or "speech" (:func:`.speech.speech_features`)
+    audio_features: str = "log_mel"
+    #: tts voices: the share of speaker contexts whose face stays still (as a user's still video)
+    still_face_fraction: float = 0.5
 
     @property
     def n_frames(self) -> int:
@@ -295,6 +303,82 @@ def _listener(rng, sp: SpeakerClip, style: str, lag_s: float, pain: float, confi
     return state.astype(np.float32)
 
 
+VOICES: tuple[str, ...] = ("harmonic", "tts")
+AUDIO_FEATURES: tuple[str, ...] = ("log_mel", "speech")
+
+
+def check_data_kinds(config: SyntheticConfig, source: str = "config") -> None:
+    """Raise :class:`ReactionError` unless ``voices`` / ``audio_features`` name known kinds."""
+    if config.voices not in VOICES:
+        raise ReactionError(f"{source}: data.voices: expected one of {list(VOICES)}, found {config.voices!r}")
+    if config.audio_features not in AUDIO_FEATURES:
+        raise ReactionError(f"{source}: data.audio_features: expected one of {list(AUDIO_FEATURES)}, "
+                            f"found {config.audio_features!r}")
+
+
+def audio_features(waveform: np.ndarray, config: SyntheticConfig, speech: np.ndarray | None = None) -> np.ndarray:
+    """What the model hears of a clip, (T, F) float32: log-mel or the speech channels (``config.audio_features``)."""
+    if config.audio_features == "speech":
+        from .speech import speech_features
+
+        f = speech if speech is not None else speech_features(waveform, config.audio.sample_rate, config.n_frames)
+        return np.asarray(f, dtype=np.float32)
+    return log_mel(waveform, config.audio.sample_rate, config.n_frames, config.audio).numpy()
+
+
+def listener_cues(speech: np.ndarray, min_gap_s: float = 1.5) -> np.ndarray:
+    """Frames a listener reacts to: every pause onset, plus low-pitch cues at least ``min_gap_s`` from
+    any pause onset and from each other (:func:`.speech.pause_onsets`, :func:`.speech.low_pitch_cues`)."""
+    from .speech import low_pitch_cues, pause_onsets
+
+    pauses = pause_onsets(speech[:, 0], speech[:, 1])
+    cues = list(pauses)
+    gap = min_gap_s * FPS
+    for c in low_pitch_cues(speech):
+        if all(abs(int(c) - int(o)) >= gap for o in cues):
+            cues.append(int(c))
+    return np.asarray(sorted(cues), dtype=np.int64)
+
+
+def tts_speaker(rng: np.random.Generator, config: SyntheticConfig, au_names,
+                jaw_unit: np.ndarray) -> tuple[SpeakerClip, np.ndarray]:
+    """A text-to-speech speaker (:func:`.tts.tts_clip`) and its speech channels.
+
+    The face is still (all zeros) for a share ``still_face_fraction`` of the speakers; otherwise it
+    moves with the detected speech: mouth (AU25/AU26, jaw) with the level while the VAD hears speech,
+    brows on pitch accents (> 0.3 octave above the running mean), smile and frown episodes, head bobs
+    with the mouth and slow sway. ``pause_onsets`` of the returned clip are :func:`listener_cues`.
+    """
+    from .speech import speech_features, speech_mask
+    from .tts import tts_clip
+
+    T = config.n_frames
+    wave, _voice = tts_clip(rng, T / FPS)
+    speech = speech_features(wave, config.audio.sample_rate, T)
+    talking = speech_mask(speech[:, 0], speech[:, 1])
+    S = len(au_names) + 6
+    state = np.zeros((T, S))
+    smile = np.zeros(T)
+    brow = np.zeros(T)
+    if rng.random() >= config.still_face_fraction:
+        tf = np.arange(T) / FPS
+        open_ = gaussian_filter1d(np.clip((speech[:, 1] + 0.6) / 0.8, 0.0, 1.0) * talking, 1.0)
+        accents = np.flatnonzero((speech[:, 3] > 0.3) & talking)
+        brow = np.clip(gaussian_filter1d(np.isin(np.arange(T), accents).astype(float), 4.0) * 6.0, 0, 1)
+        smile = np.clip(_bumps(tf, *_episodes(rng, config.seconds, 0.15, (1.5, 3.5), (0.4, 1.0))), 0, 1)
+        frown = np.clip(_bumps(tf, *_episodes(rng, config.seconds, 0.05, (1.0, 2.5), (0.3, 0.8))), 0, 1)
+        _set_aus(state, au_names, {"AU25": 4.0 * np.minimum(1.0, 1.5 * open_), "AU26": 3.5 * open_,
+                                   "AU12": 4.0 * smile, "AU6": 2.5 * smile, "AU1": 3.0 * brow, "AU2": 2.5 * brow,
+                                   "AU4": 2.0 * frown, "AU15": 1.2 * frown})
+        n_au = len(au_names)
+        state[:, n_au:n_au + 3] = open_[:, None] * jaw_unit[None, :]
+        state[:, n_au + 3] = 0.06 * gaussian_filter1d(open_, 2.0) + 0.03 * _slow(rng, T, 12.0)
+        state[:, n_au + 4] = 0.10 * _slow(rng, T, 25.0)
+        state[:, n_au + 5] = 0.03 * _slow(rng, T, 25.0)
+    clip = SpeakerClip(wave, state.astype(np.float32), talking, listener_cues(speech), smile, brow)
+    return clip, speech
+
+
 def make_synthetic_split(name: str, config: SyntheticConfig = SyntheticConfig(), au_map=None,
                          keep_waveforms: bool = False) -> ReactionSplit:
     """Generate one split ("train", "val" or "test") of the synthetic dataset.
@@ -316,6 +400,7 @@ def make_synthetic_split(name: str, config: SyntheticConfig = SyntheticConfig(),
 
     if name not in _SPLIT_IDS:
         raise ReactionError(f"split: expected one of {sorted(_SPLIT_IDS)}, found {name!r}")
+    check_data_kinds(config)
     au_map = default_au_map() if au_map is None else au_map
     au_names = tuple(au_map.names)
     jaw_unit = np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64).reshape(3)
@@ -323,14 +408,20 @@ def make_synthetic_split(name: str, config: SyntheticConfig = SyntheticConfig(),
     n_ctx, n_l = config.contexts(name), config.listeners_per_context
     feats, waves, sp_states, l_states, ctx, pains, styles, lags = [], [], [], [], [], [], [], []
     for c in range(n_ctx):
-        rng = np.random.default_rng(np.random.SeedSequence([config.seed, _SPLIT_IDS[name], c]))
-        sp = synth_speaker(rng, config, au_names, jaw_unit)
-        feats.append(log_mel(sp.waveform, config.audio.sample_rate, config.n_frames, config.audio).numpy())
+        if config.voices == "tts":
+            rng = np.random.default_rng(np.random.SeedSequence([config.seed, _SPLIT_IDS[name], c, 1]))
+            sp, speech = tts_speaker(rng, config, au_names, jaw_unit)
+        else:
+            rng = np.random.default_rng(np.random.SeedSequence([config.seed, _SPLIT_IDS[name], c]))
+            sp, speech = synth_speaker(rng, config, au_names, jaw_unit), None
+        feats.append(audio_features(sp.waveform, config, speech))
         if keep_waveforms:
             waves.append(sp.waveform)
         order = list(rng.permutation(len(STYLES)))
         for j in range(n_l):
             style = STYLES[order[j % len(STYLES)]]
+            if style == "mirror" and not sp.state.any():  # a still face: nothing to mirror
+                style = "backchannel"
             lag = float(rng.uniform(0.2, 1.0))
             pain = 0.0 if rng.random() < config.pain_zero_fraction else float(rng.uniform(0.0, 1.0))
             l_states.append(_listener(rng, sp, style, lag, pain, config, au_names, grid, table))

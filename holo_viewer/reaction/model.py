@@ -40,7 +40,7 @@ __all__ = ["ModelConfig", "ReactionModel", "generate", "sample_tokens"]
 class ModelConfig:
     """Architecture sizes (frames are 25 fps)."""
 
-    n_mels: int = 40
+    n_mels: int = 40  # width of an audio feature frame: 40 log-mel bands, or the 6 speech channels
     state_dim: int = 24
     n_codes: int = 512
     d_model: int = 64
@@ -52,6 +52,8 @@ class ModelConfig:
     speaker_window: int = 48
     listener_window: int = 24
     k: int = 8
+    #: what the audio frames hold: "log_mel" (:func:`.audio.log_mel`) or "speech" (:mod:`.speech`)
+    audio_features: str = "log_mel"
 
     def to_dict(self) -> dict:
         """Plain dict (JSON / checkpoint)."""

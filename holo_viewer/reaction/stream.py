@@ -70,6 +70,12 @@ class ReactionStream:
         self._smoothed: np.ndarray | None = None
         self.t = -1  # last speaker frame received
         self.windows: list[WindowInfo] = []
+        self._speech = None
+        if getattr(cfg, "audio_features", "log_mel") == "speech":
+            from .speech import SpeechTracker
+
+            self._speech = SpeechTracker()
+            self._speech_rows: dict[int, np.ndarray] = {}  # frame -> speech channels (the last Ws frames)
 
     @property
     def audio_samples(self) -> int:
@@ -81,6 +87,8 @@ class ReactionStream:
         x = np.asarray(samples, dtype=np.float32).reshape(-1)
         if x.size and not np.isfinite(x).all():
             x = np.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0)
+        if self._speech is not None:
+            self._speech.push(x)
         self._audio = np.concatenate([self._audio, x])
         keep = (self.Ws + 2) * self.hop
         if len(self._audio) > keep:
@@ -125,13 +133,38 @@ class ReactionStream:
         out[self.Ws - n:] = torch.log(power[:, :n].T @ self._fb + c.eps)
         return out
 
+    def _speech_window(self):
+        """(Ws, 6) speech channels of speaker frames t-Ws+1 .. t, padded with the training mean before 0.
+
+        Rows come from :class:`~holo_viewer.reaction.speech.SpeechTracker` as the audio arrives; a frame
+        whose audio has not arrived yet repeats the latest row before it (offline, every frame's audio
+        is there and the window equals :func:`~holo_viewer.reaction.speech.speech_features` rows, pitch
+        aside: see that module)."""
+        import torch
+
+        rows = self._speech.frames()
+        first = self._speech.state.frame - rows.shape[0]
+        for j, r in enumerate(rows):
+            self._speech_rows[first + j] = r
+        for f in [f for f in self._speech_rows if f < self.t - self.Ws]:
+            del self._speech_rows[f]
+        out = self.model.audio_mean.expand(self.Ws, -1).clone()
+        last = None
+        for j, f in enumerate(range(self.t - self.Ws + 1, self.t + 1)):
+            if f < 0:
+                continue
+            last = self._speech_rows.get(f, last)
+            if last is not None:
+                out[j] = torch.from_numpy(last)
+        return out
+
     def _step(self, pain: float) -> None:
         import torch
 
         from .model import sample_tokens
 
         t0 = time.perf_counter()
-        a = self._log_mel_window()[None]
+        a = (self._log_mel_window() if self._speech is None else self._speech_window())[None]
         s = torch.from_numpy(self._speaker)[None]
         h = torch.from_numpy(self._hist)[None]
         with torch.no_grad():

@@ -158,6 +158,11 @@ def validate_train_config(cfg: TrainConfig, source: str = "config") -> TrainConf
         raise ReactionError(f"{source}: expected a TrainConfig, found {type(cfg).__name__}")
     _check_fields(cfg, "", source)
     m, a = cfg.model, cfg.data.audio
+    from .data import check_data_kinds
+
+    check_data_kinds(cfg.data, source)
+    if m.audio_features not in ("log_mel", "speech"):
+        raise ReactionError(f"{source}: model.audio_features: expected 'log_mel' or 'speech', found {m.audio_features!r}")
     rules = [
         (m.d_model % m.n_heads == 0, f"model.d_model: expected a multiple of model.n_heads ({m.n_heads}), "
                                      f"found {m.d_model}"),
@@ -321,7 +326,8 @@ def train(cfg: TrainConfig, out: str | os.PathLike, resume: bool = False, progre
     tr, va = splits["train"], splits["val"]
     au_names = tr.au_names
     # the state size and mel count follow the data (AU map of the default head, audio config)
-    cfg = replace(cfg, model=replace(cfg.model, state_dim=len(au_names) + 6, n_mels=int(tr.audio.shape[2])))
+    cfg = replace(cfg, model=replace(cfg.model, state_dim=len(au_names) + 6, n_mels=int(tr.audio.shape[2]),
+                                     audio_features=cfg.data.audio_features))
     state = None
     if resume and partial.is_file():
         state = torch.load(partial, map_location="cpu", weights_only=True)
