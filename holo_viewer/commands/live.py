@@ -51,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      "tracked, not extrapolated to when the frame is shown")
     ctl.add_argument("--temperature", type=float, default=0.0, help="reaction sampling temperature (0 = argmax)")
     ctl.add_argument("--seed", type=int, default=0)
+    from .behaviour_args import add_behaviour_arguments
+
+    add_behaviour_arguments(parser, pain_timeline=False)  # timelines: --scenario's pain_timeline
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     (through HoloViewerError) for a missing device or bad input."""
     from ..errors import InputError
     from ..live.controls import Scenario
+    from .behaviour_args import behaviour_from_args
     from ..live.loop import LiveSessionConfig, LiveSession
     from ..live.render import LiveAvatarRenderer
     from ..live import sources
@@ -90,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
                                temperature=args.temperature, seed=args.seed, hfov_deg=mount.hfov_deg, mount=mount,
                                viewer_mode="group" if args.group else "nearest",
                                predict_viewer=not args.no_viewer_prediction, scenario=scenario,
-                               max_seconds=args.seconds, settings=settings)
+                               max_seconds=args.seconds, settings=settings,
+                               behaviour=behaviour_from_args(args, seed=args.seed))
     renderer = LiveAvatarRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview,
                                   mode=args.render_mode, backend=args.backend)
     settings["render_backend"] = renderer.backend  # what "auto" chose (session.json)

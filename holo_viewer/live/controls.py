@@ -80,6 +80,12 @@ class Scenario:
                     {"t": 4, "pain": 0.7, "expression": "frown", "intensity": 0.6, "duration": 3},
                     {"t": 10, "expression": "smile", "intensity": 0.8}]}
 
+    or with the pain levels as a pain timeline (the schema of :mod:`holo_viewer.behaviour.timeline`,
+    shared with render-batch manifests and session reports), which become pain events::
+
+        {"pain_timeline": [{"t": 0, "level": 0.1}, {"t": 4, "level": 0.7}],
+         "events": [{"t": 10, "expression": "smile", "intensity": 0.8}]}
+
     ``expression`` is one of the pipeline's named expressions (smile, pain, surprise, frown,
     mouth_open, neutral).
     """
@@ -91,6 +97,13 @@ class Scenario:
     def load(cls, path: str | os.PathLike) -> "Scenario":
         p = Path(path)
         data = read_json(p, InputError, "scenario JSON")
+        if isinstance(data, dict) and "pain_timeline" in data:
+            from ..behaviour import PainTimeline
+
+            tl = PainTimeline.from_json(data["pain_timeline"], source=f"{p}: pain_timeline")
+            if any(isinstance(e, dict) and e.get("pain") is not None for e in data.get("events") or []):
+                raise InputError(f"{p}: events: pain set both in pain_timeline and in events; expected one of them")
+            data = {**data, "events": list(data.get("events") or []) + [{"t": k.t, "pain": k.level} for k in tl.keys]}
         if not isinstance(data, dict) or not isinstance(data.get("events"), list):
             raise InputError(f'{p}: expected {{"events": [...]}}, found {type(data).__name__}')
         names = ("smile", "pain", "surprise", "frown", "mouth_open", "neutral")

@@ -63,6 +63,9 @@ class LiveSessionConfig:
     #: over the smoothing's lag, the pose's age and the expected render time; ViewerPose.predicted)
     predict_viewer: bool = True
     scenario: Any = None
+    #: the no-data behaviour layers (a holo_viewer.behaviour.BehaviourConfig; "default": all on, seeded
+    #: by ``seed``; None: the reaction model alone, conditioned on the pain level)
+    behaviour: Any = "default"
     max_seconds: float | None = None
     settings: dict = field(default_factory=dict)
 
@@ -123,6 +126,11 @@ class LiveSession:
         self._start = 0.0
         self._pause_offset = 0.0
         self._webcam_writer = None
+        #: level changes as the pain-timeline schema (holo_viewer.behaviour.timeline), for session.json
+        self.pain_log: list[dict] = []
+        self._pain_source = "key"
+        self._behaviour = None
+        self._speech_gate = None
 
     # ------------------------------------------------------------------ time
     def now(self) -> float:
@@ -189,6 +197,8 @@ class LiveSession:
                 end_frames = cap if end_frames is None else min(end_frames, cap)
             t = 0
             last_state = np.zeros(S)
+            gate = self._speech_gate
+            beh = self._behaviour
             while not self._stop.is_set() and (end_frames is None or t < end_frames):
                 due = (t + 1) / FPS  # audio of frame t is complete (centre + half a window) by then
                 if not self._sleep_until(due):
@@ -198,6 +208,7 @@ class LiveSession:
                 samples = self.audio.read(due)
                 stream.push_audio(samples)
                 self.recorder.add_audio(samples)
+                speaking, pause_onset = gate.step(samples)
                 if self.audio.status != "ok":
                     self.status["audio"] = self.audio.status
                 # speaker state for frame t
@@ -219,11 +230,14 @@ class LiveSession:
                     p = self.scenario.pain_changes((t - 1) / FPS, t / FPS) if t else self.scenario.pain_at(0.0)
                     if p is not None:
                         self.controls.set_pain(p)
+                        self._pain_source = "scenario"
                 pain = self.controls.pain
+                self._log_pain(t / FPS, pain)
                 named = self.scenario.named_at(t / FPS) if self.scenario is not None else ()
                 t0 = time.perf_counter()
                 n_windows = len(stream.windows)
-                listener, window = stream.push_frame(last_state, pain)
+                # with the behaviour layers the pain face is theirs (exact, at once); the model hears pain 0
+                listener, window = stream.push_frame(last_state, pain if beh is None else 0.0)
                 if len(stream.windows) > n_windows:
                     dt = time.perf_counter() - t0
                     self.window_ms.append(1000 * dt)
@@ -235,8 +249,16 @@ class LiveSession:
                 sf = faces.speaker(last_state)
                 _, vp = self._viewer.get()
                 ang, dist, tracked = vp.angle_deg, vp.distance_m, vp.tracked
+                shown = -1.0  # no behaviour layers: the renderer adds the pain
+                if beh is not None:  # eyes on the tracked viewer, blinks, breathing, sway, pain dynamics
+                    from ..behaviour import viewer_target
+
+                    lf = beh.step(lf, pain, viewer_target(float(np.clip(ang, -60, 60)), float(np.clip(dist, 0.05, 20))),
+                                  speaking, pause_onset)
+                    shown = beh.last["pain"]
                 self.recorder.add_frame(
-                    time_s=t / FPS, viewer_angle_deg=ang, viewer_distance_m=dist, pain=pain, speaker_found=found,
+                    time_s=t / FPS, viewer_angle_deg=ang, viewer_distance_m=dist, pain=pain, pain_shown=shown,
+                    speaker_found=found,
                     window=window, **{f"speaker_{k_}": v for k_, v in sf.items()},
                     **{f"listener_{k_}": v for k_, v in lf.items()})
                 self._listener.put((t, lf, pain, named, self.now()))
@@ -266,11 +288,19 @@ class LiveSession:
                 return None
             return {"n": int(a.size), "median": round(float(np.median(a)), 2), "p95": round(float(np.percentile(a, 95)), 2)}
 
-        return {"tracker_ms": stats(self.tracker_ms), "reaction_window_ms": stats(self.window_ms),
+        return {"pain_timeline": list(self.pain_log),
+                "tracker_ms": stats(self.tracker_ms), "reaction_window_ms": stats(self.window_ms),
                 "render_ms": stats(self.render_ms), "late_reaction_windows": self.late_windows,
                 "late_reaction_window_max_ms": round(self.late_ms_max, 1),
                 "late_reaction_ticks": self.late_ticks, "reaction_windows": len(self.window_ms),
                 "displayed_frames": len(self.render_ms), "status": dict(self.status)}
+
+    def _log_pain(self, t: float, level: float) -> None:
+        """Record an instructor level change (the session report's pain timeline, the shared schema)."""
+        if not self.pain_log or self.pain_log[-1]["level"] != level:
+            src = self._pain_source if self.pain_log or self._pain_source == "scenario" else "start"
+            self.pain_log.append({"t": round(t, 3), "level": level, "source": src})
+        self._pain_source = "key"
 
     def _render_pose(self) -> tuple[float, float, bool]:
         """(angle, distance, tracked) to render the next frame for: the newest viewer pose, or
@@ -304,6 +334,13 @@ class LiveSession:
 
         self._stream = ReactionStream(load_default_bundle(), temperature=cfg.temperature,
                                       top_k=20 if cfg.temperature else None, seed=cfg.seed)
+        from ..behaviour import BehaviourConfig, ListenerBehaviour
+        from ..behaviour.speech import SpeechGate
+
+        self._speech_gate = SpeechGate()
+        if cfg.behaviour is not None:
+            bcfg = BehaviourConfig(seed=cfg.seed) if isinstance(cfg.behaviour, str) else cfg.behaviour
+            self._behaviour = ListenerBehaviour(bcfg)
         if renderer is not None:
             renderer.render({"expr": np.zeros(1)}, cfg.pain, (), 0.0, 0.6)
         if self.video is not None and self.synthetic is None:
@@ -343,7 +380,8 @@ class LiveSession:
                 frame, lf, pain, named, _ready = item
                 ang, dist, tracked = self._render_pose()
                 if renderer is not None:
-                    res = renderer.render(lf, pain, named, ang, dist, tracked)
+                    # the behaviour layers put the pain in the expressions already: add none on top
+                    res = renderer.render(lf, pain if self._behaviour is None else 0.0, named, ang, dist, tracked)
                     self.render_ms.append(1000 * res.seconds)
                     if res.native is not None and cfg.write_native_video:
                         if writer is None:

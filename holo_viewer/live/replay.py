@@ -40,7 +40,9 @@ def replay_frames(session: str | os.PathLike, tile_scale: float | None = None, e
     for t in range(0, len(tr["time_s"]), int(every)):
         lf = {k: tr[f"listener_{k}"][t] for k in LISTENER_KEYS}
         named = scenario.named_at(float(tr["time_s"][t])) if scenario is not None else ()
-        yield renderer.render(lf, float(tr["pain"][t]), named, float(tr["viewer_angle_deg"][t]),
+        # pain_shown >= 0: the behaviour layers drew the pain into listener_expr, add none on top
+        pain = 0.0 if "pain_shown" in tr and tr["pain_shown"][t] >= 0 else float(tr["pain"][t])
+        yield renderer.render(lf, pain, named, float(tr["viewer_angle_deg"][t]),
                               float(tr["viewer_distance_m"][t])).native
 
 

@@ -4,7 +4,8 @@
 
     SESSION/
       session.json   settings, sources, timings summary (rewritten at every flush and at the end)
-      tracks.npz     per 25 fps frame: time_s, viewer_angle_deg, viewer_distance_m, pain,
+      tracks.npz     per 25 fps frame: time_s, viewer_angle_deg, viewer_distance_m, pain (the instructor's
+                     level), pain_shown (the pain in listener_expr from the behaviour layers; -1 without them),
                      speaker_found, speaker_{expr,jaw_pose,rotation}, listener_{expr,jaw_pose,rotation,
                      neck_pose,eyes_pose,translation} (GaussianAvatars flame_param keys), window;
                      per displayed frame: display_time_s, display_frame, render_ms
@@ -34,7 +35,7 @@ __all__ = ["SessionRecorder", "TRACK_KEYS", "load_session"]
 LISTENER_KEYS = ("expr", "jaw_pose", "rotation", "neck_pose", "eyes_pose", "translation")
 SPEAKER_KEYS = ("expr", "jaw_pose", "rotation")
 _CHUNK = 250
-TRACK_KEYS = ("time_s", "viewer_angle_deg", "viewer_distance_m", "pain", "speaker_found", "window") + tuple(
+TRACK_KEYS = ("time_s", "viewer_angle_deg", "viewer_distance_m", "pain", "pain_shown", "speaker_found", "window") + tuple(
     f"speaker_{k}" for k in SPEAKER_KEYS) + tuple(f"listener_{k}" for k in LISTENER_KEYS)
 
 
