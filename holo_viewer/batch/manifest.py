@@ -424,7 +424,7 @@ class _Row:
             cfg = BehaviourConfig.from_dict({"seed": seed, **v}, source=key)
         except InputError as exc:
             raise ManifestError(str(exc)) from None
-        return tuple(sorted((k, tuple(x) if isinstance(x, list) else x) for k, x in cfg.to_dict().items()))
+        return _behaviour_items(cfg)
 
     def outputs(self, key: str) -> tuple[str, ...]:
         v = self._raw(key, ["quilt_mp4"])
@@ -449,8 +449,12 @@ def switch_behaviour_off(spec: JobSpec, layers: tuple[str, ...]) -> JobSpec:
     if "behaviour" in layers:
         return replace(spec, behaviour=None)
     cfg = BehaviourConfig.from_dict(dict(spec.behaviour)).without(*layers)
-    return replace(spec, behaviour=tuple(sorted((k, tuple(x) if isinstance(x, list) else x)
-                                                for k, x in cfg.to_dict().items())))
+    return replace(spec, behaviour=_behaviour_items(cfg))
+
+
+def _behaviour_items(cfg: Any) -> tuple[tuple[str, Any], ...]:
+    """A BehaviourConfig as the hashable, JSON-able sorted (key, value) pairs of ``JobSpec.behaviour``."""
+    return tuple(sorted((k, tuple(x) if isinstance(x, list) else x) for k, x in cfg.to_dict().items()))
 
 
 # =============================================================================== hashing
