@@ -52,17 +52,17 @@ def viewer_target(angle_deg: float, distance_m: float, framing: tuple[np.ndarray
                   panel_height_m: float = PANEL_HEIGHT_M, height_m: float = 0.0) -> np.ndarray:
     """A viewer's eye midpoint in the avatar's (FLAME) frame.
 
-    The viewer stands ``distance_m`` in front of the panel at ``angle_deg`` (+ = toward the
-    panel's right as the viewer sees it, the avatar's +x; the quilt cameras' convention) and
-    ``height_m`` above its centre. The panel's focal plane shows the head's framing at the scale
-    ``s = half_height / (panel_height / 2)``, so the point is ``centre + s (d tan a, h, d)``
-    (the same geometry as Algorithm 1's cameras for that viewer).
+    The viewer is ``distance_m`` from the panel's centre in the direction ``angle_deg`` (+ = to
+    the right as the viewer faces the panel, the avatar's +x: the conventions of
+    ``tracking.viewer``, ``viewer_angle_deg = atan2(x, z)``, ``viewer_distance_m = |p|``, and of
+    the quilt cameras), ``height_m`` above it. The panel's focal plane shows the head's framing
+    at the scale ``s = half_height / (panel_height / 2)`` (Algorithm 1's cameras for a viewer at
+    distance d sit at ``s d``), so the point is ``centre + s (d sin a, h, d cos a)``.
     """
     centre, half = framing
     s = float(half) / (0.5 * float(panel_height_m))
-    d = float(distance_m)
-    return np.asarray(centre, dtype=np.float64) + s * np.array([d * math.tan(math.radians(angle_deg)),
-                                                                float(height_m), d])
+    d, a = float(distance_m), math.radians(float(angle_deg))
+    return np.asarray(centre, dtype=np.float64) + s * np.array([d * math.sin(a), float(height_m), d * math.cos(a)])
 
 
 def default_target() -> np.ndarray:
