@@ -19,6 +19,8 @@ import contextlib
 import errno
 import os
 import re
+import shutil
+import stat
 import tempfile
 import time
 import zipfile
@@ -31,7 +33,15 @@ import numpy as np
 from .errors import ExportError, HoloViewerError
 
 __all__ = ["atomic_write", "atomic_path", "save_image", "load_image", "save_npz", "read_npz", "read_npy",
-           "write_error", "reporting_write_errors", "ensure_dir", "check_writable", "remove_stale_temps"]
+           "write_error", "reporting_write_errors", "ensure_dir", "check_writable", "remove_stale_temps",
+           "read_json", "parse_json", "check_json_depth", "MAX_JSON_BYTES", "MAX_JSON_DEPTH", "NPZ_BUDGET_BYTES"]
+
+#: largest JSON file any reader parses (manifests, calibrations, sessions, scenarios, maps)
+MAX_JSON_BYTES = 64 << 20
+#: deepest JSON nesting accepted: our files need 4; Python's parser raises RecursionError near 1000
+MAX_JSON_DEPTH = 64
+#: uncompressed bytes one .npz read may produce (the largest shipped file, the ICT model, is 36 MB)
+NPZ_BUDGET_BYTES = 1 << 30
 
 #: wall-clock time this module was imported: temporaries older than this are not ours
 _PROCESS_START = time.time()
@@ -116,8 +126,8 @@ def check_writable(path: str | os.PathLike, what: str = "file") -> Path:
         ``path`` is a directory, a parent is a file, or the directory is not writable.
     """
     target = Path(path)
-    if target.is_dir():
-        raise ExportError(f"{target}: cannot write the {what}: the path is a directory")
+    if _destination_kind(target, what) == "stream":
+        return target
     ensure_dir(target.parent, for_file=target)
     with reporting_write_errors(target, what):
         fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".tmp{target.suffix}", dir=target.parent)
@@ -175,6 +185,41 @@ def remove_stale_temps(target: Path, suffix: str) -> list[Path]:
     return removed
 
 
+def _destination_kind(target: Path, what: str = "file") -> str:
+    """``"new"``, ``"file"`` (regular, replaced by rename) or ``"stream"`` (FIFO or character device).
+
+    A FIFO or character device (``/dev/null``, a terminal) is written through, as ``cp`` does:
+    replacing it with a regular file would break it for every other user (as root, ``--out
+    /dev/null`` would replace the system's ``/dev/null``).
+
+    Raises
+    ------
+    ExportError
+        The destination is a directory, socket or block device (never written nor replaced).
+    """
+    try:
+        mode = os.stat(target).st_mode
+    except FileNotFoundError:
+        return "new"
+    except OSError:
+        return "new"  # a dangling link, a parent that is a file: the write reports it
+    if stat.S_ISREG(mode):
+        return "file"
+    if stat.S_ISFIFO(mode) or stat.S_ISCHR(mode):
+        return "stream"
+    kind = ("a directory" if stat.S_ISDIR(mode) else "a socket" if stat.S_ISSOCK(mode)
+            else "a block device" if stat.S_ISBLK(mode) else "not a regular file")
+    raise ExportError(f"{target}: cannot write the {what}: the path is {kind}; refusing to write into or replace "
+                      f"it (choose a file path)")
+
+
+def _write_through(tmp_path: Path, target: Path) -> None:
+    """Copy a finished temporary into an existing FIFO or character device (no rename, no truncation)."""
+    with open(tmp_path, "rb") as src, open(target, "ab") as dst:
+        shutil.copyfileobj(src, dst, 1 << 20)
+        dst.flush()
+
+
 def _target_mode(target: Path) -> int:
     """Permission bits for a new file: the existing target's, else 0o666 minus the umask.
 
@@ -202,11 +247,16 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         Any earlier file at ``path`` is unchanged and the temporary is removed.
     """
     target = Path(path)
-    ensure_dir(target.parent, for_file=target)
+    stream = _destination_kind(target) == "stream"
+    if not stream:
+        ensure_dir(target.parent, for_file=target)
     suf = target.suffix if suffix is None else suffix
     with reporting_write_errors(target):
-        remove_stale_temps(target, suf)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".tmp{suf}", dir=target.parent)
+        if not stream:
+            remove_stale_temps(target, suf)
+        # a FIFO or device is written through from a private temporary (its directory may be /dev)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".tmp{suf}",
+                                   dir=None if stream else target.parent)
     tmp_path = Path(tmp)
     try:
         _try_lock(fd)  # tells remove_stale_temps of other processes that this one is alive
@@ -214,8 +264,11 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
             yield tmp_path
             if not tmp_path.exists() or tmp_path.stat().st_size == 0:
                 raise ExportError(f"{target}: writer produced no data")
-            os.chmod(tmp_path, _target_mode(target))
-            os.replace(tmp_path, target)
+            if stream:
+                _write_through(tmp_path, target)
+            else:
+                os.chmod(tmp_path, _target_mode(target))
+                os.replace(tmp_path, target)
     finally:
         try:
             if tmp_path.exists():
@@ -311,6 +364,8 @@ def _reading(path: Path, error: type[HoloViewerError], what: str) -> Iterator[No
     """Map every way numpy can fail to read a file to ``error`` naming the file."""
     try:
         yield
+    except HoloViewerError:
+        raise
     except FileNotFoundError:
         raise error(f"{path}: {what} not found") from None
     except IsADirectoryError:
@@ -330,28 +385,127 @@ def read_json(path: str | os.PathLike, error: type[HoloViewerError] = HoloViewer
         ``"{path}: {what} not found"`` or ``"{path}: cannot read {what} (...)"`` for a missing,
         unreadable, non-UTF-8 or malformed file (the caller checks the structure it expects).
     """
-    import json
-
     p = Path(path)
-    with _reading(p, error, what):  # JSONDecodeError and UnicodeDecodeError are ValueErrors
-        return json.loads(p.read_text(encoding="utf-8"))
+    with _reading(p, error, what):  # UnicodeDecodeError is a ValueError
+        with open(p, "rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            if size > MAX_JSON_BYTES:
+                raise error(f"{p}: {what} of {size:,} bytes, over the limit of {MAX_JSON_BYTES:,} bytes "
+                            f"(fileio.MAX_JSON_BYTES)")
+            raw = fh.read(MAX_JSON_BYTES + 1)
+        if len(raw) > MAX_JSON_BYTES:
+            raise error(f"{p}: {what} of more than {MAX_JSON_BYTES:,} bytes (fileio.MAX_JSON_BYTES)")
+        text = raw.decode("utf-8")
+    return parse_json(text, error, str(p), what)
 
 
-def read_npz(path: str | os.PathLike, error: type[HoloViewerError] = HoloViewerError,
-             what: str = "file") -> dict[str, np.ndarray]:
-    """Every array of an ``.npz`` file, read eagerly (no pickles).
+def json_depth(text: str) -> int:
+    """Deepest ``[``/``{`` nesting of JSON ``text`` (brackets inside strings ignored); no recursion."""
+    opens = text.count("[") + text.count("{")
+    if opens <= MAX_JSON_DEPTH:
+        return opens  # an upper bound, and small: the common case costs two counts
+    bare = re.sub(r'"(?:[^"\\]|\\.)*"', '""', text).encode("utf-8", "replace")
+    b = np.frombuffer(bare, dtype=np.uint8)
+    step = ((b == 91) | (b == 123)).astype(np.int32) - ((b == 93) | (b == 125)).astype(np.int32)
+    return int(np.cumsum(step).max(initial=0))
+
+
+def check_json_depth(text: str | bytes, error: type[HoloViewerError] = HoloViewerError, source: str = "<json>",
+                     what: str = "JSON") -> None:
+    """Refuse JSON nested deeper than :data:`MAX_JSON_DEPTH` before it is parsed.
+
+    Python's parser recurses per level: ``'[' * 100000`` raises ``RecursionError`` (a
+    traceback); this check is one line, linear time and no recursion.
+    """
+    if isinstance(text, bytes):
+        text = text.decode("utf-8", "replace")
+    depth = json_depth(text)
+    if depth > MAX_JSON_DEPTH:
+        raise error(f"{source}: cannot read {what}: nested {depth} levels deep, more than the {MAX_JSON_DEPTH} "
+                    f"accepted (fileio.MAX_JSON_DEPTH)")
+
+
+def parse_json(text: str | bytes, error: type[HoloViewerError] = HoloViewerError, source: str = "<json>",
+               what: str = "JSON"):
+    """``json.loads`` after :func:`check_json_depth`; every JSON reader of the package uses one of them.
 
     Raises
     ------
     error
-        ``"{path}: cannot read {what} (...)"`` for a missing, truncated or corrupt file.
+        ``"{source}: cannot read {what}: ..."`` for too deeply nested or malformed JSON
+        (``not valid JSON (...)`` with the parser's line and column).
     """
-    with _reading(Path(path), error, what):
-        z = np.load(path, allow_pickle=False)
-        if not isinstance(z, np.lib.npyio.NpzFile):
-            raise ValueError("expected an .npz archive, found a single .npy array")
-        with z:
-            return {k: z[k] for k in z.files}
+    import json
+
+    check_json_depth(text, error, source, what)
+    try:
+        return json.loads(text)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise error(f"{source}: cannot read {what}: not valid JSON ({exc})") from None
+
+
+def read_npz(path: str | os.PathLike, error: type[HoloViewerError] = HoloViewerError,
+             what: str = "file", budget: int | None = None) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` file, read eagerly (no pickles), at most ``budget`` bytes
+    (default :data:`NPZ_BUDGET_BYTES`).
+
+    Raises
+    ------
+    error
+        ``"{path}: cannot read {what} (...)"`` for a missing, truncated or corrupt file;
+        ``"... over the budget"`` before allocating when the declared sizes, an array's
+        header or the decompressed bytes exceed ``budget`` (a 2 MB file of deflated zeros
+        cannot make a reader allocate gigabytes).
+    """
+    p = Path(path)
+    with _reading(p, error, what):
+        with open(p, "rb") as fh:
+            if fh.read(6) == b"\x93NUMPY":
+                raise ValueError("expected an .npz archive, found a single .npy array")
+        with zipfile.ZipFile(p) as zf:
+            return _read_npz_members(zf, p, error, what, NPZ_BUDGET_BYTES if budget is None else budget)
+
+
+def _read_npz_members(zf: zipfile.ZipFile, path: Path, error: type[HoloViewerError], what: str,
+                      budget: int) -> dict[str, np.ndarray]:
+    """Every ``.npy`` member of an open archive, each checked against ``budget`` before it is read.
+
+    The budget is checked three times: the sum of the members' declared sizes, each array's
+    header (shape x itemsize, before its buffer is allocated), and the bytes actually
+    decompressed (a forged declared size cannot make a member inflate past its header).
+    """
+    infos = zf.infolist()
+    declared = sum(i.file_size for i in infos)
+    if declared > budget:
+        raise error(f"{path}: {what} declares {declared:,} uncompressed bytes, over the budget of {budget:,} "
+                    f"(fileio.NPZ_BUDGET_BYTES)")
+    out: dict[str, np.ndarray] = {}
+    left = budget
+    for info in infos:
+        name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+        with zf.open(info) as fh:
+            version = np.lib.format.read_magic(fh)
+            if version not in ((1, 0), (2, 0)):
+                raise ValueError(f"member {info.filename}: unsupported .npy version {version}")
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            shape, fortran, dtype = read_header(fh)
+            if dtype.hasobject:
+                raise ValueError(f"member {info.filename}: an array of Python objects (pickles are not loaded)")
+            nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+            if nbytes > left:
+                raise error(f"{path}: {what}: member {name!r} of shape {shape} and dtype {dtype} needs "
+                            f"{nbytes:,} bytes, over the budget of {budget:,} (fileio.NPZ_BUDGET_BYTES)")
+            buf = bytearray(nbytes)
+            got = fh.readinto(buf) if nbytes else 0
+            if got != nbytes:
+                raise ValueError(f"member {info.filename}: truncated ({got} of {nbytes} bytes)")
+            if fh.read(1):
+                raise ValueError(f"member {info.filename}: more data than its header declares")
+            left -= nbytes
+        arr = np.frombuffer(buf, dtype=dtype)
+        out[name] = arr.reshape(shape, order="F" if fortran else "C")
+    return out
 
 
 def read_npy(path: str | os.PathLike, error: type[HoloViewerError] = HoloViewerError,

@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
+from ..fileio import check_json_depth
 
 __all__ = ["add_arguments", "run", "parse_background", "load_cameras"]
 
@@ -79,6 +80,7 @@ def load_cameras(path: str | Path):  # noqa: ANN201 - Cameras, imported lazily
         raise InputError(f"--cameras {path}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"--cameras {path}: cannot read ({exc})") from None
+    check_json_depth(text, InputError, f"--cameras {path}", "the camera JSON")
     try:
         items = json.loads(text)
     except json.JSONDecodeError as exc:

@@ -27,7 +27,6 @@ individually and its own ``visual.json`` must be used to drive it. A preset cali
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass, replace
@@ -37,7 +36,12 @@ from typing import Any, Mapping
 from ..errors import CalibrationError
 
 __all__ = ["DisplayCalibration", "QuiltLayout", "DevicePreset", "PRESETS", "preset_for_serial",
-           "JSON_FIELDS", "LIMITS"]
+           "JSON_FIELDS", "LIMITS", "MAX_SCREEN_SIDE", "MAX_SCREEN_PIXELS"]
+
+#: panel size bounds: the largest Looking Glass (65", 7680 x 4320) with room for portrait
+#: orientation; quilt-to-native allocates ~12 bytes per native pixel, so 32768**2 asked for 12 GiB
+MAX_SCREEN_SIDE = 8192
+MAX_SCREEN_PIXELS = 7680 * 4320
 
 #: visual.json key -> (DisplayCalibration attribute, kind). kind: "float" or "flag".
 JSON_FIELDS: dict[str, tuple[str, str]] = {
@@ -266,10 +270,13 @@ class DisplayCalibration:
         for name, key in (("screen_w", "screenW"), ("screen_h", "screenH")):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v != int(v) or not (1 <= v <= 32768):
+                    or v != int(v) or not (1 <= v <= MAX_SCREEN_SIDE):
                 raise CalibrationError(f"{src}: field '{key}': expected a positive integer number of "
-                                       f"pixels (<= 32768), found {v!r}")
+                                       f"pixels (<= {MAX_SCREEN_SIDE}), found {v!r}")
             object.__setattr__(self, name, int(v))
+        if self.screen_w * self.screen_h > MAX_SCREEN_PIXELS:
+            raise CalibrationError(f"{src}: fields 'screenW', 'screenH': expected at most {MAX_SCREEN_PIXELS:,} pixels "
+                                   f"(the largest Looking Glass, 7680 x 4320), found {self.screen_w} x {self.screen_h}")
         for name in ("inv_view", "flip_image_x", "flip_image_y", "flip_subp", "nominal"):
             object.__setattr__(self, name, bool(getattr(self, name)))
         lenses = self.pitch * self.screen_w / self.dpi * math.cos(math.atan(1.0 / self.slope))
@@ -362,10 +369,9 @@ class DisplayCalibration:
             Naming the field that is missing, non-numeric or out of range.
         """
         if isinstance(data, (str, bytes)):
-            try:
-                data = json.loads(data)
-            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-                raise CalibrationError(f"{source}: not valid JSON ({exc})") from exc
+            from ..fileio import parse_json
+
+            data = parse_json(data, CalibrationError, source, "calibration JSON")
         if not isinstance(data, Mapping):
             raise CalibrationError(f"{source}: expected a JSON object, found {type(data).__name__}")
         vals: dict[str, Any] = {}

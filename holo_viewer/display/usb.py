@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Iterable, Protocol, Sequence
 
 from ..errors import CalibrationError, DeviceError
+from ..fileio import check_json_depth
 from .calibration import DisplayCalibration
 
 __all__ = ["VENDOR_ID", "PRODUCT_ID", "PAGE_SIZE", "REPLY_SIZE", "UDEV_RULE", "FeatureReportDevice",
@@ -101,6 +102,7 @@ def read_hid_calibration(dev: FeatureReportDevice, *, where: str = "HID 04d8:ef7
         data += _read_page(dev, page, where)
         page += 1
     blob = bytes(data[:length])
+    check_json_depth(blob, DeviceError, where, "the device's calibration JSON")
     try:
         obj = json.loads(blob.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:

@@ -205,10 +205,9 @@ class AUMap:
             raise InputError(f"{p}: AU map file not found") from exc
         except (OSError, UnicodeDecodeError) as exc:
             raise InputError(f"{p}: cannot read the AU map ({exc})") from exc
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{p}: not valid JSON ({exc})") from exc
+        from ..fileio import parse_json
+
+        data = parse_json(text, InputError, str(p), "the AU map")
         return cls.from_dict(data, n_expr=n_expr, source=str(p))
 
     def to_dict(self) -> dict[str, Any]:

@@ -616,16 +616,12 @@ def _load_pkl(path: Path) -> dict[str, Any]:
 
 
 def _load_npz(path: Path) -> dict[str, Any]:
-    source = str(path)
+    from ..fileio import read_npz
+
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            return {k: npz[k] for k in npz.files}
-    except FileNotFoundError as exc:
-        raise FlameError(f"{source}: file not found") from exc
-    except IsADirectoryError as exc:
-        raise FlameError(f"{source}: expected a FLAME .pkl or .npz file, found a directory") from exc
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as exc:
-        raise FlameError(f"{source}: not a readable .npz file ({type(exc).__name__}: {exc})") from exc
+        return read_npz(path, FlameError, "FLAME .npz model")  # budgeted: a deflate bomb is refused unread
+    except FlameError as exc:
+        raise FlameError(str(exc).replace("cannot read FLAME .npz model", "not a readable .npz file", 1)) from None
 
 
 def load_flame_arrays(path: str | os.PathLike) -> dict[str, Any]:

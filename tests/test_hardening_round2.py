@@ -1,0 +1,253 @@
+"""Hardening, round two (issue 31, cases 4-16): resource bombs, clobbered data, bad input.
+
+Cases 1-3 (the FLAME pickle loader) are in ``test_flame_pickle_bombs.py``. Each test here
+failed on the code before the fix. Budgets are asserted to apply before the expensive step
+(a spy on the step), never by timing.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import socket
+import stat
+import threading
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from holo_viewer import fileio
+from holo_viewer.cli import main
+from holo_viewer.errors import (CalibrationError, ExportError, HoloViewerError, InputError, ReactionError,
+                                TrackingError)
+
+from test_hardening import _empty_gaussians, _speaker_files  # noqa: E402  (tests/ is on sys.path)
+
+ROOT = Path(__file__).resolve().parents[1]
+FIXTURE = ROOT / "assets" / "lkg_portrait_visual.json"
+DEEP = "[" * 100_000 + "]" * 100_000
+
+
+# --------------------------------------------------------------------------- case 4: deep JSON
+
+
+def _json_readers(tmp_path: Path):
+    """(name, call) for every JSON reader of the package, each given ``DEEP`` JSON."""
+    from holo_viewer.batch.manifest import read_manifest
+    from holo_viewer.display.calibration import DisplayCalibration
+    from holo_viewer.flame.expressions import AUMap
+    from holo_viewer.live.controls import Scenario
+    from holo_viewer.live.session import load_session
+    from holo_viewer.reaction.train import load_train_config
+    from holo_viewer.tracking.viewer import WebcamMount
+
+    deep = tmp_path / "deep.json"
+    deep.write_text(DEEP)
+    session = tmp_path / "session"
+    session.mkdir()
+    (session / "session.json").write_text(DEEP)
+    np.savez(session / "tracks.npz", a=np.zeros(1))
+    manifest = tmp_path / "jobs.jsonl"
+    manifest.write_text(DEEP + "\n")
+    return [
+        ("calibration", lambda: DisplayCalibration.from_file(deep)),
+        ("AU map", lambda: AUMap.load_json(deep)),
+        ("scenario", lambda: Scenario.load(deep)),
+        ("mount", lambda: WebcamMount.load(deep)),
+        ("session", lambda: load_session(session)),
+        ("train config", lambda: load_train_config(deep)),
+        ("read_json", lambda: fileio.read_json(deep)),
+        ("manifest", lambda: read_manifest(manifest)),
+    ]
+
+
+@pytest.mark.parametrize("index", range(8))
+def test_deep_json_is_refused_in_one_line_by_every_reader(tmp_path: Path, index: int) -> None:
+    name, call = _json_readers(tmp_path)[index]
+    if name == "manifest":
+        (row,) = call()
+        assert "nested 100000 levels" in row.error
+        return
+    with pytest.raises(HoloViewerError, match=r"nested 100000 levels deep.*MAX_JSON_DEPTH"):
+        call()
+
+
+@pytest.mark.parametrize("argv", [
+    ["quilt-to-native", "q_qs8x6a0.75.png", "--calibration", "{deep}", "--out", "{out}/n.png"],
+    ["render-ply", "s.ply", "--cameras", "{deep}", "--out", "{out}"],
+    ["export-mesh", "--pain", "1", "--au-map", "{deep}", "--out", "{out}/h.obj"],
+])
+def test_deep_json_on_the_command_line(tmp_path: Path, argv: list[str], capsys: pytest.CaptureFixture) -> None:
+    deep = tmp_path / "deep.json"
+    deep.write_text(DEEP)
+    out = tmp_path / "out"
+    if argv[0] == "render-ply":
+        from holo_viewer.avatar.ply import save_ply
+        save_ply(_empty_gaussians(), tmp_path / "s.ply")
+    elif argv[0] == "quilt-to-native":
+        fileio.save_image(tmp_path / "q_qs8x6a0.75.png", np.zeros((48, 64, 3)))
+    argv = [a.format(deep=deep, out=out) for a in argv]
+    argv = [str(tmp_path / a) if a.endswith((".png", ".ply")) and "/" not in a else a for a in argv]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "deep.json" in err and "nested" in err and "Traceback" not in err
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_json_depth_ignores_brackets_in_strings() -> None:
+    assert fileio.json_depth(json.dumps({"a": "[" * 500, "b": [[1]]})) == 3
+    assert fileio.parse_json('{"a": "' + "{" * 200 + '"}') == {"a": "{" * 200}
+
+
+# --------------------------------------------------------------------------- case 5: .npz bombs
+
+
+def _zeros_npz(path: Path, n_bytes: int, name: str = "expr") -> Path:
+    """An .npz holding ``n_bytes`` of float64 zeros, deflated (small on disk)."""
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False,
+                                                  "shape": (n_bytes // 8,)})
+    chunk = bytes(1 << 22)
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+        with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
+            fh.write(header.getvalue())
+            for start in range(0, n_bytes, len(chunk)):
+                fh.write(chunk[: min(len(chunk), n_bytes - start)])
+    return path
+
+
+def test_npz_bomb_is_refused_before_decompressing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                   capsys: pytest.CaptureFixture) -> None:
+    bomb = _zeros_npz(tmp_path / "speaker.npz", 96 << 20)
+    assert bomb.stat().st_size < 1 << 20
+    monkeypatch.setattr(fileio, "NPZ_BUDGET_BYTES", 32 << 20)
+    reads: list[int] = []
+    real = zipfile.ZipExtFile.read
+    monkeypatch.setattr(zipfile.ZipExtFile, "read", lambda self, n=-1: reads.append(n) or real(self, n))
+    from holo_viewer.reaction.api import load_speaker_npz
+    with pytest.raises(ReactionError, match=r"speaker\.npz: .*declares 100,663,[0-9]+ uncompressed bytes.*budget"):
+        load_speaker_npz(bomb, None)
+    assert reads == []  # refused from the central directory, nothing inflated
+    from holo_viewer.live.session import load_session
+    folder = tmp_path / "session"
+    folder.mkdir()
+    (folder / "session.json").write_text("{}")
+    _zeros_npz(folder / "tracks.npz", 96 << 20)
+    with pytest.raises(InputError, match=r"tracks\.npz: .*budget"):
+        load_session(folder)
+
+
+def test_npz_header_is_checked_before_the_buffer_is_allocated(tmp_path: Path, monkeypatch) -> None:
+    """A header claiming more than the budget is refused before its buffer exists, even when the
+    declared zip sizes are small (a forged central directory)."""
+    path = tmp_path / "forged.npz"
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (10**9,)})
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("a.npy", header.getvalue() + bytes(64))
+    allocs: list[int] = []
+    monkeypatch.setattr(fileio, "bytearray", lambda n: allocs.append(n) or bytearray(n), raising=False)
+    with pytest.raises(HoloViewerError, match=r"forged\.npz: .*member 'a' of shape \(1000000000,\).*budget"):
+        fileio.read_npz(path)
+    assert allocs == []
+    small = tmp_path / "small.npz"
+    np.savez(small, a=np.arange(6.0).reshape(2, 3), b=np.array(["x"]), f=np.asfortranarray(np.eye(3)))
+    got = fileio.read_npz(small)
+    assert allocs  # the allocation the budget guards is the one the spy sees
+    np.testing.assert_array_equal(got["a"], np.arange(6.0).reshape(2, 3))
+    np.testing.assert_array_equal(got["f"], np.eye(3))
+    assert got["b"][0] == "x" and got["a"].flags.writeable
+
+
+def test_npz_member_longer_than_its_header_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "long.npz"
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (2,)})
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("a.npy", header.getvalue() + bytes(10 * 8))
+    with pytest.raises(HoloViewerError, match=r"long\.npz: cannot read .*more data than its header"):
+        fileio.read_npz(path)
+
+
+# --------------------------------------------------------------------------- case 7: calibration sizes
+
+
+def test_calibration_screen_size_is_bounded_by_real_panels(tmp_path: Path, capsys) -> None:
+    data = json.loads(FIXTURE.read_text())
+    data["screenW"], data["screenH"] = {"value": 32768}, {"value": 32768}
+    data["DPI"] = {"value": 5000}
+    bad = tmp_path / "huge.json"
+    bad.write_text(json.dumps(data))
+    from holo_viewer.display.calibration import DisplayCalibration
+    with pytest.raises(CalibrationError, match=r"huge\.json: field 'screenW': .*<= 8192.*32768"):
+        DisplayCalibration.from_file(bad)
+    data["screenW"], data["screenH"] = {"value": 8192}, {"value": 8192}
+    bad.write_text(json.dumps(data))
+    with pytest.raises(CalibrationError, match=r"at most 33,177,600 pixels.*8192 x 8192"):
+        DisplayCalibration.from_file(bad)
+    data["screenW"], data["screenH"] = {"value": 7680}, {"value": 4320}
+    bad.write_text(json.dumps(data))
+    assert DisplayCalibration.from_file(bad).screen_w == 7680
+
+
+# --------------------------------------------------------------------------- case 11: not a regular file
+
+
+def _char_device(path: Path) -> Path:
+    try:
+        os.mknod(path, stat.S_IFCHR | 0o666, os.makedev(1, 3))  # a /dev/null of our own
+    except (PermissionError, OSError) as exc:
+        pytest.skip(f"cannot create a character device here ({exc})")
+    return path
+
+
+def test_atomic_write_writes_through_a_character_device(tmp_path: Path) -> None:
+    fake = _char_device(tmp_path / "fakenull")
+    with fileio.atomic_write(fake) as fh:
+        fh.write(b"data")
+    assert stat.S_ISCHR(fake.stat().st_mode)
+    assert sorted(os.listdir(tmp_path)) == ["fakenull"]
+
+
+def test_react_out_to_a_device_keeps_the_device(tmp_path: Path, capsys) -> None:
+    fake = _char_device(tmp_path / "fakenull")
+    wav, npz = _speaker_files(tmp_path)
+    rc = main(["react", "--audio", str(wav), "--speaker", str(npz), "--out", str(fake)])
+    assert rc == 0, capsys.readouterr().err
+    assert stat.S_ISCHR(fake.stat().st_mode)
+
+
+def test_atomic_write_writes_through_a_fifo(tmp_path: Path) -> None:
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got: list[bytes] = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()), daemon=True)
+    reader.start()
+    try:
+        with fileio.atomic_write(fifo) as fh:
+            fh.write(b"through the pipe")
+        assert stat.S_ISFIFO(fifo.stat().st_mode)
+    finally:
+        if reader.is_alive() and not stat.S_ISFIFO(fifo.stat().st_mode):
+            pytest.fail("the FIFO was replaced by a file")
+        reader.join(10)
+    assert got == [b"through the pipe"]
+
+
+def test_directories_and_sockets_are_refused(tmp_path: Path) -> None:
+    sock_path = tmp_path / "s.sock"
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(str(sock_path))
+    try:
+        for target, kind in ((tmp_path, "a directory"), (sock_path, "a socket")):
+            with pytest.raises(ExportError, match=rf"the path is {kind}; refusing"):
+                with fileio.atomic_write(target) as fh:
+                    fh.write(b"x")
+            with pytest.raises(ExportError, match=kind):
+                fileio.check_writable(target)
+        assert stat.S_ISSOCK(sock_path.stat().st_mode)
+    finally:
+        sock.close()
