@@ -251,3 +251,38 @@ def test_directories_and_sockets_are_refused(tmp_path: Path) -> None:
         assert stat.S_ISSOCK(sock_path.stat().st_mode)
     finally:
         sock.close()
+
+
+# --------------------------------------------------------------------------- case 6: checkpoint size
+
+
+def _checkpoint_with(tmp_path: Path, name: str, **model: int) -> Path:
+    import torch
+
+    from holo_viewer.reaction.api import default_checkpoint_path
+
+    d = torch.load(default_checkpoint_path(), map_location="cpu", weights_only=True)
+    d["train_config"]["model"].update(model)
+    path = tmp_path / name
+    torch.save(d, path)
+    return path
+
+
+def test_huge_checkpoint_config_is_refused_before_building(tmp_path: Path, monkeypatch) -> None:
+    from holo_viewer.reaction import train
+
+    built: list[object] = []
+    real = train._build_model
+    monkeypatch.setattr(train, "_build_model", lambda cfg: built.append(cfg) or real(cfg))
+    bomb = _checkpoint_with(tmp_path, "bomb.pt", d_model=4096, ff_dim=65536)
+    assert bomb.stat().st_size < 2 << 20
+    with pytest.raises(ReactionError, match=r"bomb\.pt: .*asks for [0-9,]+ parameters.*MAX_REACTION_PARAMETERS"):
+        train.load_checkpoint(bomb)
+    assert built == []
+    odd = _checkpoint_with(tmp_path, "odd.pt", ff_dim=64)
+    with pytest.raises(ReactionError, match=r"odd\.pt: model_state\['.*'\]: expected shape .* found"):
+        train.load_checkpoint(odd)
+    assert built == []
+    from holo_viewer.reaction.api import default_checkpoint_path
+    train.load_checkpoint(default_checkpoint_path())
+    assert len(built) == 1

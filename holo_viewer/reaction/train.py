@@ -36,6 +36,9 @@ __all__ = ["TrainConfig", "ReactionBundle", "train", "load_checkpoint", "save_ch
            "batch_windows"]
 
 CHECKPOINT_VERSION = 1
+#: parameters a reaction checkpoint may ask for (the shipped model has 0.33 M; 20 M is 80 MB of
+#: float32): checked on a meta-device model, before anything is allocated
+MAX_REACTION_PARAMETERS = 20_000_000
 
 
 @dataclass(frozen=True)
@@ -255,6 +258,44 @@ def _bundle_payload(model: ReactionModel, codebook: Codebook, au_names, cfg: Tra
             "meta": meta}
 
 
+def _check_state_shapes(state: Any, model_cfg: ModelConfig, source: str) -> None:
+    """Bound the parameter count and match every weight's shape, on a meta-device model (no memory).
+
+    Raises
+    ------
+    ReactionError
+        More than :data:`MAX_REACTION_PARAMETERS` parameters, or a missing, extra or
+        differently shaped weight (named).
+    """
+    try:
+        with torch.device("meta"):
+            meta = ReactionModel(model_cfg)
+    except (ValueError, RuntimeError, TypeError) as exc:
+        raise ReactionError(f"{source}: train_config.model cannot build a model ({exc})") from exc
+    n_params = sum(t.numel() for t in meta.state_dict().values())
+    if n_params > MAX_REACTION_PARAMETERS:
+        raise ReactionError(f"{source}: train_config.model asks for {n_params:,} parameters, more than the "
+                            f"{MAX_REACTION_PARAMETERS:,} accepted (reaction.train.MAX_REACTION_PARAMETERS); "
+                            f"refusing to build it")
+    if not isinstance(state, dict):
+        raise ReactionError(f"{source}: model_state: expected a dict of tensors, found {type(state).__name__}")
+    expected = {k: tuple(v.shape) for k, v in meta.state_dict().items()}
+    missing, extra = sorted(set(expected) - set(state)), sorted(set(state) - set(expected))
+    if missing or extra:
+        raise ReactionError(f"{source}: model_state: weights do not match the stored model config "
+                            f"(missing {missing[:5]}, unexpected {extra[:5]})")
+    for key, shape in expected.items():
+        found = tuple(state[key].shape) if isinstance(state[key], torch.Tensor) else type(state[key]).__name__
+        if found != shape:
+            raise ReactionError(f"{source}: model_state[{key!r}]: expected shape {shape} (from train_config), "
+                                f"found {found}")
+
+
+def _build_model(model_cfg: ModelConfig) -> ReactionModel:
+    """The real (allocated) model; called only after :func:`_check_state_shapes`."""
+    return ReactionModel(model_cfg)
+
+
 def load_checkpoint(path: str | os.PathLike) -> ReactionBundle:
     """Load a final checkpoint written by :func:`train` (``weights_only`` safe loading)."""
     p = Path(path)
@@ -268,8 +309,9 @@ def load_checkpoint(path: str | os.PathLike) -> ReactionBundle:
         raise ReactionError(f"{p}: not a holo_viewer reaction checkpoint (missing kind='holo_viewer.reaction')")
     if d.get("version") != CHECKPOINT_VERSION:
         raise ReactionError(f"{p}: checkpoint version {d.get('version')}, expected {CHECKPOINT_VERSION}")
-    cfg = train_config_from_dict(d["train_config"])
-    model = ReactionModel(cfg.model)
+    cfg = train_config_from_dict(d["train_config"], source=f"{p}: train_config")
+    _check_state_shapes(d.get("model_state"), cfg.model, str(p))
+    model = _build_model(cfg.model)
     try:
         model.load_state_dict(d["model_state"])
     except RuntimeError as exc:
