@@ -59,23 +59,20 @@ def test_features_survive_gain(clips):
 
 
 def test_stream_equals_offline(clips):
-    """The tracker fed 8 frames at a time: VAD, energy, silence and speech channels equal the offline
-    ones; Praat over the trailing 2.4 s agrees on voicing for >= 95 % of frames and on pitch to a
-    median 0.01 octave (measured: 97.7 % / 0.008 on librispeech)."""
-    x, sr, f = clips[CLIPS[0]]
-    tr = SpeechTracker()
-    rows = []
-    for i in range(0, x.shape[0], 640 * 8):
-        tr.push(x[i:i + 640 * 8])
-        rows.append(tr.frames())
-    r = np.concatenate(rows)
-    assert r.shape == f.shape
-    for c in (0, 4, 5):
-        np.testing.assert_array_equal(r[:, c], f[:, c])
-    np.testing.assert_allclose(r[:, 1], f[:, 1], atol=1e-5)
-    assert np.mean(r[:, 2] == f[:, 2]) >= 0.95
-    v = (r[:, 2] > 0) & (f[:, 2] > 0)
-    assert np.median(np.abs(r[v, 3] - f[v, 3])) < 0.01
+    """The tracker fed 0.32 s at a time (and, for the JFK clip, 0.1 s) gives the offline rows exactly,
+    in whole pitch blocks of 8 frames."""
+    for name, step in ((CLIPS[0], 640 * 8), (CLIPS[1], 1600)):
+        x, sr, f = clips[name]
+        tr = SpeechTracker()
+        rows = []
+        for i in range(0, x.shape[0], step):
+            tr.push(x[i:i + step])
+            rows.append(tr.frames())
+        r = np.concatenate(rows)
+        n = f.shape[0] // 8 * 8
+        assert r.shape == (n, f.shape[1])
+        np.testing.assert_allclose(r, f[:n], atol=1e-5)
+        assert tr._audio.shape[0] <= 2.4 * 16000 + 1024 + 8 * 640 + step  # memory stays flat
 
 
 def test_channels_in_range_and_meaningful(clips):

@@ -18,9 +18,9 @@ live loop); every channel is causal except Praat's pitch path (see ``pitch``)::
     2 voiced   1 where Praat's autocorrelation pitch (75-500 Hz, 10-ms steps) is voiced at time
                640 (i + 1) / 16000 - 0.02 s, else 0
     3 pitch    log2(f0 / running geometric mean of the voiced speech f0 so far) in octaves, clipped
-               to [-1, 1]; 0 where unvoiced.  Offline the Praat path is found over the whole clip;
-               :class:`SpeechTracker` runs it over the trailing 2.4 s at every model step (the path
-               finder looks a few frames ahead), so the two agree on most but not all frames
+               to [-1, 1]; 0 where unvoiced.  Praat's path finder looks ahead, so the pitch is found
+               in blocks of 8 frames (the model's step, 0.32 s): block [8j, 8j + 8) from Praat over
+               the 2.4 s of audio ending with its last frame -- the same offline and streaming
     4 silence  seconds since speech stopped / 2, clipped to 1; 0 while speaking
     5 speech   length of the latest speech run (ongoing or ended) in seconds / 3, clipped to 1
 
@@ -45,7 +45,7 @@ from ..validation import check_array
 
 __all__ = ["SPEECH_FEATURES", "N_SPEECH_FEATURES", "SpeechState", "speech_features", "vad_probabilities",
            "frame_energy_db", "praat_pitch", "speech_mask", "speech_runs", "pause_onsets", "low_pitch_cues",
-           "SpeechTracker"]
+           "SpeechTracker", "block_pitch", "PITCH_BLOCK"]
 
 SAMPLE_RATE = 16000
 HOP = 640  # samples per 25-fps frame
@@ -59,7 +59,8 @@ SILENT_REL = -0.6  # energy channel: 12 dB below the speaker's level is silence 
 MIN_SILENCE_S, MIN_SPEECH_S = 0.2, 0.7
 LEVEL_PRIOR_DB, PRIOR_FRAMES = -26.0, 5.0
 PITCH_PRIOR_HZ = 150.0
-STREAM_PITCH_S = 2.4  # trailing audio the tracker runs Praat over
+STREAM_PITCH_S = 2.4  # trailing audio Praat runs over for each block
+PITCH_BLOCK = 8  # frames per pitch block (the model's k)
 
 #: channel names of :func:`speech_features`, in column order
 SPEECH_FEATURES: tuple[str, ...] = ("vad", "energy", "voiced", "pitch", "silence", "speech")
@@ -218,8 +219,8 @@ def _frame_vad(chunk_probs: np.ndarray, n_frames: int, first_frame: int = 0, fir
 
 def _check(audio, sample_rate: int, n_frames: int | None) -> tuple[np.ndarray, int]:
     if int(sample_rate) != SAMPLE_RATE:
-        raise ReactionError(f"sample_rate: expected {SAMPLE_RATE} Hz for the speech features, found {sample_rate} Hz; "
-                            f"resample the speaker audio first")
+        raise ReactionError(f"sample_rate: expected {SAMPLE_RATE} Hz, found {sample_rate} Hz; resample the speaker "
+                            f"audio to {SAMPLE_RATE} Hz mono first (the speech features)")
     x = np.asarray(check_array(audio, "audio", ("L",)), dtype=np.float32)
     if n_frames is None:
         n_frames = x.shape[0] // HOP
@@ -254,8 +255,23 @@ def speech_features(audio: np.ndarray, sample_rate: int = SAMPLE_RATE, n_frames:
     """
     x, n_frames = _check(audio, sample_rate, n_frames)
     chunks = vad_probabilities(x) if vad is None else np.asarray(vad, np.float32)
-    return _recurrences(_frame_vad(chunks, n_frames), frame_energy_db(x, n_frames), praat_pitch(x, n_frames),
+    return _recurrences(_frame_vad(chunks, n_frames), frame_energy_db(x, n_frames), block_pitch(x, n_frames),
                         SpeechState())
+
+
+def block_pitch(wave: np.ndarray, n_frames: int, first_frame: int = 0, offset_samples: int = 0) -> np.ndarray:
+    """f0 (Hz, 0 = unvoiced) of frames ``first_frame ..`` in blocks of :data:`PITCH_BLOCK` frames, each from
+    Praat over the :data:`STREAM_PITCH_S` seconds of audio ending with the block (``first_frame`` must
+    start a block; ``wave`` holds the clip from sample ``offset_samples``)."""
+    keep = int(STREAM_PITCH_S * SAMPLE_RATE)
+    x = np.asarray(wave, dtype=np.float64)
+    f0 = np.zeros(n_frames)
+    for b0 in range(0, n_frames, PITCH_BLOCK):
+        b1 = min(b0 + PITCH_BLOCK, n_frames)
+        end = HOP * (first_frame + b1)
+        lo = max(0, end - keep)
+        f0[b0:b1] = praat_pitch(x[lo - offset_samples:end - offset_samples], b1 - b0, first_frame + b0, lo)
+    return f0
 
 
 # ---- segments and listener cues ------------------------------------------------------------------
@@ -344,9 +360,8 @@ def low_pitch_cues(features: np.ndarray, fps: float = FPS, percentile: float = 2
 class SpeechTracker:
     """The speech channels computed as audio arrives (the live loop's and :mod:`.stream`'s path).
 
-    :meth:`push` takes new samples; :meth:`frames` returns the rows of the frames whose audio is
-    complete and not yet returned. VAD, energy and the causal channels equal :func:`speech_features`
-    exactly; the pitch comes from Praat over the trailing 2.4 s of audio (see the module docstring).
+    :meth:`push` takes new samples; :meth:`frames` returns the rows of the pitch blocks (8 frames)
+    whose audio is complete and not yet returned, equal to :func:`speech_features` rows.
     """
 
     def __init__(self) -> None:
@@ -375,18 +390,16 @@ class SpeechTracker:
             self._chunk_done += n_new * CHUNK
 
     def frames(self) -> np.ndarray:
-        """Rows (n, 6) of the newly complete frames (frame i needs samples up to 640 (i + 1))."""
+        """Rows (n, 6) of the newly complete pitch blocks (frame i needs samples up to 640 (i + 1))."""
         first = self.state.frame
-        n = self.samples // HOP - first
+        n = (self.samples // HOP) // PITCH_BLOCK * PITCH_BLOCK - first
         if n <= 0:
             return np.zeros((0, N_SPEECH_FEATURES), np.float32)
         keep = int(STREAM_PITCH_S * SAMPLE_RATE) + ENERGY_WINDOW
         end = HOP * (first + n)
-        lo = max(0, end - keep)
-        seg = self._audio[lo - self._start:end - self._start]
         vad = _frame_vad(np.asarray(self._chunks, np.float32), n, first)
         energy = self._energy(first, n)
-        f0 = praat_pitch(seg, n, first, lo)
+        f0 = block_pitch(self._audio, n, first, self._start)
         rows = _recurrences(vad, energy, f0, self.state)
         # forget audio no longer needed
         drop = max(0, end - keep) - self._start
