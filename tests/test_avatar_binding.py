@@ -13,7 +13,7 @@ from holo_viewer.avatar.gaussian_avatars import FlameParams, load_flame_params
 from holo_viewer.errors import AvatarError, PlyError
 from holo_viewer.flame.model import FlameModel
 from holo_viewer.flame.synthetic import random_flame_arrays
-from holo_viewer.geometry import quat_to_rotmat_np
+from holo_viewer.geometry import quat_multiply_np, quat_to_rotmat_np, rotmat_to_quat_np
 
 
 def _model(dtype=torch.float64, seed=0):
@@ -132,6 +132,14 @@ def test_world_to_local_inverts_binding():
     np.testing.assert_allclose(lm, m, atol=1e-10)
     np.testing.assert_allclose(quat_to_rotmat_np(lq), quat_to_rotmat_np(q), atol=1e-10)
     np.testing.assert_allclose(lls, ls, atol=1e-12)
+    # the references frame only the bound faces (a 2000-Gaussian avatar on a 61k-face head: 12 s -> 0.4 s);
+    # the result is exactly the frames of every face, indexed by the binding
+    rot, scale, centre, _ = face_frames_np(verts, faces)
+    q_face = rotmat_to_quat_np(rot[b])
+    means = scale[b, None] * np.einsum("nij,nj->ni", rot[b], m) + centre[b]
+    qn = q / np.linalg.norm(q, axis=1, keepdims=True)
+    assert np.array_equal(wm, means) and np.array_equal(wls, ls + np.log(scale[b])[:, None])
+    assert np.array_equal(wq, quat_multiply_np(q_face, qn))
 
 
 def test_degenerate_faces_give_no_nan_and_are_counted():

@@ -27,7 +27,8 @@ importlib.import_module("holo_viewer.avatar").default_avatar = dav.default_avata
 def test_fit_reduces_the_loss_on_a_tiny_synthetic_case():
     """A few hundred Gaussians bound to a small random mesh learn the colours, opacities and shapes of a
     'teacher' avatar (same binding) from its renders in 3 poses x 4 cameras: the L1 loss of the last
-    30 iterations is below 0.6 x that of the first 30, and the final renders are closer to the targets."""
+    10 of 40 iterations is below 0.6 x that of the first 10 (0.33 measured; 40 iterations on 29 x 39 views
+    cost 9 s of CPU, 150 on 42 x 56 cost 35 s for a ratio of 0.32)."""
     model = random_flame_model(n_vertices=120, n_expr=4, seed=3)
     n = 300
     binding = np.random.default_rng(0).integers(0, int(model.faces.shape[0]), size=n)
@@ -47,17 +48,17 @@ def test_fit_reduces_the_loss_on_a_tiny_synthetic_case():
         ims = np.clip(np.stack(ims), 0, 1)
         return ims, ims.sum(-1) > 0
 
-    pipe = Pipeline(model=model, avatar=False, view=ViewSettings(tile_scale=0.1))
+    pipe = Pipeline(model=model, avatar=False, view=ViewSettings(tile_scale=0.07))
     poses = [fa.TrainingPose("neutral", FaceControls()),
              fa.TrainingPose("a", FaceControls(expr=np.array([1.0, -0.5, 0.0, 0.3]))),
              fa.TrainingPose("b", FaceControls(expr=np.array([-0.8, 0.2, 0.6, 0.0]), jaw_pose=[0.2, 0, 0]))]
-    cfg = fa.AvatarFitConfig(iterations=150, views_per_step=2, train_scale=1.0, quilt_views=(0, 24, 47),
+    cfg = fa.AvatarFitConfig(iterations=40, views_per_step=2, train_scale=1.0, quilt_views=(0, 24, 47),
                        orbit=((20.0, 0.0),), lr_sh_dc=0.05, lr_opacity=0.05, ssim_weight=0.0,
                        render_timeout_s=None)
     data = fa.build_dataset(pipe, poses, render, cfg, progress=False)
     assert data.images.shape[:2] == (3, 4) and data.images.max() > 50
     res = fa.fit_gaussians(student, binding, data, cfg, progress=False)
-    first, last = np.mean(res.losses[:30]), np.mean(res.losses[-30:])
+    first, last = np.mean(res.losses[:10]), np.mean(res.losses[-10:])
     assert last < 0.6 * first, (first, last)
     assert np.all(np.isfinite(res.local.sh)) and len(res.local) == n
 

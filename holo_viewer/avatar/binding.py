@@ -186,12 +186,20 @@ def face_frames_np(vertices: np.ndarray, faces: np.ndarray, eps: float = DEGENER
     return rot, scale, centre, degenerate
 
 
+def _bound_face_frames_np(vertices: np.ndarray, faces: np.ndarray, binding: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`face_frames_np` of the faces ``binding`` uses only (each face's frame depends on that face
+    alone, so the values are the same), with the binding renumbered into them: rot, scale, centre, index."""
+    used, index = np.unique(np.asarray(binding), return_inverse=True)
+    rot, scale, centre, _ = face_frames_np(vertices, np.asarray(faces)[used])
+    return rot, scale, centre, index.reshape(-1)
+
+
 def bind_to_world_np(local_means: np.ndarray, local_quats: np.ndarray, local_log_scales: np.ndarray,
                      binding: np.ndarray, vertices: np.ndarray, faces: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Float64 reference: world means (N, 3), unit quats (N, 4) and log-scales (N, 3) for one mesh."""
-    rot, scale, centre, _ = face_frames_np(vertices, faces)
-    b = np.asarray(binding)
+    rot, scale, centre, b = _bound_face_frames_np(vertices, faces, binding)
     mu = np.asarray(local_means, np.float64)
     means = scale[b, None] * np.einsum("nij,nj->ni", rot[b], mu) + centre[b]
     q = np.asarray(local_quats, np.float64)
@@ -207,8 +215,7 @@ def world_to_local_np(means: np.ndarray, quats: np.ndarray, log_scales: np.ndarr
 
     Returns local means (N, 3), local unit quats (N, 4), local log-scales (N, 3).
     """
-    rot, scale, centre, _ = face_frames_np(vertices, faces)
-    b = np.asarray(binding)
+    rot, scale, centre, b = _bound_face_frames_np(vertices, faces, binding)
     d = np.asarray(means, np.float64) - centre[b]
     mu = np.einsum("nji,nj->ni", rot[b], d) / scale[b, None]
     fq = rotmat_to_quat_np(rot[b])
