@@ -82,3 +82,34 @@ def xvfb_server():
     """``with xvfb_server("1536x2048x24") as display:`` runs a virtual X server for that block."""
     return _xvfb
 
+
+
+# ------------------------------------------------------------------ per-test CPU times (bench/test_times.py)
+_TIMES_PATH = os.environ.get("HOLO_TEST_TIMES")
+_times: dict[str, list[float]] = {}
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """With ``$HOLO_TEST_TIMES`` set, record each test's wall and CPU seconds (set-up, call and tear-down;
+    CPU = this process's threads plus the children it waited for)."""
+    if not _TIMES_PATH:
+        yield
+        return
+    import resource
+
+    def cpu() -> float:
+        own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+        return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+    w0, c0 = time.perf_counter(), cpu()
+    yield
+    _times[item.nodeid] = [time.perf_counter() - w0, cpu() - c0]
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _TIMES_PATH and _times:
+        import json
+
+        worker = os.environ.get("PYTEST_XDIST_WORKER")  # under xdist each worker writes its own file
+        Path(_TIMES_PATH + (f".{worker}" if worker else "")).write_text(json.dumps(_times, indent=0))

@@ -1,0 +1,81 @@
+"""Test-suite time per file: each test file run alone (one process, no xdist), its wall and CPU seconds.
+
+Usage: python bench/test_times.py [--json bench/results/test_times.json] [--markers "not slow"] [FILE ...]
+
+Prints a table (files by CPU, slowest first, with their slowest tests) and writes JSON. CPU is user + system
+time of the pytest process and the children it waited for (Xvfb, CLI subprocesses), so it stays meaningful
+on a busy machine where wall time does not; the table in docs/development.md comes from this script.
+Per-test times come from tests/conftest.py (``$HOLO_TEST_TIMES``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def time_file(path: Path, markers: str | None) -> dict:
+    """Run one test file; its wall and CPU seconds, pytest's exit code and summary line, per-test times."""
+    with tempfile.TemporaryDirectory() as tmp:
+        per_test = Path(tmp) / "times.json"
+        env = dict(os.environ, HOLO_TEST_TIMES=str(per_test))
+        cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist", str(path)]
+        if markers:
+            cmd += ["-m", markers]
+        c0, w0 = _children_cpu(), time.perf_counter()
+        run = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
+        wall, cpu = time.perf_counter() - w0, _children_cpu() - c0
+        tests = json.loads(per_test.read_text()) if per_test.is_file() else {}
+    lines = [ln for ln in run.stdout.strip().splitlines() if ln.strip()]
+    return {"file": str(path.relative_to(ROOT)), "wall_s": round(wall, 2), "cpu_s": round(cpu, 2),
+            "exit_code": run.returncode, "summary": lines[-1] if lines else "",
+            "tests": {k: [round(v[0], 3), round(v[1], 3)] for k, v in tests.items()}}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("files", nargs="*", type=Path, help="test files (default: every tests/test_*.py)")
+    ap.add_argument("--markers", default=None, help='pytest -m expression, e.g. "not slow" (make test-fast)')
+    ap.add_argument("--json", type=Path, default=None, help="write the results here")
+    ap.add_argument("--top", type=int, default=3, help="slowest tests listed per file")
+    args = ap.parse_args()
+    files = [p.resolve() for p in args.files] or sorted((ROOT / "tests").glob("test_*.py"))
+    rows = []
+    for path in files:
+        r = time_file(path, args.markers)
+        rows.append(r)
+        print(f"{r['file']:<42} {r['wall_s']:>7.1f} s wall {r['cpu_s']:>7.1f} s CPU  {r['summary']}", flush=True)
+    rows.sort(key=lambda r: -r["cpu_s"])
+    print(f"\n{'file':<42} {'wall s':>7} {'CPU s':>7}  slowest tests (CPU s)")
+    for r in rows:
+        slow = sorted(r["tests"].items(), key=lambda kv: -kv[1][1])[: args.top]
+        names = ", ".join(f"{k.split('::', 1)[1][:40]} {v[1]:.1f}" for k, v in slow)
+        print(f"{r['file']:<42} {r['wall_s']:>7.1f} {r['cpu_s']:>7.1f}  {names}")
+    total_wall, total_cpu = sum(r["wall_s"] for r in rows), sum(r["cpu_s"] for r in rows)
+    print(f"{'total':<42} {total_wall:>7.1f} {total_cpu:>7.1f}  ({len(rows)} files, load average "
+          f"{os.getloadavg()[0]:.1f} at the end)")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"markers": args.markers, "cpus": os.cpu_count(), "python": platform.python_version(),
+                                         "load_average_end": os.getloadavg(), "total_wall_s": round(total_wall, 1),
+                                         "total_cpu_s": round(total_cpu, 1), "files": rows}, indent=1))
+    return 0 if all(r["exit_code"] in (0, 5) for r in rows) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
