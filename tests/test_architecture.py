@@ -82,19 +82,19 @@ def _area(module: str, name: str = "") -> str:
     return parts[1]
 
 
+#: the layers above the stages and their areas (testing.py builds small stage objects for tests)
+UPPER_LAYERS = {"pipeline": {"pipeline", "testing"}, "build": {"assets_build"},
+                "front": {"gui", "commands", "batch", "live", "apps"}, "entry": {"cli", "__main__"}}
+
+
 def _layer(area: str) -> str:
     if area in BASE:
         return "base"
     if area in STAGE_PKGS:
         return "stages"
-    if area in ("pipeline", "testing"):  # testing.py builds small stage objects for tests
-        return "pipeline"
-    if area == "assets_build":
-        return "build"
-    if area in ("gui", "commands", "batch", "live", "apps"):
-        return "front"
-    if area in ("cli", "__main__"):
-        return "entry"
+    for layer, areas in UPPER_LAYERS.items():
+        if area in areas:
+            return layer
     raise AssertionError(f"module area {area!r} is in no layer: add it to tests/test_architecture.py and "
                          "docs/design.md section 2")
 
@@ -213,6 +213,48 @@ def test_pipeline_is_the_module_that_chains():
     assert {"flame", "avatar", "render", "display", "reaction"} <= areas
 
 
+def _is_package(area: str) -> bool:
+    return area == "apps" or (PKG / area).is_dir()
+
+
+def _design_layer_map() -> tuple[dict[str, str], set[tuple[str, str]]]:
+    """docs/design.md section 2: the areas its layer map names (``name/`` for a package, ``name.py`` for a
+    module of holo_viewer/) -> the layers they are listed under, and the stage edges ``a -> b`` of the
+    paragraph after the map."""
+    import re
+
+    design = (ROOT / "docs" / "design.md").read_text(encoding="utf-8")
+    start = design.index("```", design.index("Package layout and layers")) + 3
+    end = design.index("```", start)
+    known = BASE | STAGE_PKGS | set().union(*UPPER_LAYERS.values())
+    named: dict[str, set[str]] = {}
+    layer = None
+    for line in design[start:end].splitlines():
+        head = line.split(maxsplit=1)
+        if head and not line.startswith(" ") and head[0] in ORDER:
+            layer = head[0]
+        if layer is None:
+            continue
+        packages = set(re.findall(r"\b([a-z_0-9]+)/", line))
+        modules = set(re.findall(r"\b([a-z_0-9]+)\.py\b", line))
+        for area in known:
+            if area in (packages if _is_package(area) else modules):
+                named.setdefault(area, set()).add(layer)
+    edges = set(re.findall(r"`([a-z_]+) -> ([a-z_]+)`", design[end:design.index("## 3.", end)]))
+    return {a: ", ".join(sorted(ls)) for a, ls in named.items()}, edges
+
+
+def test_design_layer_map_matches_the_tables_here():
+    """docs/design.md's layer map lists every area of this file's tables under its layer, and only there
+    (live/ and tracking/ included), and exactly the stage edges of STAGE_EDGES."""
+    named, edges = _design_layer_map()
+    areas = (BASE - {"__init__"}) | STAGE_PKGS | set().union(*UPPER_LAYERS.values())
+    wrong = {a: (named.get(a, "nowhere"), _layer(a)) for a in sorted(areas) if named.get(a) != _layer(a)}
+    assert not wrong, f"docs/design.md section 2 lists area: (under, should be) {wrong}"
+    table = {(a, b) for a, bs in STAGE_EDGES.items() for b in bs}
+    assert edges == table, f"docs/design.md section 2 lists stage edges {sorted(edges)}; STAGE_EDGES: {sorted(table)}"
+
+
 def test_design_citations_point_to_docs_design_md():
     """The code and docs cite docs/design.md by section number or title; each cited section exists."""
     import re
@@ -233,3 +275,9 @@ def test_design_citations_point_to_docs_design_md():
         assert any(title.lower() in h.lower() for h in headings) or f"{title}:" in design, (
             f"docs/design.md has no section (or paragraph) {title!r}")
     assert cited_numbers and cited_titles  # the checks are not vacuous
+
+
+def test_readme_stays_short():
+    """The README is a front page (<= 120 lines); measured numbers live in docs/benchmarks.md."""
+    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    assert len(lines) <= 120, f"README.md has {len(lines)} lines; move detail to docs/ (numbers: docs/benchmarks.md)"
