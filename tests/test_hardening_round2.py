@@ -24,7 +24,7 @@ from holo_viewer.cli import main
 from holo_viewer.errors import (CalibrationError, ExportError, HoloViewerError, InputError, ReactionError,
                                 TrackingError)
 
-from test_hardening import _empty_gaussians, _speaker_files  # noqa: E402  (tests/ is on sys.path)
+from test_hardening import _empty_gaussians, _speaker_files, disk_full  # noqa: E402,F401  (tests/ on sys.path)
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "assets" / "lkg_portrait_visual.json"
@@ -286,3 +286,129 @@ def test_huge_checkpoint_config_is_refused_before_building(tmp_path: Path, monke
     from holo_viewer.reaction.api import default_checkpoint_path
     train.load_checkpoint(default_checkpoint_path())
     assert len(built) == 1
+
+
+# --------------------------------------------------------------------------- cases 8, 9: verified videos
+
+
+def _frames(n: int, h: int = 48, w: int = 64) -> list[np.ndarray]:
+    rng = np.random.default_rng(0)
+    return [np.clip(rng.normal(0.5, 0.1, (h, w, 3)) + 0.04 * i, 0, 1) for i in range(n)]
+
+
+def test_video_writer_round_trip_and_atomic(tmp_path: Path) -> None:
+    from holo_viewer import media
+
+    out = tmp_path / "v.mp4"
+    out.write_bytes(b"earlier")
+    media.write_video(out, _frames(5, 47, 63), 10.0, codec="libx264", output_params=["-crf", "0"])
+    assert media.count_video_frames(out) == 5
+    assert sorted(os.listdir(tmp_path)) == ["v.mp4"]
+    with pytest.raises(ExportError, match="no frames"):
+        media.write_video(tmp_path / "none.mp4", [], 10.0)
+    assert sorted(os.listdir(tmp_path)) == ["v.mp4"]
+
+
+def test_ffmpeg_exit_status_is_checked(tmp_path: Path, monkeypatch) -> None:
+    """ffmpeg failing (here: an impossible option) is an error, not a renamed broken file."""
+    from holo_viewer import media
+
+    out = tmp_path / "v.mp4"
+    out.write_bytes(b"earlier")
+    with pytest.raises(ExportError, match=r"v\.mp4: cannot write the video: ffmpeg"):
+        media.write_video(out, _frames(3), 10.0, output_params=["-profile:v", "no-such-profile"])
+    assert out.read_bytes() == b"earlier" and sorted(os.listdir(tmp_path)) == ["v.mp4"]
+
+
+def _writers(tmp_path: Path):
+    """(name, call writing one video) for every video writer of the package that is cheap to run."""
+    from holo_viewer.batch.video import encode_segment, join_segments
+    from holo_viewer.display.export import write_quilt_video
+    from holo_viewer.live import replay
+
+    def joined() -> None:
+        seg = tmp_path / "a.ts"
+        if not seg.exists():
+            seg.write_bytes(encode_segment([(f * 255).astype(np.uint8) for f in _frames(3)], 10.0)[0])
+        join_segments([seg], tmp_path / "joined.mp4", frames=3)
+
+    return [
+        ("quilt video", lambda: write_quilt_video(tmp_path / "q.mp4", _frames(3), 10.0, progress=False)),
+        ("replay", lambda: replay.replay_session(tmp_path / "session", tmp_path / "replay.mp4")),
+        ("batch join", joined),
+    ]
+
+
+@pytest.mark.parametrize("index", range(3))
+def test_every_video_writer_verifies_before_the_rename(tmp_path: Path, index: int, monkeypatch) -> None:
+    """A file holding fewer frames than written (a full disk, a killed encoder) never gets the final name."""
+    from holo_viewer import media
+    from holo_viewer.live import replay
+
+    monkeypatch.setattr(replay, "replay_frames", lambda *a, **k: iter(_frames(3)))  # the session's frames
+    name, call = _writers(tmp_path)[index]
+    call()  # the real thing works
+    before = {p.name: p.stat().st_mtime_ns for p in tmp_path.iterdir()}
+    real = media.count_video_frames
+    monkeypatch.setattr(media, "count_video_frames", lambda p: real(p) - 1)
+    with pytest.raises(ExportError, match=r"of 3 frames.*nothing was written"):
+        call()
+    after = {p.name: p.stat().st_mtime_ns for p in tmp_path.iterdir()}
+    assert after == before, name  # no temporary left, the earlier file untouched
+
+
+def test_replay_to_a_full_disk_is_an_error(tmp_path: Path, disk_full, capsys, monkeypatch) -> None:
+    from holo_viewer.live import replay
+
+    monkeypatch.setattr(replay, "replay_frames", lambda *a, **k: iter(_frames(10)))
+    disk_full()
+    rc = main(["replay", str(tmp_path), "--out", str(tmp_path / "r.mp4")])
+    captured = capsys.readouterr()
+    assert rc == 1 and "r.mp4" in captured.err and "wrote" not in captured.out, captured
+    assert not (tmp_path / "r.mp4").exists()
+
+
+class _FakeRenderer:
+    """Small native frames, fast: the test is about the video, not the avatar."""
+
+    def render(self, *args, **kwargs):
+        from holo_viewer.live.render import RenderedFrame
+
+        return RenderedFrame(native=np.full((48, 64, 3), 128, np.uint8), preview=None, seconds=0.001)
+
+
+def test_ctrl_c_inside_the_frame_write_leaves_a_playable_session_video(tmp_path: Path, monkeypatch) -> None:
+    """SIGINT delivered (as a terminal sends it) in the middle of piping frame 4 to ffmpeg: the frame
+    completes, the session ends as interrupted, native.mp4 decodes to the frames session.json counts."""
+    import signal
+
+    from holo_viewer import media
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveSession, LiveSessionConfig
+    from holo_viewer.pipeline.live_support import SyntheticSpeaker
+
+    real = media.VideoWriter._write_frame
+    calls: list[int] = []
+
+    def write_frame(self, data):
+        calls.append(len(data))
+        if len(calls) == 4:
+            half = len(data) // 2
+            real(self, data[:half])
+            self._proc.stdin.flush()
+            os.kill(os.getpid(), signal.SIGINT)  # handled now, in the middle of the frame
+            real(self, data[half:])
+        else:
+            real(self, data)
+
+    monkeypatch.setattr(media.VideoWriter, "_write_frame", write_frame)
+    syn = SyntheticSpeaker(4.0)
+    out = tmp_path / "s"
+    session = LiveSession(LiveSessionConfig(out=str(out), tile_scale=0.1, behaviour=None),
+                          sources.ArrayAudio(syn.waveform), None, syn)
+    summary = session.run(_FakeRenderer())
+    assert summary["status"]["end"] == "interrupted (Ctrl-C)"
+    meta = json.loads((out / "session.json").read_text())
+    assert media.count_video_frames(out / "native.mp4") == meta["displayed_frames"] == len(calls) == 4
+    assert meta["summary"]["status"]["native_video_frames"] == 4
+    assert sorted(p.name for p in out.iterdir() if p.name.startswith(".")) == []

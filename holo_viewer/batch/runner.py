@@ -347,7 +347,7 @@ def _finish(j: _Job, root: Path, summary: BatchSummary) -> None:
     for kind in VIDEO_KINDS:
         if kind in names:
             segs = [j.work / f"chunk_{i:05d}.{kind}.ts" for i in range(j.n_chunks)]
-            join_segments(segs, stage / names[kind])
+            join_segments(segs, stage / names[kind], frames=r.n_frames)
     for kind in PNG_KINDS:
         if kind in names:
             ensure_dir(stage / "frames", "frames directory")

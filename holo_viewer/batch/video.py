@@ -40,25 +40,9 @@ import numpy as np
 
 from ..errors import ExportError
 from ..fileio import atomic_path
+from ..media import ffmpeg_exe, pad_even  # re-exported: one ffmpeg and one padding rule
 
 __all__ = ["SegmentEncoder", "encode_segment", "join_segments", "read_video_frames", "ffmpeg_exe", "pad_even"]
-
-
-def ffmpeg_exe() -> str:
-    """The ffmpeg binary of imageio-ffmpeg (a dependency; no system ffmpeg needed)."""
-    import imageio_ffmpeg
-
-    return imageio_ffmpeg.get_ffmpeg_exe()
-
-
-def pad_even(frame: np.ndarray) -> np.ndarray:
-    """(H, W, 3) uint8 with an edge row on top / column on the right where H / W is odd."""
-    f = frame
-    if f.shape[1] % 2:
-        f = np.concatenate([f, f[:, -1:]], axis=1)
-    if f.shape[0] % 2:
-        f = np.concatenate([f[:1], f], axis=0)
-    return f
 
 
 class SegmentEncoder:
@@ -184,7 +168,7 @@ def _check(frame: np.ndarray, k: int) -> np.ndarray:
     return f
 
 
-def join_segments(segments: list[str | os.PathLike], out: str | os.PathLike) -> Path:
+def join_segments(segments: list[str | os.PathLike], out: str | os.PathLike, frames: int | None = None) -> Path:
     """Concatenate MPEG-TS segments into one mp4 by stream copy (no re-encoding), atomically.
 
     Parameters
@@ -193,6 +177,8 @@ def join_segments(segments: list[str | os.PathLike], out: str | os.PathLike) -> 
         Segment files in play order (from :func:`encode_segment`, same codec settings).
     out : path-like
         The ``.mp4`` to write (a temporary file renamed into place on success).
+    frames : int, optional
+        Frames the joined video must decode to; checked before the rename (``media.count_video_frames``).
     """
     if not segments:
         raise ExportError(f"{out}: no segments to join")
@@ -213,6 +199,13 @@ def join_segments(segments: list[str | os.PathLike], out: str | os.PathLike) -> 
         if res.returncode != 0:
             raise ExportError(f"{target}: joining {len(segments)} segments failed (ffmpeg exit code "
                               f"{res.returncode}): {res.stderr.strip()[-500:]}")
+        if frames is not None:
+            from ..media import count_video_frames
+
+            n = count_video_frames(tmp)
+            if n != frames:
+                raise ExportError(f"{target}: the joined video holds {n} of {frames} frames (a full disk?); "
+                                  f"nothing was written")
     return target
 
 

@@ -9,8 +9,7 @@ from typing import Iterable
 import numpy as np
 
 from ..errors import ExportError
-from ..fileio import atomic_path, load_image, save_image
-from ..images import to_uint8
+from ..fileio import load_image, save_image
 from .quilt import format_aspect, parse_quilt_filename, quilt_filename, split_quilt, tile_quilt
 
 __all__ = ["save_quilt_png", "save_native_png", "write_quilt_video", "load_quilt", "quilt_path"]
@@ -112,8 +111,9 @@ def write_quilt_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps
     -------
     pathlib.Path
     """
-    import imageio.v2 as imageio
     from tqdm import tqdm
+
+    from ..media import VideoWriter
 
     p = Path(path)
     if p.suffix.lower() != ".mp4":
@@ -122,48 +122,9 @@ def write_quilt_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps
         raise ExportError(f"fps: expected > 0, found {fps}")
     if total is None and hasattr(frames, "__len__"):
         total = len(frames)  # type: ignore[arg-type]
-    count, shape = 0, None
-    with atomic_path(p) as tmp:
-        writer = imageio.get_writer(str(tmp), format="FFMPEG", mode="I", fps=fps, codec="libx264",
-                                    pixelformat="yuv420p", macro_block_size=1, quality=None,
-                                    output_params=["-preset", preset, "-crf", str(crf)])
-        try:
-            for frame in tqdm(frames, total=total, disable=not progress, desc=f"encoding {p.name}", unit="frame"):
-                f = to_uint8(frame, name="frame")
-                if f.ndim != 3 or f.shape[2] != 3:
-                    raise ExportError(f"frame {count}: expected (H, W, 3), found {f.shape}")
-                if shape is None:
-                    shape = f.shape
-                elif f.shape != shape:
-                    raise ExportError(f"frame {count}: expected shape {shape} like frame 0, found {f.shape}")
-                if f.shape[1] % 2:
-                    f = np.concatenate([f, f[:, -1:]], axis=1)
-                if f.shape[0] % 2:
-                    f = np.concatenate([f[:1], f], axis=0)
-                writer.append_data(np.ascontiguousarray(f))
-                count += 1
-        finally:
-            writer.close()
-        if count == 0:
-            raise ExportError(f"{p}: no frames to write")
-        _check_video(p, tmp, count)
+    # verified before the rename: ffmpeg's exit status and the decoded frame count (holo_viewer.media)
+    with VideoWriter(p, fps, codec="libx264", pixelformat="yuv420p", macro_block_size=1,
+                     output_params=["-preset", preset, "-crf", str(crf)], what="quilt video") as writer:
+        for frame in tqdm(frames, total=total, disable=not progress, desc=f"encoding {p.name}", unit="frame"):
+            writer.write(frame)
     return p
-
-
-def _check_video(target: Path, tmp: Path, count: int) -> None:
-    """ExportError unless ffmpeg finished ``tmp`` with ``count`` frames.
-
-    imageio-ffmpeg ignores ffmpeg's exit status on close, so an encoder that failed while
-    finishing the file (a full disk while writing the index) would otherwise leave a broken
-    mp4 that is then renamed into place.
-    """
-    import imageio_ffmpeg
-
-    try:
-        n, _ = imageio_ffmpeg.count_frames_and_secs(str(tmp))
-    except (RuntimeError, OSError, ValueError) as exc:
-        raise ExportError(f"{target}: ffmpeg did not produce a readable video (a full disk or a killed "
-                          f"encoder?); nothing was written ({str(exc).strip().splitlines()[-1:]})") from exc
-    if n != count:
-        raise ExportError(f"{target}: ffmpeg wrote {n} of {count} frames (a full disk or a killed encoder?); "
-                          f"nothing was written")

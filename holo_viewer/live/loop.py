@@ -17,7 +17,7 @@ reaction stream. Every result carries its media time, so latency is measured end
 from __future__ import annotations
 
 import math
-import os
+import signal
 import threading
 import time
 from dataclasses import dataclass, field
@@ -26,7 +26,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import HoloViewerError
+from ..errors import ExportError, HoloViewerError
 from ..tracking.viewer import ViewerPose
 from .controls import Controls, Scenario
 from .session import SessionRecorder
@@ -320,14 +320,13 @@ class LiveSession:
         session is still recorded); ``panel``/``preview``: objects with ``show(image)`` (and an
         optional ``poll()`` returning key symbols).
         """
-        import imageio.v2 as imageio
+        from ..media import VideoWriter
 
         cfg = self.config
         out = Path(cfg.out)
         out.mkdir(parents=True, exist_ok=True)
         self._webcam_writer = None
         writer = None
-        tmp_video = out / ".native.partial.mp4"
         # load and warm up everything before the clock starts, so the first frames are not late
         from ..reaction.api import load_default_bundle
         from ..reaction.stream import ReactionStream
@@ -363,8 +362,16 @@ class LiveSession:
         shown = -1
         frames_shown = 0
         last_render = self.clock()
+        # Ctrl-C ends the session between frames: the frame being rendered, written and shown
+        # completes (native.mp4 then holds exactly the frames session.json counts)
+        interrupted = threading.Event()
+        old_sigint = None
+        if threading.current_thread() is threading.main_thread():
+            old_sigint = signal.signal(signal.SIGINT, lambda signum, frame: interrupted.set())
         try:
             while not self._stop.is_set():
+                if interrupted.is_set():
+                    raise KeyboardInterrupt
                 for src in (panel, preview):
                     if src is not None and hasattr(src, "poll"):
                         for key in src.poll():
@@ -384,11 +391,10 @@ class LiveSession:
                     res = renderer.render(lf, pain if self._behaviour is None else 0.0, named, ang, dist, tracked)
                     self.render_ms.append(1000 * res.seconds)
                     if res.native is not None and cfg.write_native_video:
-                        if writer is None:
-                            writer = imageio.get_writer(os.fspath(tmp_video), fps=cfg.video_fps, codec="libx264",
-                                                        quality=7, macro_block_size=8, format="FFMPEG",
-                                                        ffmpeg_log_level="error")
-                        writer.append_data(res.native)
+                        if writer is None:  # fragmented mp4, verified and renamed into place on close
+                            writer = VideoWriter(out / "native.mp4", cfg.video_fps, codec="libx264", quality=7,
+                                                 macro_block_size=8, streaming=True, what="session video")
+                        writer.write(res.native)  # a Ctrl-C during the write is raised after the frame
                     if panel is not None and res.native is not None:
                         panel.show(res.native)
                     if preview is not None and res.preview is not None:
@@ -406,21 +412,21 @@ class LiveSession:
         except KeyboardInterrupt:
             self.status["end"] = "interrupted (Ctrl-C)"
         finally:
+            if old_sigint is not None:
+                signal.signal(signal.SIGINT, old_sigint)
             self._stop.set()
             for th in threads:
                 th.join(timeout=5.0)
             self.audio.stop()
             if self.video is not None:
                 self.video.stop()
-            if writer is not None:
-                writer.close()
-                if tmp_video.exists() and tmp_video.stat().st_size > 0:
-                    os.replace(tmp_video, out / "native.mp4")
-            if self._webcam_writer is not None:
-                self._webcam_writer.close()
-                tmp = out / ".webcam.partial.mp4"
-                if tmp.exists() and tmp.stat().st_size > 0:
-                    os.replace(tmp, out / "webcam.mp4")
+            for key, video in (("native_video_frames", writer), ("webcam_video_frames", self._webcam_writer)):
+                if video is not None:
+                    try:  # ffmpeg's exit status and the decoded frame count checked before the rename
+                        video.close()
+                        self.status[key] = video.frames
+                    except ExportError as exc:
+                        self.errors.append(exc)
             self.recorder.summary = self.summary()
             self.recorder.close()
         if self.errors:
@@ -429,13 +435,12 @@ class LiveSession:
 
     def _record_webcam(self, frame: np.ndarray) -> None:
         """Append a webcam frame to webcam.mp4 (streamed to disk: memory stays flat)."""
-        import imageio.v2 as imageio
+        from ..media import VideoWriter
 
         if self._webcam_writer is None:
-            self._webcam_writer = imageio.get_writer(os.fspath(Path(self.config.out) / ".webcam.partial.mp4"), fps=FPS,
-                                                     codec="libx264", quality=7, macro_block_size=8, format="FFMPEG",
-                                                     ffmpeg_log_level="error")
-        self._webcam_writer.append_data(frame)
+            self._webcam_writer = VideoWriter(Path(self.config.out) / "webcam.mp4", FPS, codec="libx264", quality=7,
+                                              macro_block_size=8, streaming=True, what="webcam video")
+        self._webcam_writer.write(frame)
 
     def _overlay(self, view: np.ndarray, fps: float, pain: float, ang: float, dist: float, tracked: bool) -> np.ndarray:
         """The preview view with fps, per-stage latency, pain and device status drawn on it."""

@@ -49,19 +49,13 @@ def replay_frames(session: str | os.PathLike, tile_scale: float | None = None, e
 def replay_session(session: str | os.PathLike, out: str | os.PathLike, tile_scale: float | None = None,
                    every: int = 1) -> int:
     """Write the re-rendered session to ``out`` (mp4, 25 / every fps); returns the frame count."""
-    import imageio.v2 as imageio
     from tqdm import tqdm
 
-    from ..fileio import atomic_path
+    from ..media import VideoWriter
 
-    n = 0
-    with atomic_path(Path(out)) as tmp:
-        writer = imageio.get_writer(os.fspath(tmp), fps=25.0 / every, codec="libx264", quality=7, macro_block_size=8,
-                                    format="FFMPEG", ffmpeg_log_level="error")
-        try:
-            for img in tqdm(replay_frames(session, tile_scale, every), desc="replay", unit="frame"):
-                writer.append_data(img)
-                n += 1
-        finally:
-            writer.close()
-    return n
+    # verified before the rename (ffmpeg's exit status, decoded frame count): a full disk is an error
+    with VideoWriter(Path(out), 25.0 / every, codec="libx264", quality=7, macro_block_size=8,
+                     what="replay video") as writer:
+        for img in tqdm(replay_frames(session, tile_scale, every), desc="replay", unit="frame"):
+            writer.write(img)
+    return writer.frames

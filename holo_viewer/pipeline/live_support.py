@@ -103,9 +103,8 @@ def write_talking_head_clip(out_dir: str | os.PathLike, seconds: float = 4.0, se
     nods); the head is rendered frame by frame at 25 fps. ``truth.npz`` holds the driving
     FLAME parameters (``expr``, ``jaw_pose``, ``rotation``) and the states.
     """
-    import imageio.v2 as imageio
-
-    from ..fileio import atomic_path, save_npz
+    from ..fileio import save_npz
+    from ..media import VideoWriter
     from ..flame.expressions import default_au_map, jaw_for_expression
     from ..reaction.audio import write_wav
     from ..reaction.data import SyntheticConfig, synth_speaker
@@ -131,14 +130,9 @@ def write_talking_head_clip(out_dir: str | os.PathLike, seconds: float = 4.0, se
     wav = out / "speaker.wav"
     write_wav(wav, waveform, cfg.audio.sample_rate)
     video = out / "speaker.mp4"
-    with atomic_path(video) as tmp:
-        writer = imageio.get_writer(os.fspath(tmp), fps=fps, codec="libx264", quality=8, macro_block_size=8,
-                                    format="FFMPEG", ffmpeg_log_level="error")
-        try:
-            for t in range(fl["expr"].shape[0]):
-                writer.append_data(renderer.render({k: fl[k][t] for k in fl}, cam))
-        finally:
-            writer.close()
+    with VideoWriter(video, fps, codec="libx264", quality=8, macro_block_size=8, what="speaker video") as writer:
+        for t in range(fl["expr"].shape[0]):
+            writer.write(renderer.render({k: fl[k][t] for k in fl}, cam))
     truth = out / "truth.npz"
     save_npz(truth, expr=fl["expr"], jaw_pose=fl["jaw_pose"], rotation=fl["rotation"], state=state,
              fps=np.array(fps))
