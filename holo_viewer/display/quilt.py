@@ -47,9 +47,10 @@ def tile_quilt(views: np.ndarray, cols: int, rows: int, *, as_uint8: bool = Fals
     cols, rows : int
         Quilt layout.
     as_uint8 : bool
-        Convert float views in [0, 1] with :func:`to_uint8` while tiling, one view at a time, so
-        no full-size float temporary is made (a 48-view 420x560 quilt: ~20 ms instead of ~50 ms
-        for converting first and tiling after). uint8 views are copied as they are.
+        Convert float views in [0, 1] (C = 3) with :func:`to_uint8` while tiling, one view at a time,
+        so no full-size float temporary is made (a 48-view 420x560 quilt: ~20 ms instead of ~50 ms
+        for converting first and tiling after): :func:`holo_viewer.display.native.views_to_native`,
+        the one views -> uint8 quilt -> native path. uint8 views are copied as they are.
 
     Returns
     -------
@@ -64,15 +65,14 @@ def tile_quilt(views: np.ndarray, cols: int, rows: int, *, as_uint8: bool = Fals
     V, H, W, C = views.shape
     if V < 1 or V > cols * rows:
         raise InputError(f"views: expected 1..{cols * rows} views for a {cols}x{rows} quilt, found {V}")
-    quilt = np.empty((rows * H, cols * W, C), dtype=np.uint8 if as_uint8 else views.dtype)
+    if as_uint8:
+        from .native import views_to_native
+
+        return views_to_native(views, (cols, rows)).quilt
+    quilt = np.empty((rows * H, cols * W, C), dtype=views.dtype)
     for v in range(cols * rows):  # tile by tile: each view is read once, nothing is transposed
         ys, xs = tile_slices(rows * H, cols * W, cols, rows, v)
-        if v >= V:
-            quilt[ys, xs] = 0
-        elif as_uint8:
-            to_uint8(views[v], out=quilt[ys, xs], name=f"views[{v}]")
-        else:
-            quilt[ys, xs] = views[v]
+        quilt[ys, xs] = 0 if v >= V else views[v]
     return quilt
 
 

@@ -1240,25 +1240,19 @@ class HoloViewer:
         path = self._out(quilt_filename(f"view-{self._stamp()}", cal.cols, cal.rows, cal.aspect))
 
         def work(job: Job) -> Path:
-            save_image(path, _quilt_with_progress(pipe, job))
+            save_image(path, _export_image(pipe, job, native=False))
             return path
         return self._submit("exporting quilt", work)
 
     def export_native(self) -> Job:
         """Write the native (lenticular) PNG for the pipeline's calibration in the background."""
-        from ..display.lenticular import Interleaver
         from ..fileio import save_image
-        from ..pipeline import quilt_layout
 
         pipe = self._export_pipeline()
         path = self._out(f"view-{self._stamp()}_native.png")
 
         def work(job: Job) -> Path:
-            quilt = _quilt_with_progress(pipe, job)
-            cols, rows = quilt_layout(pipe.calibration)
-            inter = Interleaver(pipe.calibration, quilt.shape, cols=cols, rows=rows,
-                                mode="blend" if pipe.view.blend else "nearest")
-            save_image(path, inter(quilt))
+            save_image(path, _export_image(pipe, job, native=True))
             return path
         return self._submit("exporting native image", work)
 
@@ -1527,9 +1521,12 @@ class HoloViewer:
         return vtk_to_numpy(arr).reshape(y1 - y0 + 1, x1 - x0 + 1, 3)
 
 
-def _quilt_with_progress(pipe: Pipeline, job: Job, chunk: int = 8) -> np.ndarray:
-    """The full quilt of ``pipe`` rendered ``chunk`` views at a time, reporting progress to ``job``."""
-    from ..pipeline import quilt_layout, render_images, tile_views
+def _export_image(pipe: Pipeline, job: Job, native: bool, chunk: int = 8) -> np.ndarray:
+    """The full quilt (``native``: the native image) of ``pipe``: the views rendered ``chunk`` at a time,
+    then :func:`~holo_viewer.display.native.views_to_native`, reporting progress to ``job``."""
+    from ..display.native import views_to_native
+    from ..display.lenticular import Interleaver
+    from ..pipeline import quilt_layout, render_images
 
     g = pipe.gaussians()
     cams = pipe.cameras()
@@ -1541,7 +1538,12 @@ def _quilt_with_progress(pipe: Pipeline, job: Job, chunk: int = 8) -> np.ndarray
         parts.append(render_images(g, cams[idx], backend=pipe.backend, config=pipe.render_config))
         job.progress(idx[-1] + 1, V, "views")
     cols, rows = quilt_layout(pipe.calibration)
-    return tile_views(np.concatenate(parts, axis=0), cols, rows)
+    target: Any = (cols, rows)
+    if native:
+        target = Interleaver(pipe.calibration, (rows * cams.height, cols * cams.width, 3), cols=cols, rows=rows,
+                             mode="blend" if pipe.view.blend else "nearest")
+    done = views_to_native(np.concatenate(parts, axis=0), target, progress=job.progress)
+    return done.native if native else done.quilt
 
 
 def _scene_only_style(interactor: Any, scene_renderer: Any) -> Any:

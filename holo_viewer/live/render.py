@@ -1,7 +1,7 @@
 """The one place the live loop touches the render pipeline (an adapter, so a new pipeline API is a
 one-function change): face + viewer pose in, native image (and a preview view) out.
 
-Modes:
+Modes (the rows of :data:`holo_viewer.pipeline.live_modes.SESSION_MODES`):
 
 ``cone``
     Algorithm 1's cameras follow the tracked viewer (``ViewSettings.viewer_angle/viewer_distance``):
@@ -96,12 +96,15 @@ class LiveAvatarRenderer:
                  view_step: int | None = None) -> None:
         import os
 
+        from ..pipeline.live_modes import SESSION_MODE
+
         threads = max(1, os.cpu_count() or 1) if render_threads is None else int(render_threads)
-        if mode not in ("cone", "auto", "tracked", "all_views"):
+        if mode not in SESSION_MODE:
             from ..errors import InputError
 
-            raise InputError(f"mode: expected 'cone', 'auto', 'tracked' or 'all_views', found {mode!r}")
+            raise InputError(f"mode: expected one of {', '.join(SESSION_MODE)}, found {mode!r}")
         self.mode = mode
+        self.session_mode = SESSION_MODE[mode]
         self.native_enabled = bool(native)
         self.preview_enabled = bool(preview)
         self.backend = resolve_backend(backend)
@@ -132,7 +135,7 @@ class LiveAvatarRenderer:
         self.pipeline = Pipeline(calibration=calibration, view=ViewSettings(tile_scale=tile_scale),
                                  backend=self.backend, render_config=RenderConfig(num_threads=threads))
         self._live = None
-        if self.mode == "cone":
+        if self.session_mode.tracked is None:  # cone: the pipeline renders the viewer's whole quilt
             if self.backend == "gsplat":
                 self.pipeline.render_view(0)
             return
@@ -143,10 +146,8 @@ class LiveAvatarRenderer:
         if self.backend == "gsplat":
             self._live.frame(self.pipeline.gaussians(), None, "all_views")
         else:
-            if self.mode in ("auto", "tracked"):
-                self._live.prepare_tracked()
-            if self.mode in ("auto", "all_views"):
-                self._live.prepare_all_views()
+            for prepare in self.session_mode.prepare:
+                getattr(self._live, prepare)()
 
     def render(self, listener: Mapping[str, np.ndarray], pain: float, named: tuple[tuple[str, float], ...],
                viewer_angle_deg: float, viewer_distance_m: float, viewer_tracked: bool = True) -> RenderedFrame:
@@ -169,10 +170,10 @@ class LiveAvatarRenderer:
             from ..display.eyes import TrackedViewer
 
             if self.native_enabled:
-                eyes_seen = self.backend != "gsplat" and (self.mode == "tracked" or
-                                                          (self.mode == "auto" and viewer_tracked))
-                viewer = TrackedViewer(angle_deg=angle, distance_m=distance) if eyes_seen else None
-                native = self._live.frame(p.gaussians(), viewer, "tracked" if eyes_seen else "all_views").native.copy()
+                s = self.session_mode
+                mode = "all_views" if self.backend == "gsplat" else s.tracked if viewer_tracked else s.untracked
+                viewer = TrackedViewer(angle_deg=angle, distance_m=distance) if mode != "all_views" else None
+                native = self._live.frame(p.gaussians(), viewer, mode).native.copy()
         else:
             p.set_view(viewer_angle=angle, viewer_distance=distance)
             native = p.native() if self.native_enabled else None

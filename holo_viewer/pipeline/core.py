@@ -431,6 +431,7 @@ class Pipeline:
         return tile_views(views, *quilt_layout(self.calibration))
 
     def _compute_native(self, quilt: np.ndarray) -> np.ndarray:
+        from ..display.native import views_to_native
         from ..display.lenticular import Interleaver
 
         cols, rows = quilt_layout(self.calibration)
@@ -439,7 +440,7 @@ class Pipeline:
             self._interleaver = Interleaver(self.calibration, quilt.shape, cols=cols, rows=rows,
                                             mode="blend" if self.view.blend else "nearest")
             self._interleaver_key = key
-        return self._interleaver(quilt)
+        return views_to_native(None, self._interleaver, quilt=quilt).native
 
     # ---------------------------------------------------------------- streaming
     def stream(self, frames: Iterable[FlameFrame], *, fps: float = 25.0, output: str = "quilt",

@@ -1,6 +1,9 @@
 """Live native frames: render only what the viewers can see (``holo_viewer.pipeline.live``).
 
-Modes (``NativeFrameRenderer.frame`` / :func:`render_native`), all producing the panel's native image:
+Modes (``NativeFrameRenderer.frame`` / :func:`render_native`), all producing the panel's native image;
+each is a row of the mode table :data:`holo_viewer.pipeline.live_modes.FRAME_MODES` (its method, what it
+needs, where its work is done), and every quilt goes through
+:func:`holo_viewer.display.native.views_to_native`:
 
 ``full_quilt``
     Every view in full (the quality reference): render -> uint8 quilt -> interleave.
@@ -56,6 +59,7 @@ import numpy as np
 from ..camera import Cameras
 from ..errors import InputError
 from ..render.config import RenderConfig
+from .live_modes import FRAME_MODE, TRACKED_METHODS, frame_mode
 
 __all__ = ["NativeFrameConfig", "LiveFrame", "NativeFrameRenderer", "render_native", "MODES", "TRACKED_DEFAULTS",
            "LIVE_T_MIN"]
@@ -75,7 +79,8 @@ LIVE_T_MIN = 3e-3
 TRACKED_DEFAULTS = {"bands": (0.01, 0.05, 8), "slices": (0.005, 0.02, 2)}
 
 Mode = Literal["auto", "tracked", "all_views", "full_quilt", "eye_centred"]
-MODES = ("auto", "tracked", "all_views", "full_quilt", "eye_centred")
+#: the modes of NativeFrameRenderer.frame: "auto" and the rows of pipeline/live_modes.py's FRAME_MODES
+MODES = ("auto",) + tuple(FRAME_MODE)
 
 
 @dataclass(frozen=True)
@@ -288,36 +293,32 @@ class NativeFrameRenderer:
         from ..render.api import validate_inputs
 
         t0 = time.perf_counter()
-        if mode not in MODES:
-            raise InputError(f"mode: expected one of {', '.join(MODES)}, found {mode!r}")
-        if mode == "auto":
-            mode = "tracked" if viewer is not None else "all_views"
-        if mode in ("tracked", "eye_centred") and viewer is None:
-            raise InputError(f"mode {mode!r} needs a viewer (holo_viewer.display.eyes.TrackedViewer)")
+        row = frame_mode(mode, viewer)  # the mode table: pipeline/live_modes.py
         validate_inputs(gaussians, self.cameras)
         if self._n_gaussians != len(gaussians):  # a new avatar: no valid previous frame
             self._n_gaussians = None
             self._lod = None
         timings: dict[str, float] = {"validate": time.perf_counter() - t0}
-        if mode == "tracked" and self._n_gaussians is not None:
-            if self.tracked_method == "slices":
-                fraction = self._tracked_slices(gaussians, viewer, timings)
-            else:
-                fraction = self._tracked(gaussians, viewer, timings)
-        elif mode == "eye_centred" and self._n_gaussians is not None:
-            fraction = self._eye_centred(gaussians, viewer, timings)
-        else:
-            if mode in ("tracked", "eye_centred"):
-                mode = "full_quilt"  # first frame: everything
-            fraction = self._everything(gaussians, lod=mode == "all_views", timings=timings)
-            # the kept host views are this frame's (the GPU path keeps its views on the device)
+        if row.incremental and self._n_gaussians is None:
+            row = FRAME_MODE["full_quilt"]  # nothing to update yet: everything
+        fraction = getattr(self, row.method)(gaussians, viewer, timings)
+        if not row.incremental:  # the kept host views are this frame's (the GPU path keeps its views there)
             self._n_gaussians = len(gaussians) if self.config.backend == "fast" else None
-        return LiveFrame(native=self.native, mode=mode, seconds=time.perf_counter() - t0, timings=timings,
+        return LiveFrame(native=self.native, mode=row.name, seconds=time.perf_counter() - t0, timings=timings,
                          rendered_fraction=fraction)
 
-    # ------------------------------------------------------------------ modes
+    # ------------------------------------------------------------------ modes (FRAME_MODES' methods)
+    def _full_quilt(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
+        return self._everything(gaussians, lod=False, timings=timings)
+
+    def _all_views(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
+        return self._everything(gaussians, lod=True, timings=timings)
+
+    def _tracked(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
+        return getattr(self, TRACKED_METHODS[self.tracked_method])(gaussians, viewer, timings)
+
     def _everything(self, gaussians: Any, lod: bool, timings: dict[str, float]) -> float:
-        from ..display.quilt import tile_slices, to_uint8
+        from ..display.native import views_to_native
         from ..render import fast
 
         g = gaussians
@@ -335,20 +336,14 @@ class NativeFrameRenderer:
             return self._synthesized(g, timings)
         fast.render(g, self.cameras, self.config.render, out=self.views)
         t1 = time.perf_counter()
-        Hq, Wq, _ = self.quilt_shape
-        for k in range(len(self.cameras)):
-            rs, cs = tile_slices(Hq, Wq, self.calibration.cols, self.calibration.rows, k)
-            to_uint8(self.views[k], out=self.quilt[rs, cs])
-        t2 = time.perf_counter()
-        self.interleaver(self.quilt, out=self.native)
-        t3 = time.perf_counter()
-        timings.update(render=t1 - t, quilt=t2 - t1, interleave=t3 - t2)
+        done = views_to_native(self.views, self.interleaver, quilt=self.quilt, native=self.native)
+        timings.update(render=t1 - t, **done.seconds)
         return 1.0
 
     def _synthesized(self, g: Any, timings: dict[str, float]) -> float:
         """all_views with view synthesis: the source views rendered, the others warped from them
         straight into the quilt (their float views are not kept)."""
-        from ..display.quilt import tile_slices, to_uint8
+        from ..display.native import views_to_native
         from ..render import fast, view_synthesis
 
         t = time.perf_counter()
@@ -361,23 +356,22 @@ class NativeFrameRenderer:
         opacity = 1.0 / (1.0 + np.exp(-np.asarray(gn.opacity_logits, dtype=np.float64)))
         view_synthesis.inverse_depth(gn.means, opacity, self.cameras, src, rig=self._rig, out=self._wmaps)
         t2 = time.perf_counter()
-        Hq, Wq, _ = self.quilt_shape
-        for i, k in enumerate(src):
-            rs, cs = tile_slices(Hq, Wq, self.calibration.cols, self.calibration.rows, int(k))
-            to_uint8(self._source_images[i], out=self.quilt[rs, cs])
+        layout = (self.calibration.cols, self.calibration.rows)
+        views_to_native(self._source_images, layout, quilt=self.quilt, tiles=src)  # the rendered views' tiles
         if self._sampled is None:  # once: only the quilt pixels the interleave reads are synthesized
             self.prepare_all_views()
         t3 = time.perf_counter()
         view_synthesis.warp_views(self._source_images, self._wmaps, src, self._rig, quilt=self.quilt, tiles=self._tiles,
                                   pixels=self._sampled, background=self.config.render.background)
         t4 = time.perf_counter()
-        self.interleaver(self.quilt, out=self.native)
+        views_to_native(None, self.interleaver, quilt=self.quilt, native=self.native)
         t5 = time.perf_counter()
         timings.update(render=t1 - t, depth=t2 - t1, quilt=t3 - t2, warp=t4 - t3, interleave=t5 - t4)
         return src.size / len(self.cameras)
 
     def _everything_device(self, g: Any, timings: dict[str, float]) -> float:
         """All views with gsplat on CUDA, tiled and interleaved on the GPU (views stay there)."""
+        from ..display.native import views_to_native
         from ..display.device import DeviceInterleaver
         from ..render import gsplat_backend
 
@@ -403,7 +397,7 @@ class NativeFrameRenderer:
         if self._device is None:
             V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
             self._device = DeviceInterleaver(self.interleaver, V, H, W, device=views.device)
-        self._device(views, out=self.native)  # the frame's one synchronisation
+        views_to_native(views, self._device, native=self.native)  # the frame's one synchronisation
         t3 = time.perf_counter()
         # (device work is asynchronous: only the sum, ending with the copy to the host, is a GPU time)
         timings.update(render=t1 - t, synthesis=t2 - t1, interleave=t3 - t2)
@@ -431,21 +425,15 @@ class NativeFrameRenderer:
             colmask.reshape(-1)[nxt] = True
             self._rr = int((self._rr + r) % n_cols)
 
-    def _columns_to_quilt(self, colmask: np.ndarray) -> None:
-        """The kept float views' tile columns ``colmask`` (V, tiles_x) -> the uint8 quilt."""
-        from ..display.quilt import tile_slices, to_uint8
+    def _columns_to_native(self, colmask: np.ndarray, sparse: bool = False) -> dict[str, float]:
+        """The kept float views' tile columns ``colmask`` (V, tiles_x) -> the uint8 quilt -> the native
+        subpixels that read them (``sparse``: through the reader lists, for a few columns); seconds."""
+        from ..display.native import ColumnUpdate, views_to_native
 
-        Hq, Wq, _ = self.quilt_shape
-        W = self.cameras.width
-        for k in np.flatnonzero(colmask.any(axis=1)):
-            rs, cs = tile_slices(Hq, Wq, self.calibration.cols, self.calibration.rows, int(k))
-            on = np.concatenate(([False], colmask[k], [False]))
-            starts = np.flatnonzero(on[1:] & ~on[:-1])
-            ends = np.flatnonzero(~on[1:] & on[:-1])
-            for a, b in zip(starts * self.tile, np.minimum(ends * self.tile, W)):
-                to_uint8(self.views[k, :, a:b], out=self.quilt[rs, cs.start + a:cs.start + b])
+        return views_to_native(self.views, self.interleaver, quilt=self.quilt, native=self.native,
+                               columns=ColumnUpdate(colmask, self.tile, sparse)).seconds
 
-    def _tracked(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
+    def _tracked_bands(self, gaussians: Any, viewer: Any, timings: dict[str, float]) -> float:
         from ..render import fast
 
         t = time.perf_counter()
@@ -455,11 +443,7 @@ class NativeFrameRenderer:
         t1 = time.perf_counter()
         fast.render(gaussians, self.cameras, self.config.render, tile_mask=tile_mask, out=self.views)
         t2 = time.perf_counter()
-        self._columns_to_quilt(colmask)
-        t3 = time.perf_counter()
-        self.interleaver.update_columns(self.quilt, self.native, colmask, block=self.tile)
-        t4 = time.perf_counter()
-        timings.update(select=t1 - t, render=t2 - t1, quilt=t3 - t2, interleave=t4 - t3)
+        timings.update(select=t1 - t, render=t2 - t1, **self._columns_to_native(colmask))
         return float(colmask.mean())
 
     def tracked_segments(self, viewer: Any, bounds: np.ndarray | None = None,
@@ -508,6 +492,7 @@ class NativeFrameRenderer:
         if self.tracked_method == "bands":
             self.interleaver.update_columns(self.quilt, self.native, none, block=self.tile)
             return
+        from ..display.native import ColumnUpdate, views_to_native
         from ..display.eyes import TrackedViewer, eye_positions
         from ..display.slices import SubpixelBuckets
         from ..render import crossed_slit
@@ -518,7 +503,8 @@ class NativeFrameRenderer:
             # views' values (the quilt is always the uint8 of the kept views)
             one = none.copy()
             one[0, 0] = True
-            self._columns_to_quilt(one)
+            views_to_native(self.views, (self.calibration.cols, self.calibration.rows), quilt=self.quilt,
+                            columns=ColumnUpdate(one, self.tile))
             self.interleaver.update(self.quilt, self.native, np.zeros(0, dtype=np.int32))
         V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
         self._buckets = SubpixelBuckets(self.interleaver, V, H, W)
@@ -577,8 +563,7 @@ class NativeFrameRenderer:
         crossed_slit.slice_depth(gn.means, opacity, rig, eyes_, out=self._slice_w[:E])
         t3 = time.perf_counter()
         if colmask.any():  # the refreshed columns: exact, through the quilt
-            self._columns_to_quilt(colmask)
-            self.interleaver.update(self.quilt, self.native, self.interleaver.readers(colmask, block=self.tile))
+            self._columns_to_native(colmask, sparse=True)
         t4 = time.perf_counter()
         kv, gh = crossed_slit.warp_coefficients(rig, eyes_)
         scatter_slices(self.native, self._buckets, segments, bounds, reach_views(c.sigma_views, c.threshold),

@@ -45,7 +45,8 @@ def render_images(gaussians: "Gaussians", cameras: "Cameras", *, backend: str = 
 
 
 def tile_views(views: np.ndarray, cols: int, rows: int) -> np.ndarray:
-    """Tile float ``views`` (n_views, H, W, 3) into a (rows*H, cols*W, 3) uint8 quilt, view 0 bottom-left."""
+    """Tile float ``views`` (n_views, H, W, 3) into a (rows*H, cols*W, 3) uint8 quilt, view 0 bottom-left
+    (:func:`holo_viewer.display.native.views_to_native`, quilt only)."""
     from ..display.quilt import tile_quilt
 
     return tile_quilt(views, cols, rows, as_uint8=True)
