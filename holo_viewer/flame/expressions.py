@@ -34,8 +34,8 @@ PSPI = AU4 + max(AU6, AU7) + max(AU9, AU10) + AU43 (0..16) [Prkachin & Solomon].
 PSPI action units (brow lowering, orbital tightening, levator contraction, eye
 closure) with lighter AU20/AU25/AU26; PSPI(p = 1) = 13.3, PSPI(0) = 0, strictly
 increasing in p. Each AU grows as ``peak x p^e`` (:data:`PAIN_EXPONENT`): the brows lead
-(e = 0.8), orbital tightening follows (1.2, 1.5), the nose wrinkle and upper-lip raise come last
-(1.8, 2.2: no bared teeth at low levels, the lip follows the other action units), so that the
+(e = 0.8), orbital tightening and the nose wrinkle follow (1.2, 1.5; AU9 1.2), the upper-lip raise
+comes last (AU10 2.0: no bared teeth at low levels, the lip follows the other action units), so that the
 landmark detector's eye aperture, brow-to-eye and nose-to-lip gaps fall monotonically from
 pain 0.2 to 1.0 (docs/behaviour.md). The eyes narrow to a slit (orbital tightening AU6/AU7, the most reliable pain
 sign) rather than shutting: full closure reads as sleep, and an independent landmark detector
@@ -55,6 +55,7 @@ import numpy as np
 
 from ..errors import FlameError, InputError
 from ..fileio import atomic_write
+from .params import EXPR_LIMIT
 
 __all__ = ["AU_NAMES", "AU_MAX", "REACT_AUS", "AUMap", "default_au_map", "au_map_for", "expression_from_aus",
            "pain_aus", "pain_expression", "estimate_aus", "pspi", "pspi_from_aus", "named_expression",
@@ -81,7 +82,7 @@ _DEFAULT_COMPONENTS = {
 PAIN_PEAK = {"AU4": 5.0, "AU6": 3.5, "AU7": 4.0, "AU9": 3.0, "AU10": 4.0, "AU43": 0.3,
              "AU20": 1.0, "AU25": 1.5, "AU26": 1.0}
 #: pain_aus(p)[au] = PAIN_PEAK[au] * p ** PAIN_EXPONENT[au] (brows lead, the upper lip follows)
-PAIN_EXPONENT = {"AU4": 0.8, "AU6": 1.2, "AU7": 1.5, "AU9": 1.8, "AU10": 2.2, "AU43": 3.0,
+PAIN_EXPONENT = {"AU4": 0.8, "AU6": 1.2, "AU7": 1.5, "AU9": 1.2, "AU10": 2.0, "AU43": 3.0,
                  "AU20": 1.5, "AU25": 2.0, "AU26": 2.0}
 _PSPI_CORE = ("AU4", "AU43")
 
@@ -177,6 +178,10 @@ class AUMap:
             for j, x in enumerate(values):
                 if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
                     raise InputError(f"{source}: aus.{name}[{j}]: expected a finite number, found {x!r}")
+                if abs(x) * AU_MAX[name] > EXPR_LIMIT:  # one AU at full intensity must stay within the limit
+                    raise InputError(f"{source}: aus.{name}[{j}]: expected |coefficient| <= {EXPR_LIMIT / AU_MAX[name]:g} "
+                                     f"(at the AU's full intensity {AU_MAX[name]:g} the expression stays within "
+                                     f"+-{EXPR_LIMIT:g}, flame.params.EXPR_LIMIT), found {x:g}")
                 row[j] = float(x)
             rows[name] = row
         names = tuple(n for n in AU_NAMES if n in rows)
@@ -311,9 +316,9 @@ def pain_aus(p: float) -> dict[str, float]:
     """AU intensities of the canonical pain face at pain ``p`` in [0, 1].
 
     Each AU is ``PAIN_PEAK[au] * p ** PAIN_EXPONENT[au]``: brow lowering (AU4) leads, orbital
-    tightening (AU6/AU7) follows, the nose wrinkle and upper-lip raise (AU9/AU10) come last, eye
-    closure (AU43, 0.3 p^3) only drops a little at the top. PSPI(p) = 5 p^0.8 +
-    max(3.5 p^1.2, 4 p^1.5) + max(3 p^1.8, 4 p^2.2) + 0.3 p^3: 0 at p = 0, 13.3 at p = 1,
+    tightening (AU6/AU7) and the nose wrinkle (AU9) follow, the upper-lip raise (AU10, the teeth)
+    comes last, eye closure (AU43, 0.3 p^3) only drops a little at the top. PSPI(p) = 5 p^0.8 +
+    max(3.5 p^1.2, 4 p^1.5) + max(3 p^1.2, 4 p^2) + 0.3 p^3: 0 at p = 0, 13.3 at p = 1,
     strictly increasing.
     """
     return _pain_aus(float(_check_p(p)))
