@@ -6,7 +6,7 @@
     front      commands/, gui/, batch/, live/, apps/  -> pipeline, stage packages, base (apps: never gui/)
     build      assets_build/                      -> pipeline, stage packages, base (makes the shipped assets)
     pipeline   pipeline/, testing.py              -> stage packages, base
-    stages     flame/ avatar/ render/ display/ reaction/ tracking/  -> base (+ the few edges in STAGE_EDGES)
+    stages     flame/ avatar/ render/ display/ reaction/ tracking/ behaviour/  -> base (+ the edges in STAGE_EDGES)
     base       errors validation fileio geometry camera images (_uint8: its compiled pass) cache offscreen
 
 No import runs back up the layers, and only ``pipeline/`` chains the stages: no other module
@@ -27,12 +27,12 @@ ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "holo_viewer"
 
 BASE = {"errors", "validation", "fileio", "geometry", "camera", "images", "_uint8", "cache", "offscreen", "__init__"}
-STAGE_PKGS = {"flame", "avatar", "render", "display", "reaction", "tracking"}
+STAGE_PKGS = {"flame", "avatar", "render", "display", "reaction", "tracking", "behaviour"}
 #: stage -> stages it may import: the rigged avatar is bound to FLAME triangles, the reaction model
 #: speaks FLAME expressions (AU map), the renderer reads the Gaussians container, and the face tracker
 #: fits the FLAME head to landmarks and reports the reaction model's face states
 STAGE_EDGES = {"avatar": {"flame"}, "reaction": {"flame"}, "render": {"avatar"}, "flame": set(), "display": set(),
-               "tracking": {"flame", "reaction"}}
+               "tracking": {"flame", "reaction"}, "behaviour": {"flame"}}
 #: avatar modules that are plain data / I/O of Gaussians, not the avatar stage (the renderer's input type)
 AVATAR_DATA = {"holo_viewer.avatar.gaussians", "holo_viewer.avatar.ply"}
 AVATAR_DATA_NAMES = {"Gaussians", "SH_C0", "sh_degree_from_count", "load_ply", "save_ply"}
