@@ -45,7 +45,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from holo_viewer.errors import MissingDependencyError  # noqa: E402
-from holo_viewer.assets_build.fit_avatar import masked_psnr  # noqa: E402,F401  (one masked PSNR, shared with the fit)
+from holo_viewer.images import psnr  # noqa: E402  (the one PSNR, shared with the fit)
 from holo_viewer.tracking.landmarks import predictor_path  # noqa: E402
 
 #: 68-point (iBUG 300-W, 0-based) index groups; "right" = the subject's right (image left)
@@ -281,8 +281,8 @@ def contact_sheet_image(res: dict[str, Any], scale: float = 1.0) -> np.ndarray:
             img = np.clip(pairs[key][i][which][top:bottom, left:right], 0, 1)
             sheet.paste(Image.fromarray((img * 255 + 0.5).astype(np.uint8)), (x, y))
             if which == 0:
-                psnr = res["per_expression"][key]["psnr_db"][int(i)]
-                draw.text((x - tile_w // 2 - 3 * size, y + tile_h + 2), f"PSNR {psnr:.1f} dB", fill=(0, 0, 0),
+                db = res["per_expression"][key]["psnr_db"][int(i)]
+                draw.text((x - tile_w // 2 - 3 * size, y + tile_h + 2), f"PSNR {db:.1f} dB", fill=(0, 0, 0),
                           font=font)
     if scale != 1.0:
         sheet = sheet.resize((int(W * scale), int(H * scale)), Image.LANCZOS)
@@ -337,7 +337,7 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
             mesh_meas[i] = None if r is None else face_measures(r[0])
             if r is not None:
                 marks[("m", i)] = r[0]
-        psnr = {int(i): masked_psnr(views[i], mimg[mesh_views.index(i)], mmask[mesh_views.index(i)])
+        psnrs = {int(i): psnr(views[i], mimg[mesh_views.index(i)], mask=mmask[mesh_views.index(i)])
                 for i in fid_views}
         # the out/head front framing (flame.preview.write_head_renders), same posed vertices, turned by
         # the front window's camera angles
@@ -353,7 +353,7 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
                                for label, w in windows.items()}
         entry["mesh_preview_front"] = {"yaw_deg": preview_yaws, "per_view": prev_meas,
                                        "median": median_measures(prev_meas)}
-        entry["psnr_db"] = psnr
+        entry["psnr_db"] = psnrs
         per[name] = entry
         sheet_pairs[name] = {int(i): (views[i], mimg[mesh_views.index(i)], mmask[mesh_views.index(i)])
                              for i in fid_views}
@@ -368,7 +368,7 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
             r = prev_det[mid]
             save_image(images_dir / f"{name}_preview_yaw{preview_yaws[mid]:+.1f}.png",
                        _draw(prevs[mid], None if r is None else r[0]))
-        print(f"  {name}: found {found}/48, PSNR " + ", ".join(f"v{i} {p:.1f}" for i, p in psnr.items()),
+        print(f"  {name}: found {found}/48, PSNR " + ", ".join(f"v{i} {p:.1f}" for i, p in psnrs.items()),
               flush=True)
     seconds = time.perf_counter() - t_start
     return {"per_expression": per, "sheet_pairs": sheet_pairs, "angles": angles, "windows": windows, "fid_views": fid_views,

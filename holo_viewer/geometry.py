@@ -26,7 +26,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "quat_to_rotmat_np", "rotmat_to_quat_np", "quat_multiply_np", "covariance_np",
-    "quat_to_rotmat", "rotmat_to_quat", "quat_multiply", "rodrigues", "rodrigues_np", "skew",
+    "quat_to_rotmat", "rotmat_to_quat", "quat_multiply", "rodrigues", "rodrigues_np", "skew", "vertex_normals",
 ]
 
 
@@ -239,3 +239,28 @@ def rodrigues_np(r: np.ndarray) -> np.ndarray:
     zero = np.zeros_like(x)
     k = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=-1).reshape(*r.shape[:-1], 3, 3)
     return np.eye(3) + a[..., None, None] * k + b[..., None, None] * (k @ k)
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit vertex normals of a triangle mesh: the area-weighted sum of the incident triangles' normals.
+
+    Parameters
+    ----------
+    vertices : numpy.ndarray
+        (V, 3) positions (any float dtype; computed in float64).
+    faces : numpy.ndarray
+        (F, 3) vertex indices, counter-clockwise seen from outside (the normal's side).
+
+    Returns
+    -------
+    numpy.ndarray
+        (V, 3) float64 unit normals; zero for vertices no triangle uses (or whose triangles cancel).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 x area
+    n = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(n, f[:, k], fn)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)

@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import ExportError, InputError
 
-__all__ = ["to_uint8"]
+__all__ = ["to_uint8", "psnr"]
 
 
 def to_uint8(images: np.ndarray, out: np.ndarray | None = None, *, name: str = "image") -> np.ndarray:
@@ -98,3 +98,35 @@ def _rows_view(a: np.ndarray) -> np.ndarray | None:
         except AttributeError:
             return None
     return v if v.strides[1] == v.itemsize or v.shape[1] <= 1 else None
+
+
+def psnr(ref: np.ndarray, test: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Peak signal-to-noise ratio in dB of images in [0, 1] (peak 1): ``10 log10(1 / MSE)``, inf when equal.
+
+    Parameters
+    ----------
+    ref, test : numpy.ndarray
+        Images of one shape, (H, W, C) or any (computed in float64).
+    mask : numpy.ndarray, optional
+        (H, W) bool: the MSE over these pixels only (all channels).
+
+    Raises
+    ------
+    InputError
+        Shapes that differ, or a mask that selects no pixel.
+    """
+    import math
+
+    a, b = np.asarray(ref, np.float64), np.asarray(test, np.float64)
+    if a.shape != b.shape:
+        raise InputError(f"psnr: expected two images of one shape, found {a.shape} and {b.shape}")
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)
+        if m.shape != a.shape[:m.ndim]:
+            raise InputError(f"mask: expected shape {a.shape[:m.ndim]}, found {m.shape}")
+        if not m.any():
+            raise InputError("mask: no pixel selected")
+        a, b = a[m], b[m]
+    diff = a - b
+    mse = float(np.mean(diff * diff))
+    return math.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)

@@ -25,6 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from holo_viewer.avatar.default_avatar import (  # noqa: E402
     DEFAULT_N_GAUSSIANS, fitted_asset_path, generate_default_gaussians, load_fitted_avatar, save_fitted_avatar)
 from holo_viewer.flame.default_head import load_default_model  # noqa: E402
+from holo_viewer.images import psnr  # noqa: E402
 from holo_viewer.pipeline import FaceControls, Pipeline  # noqa: E402
 from holo_viewer.assets_build import fit_avatar as fa  # noqa: E402
 
@@ -144,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         p16 = Pipeline(avatar=av)
         v32, v16 = p32.views(), p16.views()
         full = np.ones(v32.shape[1:3], bool)
-        table["float16_vs_float32"] = {int(i): fa.masked_psnr(v16[i], v32[i], full) for i in EVAL_VIEWS}
+        table["float16_vs_float32"] = {int(i): psnr(v16[i], v32[i], mask=full) for i in EVAL_VIEWS}
         print("  float16 vs float32 renders: " + "  ".join(f"v{i} {p:5.1f} dB"
                                                            for i, p in table["float16_vs_float32"].items()))
         record["psnr_db"] = table

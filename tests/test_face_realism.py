@@ -11,10 +11,11 @@ import importlib.util
 import numpy as np
 import pytest
 
+from holo_viewer.images import psnr
+
 from bench.face_realism import (  # the repository root is on sys.path (conftest)
     face_measures,
     inter_ocular,
-    masked_psnr,
     median_measures,
     monotone,
     nearest_views,
@@ -107,7 +108,7 @@ def test_monotone_psnr_and_view_choice():
     b[3, 3] = 1.0  # outside: ignored
     mask = np.zeros((4, 4), bool)
     mask[0, 0] = True
-    assert masked_psnr(a, b, mask) == pytest.approx(20.0)
+    assert psnr(a, b, mask=mask) == pytest.approx(20.0)
     angles = np.linspace(-20, 20, 48)
     idx = nearest_views(angles, (-20.0, -15.0, 15.0, 20.0))
     assert idx == [0, 6, 41, 47]

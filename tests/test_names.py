@@ -7,6 +7,8 @@ import ast
 from collections import defaultdict
 from pathlib import Path
 
+import pytest
+
 PKG = Path(__file__).resolve().parents[1] / "holo_viewer"
 
 #: basename -> the role every module of that name plays in its own package
@@ -59,3 +61,50 @@ def test_the_checks_can_fail(tmp_path):
         (pkg / sub / "jobs.py").write_text("class LiveRenderer:\n    pass\n\nclass _Private:\n    pass\n")
     assert public_classes(pkg) == {"LiveRenderer": ["holo_viewer/a/jobs.py", "holo_viewer/b/jobs.py"]}
     assert basenames(pkg) == {"jobs.py": ["holo_viewer/a/jobs.py", "holo_viewer/b/jobs.py"]}
+
+
+#: helpers written once in the package (tests and bench import them): name -> the module that defines it
+ONE_OF_EACH = {"vertex_normals": "holo_viewer/geometry.py", "psnr": "holo_viewer/images.py"}
+
+
+def test_shared_helpers_are_defined_once():
+    """No second vertex-normal or PSNR function (any name containing those words, private ones too),
+    apart from the PSNR variants built on the one (eyes.head_psnr, eyes.eye_psnr)."""
+    built_on = {"head_psnr", "eye_psnr"}
+    found: dict[str, list[str]] = defaultdict(list)
+    for path in sorted(PKG.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name not in built_on:
+                for word in ONE_OF_EACH:
+                    if word in node.name.lower():
+                        found[word].append(str(path.relative_to(PKG.parent)))
+    assert dict(found) == {word: [where] for word, where in ONE_OF_EACH.items()}
+
+
+def test_vertex_normals_and_psnr():
+    import numpy as np
+
+    from holo_viewer.errors import InputError
+    from holo_viewer.geometry import vertex_normals
+    from holo_viewer.images import psnr
+
+    # an octahedron (+ one unused vertex): by symmetry each normal is the vertex direction
+    v = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1], [5, 5, 5]], np.float32)
+    f = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    n = vertex_normals(v, f)
+    assert n.dtype == np.float64
+    np.testing.assert_allclose(n[:6], v[:6], atol=1e-15)
+    assert not n[6].any()  # unused: zero
+    a = np.zeros((4, 4, 3))
+    b = a.copy()
+    b[0, 0] = 0.1  # MSE 0.01 over the masked pixel -> 20 dB
+    b[3, 3] = 1.0
+    mask = np.zeros((4, 4), bool)
+    mask[0, 0] = True
+    assert psnr(a, b, mask=mask) == pytest.approx(20.0)
+    assert psnr(a, b) == pytest.approx(10 * np.log10(48 / 3.03))  # (3 x 0.01 + 3 x 1) / 48
+    assert psnr(a, a) == float("inf")
+    with pytest.raises(InputError, match="mask"):
+        psnr(a, b, mask=np.zeros((4, 4), bool))
+    with pytest.raises(InputError, match="shape"):
+        psnr(a, b[:2])

@@ -45,12 +45,13 @@ from ..avatar.binding import bind_to_world, bind_to_world_np, face_frames
 from ..avatar.gaussians import SH_C0, Gaussians
 from ..camera import Cameras
 from ..errors import InputError
+from ..images import psnr
 from ..render.config import RenderConfig
 from ..render.differentiable import render_view
 from ..pipeline.settings import FaceControls
 
 __all__ = ["AvatarFitConfig", "AvatarFit", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "surface_colors",
-           "orbit_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity", "masked_psnr"]
+           "orbit_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity"]
 
 #: (mesh vertices, faces, cameras, indices) -> ((n, H, W, 3) float images in [0, 1], (n, H, W) bool masks)
 TargetRenderer = Callable[[np.ndarray, np.ndarray, Cameras, Sequence[int]], "tuple[np.ndarray, np.ndarray]"]
@@ -494,16 +495,6 @@ def initial_with_surface_colors(local: Gaussians, binding: np.ndarray, model: An
 # =============================================================================== measurement
 
 
-def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
-    """PSNR (dB, peak 1) of two (H, W, 3) images over the pixels where ``mask`` (H, W) is true."""
-    m = np.asarray(mask, dtype=bool)
-    if not m.any():
-        raise InputError("mask: no pixel selected")
-    diff = np.asarray(a, np.float64)[m] - np.asarray(b, np.float64)[m]
-    mse = float(np.mean(diff * diff))
-    return float("inf") if mse == 0 else float(10.0 * np.log10(1.0 / mse))
-
-
 def fidelity(avatar: Any, faces: dict[str, FaceControls], views: Sequence[int], target_renderer: TargetRenderer,
              images: dict[str, np.ndarray] | None = None, timeout_s: float | None = 300.0
              ) -> dict[str, dict[int, float]]:
@@ -526,7 +517,7 @@ def fidelity(avatar: Any, faces: dict[str, FaceControls], views: Sequence[int], 
             out[name] = {int(i): float("nan") for i in views}
             continue
         mimg, mmask = got[0].astype(np.float32) / 255.0, got[1]
-        out[name] = {int(i): masked_psnr(views_g[i], mimg[k], mmask[k]) for k, i in enumerate(views)}
+        out[name] = {int(i): psnr(views_g[i], mimg[k], mask=mmask[k]) for k, i in enumerate(views)}
         if images is not None:
             images[name] = np.stack([np.concatenate([views_g[i], mimg[k]], axis=1) for k, i in enumerate(views)])
     return out

@@ -37,6 +37,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ..errors import FlameError
+from ..geometry import vertex_normals
 from ..flame.default_head import EXPRESSION_NAMES
 
 __all__ = ["load_ict", "build_from_ict", "REGION_NAMES", "AU_TO_ICT", "N_IDENTITY", "EYE_MIDPOINT", "IPD",
@@ -148,14 +149,6 @@ def _eyeball_centre(p: np.ndarray) -> np.ndarray:
         front = q[:, 2] / np.linalg.norm(q, axis=1) > np.cos(np.radians(40.0))
         c, _ = _sphere_fit(p[~front])
     return c
-
-
-def vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, f[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
 def _components(n: int, f: np.ndarray) -> np.ndarray:

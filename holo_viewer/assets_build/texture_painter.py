@@ -199,14 +199,6 @@ def _dilate(img: np.ndarray, mask: np.ndarray, passes: int = 8) -> np.ndarray:
     return img
 
 
-def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    out = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(out, f[:, k], n)
-    return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-30)
-
-
 def _smooth_indicator(ind: np.ndarray, faces: np.ndarray, iterations: int) -> np.ndarray:
     c = ind.astype(np.float64)
     n = len(c)

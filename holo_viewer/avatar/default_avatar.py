@@ -55,6 +55,7 @@ import numpy as np
 
 from ..errors import AvatarError, HoloViewerError, InputError
 from ..fileio import read_npz, save_npz
+from ..geometry import vertex_normals
 from .binding import world_to_local_np
 from .gaussians import SH_C0, Gaussians
 
@@ -88,14 +89,6 @@ def _cache_dir() -> Path:
     from ..cache import cache_dir
 
     return cache_dir()
-
-
-def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # area-weighted
-    vn = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(vn, f[:, k], fn)
-    return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
 
 
 def _smooth_noise(p: np.ndarray, rng: np.random.Generator, n_waves: int, wavelength: tuple[float, float]) -> np.ndarray:
@@ -208,7 +201,7 @@ def generate_default_gaussians(model: Any, n_gaussians: int = 100_000, sh_degree
     tri = v[f[binding]]  # (N, 3, 3)
     p = np.einsum("nk,nkc->nc", bary, tri)
     region = vregion[f[binding, np.argmax(bary, axis=1)]]
-    vn = _vertex_normals(v, f)
+    vn = vertex_normals(v, f)
     nrm = np.einsum("nk,nkc->nc", bary, vn[f[binding]])
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
     face_n = np.cross(e0, e1)[binding]

@@ -32,6 +32,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ..errors import InputError
+from ..images import psnr  # the one PSNR (re-exported: eyes.psnr)
 from ..validation import check_finite_scalar
 from ..camera import Cameras
 from .calibration import DisplayCalibration
@@ -412,12 +413,6 @@ def received_samples(display: VirtualDisplay, interleaver: Any, viewer: TrackedV
 def eye_images(display: VirtualDisplay, native: np.ndarray, viewer: TrackedViewer) -> list[np.ndarray]:
     """Per-eye perceived images (:meth:`VirtualDisplay.see`) of a native image, left eye first."""
     return [display.see(native, a, d) for a, d in eye_positions(viewer)]
-
-
-def psnr(ref: np.ndarray, test: np.ndarray) -> float:
-    """PSNR in dB of images in [0, 1] (inf when identical)."""
-    mse = float(np.mean((np.asarray(ref, np.float64) - np.asarray(test, np.float64)) ** 2))
-    return math.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
 
 
 def head_psnr(ref: np.ndarray, test: np.ndarray, background: tuple[float, float, float] = (0.0, 0.0, 0.0),

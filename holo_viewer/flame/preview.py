@@ -464,17 +464,6 @@ def add_key_lights(vtk: Any, ren: Any, centre: np.ndarray, dist: float, d: np.nd
         ren.AddLight(light)
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(V, 3) unit vertex normals: area-weighted sum of the incident triangles' normals."""
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    out = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(out, f[:, k], n)
-    return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-30)
-
-
 def textured_actors(vtk: Any, nps: Any, vertices: np.ndarray, faces: np.ndarray, appearance: Any) -> list:
     """One vtkActor per material of ``appearance``: textured ones split at UV seams (a point per
     (vertex, uv) corner pair), the rest vertex-coloured; normals from the whole mesh (no shading
@@ -488,6 +477,8 @@ def textured_actors(vtk: Any, nps: Any, vertices: np.ndarray, faces: np.ndarray,
                          f"the mesh has {len(f)}")
     if len(v) != len(appearance.vertex_colors):
         raise InputError(f"appearance: made for {len(appearance.vertex_colors)} vertices, the mesh has {len(v)}")
+    from ..geometry import vertex_normals
+
     normals = vertex_normals(v, f)
     textures = {}
     actors = []

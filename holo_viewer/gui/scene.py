@@ -18,7 +18,7 @@ from ..validation import check_array
 __all__ = [
     "frusta_arrays", "focal_plane_corners", "ellipsoid_glyph_arrays", "subsample_indices",
     "unit_icosphere", "mesh_polydata", "frusta_polydata", "focal_plane_polydata", "glyph_polydata",
-    "image_plane", "view_colors", "vertex_normals", "glyph_selection", "glyph_colors", "GLYPH_COLOR_MODES",
+    "image_plane", "view_colors", "glyph_selection", "glyph_colors", "GLYPH_COLOR_MODES",
     "AU_DESCRIPTIONS", "au_label", "scene_bounds",
 ]
 
@@ -170,18 +170,6 @@ def ellipsoid_glyph_arrays(means: np.ndarray, quats: np.ndarray, scales: np.ndar
     P = unit.shape[0]
     tris = (np.arange(means.shape[0]) * P)[:, None, None] + tri[None]
     return pts.reshape(-1, 3), tris.reshape(-1, 3)
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(V, 3) unit area-weighted vertex normals of a triangle mesh (zero for unused vertices)."""
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 x area
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, f[:, k], fn)
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
 def glyph_selection(opacities: np.ndarray, count: int, min_opacity: float = 0.0, seed: int = 0) -> np.ndarray:

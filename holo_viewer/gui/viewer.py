@@ -38,7 +38,7 @@ from ..errors import HoloViewerError, InputError
 from ..pipeline import FaceControls, Pipeline, apply_frame
 from .background import BackgroundJobs, Job
 from .scene import (GLYPH_COLOR_MODES, au_label, focal_plane_polydata, frusta_arrays, glyph_colors, glyph_polydata,
-                    glyph_selection, image_plane, mesh_polydata, scene_bounds, vertex_normals, view_colors)
+                    glyph_selection, image_plane, mesh_polydata, scene_bounds, view_colors)
 
 __all__ = ["ViewerConfig", "HoloViewer", "HELP_TEXT", "KEYS", "scale_cameras", "UpdateTimings"]
 
@@ -817,6 +817,8 @@ class HoloViewer:
     def _set_mesh_points(self, verts: np.ndarray) -> None:
         self.mesh.points[:] = verts
         if "Normals" in self.mesh.point_data:
+            from ..geometry import vertex_normals
+
             self.mesh.point_data["Normals"][:] = vertex_normals(verts, self.faces)
         self.mesh.Modified()
 
