@@ -76,3 +76,21 @@ def test_scenario_pain_timeline_schema(tmp_path):
     f.write_text(json.dumps({"pain_timeline": [{"t": 0, "level": 0.1}], "events": [{"t": 1, "pain": 0.2}]}))
     with pytest.raises(InputError, match="both"):
         Scenario.load(f)
+
+
+def test_the_live_renderer_poses_eyes_neck_and_translation():
+    """The live frame carries the layers' eyes_pose, neck_pose and translation to the face (they were dropped)."""
+    from types import SimpleNamespace
+
+    from holo_viewer.live.render import LiveAvatarRenderer
+
+    seen = []
+    pipe = SimpleNamespace(model=SimpleNamespace(n_expr=24), set_face=seen.append, set_view=lambda **kw: None)
+    stub = SimpleNamespace(pipeline=pipe, _live=None, native_enabled=False, preview_enabled=False)
+    frame = {"expr": np.zeros(24), "jaw_pose": np.zeros(3), "rotation": np.zeros(3),
+             "neck_pose": np.array([0.01, 0.02, 0.0]), "eyes_pose": np.arange(6) / 100.0,
+             "translation": np.array([0.0, 0.001, 0.0])}
+    LiveAvatarRenderer.render(stub, frame, 0.0, (), 0.0, 0.6)
+    face = seen[-1]
+    assert np.allclose(face.eyes_pose, frame["eyes_pose"]) and np.allclose(face.neck_pose, frame["neck_pose"])
+    assert np.allclose(face.translation, frame["translation"])

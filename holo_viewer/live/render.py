@@ -162,7 +162,8 @@ class LiveAvatarRenderer:
         n_expr = int(p.model.n_expr)
         expr = np.asarray(listener["expr"], dtype=np.float64)[:n_expr]
         p.set_face(FaceControls(expr=expr, jaw_pose=listener.get("jaw_pose"), rotation=listener.get("rotation"),
-                                named=named, pain=float(pain)))
+                                neck_pose=listener.get("neck_pose"), eyes_pose=listener.get("eyes_pose"),
+                                translation=listener.get("translation"), named=named, pain=float(pain)))
         angle = float(np.clip(viewer_angle_deg, -60, 60))
         distance = float(np.clip(viewer_distance_m, 0.05, 20.0))
         native = None
