@@ -300,7 +300,7 @@ def run(images_dir: Path | None = None) -> dict[str, Any]:
     pipe = Pipeline()
     model = pipe.model
     faces = model.faces.cpu().numpy()
-    from holo_viewer.avatar.default_avatar import appearance_colors
+    from holo_viewer.avatar.default_gaussians import appearance_colors
     from holo_viewer.flame.head_textures import head_appearance
 
     appearance = head_appearance(model)  # the textured mesh

@@ -99,7 +99,7 @@ def deformer_on(device: str):
     ``device`` (the Gaussians stay there): what a live frame costs when nothing crosses to the host."""
     import torch
 
-    from holo_viewer.avatar.default_avatar import default_avatar
+    from holo_viewer.avatar.default_gaussians import default_avatar
     from holo_viewer.avatar.rigged import RiggedAvatar
     from holo_viewer.flame.default_head import load_default_model
 

@@ -129,7 +129,7 @@ def random_scene(n: int = 2000, degree: int = 3, seed: int = 0, extent=(0.1, 0.1
 def default_scene(n: int = 100_000) -> tuple[Gaussians, str]:
     """(Gaussians, name): the default avatar at rest if it exists, else the shell scene."""
     try:
-        from holo_viewer.avatar.default_avatar import default_avatar
+        from holo_viewer.avatar.default_gaussians import default_avatar
     except ImportError:
         return shell_scene(n), f"shell{n // 1000}k"
     return default_avatar(n).rest(), f"default_avatar{n // 1000}k"

@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from holo_viewer.avatar.default_avatar import (  # noqa: E402
+from holo_viewer.avatar.default_gaussians import (  # noqa: E402
     DEFAULT_N_GAUSSIANS, fitted_asset_path, generate_default_gaussians, load_fitted_avatar, save_fitted_avatar)
 from holo_viewer.flame.default_head import load_default_model  # noqa: E402
 from holo_viewer.images import psnr  # noqa: E402

@@ -101,7 +101,7 @@ def test_numba_and_torch_binding_agree(small):
 def test_disk_cache_round_trip(tmp_path, monkeypatch):
     import importlib
 
-    mod = importlib.import_module("holo_viewer.avatar.default_avatar")
+    mod = importlib.import_module("holo_viewer.avatar.default_gaussians")
 
     monkeypatch.setenv("HOLO_VIEWER_CACHE", str(tmp_path))
     gen = mod._cached_local.__wrapped__

@@ -19,7 +19,7 @@ from holo_viewer.assets_build import fit_avatar as fa  # noqa: E402
 from holo_viewer.render.differentiable import render_view  # noqa: E402
 from holo_viewer.testing import random_flame_model, random_gaussians  # noqa: E402
 
-dav = importlib.import_module("holo_viewer.avatar.default_avatar")
+dav = importlib.import_module("holo_viewer.avatar.default_gaussians")
 importlib.import_module("holo_viewer.avatar").default_avatar = dav.default_avatar  # the import shadowed the lazy name
 
 

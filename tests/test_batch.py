@@ -321,7 +321,7 @@ def test_a_speaker_driver_runs_the_reaction_model_once_in_the_driver(tmp_path):
 
 
 def test_a_ply_avatar_row_renders_like_the_default_avatar(tmp_path):
-    from holo_viewer.avatar.default_avatar import default_avatar
+    from holo_viewer.avatar.default_gaussians import default_avatar
 
     default_avatar().save_ply(tmp_path / "avatar.ply")  # a GaussianAvatars PLY of the default head
     m = write_jsonl(tmp_path / "m.jsonl", [

@@ -166,7 +166,7 @@ def test_one_cache_dir_honours_holo_viewer_cache(tmp_path, monkeypatch):
 
     from holo_viewer.cache import cache_dir
 
-    dav = importlib.import_module("holo_viewer.avatar.default_avatar")  # the package attribute is the function
+    dav = importlib.import_module("holo_viewer.avatar.default_gaussians")  # the package attribute is the function
     from holo_viewer.flame import default_head
 
     monkeypatch.setenv("HOLO_VIEWER_CACHE", str(tmp_path / "hv"))

@@ -699,11 +699,11 @@ def test_results_json_checked_before_evaluating(tmp_path: Path, capsys) -> None:
 
 
 def test_pipeline_after_importing_the_default_avatar_module() -> None:
-    """``holo_viewer.avatar.default_avatar`` is both a submodule and a function: importing the
-    submodule (as evaluate-reactions does) must not break the default scene."""
+    """Importing the default avatar's module (``holo_viewer.avatar.default_gaussians``, as
+    evaluate-reactions does) must not break the default scene."""
     import importlib
 
-    importlib.import_module("holo_viewer.avatar.default_avatar")
+    importlib.import_module("holo_viewer.avatar.default_gaussians")
     from holo_viewer.pipeline.scene import load_scene
 
     scene = load_scene("default", None, None, None)

@@ -108,3 +108,38 @@ def test_vertex_normals_and_psnr():
         psnr(a, b, mask=np.zeros((4, 4), bool))
     with pytest.raises(InputError, match="shape"):
         psnr(a, b[:2])
+
+
+_SHADOW_CHECK = r"""
+import importlib, pkgutil, types
+import holo_viewer
+
+# 1. no package exports a name that is both one of its submodules and something else (fresh interpreter:
+#    the lazy attribute resolves first, as in `from holo_viewer.avatar import default_avatar`)
+both = []
+for info in pkgutil.iter_modules(holo_viewer.__path__):
+    if not info.ispkg:
+        continue
+    pkg = importlib.import_module(f"holo_viewer.{info.name}")
+    subs = {m.name for m in pkgutil.iter_modules(pkg.__path__)}
+    for name in set(getattr(pkg, "__all__", ())) & subs:
+        obj = getattr(pkg, name, None)
+        if obj is not None and not isinstance(obj, types.ModuleType):
+            both.append(f"{pkg.__name__}.{name}")
+# 2. docs/avatar.md's example after the pipeline imported the avatar's modules
+for m in pkgutil.iter_modules(importlib.import_module("holo_viewer.avatar").__path__):
+    importlib.import_module(f"holo_viewer.avatar.{m.name}")
+from holo_viewer.avatar import default_avatar
+print(both, callable(default_avatar) and not isinstance(default_avatar, types.ModuleType))
+"""
+
+
+def test_no_package_name_is_both_a_submodule_and_a_function():
+    """``holo_viewer.avatar.default_avatar`` was the function and its submodule: after ``Pipeline()``
+    imported the submodule, ``from holo_viewer.avatar import default_avatar`` gave the module."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _SHADOW_CHECK], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["[]", "True"], out.stdout

@@ -6,7 +6,7 @@
 * :mod:`.texture_painter` paints the head's albedo textures (``scripts/build_head_textures.py``;
   ``assets/default_head_albedo_*.png``); the run-time side is :mod:`holo_viewer.flame.appearance`.
 * :mod:`.fit_avatar` fits the default Gaussian avatar to renders of the textured head
-  (``scripts/fit_default_avatar.py``; ``assets/default_avatar_fitted.npz``).
+  (``scripts/fit_default_avatar.py``; ``assets/default_avatar.npz``).
 
 Layering (``tests/test_architecture.py``): this package sits above :mod:`holo_viewer.pipeline`; run-time
 code imports it only in two lazy fallbacks that rebuild a missing or stale asset on first use

@@ -26,7 +26,7 @@ The GaussianAvatars training recipe [Qian et al. CVPR'24] with the mesh renders 
 Initial Gaussians come from the caller (the default avatar's generator) with their colours replaced by
 the mesh colouring at each Gaussian's surface point (:func:`surface_colors`).
 
-Build-time code (``scripts/fit_default_avatar.py`` writes ``assets/default_avatar_fitted.npz``): it wires the
+Build-time code (``scripts/fit_default_avatar.py`` writes ``assets/default_avatar.npz``): it wires the
 face (flame, avatar) and the renderer together on top of :mod:`holo_viewer.pipeline`.
 """
 
@@ -166,7 +166,7 @@ class TargetSource:
     def for_model(cls, model: Any) -> "TargetSource":
         """The head's own mesh renders: textured when it has an appearance (``flame.head_textures``),
         else region colours (:meth:`region_colors`)."""
-        from ..avatar.default_avatar import _head_appearance, appearance_digest
+        from ..avatar.default_gaussians import _head_appearance, appearance_digest
         from ..flame.preview import render_mesh_cameras
 
         app = _head_appearance(model)
@@ -183,7 +183,7 @@ class TargetSource:
     @classmethod
     def region_colors(cls, model: Any) -> "TargetSource":
         """The head's region colours through :func:`holo_viewer.flame.preview.render_mesh_cameras` (VTK)."""
-        from ..avatar.default_avatar import appearance_colors, appearance_digest
+        from ..avatar.default_gaussians import appearance_colors, appearance_digest
         from ..flame.preview import render_mesh_cameras
 
         colors = appearance_colors(model)

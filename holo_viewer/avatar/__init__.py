@@ -18,7 +18,7 @@ __all__ = ["Gaussians", "SH_C0", "sh_degree_from_count", "load_ply", "save_ply",
 
 _LAZY = {"RiggedAvatar": "rigged", "load_gaussian_avatar": "gaussian_avatars", "FlameParams": "gaussian_avatars",
          "load_flame_params": "gaussian_avatars", "BlendshapeAvatar": "blendshape",
-         "default_avatar": "default_avatar", "cull_backfacing": "culling"}
+         "default_avatar": "default_gaussians", "cull_backfacing": "culling"}
 
 
 def __getattr__(name: str) -> Any:

@@ -162,7 +162,7 @@ class Pipeline:
                  view: ViewSettings | None = None, backend: str = "fast",
                  render_config: "RenderConfig | None" = None, au_map: "AUMap | None" = None) -> None:
         if avatar is None:
-            from ..avatar.default_avatar import default_avatar  # the submodule shares the name
+            from ..avatar.default_gaussians import default_avatar
 
             avatar = default_avatar()  # bound to the default head with teeth
             if model is not None and model is not avatar.flame_model:

@@ -61,7 +61,7 @@ class HeadRenderer:
 
     def __init__(self, n_gaussians: int = 100_000, background: tuple[float, float, float] = (0.35, 0.38, 0.42),
                  backend: str = "fast") -> None:
-        from ..avatar.default_avatar import default_avatar  # the submodule shares the name
+        from ..avatar.default_gaussians import default_avatar
         from ..render.config import RenderConfig
 
         self.avatar = default_avatar(n_gaussians=n_gaussians)

@@ -163,7 +163,7 @@ class FaceStateRenderer:
     """
 
     def __init__(self, size: int = 48, n_gaussians: int = 20000, backend: str = "fast") -> None:
-        from ..avatar.default_avatar import default_avatar
+        from ..avatar.default_gaussians import default_avatar
         from ..camera import Cameras, intrinsics, look_at
         from ..flame.expressions import default_au_map
 

@@ -72,7 +72,7 @@ def load_scene(avatar: str | os.PathLike | None = "default", flame_model: str | 
         if model is not None:
             raise InputError("--avatar default: the default avatar is bound to the embedded default head; with "
                              "--flame-model pass --avatar none (mesh only) or your GaussianAvatars PLY")
-        from ..avatar.default_avatar import default_avatar
+        from ..avatar.default_gaussians import default_avatar
 
         av = default_avatar()
         model = av.flame_model
