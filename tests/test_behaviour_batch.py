@@ -77,3 +77,19 @@ def test_render_batch_flags_switch_layers_off(tmp_path):
     m = _write(tmp_path / "s.jsonl", [{"frames": 1, "tile_scale": 0.05, "outputs": ["quilt_png"]}])
     assert main(["render-batch", str(m), "--out", str(tmp_path / "o"), "--in-process", "--no-progress",
                  "--no-gaze", "--no-blinks"]) == 0
+
+
+def test_manifest_viewer_fields_set_the_gaze_target(tmp_path):
+    from holo_viewer.reaction.api import default_checkpoint_path
+
+    rows = [{"seconds": 0.4}, {"seconds": 0.4, "viewer_angle": 20, "viewer_distance": 0.8},
+            {"frames": 2, "viewer_angle": 10}, {"seconds": 0.4, "viewer_angle": 90}]
+    a, b, still, bad = read_manifest(_write(tmp_path / "m.jsonl", rows))
+    assert b.viewer_angle == 20.0 and b.viewer_distance == 0.8 and job_hash(a) != job_hash(b)
+    assert "viewer_angle: expected only with a reaction driver" in still.error
+    assert "viewer_angle: expected a value in [-60, 60]" in bad.error
+    if not default_checkpoint_path().is_file():
+        pytest.skip("no shipped reaction checkpoint")
+    ya = np.mean([f["eyes_pose"][1] for f in resolve_job(a, "a").frames])
+    yb = np.mean([f["eyes_pose"][1] for f in resolve_job(b, "b").frames])
+    assert yb > ya + 0.1  # the eyes turn toward the viewer at +20 deg (+x)

@@ -174,25 +174,28 @@ def load_frames(job: ResolvedJob) -> list[dict[str, Any]]:
         from ..behaviour import PainKey, PainTimeline
 
         pain = PainTimeline(PainKey(t, v) for t, v in spec.pain_timeline)
-    behaviour = None
+    behaviour = target = None
     if spec.behaviour is not None:
-        from ..behaviour import BehaviourConfig
+        from ..behaviour import BehaviourConfig, viewer_target
 
         behaviour = BehaviourConfig.from_dict(dict(spec.behaviour), source=f"{spec.label}: behaviour")
+        target = viewer_target(0.0 if spec.viewer_angle is None else spec.viewer_angle,
+                               0.6 if spec.viewer_distance is None else spec.viewer_distance)
     if spec.driver == "flame_params":
         frames = _sequence(spec)
     elif spec.driver == "reaction":
         from ..pipeline.reactions import react_to_speaker
 
         params, _ = react_to_speaker(spec.speaker_audio, spec.speaker_params, pain=pain, seed=spec.seed,
-                                     temperature=spec.temperature or 0.0, behaviour=behaviour)
+                                     temperature=spec.temperature or 0.0, behaviour=behaviour, target=target)
         params.pop("pain_shown", None)  # already in the expressions
         frames = flame_sequence_frames(params, source=spec.speaker_params)
     elif spec.driver == "synthetic_reaction":
         from ..pipeline.reactions import reaction_frames
 
         kw = {} if spec.temperature is None else {"temperature": spec.temperature}
-        frames, _ = reaction_frames(seconds=spec.seconds, pain=pain, seed=spec.seed, behaviour=behaviour, **kw)
+        frames, _ = reaction_frames(seconds=spec.seconds, pain=pain, seed=spec.seed, behaviour=behaviour,
+                                    target=target, **kw)
     else:
         frames = [{} for _ in range(spec.frames)]
     if len(frames) != job.n_frames:

@@ -21,6 +21,8 @@ A row names
 * the **behaviour** of a reaction (reaction drivers only): ``behaviour``, an object of
   :class:`~holo_viewer.behaviour.BehaviourConfig` settings (``{"gaze": false}``; in CSV its JSON
   text), or ``false`` for the reaction model alone; default: every layer on, seeded by ``seed``;
+  ``viewer_angle`` (degrees, -60..60) and ``viewer_distance`` (metres) place the viewer the eyes look
+  at (default 0 and 0.6: in front of the panel);
 * the **display**: ``calibration`` (a ``visual.json`` or a preset name; default the shipped
   Portrait), ``tile_scale`` (quilt tile size relative to the calibration's), ``renderer``;
 * the **outputs**: ``outputs``, a list of ``quilt_mp4``, ``native_mp4``, ``quilt_png``,
@@ -117,6 +119,9 @@ class JobSpec:
     behaviour: tuple[tuple[str, Any], ...] | None = None
     #: the pain timeline as ((t, level), ...); None = ``pain`` (and ``scenario``)
     pain_timeline: tuple[tuple[float, float], ...] | None = None
+    #: reaction drivers: the viewer the eyes look at (degrees, metres); None = 0 deg, 0.6 m
+    viewer_angle: float | None = None
+    viewer_distance: float | None = None
 
     @property
     def label(self) -> str:
@@ -304,8 +309,14 @@ def _parse_row(row: dict[str, Any], line: int, base: Path, from_csv: bool) -> Jo
         raise ManifestError("pain_timeline: expected it instead of pain/scenario, found both")
     if driver in ("reaction", "synthetic_reaction"):
         kw["behaviour"] = r.behaviour("behaviour", kw["seed"])
-    elif "behaviour" in row:
-        raise ManifestError(f"behaviour: expected only with a reaction driver, found it with {driver}")
+        if "viewer_angle" in row:
+            kw["viewer_angle"] = r.float("viewer_angle", 0.0, -60.0, 60.0)
+        if "viewer_distance" in row:
+            kw["viewer_distance"] = r.float("viewer_distance", 0.6, 0.05, 20.0)
+    else:
+        for key in ("behaviour", "viewer_angle", "viewer_distance"):
+            if key in row:
+                raise ManifestError(f"{key}: expected only with a reaction driver, found it with {driver}")
     return JobSpec(**kw)
 
 
@@ -513,7 +524,7 @@ def job_hash(spec: JobSpec, digests: FileDigests | None = None) -> str:
         if f.name in ("line", "id"):
             continue
         value = getattr(spec, f.name)
-        if f.name in ("behaviour", "pain_timeline") and value is None:
+        if f.name in ("behaviour", "pain_timeline", "viewer_angle", "viewer_distance") and value is None:
             continue  # fields added later: jobs without them keep their hashes
         if f.name == "behaviour":
             record["behaviour_version"] = BEHAVIOUR_VERSION
