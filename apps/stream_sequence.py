@@ -22,6 +22,7 @@ import sys
 
 def main(argv: list[str] | None = None) -> int:
     from holo_viewer.pipeline.stages import STREAM_OUTPUTS
+    from holo_viewer.validation import fps_arg
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     src = ap.add_mutually_exclusive_group(required=True)
@@ -31,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--flame-model", default=None)
     ap.add_argument("--seconds", type=float, default=2.0)
     ap.add_argument("--pain", type=float, default=0.5)
-    ap.add_argument("--fps", type=float, default=25.0)
+    ap.add_argument("--fps", type=fps_arg, default=25.0)
     ap.add_argument("--output", default="quilt", choices=STREAM_OUTPUTS)
     ap.add_argument("--policy", default="drop", choices=("drop", "all"))
     ap.add_argument("--tile-scale", type=float, default=1.0)

@@ -19,7 +19,8 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["check_array", "format_shape", "check_finite_scalar", "check_json_number", "is_torch"]
+__all__ = ["check_array", "format_shape", "check_finite_scalar", "check_json_number", "is_torch", "seed_arg", "fps_arg",
+           "SEED_LIMIT"]
 
 ShapeSpec = Sequence[Any]
 
@@ -200,3 +201,37 @@ def check_json_number(value: Any, name: str, *, integer: bool = False, low: floa
             raise InputError(f"{name}: expected an integer, found {value!r}")
         return int(v)
     return v
+
+
+#: seeds every command accepts: numpy's and torch's generators take 0 <= seed < 2**32 alike
+SEED_LIMIT = 2**32
+
+
+def seed_arg(text: str) -> int:
+    """argparse ``type=`` of every command's ``--seed``: an integer with 0 <= seed < 2**32.
+
+    One rule for every command, checked when the command line is parsed (exit 2, one line).
+    """
+    import argparse
+
+    try:
+        value = int(text, 10)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected an integer seed in [0, 2**32), found {text!r}") from None
+    if not 0 <= value < SEED_LIMIT:
+        raise argparse.ArgumentTypeError(f"expected an integer seed in [0, 2**32), found {value}")
+    return value
+
+
+def fps_arg(text: str) -> float:
+    """argparse ``type=`` of every frame-rate option: a finite number in (0, 1000]."""
+    import argparse
+    import math
+
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected frames per second (a number > 0), found {text!r}") from None
+    if not math.isfinite(value) or not 0 < value <= 1000:
+        raise argparse.ArgumentTypeError(f"expected frames per second in (0, 1000], found {text!r}")
+    return value

@@ -24,7 +24,7 @@ from holo_viewer.cli import main
 from holo_viewer.errors import (CalibrationError, ExportError, HoloViewerError, InputError, ReactionError,
                                 TrackingError)
 
-from test_hardening import _empty_gaussians, _speaker_files, disk_full  # noqa: E402,F401  (tests/ on sys.path)
+from test_hardening import _empty_gaussians, _speaker_files  # noqa: E402  (tests/ is on sys.path)
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "assets" / "lkg_portrait_visual.json"
@@ -357,15 +357,31 @@ def test_every_video_writer_verifies_before_the_rename(tmp_path: Path, index: in
     assert after == before, name  # no temporary left, the earlier file untouched
 
 
-def test_replay_to_a_full_disk_is_an_error(tmp_path: Path, disk_full, capsys, monkeypatch) -> None:
-    from holo_viewer.live import replay
+_FULL_DISK_REPLAY = """
+import resource, sys
+import numpy as np
+from holo_viewer.cli import main
+from holo_viewer.live import replay
+rng = np.random.default_rng(0)
+replay.replay_frames = lambda *a, **k: iter(rng.integers(0, 255, (10, 240, 320, 3), dtype=np.uint8))
+# the disk fills up while ffmpeg writes (a file-size limit: the kernel stops ffmpeg with SIGXFSZ)
+resource.setrlimit(resource.RLIMIT_FSIZE, (300_000, resource.RLIM_INFINITY))
+sys.exit(main(["replay", sys.argv[1], "--out", sys.argv[2]]))
+"""
 
-    monkeypatch.setattr(replay, "replay_frames", lambda *a, **k: iter(_frames(10)))
-    disk_full()
-    rc = main(["replay", str(tmp_path), "--out", str(tmp_path / "r.mp4")])
-    captured = capsys.readouterr()
-    assert rc == 1 and "r.mp4" in captured.err and "wrote" not in captured.out, captured
-    assert not (tmp_path / "r.mp4").exists()
+
+def test_replay_to_a_full_disk_is_an_error(tmp_path: Path) -> None:
+    """ffmpeg stopped by the disk filling up mid-video: exit 1, nothing under the final name."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "r.mp4"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run([sys.executable, "-c", _FULL_DISK_REPLAY, str(tmp_path), str(out)], capture_output=True,
+                          text=True, env=env, timeout=120)
+    assert proc.returncode == 1, (proc.returncode, proc.stdout, proc.stderr[-2000:])
+    assert "wrote" not in proc.stdout and "r.mp4" in proc.stderr and "Traceback" not in proc.stderr
+    assert os.listdir(tmp_path) == []
 
 
 class _FakeRenderer:
@@ -412,3 +428,178 @@ def test_ctrl_c_inside_the_frame_write_leaves_a_playable_session_video(tmp_path:
     assert media.count_video_frames(out / "native.mp4") == meta["displayed_frames"] == len(calls) == 4
     assert meta["summary"]["status"]["native_video_frames"] == 4
     assert sorted(p.name for p in out.iterdir() if p.name.startswith(".")) == []
+
+
+# --------------------------------------------------------------------------- case 10: never overwrite a session
+
+
+def test_live_refuses_an_existing_session_folder(tmp_path: Path, capsys, monkeypatch) -> None:
+    from holo_viewer.commands.live import check_session_out
+
+    old = tmp_path / "session"
+    old.mkdir()
+    (old / "session.json").write_text('{"displayed_frames": 460}')
+    rc = main(["live", "--synthetic", "--seconds", "0.5", "--headless", "--out", str(old)])
+    err = capsys.readouterr().err
+    assert rc == 1 and "a session folder already exists there" in err and "--out DIR" in err
+    assert (old / "session.json").read_text() == '{"displayed_frames": 460}' and len(os.listdir(old)) == 1
+    (tmp_path / "empty").mkdir()
+    assert check_session_out(str(tmp_path / "empty")) == str(tmp_path / "empty")
+    monkeypatch.chdir(tmp_path)
+    first = check_session_out(None)
+    assert first.startswith("session-") and not Path(first).exists()
+    Path(first).mkdir()
+    assert check_session_out(None) != first
+
+
+# --------------------------------------------------------------------------- case 12: tampered replay sessions
+
+
+def _good_session(folder: Path, n: int = 4) -> Path:
+    from holo_viewer.live.session import TRACK_KEYS
+
+    folder.mkdir()
+    (folder / "session.json").write_text(json.dumps({"settings": {"tile_scale": 0.1}}))
+    tracks = {k: np.zeros((n, 3)) if k.startswith(("listener_", "speaker_")) else np.zeros(n) for k in TRACK_KEYS}
+    np.savez(folder / "tracks.npz", **tracks)
+    return folder
+
+
+@pytest.mark.parametrize("meta, tamper, match", [
+    ([], None, r"session\.json: expected a JSON object, found list"),
+    ({"settings": []}, None, r"session\.json: settings: expected a JSON object, found list"),
+    ({"settings": {"tile_scale": "abc"}}, None, r"settings\.tile_scale: expected a number, found str"),
+    ({"settings": {"tile_scale": float("nan")}}, None, r"settings\.tile_scale"),
+    (None, {"time_s": np.float64(1.0)}, r"tracks\.npz: time_s: expected a 1-D array"),
+    (None, {"listener_expr": np.zeros((2, 3))}, r"tracks\.npz: listener_expr: expected 4 rows"),
+    (None, {"listener_expr": np.array([["a"] * 3] * 4)}, r"tracks\.npz: listener_expr: expected numbers"),
+])
+def test_tampered_sessions_are_refused_naming_the_field(tmp_path: Path, meta, tamper, match, capsys) -> None:
+    from holo_viewer.live.session import load_session
+
+    folder = _good_session(tmp_path / "s")
+    if meta is not None:
+        (folder / "session.json").write_text(json.dumps(meta))
+    if tamper is not None:
+        with np.load(folder / "tracks.npz") as z:
+            tracks = {k: z[k] for k in z.files}
+        tracks.update(tamper)
+        np.savez(folder / "tracks.npz", **tracks)
+    with pytest.raises(InputError, match=match):
+        load_session(folder)
+    rc = main(["replay", str(folder), "--out", str(tmp_path / "r.mp4")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "Traceback" not in err and not (tmp_path / "r.mp4").exists()
+
+
+# --------------------------------------------------------------------------- case 13: JSON types
+
+
+@pytest.mark.parametrize("event, match", [
+    ('{"t": NaN, "pain": 1.0}', r"events\[0\]\.t: expected a finite"),
+    ('{"t": 1, "pain": 0.5, "duration": NaN}', r"events\[0\]\.duration"),
+    ('{"t": "3", "pain": 0.5}', r"events\[0\]\.t: expected a number, found str"),
+    ('{"t": 1, "pain": true}', r"events\[0\]\.pain: expected a number, found bool"),
+])
+def test_scenario_values_are_type_checked(tmp_path: Path, event: str, match: str) -> None:
+    from holo_viewer.live.controls import Scenario
+
+    path = tmp_path / "sc.json"
+    path.write_text('{"events": [' + event + ']}')
+    with pytest.raises(InputError, match=match):
+        Scenario.load(path)
+
+
+@pytest.mark.parametrize("mount, match", [
+    ({"mirrored": "no"}, r"mirrored: expected true or false, found str 'no'"),
+    ({"mirrored": 0}, r"mirrored: expected true or false, found int"),
+    ({"hfov_deg": "60"}, r"hfov_deg: expected a number, found str"),
+    ({"position_m": [0, "0.1", 0]}, r"position_m\[1\]: expected a number"),
+])
+def test_mount_values_are_type_checked(tmp_path: Path, mount: dict, match: str) -> None:
+    from holo_viewer.tracking.viewer import WebcamMount
+
+    path = tmp_path / "mount.json"
+    path.write_text(json.dumps(mount))
+    with pytest.raises(TrackingError, match=r"mount\.json: " + match):
+        WebcamMount.load(path)
+    path.write_text(json.dumps({"mirrored": True, "hfov_deg": 70}))
+    assert WebcamMount.load(path).mirrored is True
+
+
+# --------------------------------------------------------------------------- case 14: AU map limit
+
+
+@pytest.mark.parametrize("value", [1e300, 1e3, 2.5])
+def test_au_map_cannot_push_the_expression_past_the_limit(tmp_path: Path, value: float, capsys) -> None:
+    from holo_viewer.flame.expressions import default_au_map
+
+    data = default_au_map().to_dict()
+    data["aus"]["AU4"][0] = value
+    path = tmp_path / "au.json"
+    path.write_text(json.dumps(data))
+    out = tmp_path / "head.obj"
+    rc = main(["export-mesh", "--pain", "1", "--au-map", str(path), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 1 and "au.json" in err and "aus.AU4[0]" in err and "<= 2" in err, err
+    assert not out.exists()
+
+
+def test_summed_au_map_is_checked_after_it_is_applied(tmp_path: Path, capsys) -> None:
+    from holo_viewer.flame.expressions import default_au_map
+
+    data = default_au_map().to_dict()
+    for au in ("AU4", "AU6", "AU7", "AU9", "AU10"):
+        data["aus"][au][0] = 2.0  # each alone stays within +-10 at full intensity; pain sums them
+    path = tmp_path / "au.json"
+    path.write_text(json.dumps(data))
+    out = tmp_path / "head.obj"
+    rc = main(["export-mesh", "--pain", "1", "--au-map", str(path), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 1 and "au.json" in err and "expression[0]: expected an expression coefficient in [-10, 10]" in err
+    assert not out.exists()
+
+
+# --------------------------------------------------------------------------- case 15: one seed rule
+
+
+@pytest.mark.parametrize("argv", [
+    ["react", "--seed", "-1"], ["live", "--seed", "-1"], ["demo", "--seed", "-1"],
+    ["evaluate-reactions", "--seed", "-1"], ["train-reaction", "--out", "x.pt", "--seed", "-1"],
+    ["live", "--seed", str(2**32)], ["react", "--seed", "1.5"],
+    ["live", "--video-fps", "nan"], ["live", "--video-fps", "0"], ["demo", "--fps", "inf"], ["show", "f", "--fps", "-2"],
+])
+def test_seed_and_fps_are_checked_at_parse_time(argv: list[str], capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "Traceback" not in err
+    assert ("seed in [0, 2**32)" in err) or ("frames per second" in err)
+
+
+def test_seed_rule_accepts_the_whole_range() -> None:
+    from holo_viewer.validation import seed_arg
+
+    assert seed_arg("0") == 0 and seed_arg(str(2**32 - 1)) == 2**32 - 1
+
+
+# --------------------------------------------------------------------------- case 16: inputs first
+
+
+def test_live_probes_a_corrupt_video_first(tmp_path: Path, capsys, monkeypatch) -> None:
+    from holo_viewer.live import render
+    from holo_viewer.reaction.audio import write_wav
+
+    def expensive(*args, **kwargs):
+        raise AssertionError("the renderer was built before the inputs were checked")
+
+    monkeypatch.setattr(render.LiveAvatarRenderer, "__init__", expensive)
+    corrupt = tmp_path / "corrupt.mp4"
+    corrupt.write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(range(256)) * 8)
+    wav = write_wav(tmp_path / "a.wav", np.zeros(16000, np.float32), 16000)
+    out = tmp_path / "s"
+    rc = main(["live", "--video", str(corrupt), "--audio", str(wav), "--headless", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 1 and "corrupt.mp4: cannot read the video" in err, err
+    assert len(err.strip().splitlines()) == 1 and "ffmpeg version" not in err
+    assert not out.exists()

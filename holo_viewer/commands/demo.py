@@ -19,6 +19,8 @@ import json
 import time
 from pathlib import Path
 
+from ..validation import fps_arg, seed_arg
+
 __all__ = ["add_arguments", "run", "format_timing_table"]
 
 
@@ -27,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--smile", type=float, default=0.8, help="smile intensity of the quilt, 0..1 (default 0.8)")
     parser.add_argument("--pain", type=float, default=0.6, help="pain intensity of the quilt and the reaction, 0..1")
     parser.add_argument("--seconds", type=float, default=2.0, help="length of the reaction video (default 2 s)")
-    parser.add_argument("--fps", type=float, default=25.0,
+    parser.add_argument("--fps", type=fps_arg, default=25.0,
                         help="frame rate of the reaction video (default 25; lowered when --time-budget needs it)")
     parser.add_argument("--time-budget", type=float, default=270.0,
                         help="seconds the whole demo may take (default 270): when the quilt time measured on "
@@ -35,8 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "lower frame rate (same length) and says so; 0 = no limit")
     parser.add_argument("--video-scale", type=float, default=1.0,
                         help="tile size of the video relative to the 420x560 quilt tile (default 1)")
-    parser.add_argument("--renderer", default="fast", help="splat renderer backend (default fast)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the synthesized speaker clip")
+    from .renderer_args import add_renderer_argument
+
+    add_renderer_argument(parser, help="splat renderer")
+    parser.add_argument("--seed", type=seed_arg, default=0, help="seed of the synthesized speaker clip")
     parser.add_argument("--skip-head-renders", action="store_true", help="do not write head/ (faster)")
     from .behaviour_args import add_behaviour_arguments
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+
+from ..validation import seed_arg
 import json
 
 __all__ = ["add_arguments", "run"]
@@ -15,7 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--samples", type=int, default=10, help="reactions per speaker clip K (default 10)")
     parser.add_argument("--temperature", type=float, default=1.0, help="sampling temperature (0 = argmax)")
     parser.add_argument("--top-k", type=int, default=20, help="top-k sampling (default 20; 0 = all tokens)")
-    parser.add_argument("--seed", type=int, default=0, help="sampling and Random-baseline seed")
+    parser.add_argument("--seed", type=seed_arg, default=0, help="sampling and Random-baseline seed")
     parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     parser.add_argument("--frrea-frames", type=int, default=48, help="frames rendered per method for FRRea "
                         "(48x48 frontal renders, simple features, NOT Inception; 0 = skip)")

@@ -115,7 +115,13 @@ def run(args: argparse.Namespace) -> int:
     if pain is not None:
         from ..flame.expressions import au_map_for
 
+        from ..flame.expressions import pain_expression
+        from ..flame.params import check_expr
+
         au_map = au_map_for(model, args.au_map)  # a user model needs --au-map for pain
+        # the +-EXPR_LIMIT rule holds for the expression after the map is applied (pain + --expr)
+        check_expr(expr + pain_expression(pain, au_map), name=f"--pain {pain:g} with the AU map "
+                   f"{args.au_map or '(default)'}: expression")
     face = FaceControls(expr=expr, jaw_pose=[np.deg2rad(jaw_deg), 0.0, 0.0], pain=pain or 0.0)
     verts = Pipeline(model=model, avatar=False, face=face, au_map=au_map).mesh()
     faces = model.faces.cpu().numpy()

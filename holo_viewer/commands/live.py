@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from ..validation import fps_arg, seed_arg
+
 __all__ = ["add_arguments", "run"]
 
 
@@ -20,7 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--mount", metavar="MOUNT.json", help="webcam-to-panel offset JSON (docs/live.md)")
     src.add_argument("--hfov", type=float, default=60.0, help="webcam horizontal field of view in degrees (default 60)")
     out = parser.add_argument_group("output")
-    out.add_argument("--out", default="session", metavar="DIR", help="session folder (default ./session)")
+    out.add_argument("--out", default=None, metavar="DIR", help="session folder, must not exist yet (default "
+                     "./session-YYYYmmdd-HHMMSS; an existing session is never overwritten)")
     out.add_argument("--headless", action="store_true", help="no windows (CI); the session folder and native.mp4 "
                      "are still written")
     out.add_argument("--frames", type=int, default=None, help="stop after N displayed frames")
@@ -39,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      "eye (fastest); all_views: default cone, every 5th view rendered and the others warped by depth; "
                      "cone: the 48 cameras follow the tracked viewer (Algorithm 1's viewer angle and distance), the "
                      "whole quilt each frame (slowest)")
-    out.add_argument("--video-fps", type=float, default=10.0, help="frame rate written into native.mp4 (one frame "
+    out.add_argument("--video-fps", type=fps_arg, default=10.0, help="frame rate written into native.mp4 (one frame "
                      "per displayed frame; default 10)")
     out.add_argument("--record-video", action="store_true", help="also keep the webcam video (off by default: "
                      "trainees' faces are private)")
@@ -50,10 +53,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ctl.add_argument("--no-viewer-prediction", action="store_true", help="render for the smoothed viewer pose as "
                      "tracked, not extrapolated to when the frame is shown")
     ctl.add_argument("--temperature", type=float, default=0.0, help="reaction sampling temperature (0 = argmax)")
-    ctl.add_argument("--seed", type=int, default=0)
+    ctl.add_argument("--seed", type=seed_arg, default=0)
     from .behaviour_args import add_behaviour_arguments
 
     add_behaviour_arguments(parser, pain_timeline=False)  # timelines: --scenario's pain_timeline
+
+
+def check_session_out(out: str | None) -> str:
+    """The session folder to write: ``out``, or a new timestamped folder when None.
+
+    Raises
+    ------
+    InputError
+        ``out`` exists and is not an empty directory: a live session never overwrites one.
+    """
+    import time
+    from pathlib import Path
+
+    from ..errors import InputError
+
+    if out is None:
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        out = f"session-{stamp}"
+        n = 2
+        while Path(out).exists():
+            out, n = f"session-{stamp}-{n}", n + 1
+    p = Path(out)
+    if p.exists() and (not p.is_dir() or any(p.iterdir())):
+        what = "a session folder" if (p / "session.json").exists() else ("a file" if not p.is_dir() else
+                                                                         "a folder that is not empty")
+        raise InputError(f"--out {p}: {what} already exists there and would be overwritten; choose another with "
+                         f"--out DIR, or leave --out out for a new timestamped folder")
+    return str(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.synthetic and (args.audio or args.video):
         raise InputError("--synthetic replaces --audio/--video; give one or the other")
+    args.out = check_session_out(args.out)
     if args.frames is not None and args.frames < 1:
         raise InputError(f"--frames: expected >= 1, found {args.frames}")
     if not 0.0 <= args.pain <= 1.0:

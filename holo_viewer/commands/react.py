@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from ..validation import seed_arg
+
 __all__ = ["add_arguments", "run"]
 
 
@@ -19,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--checkpoint", metavar="CKPT", help="reaction checkpoint (default: assets/reaction_default.pt)")
     parser.add_argument("--temperature", type=float, default=0.0, help="sampling temperature (0 = argmax, default)")
     parser.add_argument("--top-k", type=int, default=20, help="top-k sampling when temperature > 0")
-    parser.add_argument("--seed", type=int, default=0, help="sampling seed")
+    parser.add_argument("--seed", type=seed_arg, default=0, help="sampling seed")
     parser.add_argument("--smoothing", type=float, default=None, metavar="SECONDS",
                         help="time constant of the causal output smoothing (default 0.12 s; 0 = raw model tokens, "
                              "piecewise constant per k-frame window)")

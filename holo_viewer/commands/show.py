@@ -8,6 +8,8 @@ of images (a sequence, played in name order). Quilts are interleaved with the ca
 from __future__ import annotations
 
 import argparse
+
+from ..validation import fps_arg
 import sys
 from pathlib import Path
 from typing import Callable, Iterator
@@ -26,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--monitor", type=int, default=None, help="monitor index (default: the one whose "
                                                                    "resolution matches the calibration)")
     parser.add_argument("--loop", action="store_true", help="loop a video or sequence")
-    parser.add_argument("--fps", type=float, default=30.0, help="frame rate for sequences (videos: their own)")
+    parser.add_argument("--fps", type=fps_arg, default=30.0, help="frame rate for sequences (videos: their own)")
     parser.add_argument("--cols", type=int, default=None, help="quilt columns (default: from the file name)")
     parser.add_argument("--rows", type=int, default=None, help="quilt rows (default: from the file name)")
     parser.add_argument("--blend", action="store_true", help="two-view blend interleave")

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+
+from ..validation import seed_arg
 import json
 
 __all__ = ["add_arguments", "run"]
@@ -15,7 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="CKPT", help="final checkpoint path (.pt); the resumable "
                         "state goes to CKPT.partial.pt while training")
     parser.add_argument("--resume", action="store_true", help="continue from CKPT.partial.pt when it exists")
-    parser.add_argument("--seed", type=int, default=None, help="override the config's seed (training and data)")
+    parser.add_argument("--seed", type=seed_arg, default=None, help="override the config's seed (training and data)")
     parser.add_argument("--max-steps", type=int, default=None, help="override the config's max_steps")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default from config: 2)")
     parser.add_argument("--config-out", metavar="JSON", help="also write the effective config as JSON")

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..fileio import read_json
+from ..validation import check_json_number
 
 __all__ = ["Controls", "Scenario", "ScenarioEvent", "KEYS"]
 
@@ -114,11 +115,12 @@ class Scenario:
             unknown = set(e) - {"t", "pain", "expression", "intensity", "duration"}
             if unknown:
                 raise InputError(f"{p}: events[{i}]: unknown keys {sorted(unknown)}")
-            try:
-                ev = ScenarioEvent(float(e["t"]), None if e.get("pain") is None else float(e["pain"]),
-                                   e.get("expression"), float(e.get("intensity", 1.0)), float(e.get("duration", 2.0)))
-            except (TypeError, ValueError) as exc:
-                raise InputError(f"{p}: events[{i}]: {exc}") from exc
+            # JSON types checked: a string, null, boolean or NaN is refused naming the field
+            where = f"{p}: events[{i}]"
+            ev = ScenarioEvent(check_json_number(e["t"], f"{where}.t", low=0.0),
+                               None if e.get("pain") is None else check_json_number(e["pain"], f"{where}.pain"),
+                               e.get("expression"), check_json_number(e.get("intensity", 1.0), f"{where}.intensity"),
+                               check_json_number(e.get("duration", 2.0), f"{where}.duration", low=0.0, low_open=True))
             if ev.pain is not None and not 0.0 <= ev.pain <= 1.0:
                 raise InputError(f"{p}: events[{i}].pain: expected a value in [0, 1], found {ev.pain}")
             if ev.expression is not None and ev.expression not in names:

@@ -146,8 +146,44 @@ def load_session(folder: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]
     if not (p / "session.json").is_file() or not (p / "tracks.npz").is_file():
         raise InputError(f"{p}: expected a live session folder with session.json and tracks.npz")
     meta = read_json(p / "session.json", InputError, "session metadata")
+    _check_meta(meta, p / "session.json")
     tracks = read_npz(p / "tracks.npz", InputError, "session tracks")
     missing = [k for k in TRACK_KEYS if k not in tracks]
     if missing:
         raise InputError(f"{p / 'tracks.npz'}: missing keys {missing}")
+    _check_tracks(tracks, p / "tracks.npz")
     return meta, tracks
+
+
+def _check_meta(meta: Any, path: Path) -> None:
+    """Types of the session.json fields replay reads (a tampered file is refused naming the field)."""
+    from ..errors import InputError
+    from ..validation import check_json_number
+
+    if not isinstance(meta, dict):
+        raise InputError(f"{path}: expected a JSON object, found {type(meta).__name__}")
+    settings = meta.get("settings", {})
+    if not isinstance(settings, dict):
+        raise InputError(f"{path}: settings: expected a JSON object, found {type(settings).__name__}")
+    if settings.get("tile_scale") is not None:
+        check_json_number(settings["tile_scale"], f"{path}: settings.tile_scale", low=0.0, high=4.0, low_open=True)
+    for key in ("render_mode", "scenario"):
+        if settings.get(key) is not None and not isinstance(settings[key], str):
+            raise InputError(f"{path}: settings.{key}: expected a string, found {type(settings[key]).__name__} "
+                             f"{settings[key]!r:.60}")
+
+
+def _check_tracks(tracks: dict[str, np.ndarray], path: Path) -> None:
+    """Every track numeric, finite where replay uses it, and one row per recorded frame."""
+    from ..errors import InputError
+
+    time_s = tracks["time_s"]
+    if time_s.ndim != 1:
+        raise InputError(f"{path}: time_s: expected a 1-D array (one time per frame), found shape {time_s.shape}")
+    n = time_s.shape[0]
+    for key in TRACK_KEYS:
+        arr = tracks[key]
+        if not (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_):
+            raise InputError(f"{path}: {key}: expected numbers, found dtype {arr.dtype}")
+        if arr.ndim < 1 or arr.shape[0] != n:
+            raise InputError(f"{path}: {key}: expected {n} rows (one per time_s entry), found shape {arr.shape}")

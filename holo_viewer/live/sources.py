@@ -154,13 +154,22 @@ class VideoReplay:
         self._cur: tuple[float, np.ndarray] | None = None
         self.status = "ok"
         self.finished = False
+        self._open()  # probe now: a corrupt file is reported before anything else starts
 
-    def start(self) -> None:
+    def _open(self) -> None:
         try:
             self._it = iter(self._iter_fn(self._path))
             self._next = next(self._it)
-        except (TrackingError, StopIteration) as exc:
-            raise DeviceError(f"{self._path}: cannot read the video ({exc})") from exc
+        except StopIteration:
+            raise DeviceError(f"{self._path}: cannot read the video (it has no frames)") from None
+        except TrackingError as exc:
+            lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+            reason = lines[-1] if lines else type(exc).__name__  # ffmpeg's own reason, not its banner
+            raise DeviceError(f"{self._path}: cannot read the video ({reason[:200]})") from None
+
+    def start(self) -> None:
+        if self._it is None:
+            self._open()
 
     def latest(self, t: float) -> tuple[float, np.ndarray] | None:
         """(frame time, frame) of the last frame with time <= t (None before the first)."""

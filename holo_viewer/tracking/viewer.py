@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import InputError, TrackingError
 from ..fileio import read_json
-from ..validation import check_array, check_finite_scalar
+from ..validation import check_array, check_finite_scalar, check_json_number
 from .filters import OneEuroConfig, OneEuroFilter, _alpha
 
 __all__ = ["webcam_intrinsics", "WebcamMount", "viewer_position", "ViewerPose", "ViewerTrackerConfig",
@@ -107,7 +107,18 @@ class WebcamMount:
         unknown = sorted(set(data) - {"position_m", "rotation_deg", "hfov_deg", "mirrored"})
         if unknown:
             raise TrackingError(f"{p}: unknown keys {unknown}; expected position_m, rotation_deg, hfov_deg, mirrored")
-        try:
+        try:  # JSON types checked first: "mirrored": "no" is not True, "60" is not a number
+            if "mirrored" in data and not isinstance(data["mirrored"], bool):
+                raise InputError(f"mirrored: expected true or false, found {type(data['mirrored']).__name__} "
+                                 f"{data['mirrored']!r}")
+            for key in ("position_m", "rotation_deg"):
+                if key in data:
+                    if not isinstance(data[key], list) or len(data[key]) != 3:
+                        raise InputError(f"{key}: expected a list of 3 numbers, found {data[key]!r}")
+                    for j, v in enumerate(data[key]):
+                        check_json_number(v, f"{key}[{j}]")
+            if "hfov_deg" in data:
+                check_json_number(data["hfov_deg"], "hfov_deg")
             return cls(**data)
         except (InputError, TypeError, ValueError) as exc:
             raise TrackingError(f"{p}: {exc}") from exc
