@@ -112,7 +112,9 @@ def test_acceptance_on_synthetic_test_split():
     bundle = load_default_bundle()
     cfg = bundle.train_config.data
     test = make_synthetic_split("test", cfg)
-    train = make_synthetic_split("train", cfg)
+    # the val split's mean frame stands in for the training mean (MeanFr): the 120-context text-to-speech
+    # training split takes minutes to synthesize; the val split is never trained on either
+    train = make_synthetic_split("val", cfg)
     states = generate_reactions(bundle, test, k_samples=10, temperature=1.0, top_k=20, seed=0)
     rho, _ = pain_following(states, test.pain, default_au_map())
     assert rho >= 0.9

@@ -185,9 +185,11 @@ def load_frames(job: ResolvedJob) -> list[dict[str, Any]]:
         frames = _sequence(spec)
     elif spec.driver == "reaction":
         from ..pipeline.reactions import react_to_speaker
+        from ..reaction.decoding import DEFAULT_TEMPERATURE
 
         params, _ = react_to_speaker(spec.speaker_audio, spec.speaker_params, pain=pain, seed=spec.seed,
-                                     temperature=spec.temperature or 0.0, behaviour=behaviour, target=target)
+                                     temperature=DEFAULT_TEMPERATURE if spec.temperature is None else spec.temperature,
+                                     behaviour=behaviour, target=target)
         params.pop("pain_shown", None)  # already in the expressions
         frames = flame_sequence_frames(params, source=spec.speaker_params)
     elif spec.driver == "synthetic_reaction":

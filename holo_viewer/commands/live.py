@@ -52,7 +52,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ctl.add_argument("--group", action="store_true", help="centre the view cone on all faces instead of the nearest")
     ctl.add_argument("--no-viewer-prediction", action="store_true", help="render for the smoothed viewer pose as "
                      "tracked, not extrapolated to when the frame is shown")
-    ctl.add_argument("--temperature", type=float, default=0.0, help="reaction sampling temperature (0 = argmax)")
+    from ..reaction.decoding import DEFAULT_TEMPERATURE
+
+    ctl.add_argument("--temperature", type=float, default=DEFAULT_TEMPERATURE,
+                     help=f"reaction sampling temperature (0 = argmax; default {DEFAULT_TEMPERATURE})")
     ctl.add_argument("--seed", type=seed_arg, default=0)
     from .behaviour_args import add_behaviour_arguments
 

@@ -19,7 +19,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pain", type=float, default=0.0, help="requested pain level in [0, 1] (default 0)")
     parser.add_argument("--out", required=True, metavar="OUT.npz", help="output flame_param.npz (written atomically)")
     parser.add_argument("--checkpoint", metavar="CKPT", help="reaction checkpoint (default: assets/reaction_default.pt)")
-    parser.add_argument("--temperature", type=float, default=0.0, help="sampling temperature (0 = argmax, default)")
+    from ..reaction.decoding import DEFAULT_TEMPERATURE
+
+    parser.add_argument("--temperature", type=float, default=DEFAULT_TEMPERATURE,
+                        help=f"sampling temperature (0 = argmax; default {DEFAULT_TEMPERATURE}: seeded top-k sampling, "
+                             "see docs/reaction.md)")
     parser.add_argument("--top-k", type=int, default=20, help="top-k sampling when temperature > 0")
     parser.add_argument("--seed", type=seed_arg, default=0, help="sampling seed")
     parser.add_argument("--smoothing", type=float, default=None, metavar="SECONDS",

@@ -27,6 +27,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import ExportError, HoloViewerError
+from ..reaction.decoding import DEFAULT_TEMPERATURE, DEFAULT_TOP_K
 from ..tracking.viewer import ViewerPose
 from .controls import Controls, Scenario
 from .session import SessionRecorder
@@ -54,7 +55,7 @@ class LiveSessionConfig:
     record_video: bool = False
     flush_s: float = 5.0
     pain: float = 0.0
-    temperature: float = 0.0
+    temperature: float = DEFAULT_TEMPERATURE  # the reaction model's default decoding (0 = argmax)
     seed: int = 0
     hfov_deg: float = 60.0
     mount: Any = None
@@ -332,7 +333,7 @@ class LiveSession:
         from ..reaction.stream import ReactionStream
 
         self._stream = ReactionStream(load_default_bundle(), temperature=cfg.temperature,
-                                      top_k=20 if cfg.temperature else None, seed=cfg.seed)
+                                      top_k=DEFAULT_TOP_K if cfg.temperature else None, seed=cfg.seed)
         from ..behaviour import BehaviourConfig, ListenerBehaviour
         from ..behaviour.speech import SpeechGate
 

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..reaction.decoding import DEFAULT_TEMPERATURE, DEFAULT_TOP_K
 from .core import Pipeline
 from .settings import FaceControls, flame_sequence_frames
 
@@ -94,7 +95,7 @@ def reaction_frames(seconds: float = 2.0, pain: Any = 0.5, seed: int = 0, behavi
 
 def react_to_speaker(audio_path: str | os.PathLike, speaker_path: str | os.PathLike, *, pain: float = 0.0,
                      listener_past_path: str | os.PathLike | None = None, checkpoint: str | os.PathLike | None = None,
-                     temperature: float = 0.0, top_k: int | None = 20, seed: int = 0,
+                     temperature: float = DEFAULT_TEMPERATURE, top_k: int | None = DEFAULT_TOP_K, seed: int = 0,
                      smoothing: float | None = None, behaviour: Any = DEFAULT_BEHAVIOUR,
                      target: Any = None) -> tuple[dict[str, np.ndarray], int]:
     """The listener's FLAME parameters reacting to a speaker's audio and face.
@@ -112,7 +113,8 @@ def react_to_speaker(audio_path: str | os.PathLike, speaker_path: str | os.PathL
     checkpoint : path or None
         Reaction checkpoint (default: ``assets/reaction_default.pt``).
     temperature, top_k, seed
-        Decoding (temperature 0 = argmax).
+        Decoding (temperature 0 = argmax; default: the model's default decoding,
+        :mod:`holo_viewer.reaction.decoding`).
     smoothing : float or None
         Time constant (s) of the causal output smoothing (None = the animation default).
     behaviour : BehaviourConfig or None

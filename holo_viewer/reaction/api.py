@@ -24,6 +24,7 @@ from ..errors import InputError, ReactionError
 from ..fileio import read_npz
 from ..validation import check_array, check_finite_scalar
 from .audio import AudioConfig, log_mel
+from .decoding import DEFAULT_TEMPERATURE, DEFAULT_TOP_K
 from .features import FPS, flame_from_state, state_from_flame
 from .model import generate
 from .train import ReactionBundle, load_checkpoint
@@ -178,10 +179,15 @@ def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_s
     return smooth_states(out[0].numpy(), smoothing, initial=initial)
 
 
-def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 0, temperature: float = 1.0,
-                           top_k: int | None = 20, checkpoint: str | os.PathLike | None = None,
+def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 0,
+                           temperature: float = DEFAULT_TEMPERATURE, top_k: int | None = DEFAULT_TOP_K, checkpoint: str | os.PathLike | None = None,
                            warmup: float = 4.0, smoothing: float = ANIMATION_SMOOTHING_S) -> dict[str, np.ndarray]:
     """Listener FLAME parameters reacting to a synthesized speaker clip, with the shipped checkpoint.
+
+    The speaker is a text-to-speech voice with a face moving with it (:func:`.data.tts_speaker`) when
+    the model hears speech features and espeak-ng is installed, else the harmonic synthetic speaker
+    (:func:`.data.synth_speaker`; a speech-feature model does not hear it as speech: a RuntimeWarning
+    says so).
 
     Parameters
     ----------
@@ -191,7 +197,7 @@ def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 
         Requested pain level.
     seed : int
         Seeds the synthetic speaker and the sampling.
-    temperature, top_k : decoding (temperature 0 = argmax)
+    temperature, top_k : decoding (temperature 0 = argmax; default :mod:`.decoding`'s)
     checkpoint : path, optional (default ``assets/reaction_default.pt``)
     warmup : float >= 0
         Seconds of conversation streamed before the returned clip (the speaker talks and the
@@ -222,7 +228,24 @@ def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 
     W = int(round(warmup * FPS))
     cfg = SyntheticConfig(seconds=(T + W) / FPS)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
-    sp = synth_speaker(rng, cfg, au_map.names, np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64))
+    jaw_unit = np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64)
+    hears_speech = getattr(bundle.model.config, "audio_features", "log_mel") == "speech"
+    from .tts import espeak_available
+
+    if hears_speech and espeak_available():
+        from dataclasses import replace
+
+        from .data import tts_speaker
+
+        sp, _ = tts_speaker(rng, replace(cfg, still_face_fraction=0.0), au_map.names, jaw_unit)
+    else:
+        if hears_speech:
+            import warnings
+
+            warnings.warn("espeak-ng not found: the demo speaker is the harmonic synthetic voice, which the "
+                          "reaction model does not hear as speech (apt-get install espeak-ng)", RuntimeWarning,
+                          stacklevel=2)
+        sp = synth_speaker(rng, cfg, au_map.names, jaw_unit)
     states = react(bundle, sp.waveform, cfg.audio.sample_rate, sp.state, pain=pain, temperature=temperature,
                    top_k=top_k, seed=seed, smoothing=smoothing)
     return flame_params_from_states(states[W:], au_map)
