@@ -41,7 +41,7 @@ def test_renders_every_view_like_the_reference(scene, tmp_path: Path, capsys) ->
     ply, cams_path, g, cams = scene
     out = tmp_path / "out"
     code = main(["render-ply", str(ply), "--cameras", str(cams_path), "--out", str(out),
-                 "--backend", "reference", "--background", "0.2,0.3,0.4", "--batch", "2"])
+                 "--renderer", "reference", "--background", "0.2,0.3,0.4", "--batch", "2"])
     assert code == 0
     files = sorted(p.name for p in out.iterdir())
     assert files == ["view_000.png", "view_001.png", "view_002.png"]  # no temp files left behind
@@ -56,7 +56,7 @@ def test_renders_every_view_like_the_reference(scene, tmp_path: Path, capsys) ->
 def test_torch_backend_and_defaults(scene, tmp_path: Path) -> None:
     ply, cams_path, g, cams = scene
     out = tmp_path / "t"
-    assert main(["render-ply", str(ply), "--cameras", str(cams_path), "--out", str(out), "--backend", "torch",
+    assert main(["render-ply", str(ply), "--cameras", str(cams_path), "--out", str(out), "--renderer", "torch",
                  "--quiet"]) == 0
     ref = reference.render(g, cams).images
     img = load_image(out / "view_002.png")

@@ -317,7 +317,7 @@ def test_auto_render_mode_renders_for_the_eyes_only_while_a_face_is_tracked():
 
 
 def test_live_backend_auto_is_fast_without_cuda_and_gsplat_needs_it(tmp_path, capsys):
-    """``--backend auto`` (the default) falls back to the CPU here; an explicit gsplat without CUDA
+    """``--renderer auto`` (the default) falls back to the CPU here; an explicit gsplat without CUDA
     is a clear error (exit 1, no traceback); a misspelt backend is named."""
     from holo_viewer.errors import InputError, RenderError
     from holo_viewer.live.render import resolve_backend
@@ -330,7 +330,7 @@ def test_live_backend_auto_is_fast_without_cuda_and_gsplat_needs_it(tmp_path, ca
         resolve_backend("gsplat")
     with pytest.raises(InputError, match="backend"):
         resolve_backend("vulkan")
-    assert main(["live", "--synthetic", "--seconds", "1.0", "--headless", "--frames", "1", "--backend", "gsplat",
+    assert main(["live", "--synthetic", "--seconds", "1.0", "--headless", "--frames", "1", "--renderer", "gsplat",
                  "--out", str(tmp_path / "s")]) == 1
     err = capsys.readouterr().err
     assert "CUDA" in err and "Traceback" not in err
@@ -384,7 +384,7 @@ def test_live_backend_auto_falls_back_to_the_cpu_when_gsplat_fails(monkeypatch):
         r = LiveAvatarRenderer(tile_scale=0.1, native=True, preview=False, mode="auto")
     assert r.backend == "fast" and r._live.config.backend == "fast" and r.pipeline.backend == "fast"
     assert r.render({"expr": np.zeros(10)}, 0.3, (), 5.0, 0.7, True).native.shape == (2048, 1536, 3)
-    with pytest.raises(RenderError, match="nvcc not found.*--backend fast"):
+    with pytest.raises(RenderError, match="nvcc not found.*--renderer fast"):
         LiveAvatarRenderer(tile_scale=0.1, native=True, preview=False, mode="auto", backend="gsplat")
     monkeypatch.setattr(gsplat_backend, "render", broken)  # cone: the pipeline renders the views
     with pytest.warns(RuntimeWarning, match="nvcc not found"):

@@ -32,10 +32,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--no-preview", action="store_true", help="no desktop preview window")
     out.add_argument("--tile-scale", type=float, default=1.0, help="quilt tile size relative to the calibration's "
                      "(e.g. 0.5 renders 4x fewer pixels; default 1)")
-    out.add_argument("--backend", choices=("auto", "fast", "gsplat"), default="auto",
-                     help="renderer of the live frames: gsplat (CUDA: all 48 views on the GPU every frame, "
-                          "whatever the mode but cone), fast (CPU), or auto (default: gsplat where a CUDA GPU "
-                          "and the gsplat package are present, else fast)")
+    from ..live.render import BACKENDS
+    from .renderer_args import add_renderer_argument
+
+    add_renderer_argument(out, choices=BACKENDS, default="auto", old_spelling="--backend",
+                          help="renderer of the live frames: gsplat (CUDA: all 48 views on the GPU every frame, "
+                               "whatever the mode but cone), fast (CPU), or auto (gsplat where a CUDA GPU and the "
+                               "gsplat package are present, else fast)")
     out.add_argument("--render-mode", choices=("auto", "cone", "tracked", "all_views"), default="auto",
                      help="auto (default): tracked while a face is tracked, all_views otherwise; tracked: the "
                      "panel's default cone, only the subpixels the tracked eyes receive redrawn, from one image per "
@@ -132,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
                                max_seconds=args.seconds, settings=settings,
                                behaviour=behaviour_from_args(args, seed=args.seed))
     renderer = LiveAvatarRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview,
-                                  mode=args.render_mode, backend=args.backend)
+                                  mode=args.render_mode, backend=args.renderer)
     settings["render_backend"] = renderer.backend  # what "auto" chose (session.json)
     session = LiveSession(config, audio, video, synthetic)
     panel = preview = None

@@ -27,7 +27,6 @@ from ..fileio import check_json_depth
 
 __all__ = ["add_arguments", "run", "parse_background", "load_cameras"]
 
-BACKEND_CHOICES = ("reference", "fast", "vtk", "torch", "gsplat", "auto")
 #: pixels rendered per backend call at most (a batch of big views is split; 16 LGP tiles are 3.8 Mpx)
 BATCH_PIXELS = 32 * 1024 * 1024
 
@@ -38,8 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='JSON list of {"width","height","fx","fy","cx","cy","world_to_cam"(4x4 row-major, '
                              'OpenCV)}')
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory for view_000.png, ...")
-    parser.add_argument("--backend", default="fast", choices=BACKEND_CHOICES,
-                        help="renderer (default: fast; auto = gsplat on CUDA when it runs, else fast)")
+    from .renderer_args import add_renderer_argument
+
+    add_renderer_argument(parser, help="renderer (auto = gsplat on CUDA when it runs, else fast)",
+                          old_spelling="--backend")
     parser.add_argument("--background", default="0,0,0", metavar="R,G,B",
                         help="background colour, three numbers in [0, 1] (default 0,0,0)")
     parser.add_argument("--sh-degree", type=int, default=None, choices=(0, 1, 2, 3),
@@ -109,12 +110,12 @@ def run(args: argparse.Namespace) -> int:
     n = len(cameras)
     batch = max(1, min(args.batch, BATCH_PIXELS // (cameras.width * cameras.height)))
     t0 = time.perf_counter()
-    used = args.backend
-    with tqdm(total=n, desc=f"render-ply ({args.backend})", unit="view", disable=args.quiet,
+    used = args.renderer
+    with tqdm(total=n, desc=f"render-ply ({args.renderer})", unit="view", disable=args.quiet,
               file=sys.stderr) as bar:
         for v0 in range(0, n, batch):
             idx = list(range(v0, min(v0 + batch, n)))
-            result = render_views(gaussians, cameras[idx], backend=args.backend, config=config)
+            result = render_views(gaussians, cameras[idx], backend=args.renderer, config=config)
             used = result.backend
             for k, i in enumerate(idx):
                 save_image(out / f"view_{i:03d}.png", result.images[k])

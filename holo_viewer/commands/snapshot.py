@@ -17,7 +17,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--flame-model", default=None, metavar="PKL")
     parser.add_argument("--flame-params", default=None, metavar="NPZ")
     parser.add_argument("--calibration", default=None, metavar="JSON")
-    parser.add_argument("--renderer", default="fast")
+    from .renderer_args import add_renderer_argument
+
+    add_renderer_argument(parser, help="splat renderer")
     parser.add_argument("--pain", type=float, default=0.0)
     parser.add_argument("--smile", type=float, default=0.0)
     parser.add_argument("--window-size", type=int, nargs=2, default=(1400, 800), metavar=("W", "H"))

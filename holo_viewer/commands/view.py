@@ -45,7 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "pip install -e \".[open3d]\")")
     parser.add_argument("--backend", choices=("pyvista", "open3d"), default=None, dest="backend_deprecated",
                         help=argparse.SUPPRESS)  # the old name of --toolkit
-    parser.add_argument("--renderer", default="fast", help="splat renderer backend for the preview (default fast)")
+    from .renderer_args import add_renderer_argument
+
+    add_renderer_argument(parser, help="splat renderer of the preview")
     parser.add_argument("--out-dir", default="holo_viewer_out", help="folder for exports (keys k, n, x, i)")
     add_glyph_arguments(parser)
     parser.add_argument("--pain", type=float, default=0.0, help="initial pain intensity in [0, 1]")

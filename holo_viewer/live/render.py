@@ -117,7 +117,7 @@ class LiveAvatarRenderer:
                 raise
             if backend != "auto":
                 raise RenderError(f"gsplat backend: the first frame failed ({type(exc).__name__}: {exc}); "
-                                  "use --backend fast to render on the CPU") from exc
+                                  "use --renderer fast to render on the CPU") from exc
             import warnings
 
             warnings.warn(f"gsplat failed on the first frame ({type(exc).__name__}: {exc}); the live frames "
