@@ -117,14 +117,52 @@ def test_job_hash_follows_content_not_names(tmp_path):
     assert len(h[0]) == 32 and int(h[0], 16) >= 0
 
 
+def test_the_hash_covers_the_code_and_the_renderer_settings(tmp_path, monkeypatch):
+    """What a job produces changes with the code (renderer, behaviour layers, reaction decoding, encoders)
+    and with the renderer's settings, not only with the row: each moves the hash."""
+    import functools
+
+    from holo_viewer.batch import manifest
+    from holo_viewer.render import config
+
+    flame_npz(tmp_path / "a.npz", 4, seed=1)
+    spec = read_manifest(write_jsonl(tmp_path / "m.jsonl", [{"flame_params": "a.npz"}]))[0]
+    before = job_hash(spec)
+    assert manifest.FORMAT_VERSION == 2
+    # the renderer settings the workers use (RenderConfig's defaults): another t_min is another job
+    monkeypatch.setattr(config, "RenderConfig", functools.partial(config.RenderConfig, t_min=1e-3))
+    assert manifest.render_settings()["t_min"] == 1e-3 and job_hash(spec) != before
+    monkeypatch.undo()
+    assert job_hash(spec) == before
+    # the code: a digest of the package's sources; any edit (here a copy with one line changed) moves it
+    src = tmp_path / "pkg"
+    (src / "render").mkdir(parents=True)
+    (src / "render" / "fast.py").write_text("T_MIN = 1e-4\n")
+    (src / "render" / "splat.cpp").write_text("int f();\n")
+    (src / "notes.txt").write_text("not code")
+    first = manifest.code_digest(src)
+    (src / "notes.txt").write_text("still not code")
+    manifest.code_digest.cache_clear()
+    assert manifest.code_digest(src) == first
+    (src / "render" / "splat.cpp").write_text("int f(); // changed\n")
+    manifest.code_digest.cache_clear()
+    assert manifest.code_digest(src) != first
+    monkeypatch.setattr(manifest, "code_digest", lambda root=None: "0" * 64)
+    assert job_hash(spec) != before
+    monkeypatch.undo()
+    manifest.code_digest.cache_clear()
+    assert job_hash(spec) == before and manifest.code_digest() != first
+
+
 def test_the_hash_reads_the_shipped_assets_the_stages_load():
+    from holo_viewer.avatar.default_gaussians import fitted_asset_path
     from holo_viewer.batch.manifest import SHIPPED_ASSETS, assets_dir
     from holo_viewer.display.calibration import default_calibration_path
     from holo_viewer.flame.default_head import default_head_path
     from holo_viewer.reaction.api import default_checkpoint_path
 
-    paths = {"default_head": default_head_path(), "reaction_checkpoint": default_checkpoint_path(),
-             "calibration": default_calibration_path()}
+    paths = {"default_head": default_head_path(), "default_avatar": fitted_asset_path(),
+             "reaction_checkpoint": default_checkpoint_path(), "calibration": default_calibration_path()}
     assert {k: assets_dir() / v for k, v in SHIPPED_ASSETS.items()} == {k: Path(v) for k, v in paths.items()}
 
 

@@ -36,13 +36,18 @@ the field, what was expected and what was found; the other rows still run.
 
 :func:`job_hash` fingerprints everything that determines a job's pixels: the row's settings (not
 ``id``), the *contents* of every file it reads (not their names), the shipped assets it uses
-(default head, reaction checkpoint, Portrait calibration), the package version and
-:data:`FORMAT_VERSION`. Outputs are stored under this hash, so a re-run finds finished jobs.
+(default head and fitted default avatar, reaction checkpoint, Portrait calibration), the renderer
+settings its frames use (:func:`render_settings`), the package's code (:func:`code_digest`: any
+change to the renderer, the behaviour layers, the reaction decoding or the encoders re-renders), the
+package version and :data:`FORMAT_VERSION`. Outputs are stored under this hash, so a re-run finds
+finished jobs.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
+import functools
 import hashlib
 import io
 import json
@@ -56,10 +61,11 @@ from ..errors import ManifestError
 from ..fileio import MAX_JSON_DEPTH, json_depth
 
 __all__ = ["JobSpec", "RowError", "read_manifest", "job_hash", "FORMAT_VERSION", "OUTPUT_KINDS", "SCENARIOS",
-           "EXPRESSIONS", "FileDigests", "SHIPPED_ASSETS", "assets_dir"]
+           "EXPRESSIONS", "FileDigests", "SHIPPED_ASSETS", "assets_dir", "code_digest", "render_settings"]
 
-#: bump when the meaning of a job's fields or the output layout changes (invalidates finished jobs)
-FORMAT_VERSION = 1
+#: bump when the meaning of a job's fields or the output layout changes (invalidates finished jobs);
+#: 2: the hash also covers the code, the renderer settings and the fitted default avatar
+FORMAT_VERSION = 2
 #: bump when the behaviour layers' output changes (invalidates finished reaction jobs only)
 BEHAVIOUR_VERSION = 1
 #: what a job can ask for
@@ -492,8 +498,10 @@ class FileDigests:
 
 #: the shipped inputs a job reads implicitly, all in the repository's ``assets/`` folder (README); the
 #: stage modules resolve the same paths (``tests/test_batch.py`` checks that they agree)
-SHIPPED_ASSETS = {"default_head": "default_head.npz", "reaction_checkpoint": "reaction_default.pt",
-                  "calibration": "lkg_portrait_visual.json"}
+SHIPPED_ASSETS = {"default_head": "default_head.npz", "default_avatar": "default_avatar.npz",
+                  "reaction_checkpoint": "reaction_default.pt", "calibration": "lkg_portrait_visual.json"}
+#: the package's source files that :func:`code_digest` reads
+CODE_SUFFIXES = (".py", ".cpp", ".c", ".h", ".hpp")
 
 
 def assets_dir() -> Path:
@@ -505,7 +513,7 @@ def _shipped_inputs(spec: JobSpec) -> dict[str, Path]:
     """The shipped assets a job reads implicitly (their contents go into the hash)."""
     names = []
     if spec.avatar == "default":
-        names.append("default_head")
+        names += ["default_head", "default_avatar"]
     if spec.driver in ("reaction", "synthetic_reaction"):
         names.append("reaction_checkpoint")
     if spec.calibration is None:
@@ -513,12 +521,38 @@ def _shipped_inputs(spec: JobSpec) -> dict[str, Path]:
     return {k: assets_dir() / SHIPPED_ASSETS[k] for k in names}
 
 
+@functools.lru_cache(maxsize=4)
+def code_digest(root: str | os.PathLike | None = None) -> str:
+    """SHA-256 of the package's own source (default: this ``holo_viewer`` folder): every file ending in
+    :data:`CODE_SUFFIXES`, by relative path and contents, in sorted order (compiled files and caches are
+    not read: they follow from the sources). Computed once per process."""
+    base = Path(__file__).resolve().parents[1] if root is None else Path(root)
+    h = hashlib.sha256()
+    for path in sorted(p for p in base.rglob("*") if p.suffix in CODE_SUFFIXES and p.is_file()
+                       and "__pycache__" not in p.parts):
+        h.update(path.relative_to(base).as_posix().encode() + b"\0")
+        h.update(path.read_bytes())
+        h.update(b"\0")
+    return h.hexdigest()
+
+
+def render_settings() -> dict[str, Any]:
+    """The renderer settings a job's frames use (the workers' ``RenderConfig`` defaults; the thread count,
+    which does not change pixels, left out)."""
+    from ..render import config
+
+    settings = dataclasses.asdict(config.RenderConfig())
+    settings.pop("num_threads", None)
+    return settings
+
+
 def job_hash(spec: JobSpec, digests: FileDigests | None = None) -> str:
     """32 hex digits fingerprinting what determines the job's outputs (see the module docstring)."""
     from .. import __version__
 
     digests = digests or FileDigests()
-    record: dict[str, Any] = {"format": FORMAT_VERSION, "holo_viewer": __version__}
+    record: dict[str, Any] = {"format": FORMAT_VERSION, "holo_viewer": __version__, "code": code_digest(),
+                              "render": render_settings()}
     files = spec.files()
     for f in fields(JobSpec):
         if f.name in ("line", "id"):
