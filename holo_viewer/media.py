@@ -17,9 +17,23 @@ can :meth:`~VideoWriter.close` (finish, verify, rename) a video holding every fr
 Session videos (``streaming=True``) are fragmented MP4: a process killed outright (SIGKILL, power
 loss) leaves a temporary that still plays up to its last fragment, never a file without an index.
 
-Codec settings stay those of each caller (issue 33 owns the codec policy): ``quality`` follows
-imageio-ffmpeg's 0-10 scale (libx264: ``crf = int((1 - quality / 10) * 51)``), ``macro_block_size``
-scales frames up to a multiple of it, as imageio-ffmpeg did.
+Codec policy (:data:`CODECS`, one ``content`` per writer):
+
+* ``"lossless"`` (the default): native images and quilts, RGB H.264 (libx264rgb, ``-crf 0``) that
+  decodes bit-exact to the frames written. Chroma subsampling (yuv420p) would mix neighbouring
+  subpixels, and each subpixel of a native image belongs to another view (rainbow fringes, 28 dB).
+* ``"preview"``: what a person watches and nothing reads back (webcam, speaker clips): libx264 yuv420p
+  at imageio-ffmpeg's quality 7 (``crf = int((1 - quality / 10) * 51)``), sides scaled up to a
+  multiple of ``macro_block_size`` 8.
+
+**Timed** writers (``timed=True``; live session videos, ``.mkv``) record each frame once with its
+presentation time, ``write(frame, t=seconds)``: frames go to ffmpeg in a Matroska stream of raw RGB
+blocks carrying their timestamps (ms) and durations (:func:`_mkv_header`, :func:`_mkv_block`), so
+a frame held on screen for 300 ms is one encoded frame lasting 300 ms (variable frame rate, not
+re-encoded), the video plays in step with ``audio.wav``, and :meth:`VideoWriter.close` with
+``end_s`` makes it last as long as the session. Decode at a constant rate with
+``read_frames(path, fps=25)``. Matroska survives an interruption: a killed process leaves a file
+that plays up to its last cluster.
 """
 
 from __future__ import annotations
@@ -38,10 +52,56 @@ import numpy as np
 from .errors import ExportError
 from .fileio import atomic_path
 
-__all__ = ["VideoWriter", "write_video", "count_video_frames", "ffmpeg_exe", "pad_even"]
+__all__ = ["VideoWriter", "write_video", "count_video_frames", "read_frames", "ffmpeg_exe", "pad_even", "CODECS"]
 
 #: ffmpeg flags that make an MP4 playable while it is written (fragments, index up front)
 STREAMING_MOVFLAGS = "+frag_keyframe+empty_moov+default_base_moof"
+
+#: the codec policy: content -> VideoWriter settings (see the module docstring)
+CODECS: dict[str, dict[str, Any]] = {
+    "lossless": {"codec": "libx264rgb", "pixelformat": "rgb24", "quality": None, "macro_block_size": 1,
+                 "output_params": ("-preset", "ultrafast", "-crf", "0")},
+    "preview": {"codec": "libx264", "pixelformat": "yuv420p", "quality": 7, "macro_block_size": 8,
+                "output_params": ()},
+}
+
+
+def _ebml(element_id: bytes, payload: bytes) -> bytes:
+    """One EBML element: id, 8-byte size, payload."""
+    return element_id + b"\x01" + len(payload).to_bytes(7, "big") + payload
+
+
+def _ebml_uint(element_id: bytes, value: int) -> bytes:
+    return _ebml(element_id, int(value).to_bytes(8, "big"))
+
+
+def _mkv_header(width: int, height: int) -> bytes:
+    """A Matroska stream header (ms timestamps) with one raw RGB24 video track (V_UNCOMPRESSED)."""
+    ebml = _ebml(b"\x1a\x45\xdf\xa3", _ebml_uint(b"\x42\x86", 1) + _ebml_uint(b"\x42\xf7", 1)
+                 + _ebml_uint(b"\x42\xf2", 4) + _ebml_uint(b"\x42\xf3", 8) + _ebml(b"\x42\x82", b"matroska")
+                 + _ebml_uint(b"\x42\x87", 4) + _ebml_uint(b"\x42\x85", 2))
+    info = _ebml(b"\x15\x49\xa9\x66", _ebml_uint(b"\x2a\xd7\xb1", 1_000_000)
+                 + _ebml(b"\x4d\x80", b"holo_viewer") + _ebml(b"\x57\x41", b"holo_viewer"))
+    video = _ebml(b"\xe0", _ebml_uint(b"\xb0", width) + _ebml_uint(b"\xba", height)
+                  + _ebml(b"\x2e\xb5\x24", b"RGB\x18"))
+    track = _ebml(b"\xae", _ebml_uint(b"\xd7", 1) + _ebml_uint(b"\x73\xc5", 1) + _ebml_uint(b"\x83", 1)
+                  + _ebml(b"\x86", b"V_UNCOMPRESSED") + video)
+    segment_unknown_size = b"\x18\x53\x80\x67\x01\xff\xff\xff\xff\xff\xff\xff"
+    return ebml + segment_unknown_size + info + _ebml(b"\x16\x54\xae\x6b", track)
+
+
+def _mkv_block(t_ms: int, duration_ms: int, nbytes: int) -> bytes:
+    """The bytes before one frame's ``nbytes`` of raw RGB: a cluster at ``t_ms`` holding one block
+    group (the block, track 1, and its duration)."""
+    head = b"\x81\x00\x00\x00"  # track 1, relative time 0, no flags
+    duration = _ebml_uint(b"\x9b", duration_ms)
+    block_size = len(head) + nbytes
+    group_size = len(duration) + 9 + block_size
+    stamp = _ebml_uint(b"\xe7", t_ms)
+    cluster_size = len(stamp) + 9 + group_size
+    size = lambda n: b"\x01" + n.to_bytes(7, "big")  # noqa: E731
+    return (b"\x1f\x43\xb6\x75" + size(cluster_size) + stamp + b"\xa0" + size(group_size) + duration
+            + b"\xa1" + size(block_size) + head)
 
 
 def ffmpeg_exe() -> str:
@@ -62,6 +122,20 @@ def pad_even(frame: np.ndarray) -> np.ndarray:
     if f.shape[0] % 2:
         f = np.concatenate([f[:1], f], axis=0)
     return f
+
+
+def read_frames(path: str | os.PathLike, fps: float | None = None) -> Iterator[np.ndarray]:
+    """Decode a video to (H, W, 3) uint8 RGB frames: each stored frame once, or with ``fps`` at that
+    constant rate (a frame held for 300 ms comes ``round(0.3 * fps)`` times: frame ``round(t * fps)``
+    is what was shown at time ``t``)."""
+    import imageio_ffmpeg
+
+    out = ["-r", f"{float(fps):.6g}"] if fps else ["-fps_mode", "passthrough"]
+    gen = imageio_ffmpeg.read_frames(os.fspath(path), pix_fmt="rgb24", output_params=out)
+    meta = next(gen)
+    w, h = meta["size"]
+    for buf in gen:
+        yield np.frombuffer(buf, np.uint8).reshape(h, w, 3)
 
 
 def count_video_frames(path: str | os.PathLike) -> int:
@@ -114,39 +188,54 @@ class VideoWriter:
     Parameters
     ----------
     path : path-like
-        Target file (``.mp4``; ``.mkv`` also works).
+        Target file (``.mkv``, ``.mp4``, ``.mov``).
     fps : float
-        Frames per second (> 0, finite).
-    codec : str
-        ffmpeg video codec (default libx264).
+        Frames per second (> 0, finite); a timed writer's nominal rate (its frames carry their times).
+    content : {"lossless", "preview"}
+        The codec policy (:data:`CODECS`): its codec, pixel format, quality, macro block size and
+        flags, each overridden by the keyword of that name when given.
+    codec : str, optional
+        ffmpeg video codec.
     quality : float, optional
         imageio-ffmpeg's 0-10 quality (libx264: ``crf = int((1 - quality / 10) * 51)``).
-    pixelformat : str
-        Output pixel format (default yuv420p).
-    macro_block_size : int
+    pixelformat : str, optional
+        Output pixel format.
+    macro_block_size : int, optional
         Frames whose sides are not multiples of it are scaled up to the next multiple (1: none;
         then odd sides are padded by an edge row on top / column on the right for yuv420p).
-    output_params : sequence of str
-        Extra ffmpeg output flags (``["-preset", "medium", "-crf", "18"]``).
+    output_params : sequence of str, optional
+        ffmpeg output flags (``["-preset", "medium", "-crf", "18"]``).
     streaming : bool
-        Fragmented MP4, playable up to the last fragment if the process is killed (live sessions).
+        Fragmented MP4, playable up to the last fragment if the process is killed (MP4 targets).
+    timed : bool
+        Each frame written with its presentation time (``write(frame, t=...)``); variable frame rate.
     what : str
         Name used in error messages ("session video", "quilt video").
 
     Use as a context manager, or call :meth:`write` and then :meth:`close` (or :meth:`abort`).
     """
 
-    def __init__(self, path: str | os.PathLike, fps: float, *, codec: str = "libx264", quality: float | None = None,
-                 pixelformat: str = "yuv420p", macro_block_size: int = 1, output_params: Sequence[str] = (),
-                 streaming: bool = False, what: str = "video") -> None:
+    def __init__(self, path: str | os.PathLike, fps: float, *, content: str = "lossless", codec: str | None = None,
+                 quality: float | None = None, pixelformat: str | None = None, macro_block_size: int | None = None,
+                 output_params: Sequence[str] | None = None, streaming: bool = False, timed: bool = False,
+                 what: str = "video") -> None:
         fps = float(fps)
         if not np.isfinite(fps) or fps <= 0:
             raise ExportError(f"{path}: fps: expected a finite number > 0, found {fps}")
+        if content not in CODECS:
+            raise ExportError(f"{path}: content: expected one of {sorted(CODECS)}, found {content!r}")
+        policy = CODECS[content]
         self.path = Path(path)
-        self.fps, self.codec, self.quality, self.pixelformat = fps, codec, quality, pixelformat
-        self.macro_block_size, self.output_params = int(macro_block_size), list(output_params)
-        self.streaming, self.what = streaming, what
+        self.content, self.fps = content, fps
+        self.codec = codec or policy["codec"]
+        self.quality = quality if quality is not None or codec is not None else policy["quality"]
+        self.pixelformat = pixelformat or policy["pixelformat"]
+        self.macro_block_size = int(macro_block_size if macro_block_size is not None else policy["macro_block_size"])
+        self.output_params = list(output_params if output_params is not None else policy["output_params"])
+        self.streaming, self.timed, self.what = streaming, timed, what
         self.frames = 0
+        #: a timed writer's newest frame and its time in ms, held until the next one gives its duration
+        self._held: tuple[bytes, int] | None = None
         self._shape: tuple[int, ...] | None = None
         self._proc: subprocess.Popen | None = None
         self._log: Any = None
@@ -156,9 +245,13 @@ class VideoWriter:
 
     # ------------------------------------------------------------------ ffmpeg
     def _command(self, width: int, height: int) -> list[str]:
-        cmd = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
-               "-s", f"{width}x{height}", "-r", f"{self.fps:.6g}", "-i", "-", "-an", "-vcodec", self.codec,
-               "-pix_fmt", self.pixelformat]
+        if self.timed:  # raw RGB in Matroska: each frame carries its time and duration
+            cmd = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-f", "matroska", "-i", "-",
+                   "-fps_mode", "passthrough", "-an", "-vcodec", self.codec, "-pix_fmt", self.pixelformat]
+        else:
+            cmd = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
+                   "-s", f"{width}x{height}", "-r", f"{self.fps:.6g}", "-i", "-", "-an", "-vcodec", self.codec,
+                   "-pix_fmt", self.pixelformat]
         if self.quality is not None:
             q = 1.0 - float(self.quality) / 10.0
             cmd += ["-crf", str(int(q * 51))] if self.codec == "libx264" else ["-qscale:v", str(1 + int(q * 30))]
@@ -166,7 +259,7 @@ class VideoWriter:
         if m > 1 and (width % m or height % m):
             cmd += ["-vf", f"scale={-(-width // m) * m}:{-(-height // m) * m}"]
         cmd += self.output_params
-        if self.streaming:
+        if self.streaming and self.path.suffix.lower() in (".mp4", ".mov"):  # Matroska streams as it is
             cmd += ["-movflags", STREAMING_MOVFLAGS]
         fmt = {".mp4": "mp4", ".mkv": "matroska", ".mov": "mov"}.get(self.path.suffix.lower())
         return cmd + (["-f", fmt] if fmt else []) + [os.fspath(self._tmp)]
@@ -175,6 +268,8 @@ class VideoWriter:
         self._log = tempfile.TemporaryFile()
         self._proc = subprocess.Popen(self._command(width, height), stdin=subprocess.PIPE,
                                       stdout=subprocess.DEVNULL, stderr=self._log)
+        if self.timed:
+            self._proc.stdin.write(_mkv_header(width, height))  # type: ignore[union-attr]
 
     def _ffmpeg_message(self) -> str:
         if self._log is None:
@@ -184,12 +279,26 @@ class VideoWriter:
         return lines[-1][:300] if lines else ""
 
     # ------------------------------------------------------------------ frames
-    def write(self, frame: np.ndarray) -> None:
-        """Append one (H, W, 3) frame (uint8, or float in [0, 1]); all frames the size of the first."""
+    def write(self, frame: np.ndarray, t: float | None = None) -> None:
+        """Append one (H, W, 3) frame (uint8, or float in [0, 1]); all frames the size of the first.
+
+        ``t``: a timed writer's presentation time in seconds (required there; later than the previous
+        frame's by at least 1 ms). A timed writer pipes each frame when the next one arrives (its
+        duration is then known) or at :meth:`close`.
+        """
         from .images import to_uint8
 
         if self._closed:
             raise ExportError(f"{self.path}: the {self.what} is already closed")
+        t_ms = None
+        index = self.frames + (self._held is not None)  # a timed writer holds its newest frame
+        if self.timed:
+            if t is None or not np.isfinite(t) or t < 0:
+                raise ExportError(f"{self.path}: frame {index}: t: expected a time >= 0 s, found {t}")
+            t_ms = int(round(float(t) * 1000))
+            if self._held is not None and t_ms <= self._held[1]:
+                raise ExportError(f"{self.path}: frame {index}: t: expected later than {self._held[1] / 1000} s "
+                                  f"(the previous frame's time), found {t}")
         f = to_uint8(frame, name="frame")
         if f.ndim != 3 or f.shape[2] != 3:
             raise ExportError(f"{self.path}: frame {self.frames}: expected (H, W, 3), found {f.shape}")
@@ -200,11 +309,26 @@ class VideoWriter:
                               f"found {f.shape}")
         if self.macro_block_size <= 1 and self.pixelformat == "yuv420p":
             f = pad_even(f)
+        if t_ms is not None:
+            held, self._held = self._held, (np.ascontiguousarray(f).tobytes(), t_ms)
+            if self._proc is None:
+                with _signals_held():
+                    self._start(f.shape[1], f.shape[0])
+            if held is not None:
+                self._pipe(held[0], held[1], t_ms - held[1])
+            return
         data = np.ascontiguousarray(f).data
         with _signals_held():
             if self._proc is None:
                 self._start(f.shape[1], f.shape[0])
+        self._pipe(data)
+
+    def _pipe(self, data: Any, t_ms: int | None = None, duration_ms: int = 0) -> None:
+        """Pipe one frame (a timed writer's with its cluster header) into ffmpeg; count it."""
+        with _signals_held():
             try:
+                if t_ms is not None:
+                    self._proc.stdin.write(_mkv_block(t_ms, duration_ms, len(data)))  # type: ignore[union-attr]
                 self._write_frame(data)
             except (BrokenPipeError, OSError) as exc:
                 self.abort()
@@ -218,8 +342,11 @@ class VideoWriter:
         self._proc.stdin.write(data)
 
     # ------------------------------------------------------------------ finish
-    def close(self) -> Path:
+    def close(self, end_s: float | None = None) -> Path:
         """Finish the file, check ffmpeg's exit status and the decoded frame count, rename it into place.
+
+        ``end_s``: a timed writer's end time (s): its last frame lasts until then (default: one
+        frame at ``fps``).
 
         Raises
         ------
@@ -229,6 +356,12 @@ class VideoWriter:
         """
         if self._closed:
             return self.path
+        if self._held is not None and self._proc is not None and self._proc.poll() is None:
+            data, t_ms = self._held
+            self._held = None
+            default = int(round(1000 / self.fps))
+            end_ms = t_ms + default if end_s is None or not np.isfinite(end_s) else int(round(1000 * float(end_s)))
+            self._pipe(data, t_ms, max(1, end_ms - t_ms))
         with _signals_held():
             try:
                 if self._proc is None:

@@ -92,16 +92,18 @@ def load_quilt(path: str | os.PathLike, cols: int | None = None, rows: int | Non
 
 
 def write_quilt_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: float = 30.0, *,
-                      progress: bool = True, preset: str = "medium", crf: int = 18,
+                      progress: bool = True, preset: str = "medium", crf: int = 0,
                       total: int | None = None) -> Path:
-    """Encode quilt frames as H.264 mp4 (libx264, yuv420p) via imageio-ffmpeg, atomically.
+    """Encode quilt frames as RGB H.264 mp4 (libx264rgb; ``crf`` 0: lossless) via imageio-ffmpeg, atomically.
+
+    The codec policy of :mod:`holo_viewer.media` for quilts: RGB without chroma subsampling, lossless
+    by default (a decoded frame equals the quilt); ``crf`` > 0 trades exactness for size.
 
     Parameters
     ----------
     frames : iterable of numpy.ndarray
-        (Hq, Wq, 3) quilts, uint8 or float in [0, 1], all the same size. yuv420p needs even
-        sizes: an odd width gets one column added on the right and an odd height one row added on
-        the *top* (edge copies), so tile positions measured from the bottom-left are unchanged.
+        (Hq, Wq, 3) quilts, uint8 or float in [0, 1], all the same size (any size: RGB needs no
+        even sides).
     fps : float
         Frames per second.
     progress : bool
@@ -123,8 +125,8 @@ def write_quilt_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps
     if total is None and hasattr(frames, "__len__"):
         total = len(frames)  # type: ignore[arg-type]
     # verified before the rename: ffmpeg's exit status and the decoded frame count (holo_viewer.media)
-    with VideoWriter(p, fps, codec="libx264", pixelformat="yuv420p", macro_block_size=1,
-                     output_params=["-preset", preset, "-crf", str(crf)], what="quilt video") as writer:
+    with VideoWriter(p, fps, content="lossless", output_params=["-preset", preset, "-crf", str(int(crf))],
+                     what="quilt video") as writer:
         for frame in tqdm(frames, total=total, disable=not progress, desc=f"encoding {p.name}", unit="frame"):
             writer.write(frame)
     return p

@@ -130,7 +130,7 @@ def write_talking_head_clip(out_dir: str | os.PathLike, seconds: float = 4.0, se
     wav = out / "speaker.wav"
     write_wav(wav, waveform, cfg.audio.sample_rate)
     video = out / "speaker.mp4"
-    with VideoWriter(video, fps, codec="libx264", quality=8, macro_block_size=8, what="speaker video") as writer:
+    with VideoWriter(video, fps, content="preview", quality=8, what="speaker video") as writer:
         for t in range(fl["expr"].shape[0]):
             writer.write(renderer.render({k: fl[k][t] for k in fl}, cam))
     truth = out / "truth.npz"
