@@ -297,8 +297,9 @@ def test_panel_window_under_xvfb(tmp_path, xvfb_server):
         assert _check_session(out)["meta"]["displayed_frames"] == 2
 
 
-def test_auto_render_mode_renders_for_the_eyes_only_while_a_face_is_tracked():
-    """The live command's default: tracked frames while the tracker sees a face, all views otherwise."""
+def test_auto_render_mode_renders_group_frames_with_the_tracked_face():
+    """The live command's default: group frames (every view, the tracked face's eyes exact), with the
+    viewer while the tracker sees a face and without one otherwise."""
     from holo_viewer.live.render import LiveAvatarRenderer
 
     r = LiveAvatarRenderer(tile_scale=0.1, native=True, preview=False, mode="auto")
@@ -308,8 +309,8 @@ def test_auto_render_mode_renders_for_the_eyes_only_while_a_face_is_tracked():
     listener = {"expr": np.zeros(10)}
     assert r.render(listener, 0.3, (), 5.0, 0.7, True).native.shape == (2048, 1536, 3)
     r.render(listener, 0.3, (), 5.0, 0.7, False)
-    assert calls[0][1] == "tracked" and calls[0][0].angle_deg == 5.0 and calls[0][0].distance_m == 0.7
-    assert calls[1] == (None, "all_views")
+    assert calls[0][1] == "group" and calls[0][0].angle_deg == 5.0 and calls[0][0].distance_m == 0.7
+    assert calls[1] == (None, "group")
     from holo_viewer.errors import InputError
 
     with pytest.raises(InputError, match="auto"):

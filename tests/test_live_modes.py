@@ -22,8 +22,8 @@ def test_every_row_names_a_method_of_the_renderer():
 
 
 def test_frame_mode_resolves_auto_and_checks_the_viewer():
-    assert frame_mode("auto", None).name == "all_views"
-    assert frame_mode("auto", object()).name == "tracked"
+    assert frame_mode("auto", None).name == "group"  # issue 37: every viewer sees the present frame
+    assert frame_mode("auto", object()).name == "group"
     with pytest.raises(InputError, match="needs a viewer"):
         frame_mode("eye_centred", None)
     with pytest.raises(InputError, match="expected one of auto, full_quilt"):
@@ -33,6 +33,6 @@ def test_frame_mode_resolves_auto_and_checks_the_viewer():
 def test_session_modes_choose_the_frame_modes():
     """What a live session renders while a face is tracked / while none is (the table, spelled out)."""
     chosen = {s.name: (s.tracked, s.untracked) for s in SESSION_MODES}
-    assert chosen == {"auto": ("tracked", "all_views"), "tracked": ("tracked", "tracked"),
+    assert chosen == {"auto": ("group", "group"), "tracked": ("tracked", "tracked"),
                       "all_views": ("all_views", "all_views"), "cone": (None, None)}
     assert SESSION_MODE["auto"].prepare == ("prepare_tracked", "prepare_all_views")

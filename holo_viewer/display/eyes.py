@@ -42,7 +42,11 @@ __all__ = ["TrackedViewer", "eye_positions", "view_columns", "view_segments", "e
            "column_tile_mask", "received_subpixels",
            "received_samples", "quilt_samples",
            "eye_cameras", "eye_view_coordinates", "scatter_eye_images", "eye_images", "head_psnr", "eye_psnr",
-           "psnr"]
+           "psnr", "ConeSweep", "CONE_ANGLES_DEG", "CONE_DISTANCES_M"]
+
+#: the coarse sweep of eye positions where a group stands (issue 37): -20..20 degrees, 0.4-1.0 m
+CONE_ANGLES_DEG = (-20.0, -15.0, -10.0, -5.0, 0.0, 5.0, 10.0, 15.0, 20.0)
+CONE_DISTANCES_M = (0.4, 1.0)
 
 Mode = Literal["nearest", "blend"]
 
@@ -438,3 +442,64 @@ def eye_psnr(display: VirtualDisplay, ref_native: np.ndarray, test_native: np.nd
     """Head-region PSNR of the per-eye images of ``test_native`` against ``ref_native``: the worse eye."""
     pairs = [display.see_many([ref_native, test_native], a, d) for a, d in eye_positions(viewer)]
     return min(head_psnr(r, t, background) for r, t in pairs)
+
+
+class ConeSweep:
+    """The images single eyes at fixed positions of the viewing cone perceive
+    (:meth:`VirtualDisplay.see`), with each position's light weights computed once: the error of a
+    live frame where a group stands, against the present full-quality frame.
+
+    Each position keeps the subpixels that send it more than ``cutoff`` of the strongest weight
+    (~9 % of the panel) and their window sums; :meth:`see` then costs a scatter and the window
+    sums of one image (about half of ``VirtualDisplay.see``), and differs from it by less than
+    ``cutoff`` (relative) per pixel (tested).
+
+    Parameters
+    ----------
+    display : VirtualDisplay
+    positions : sequence of (angle_deg, distance_m)
+        Default: every pair of :data:`CONE_ANGLES_DEG` x :data:`CONE_DISTANCES_M`.
+    cutoff : float
+        Relative weight below which a subpixel is left out.
+    """
+
+    def __init__(self, display: VirtualDisplay, positions: Any = None, cutoff: float = 1e-4) -> None:
+        from .simulate import _box
+
+        if positions is None:
+            positions = [(a, d) for d in CONE_DISTANCES_M for a in CONE_ANGLES_DEG]
+        self.display = display
+        self.positions = [(float(a), float(d)) for a, d in positions]
+        if not self.positions:
+            raise InputError("positions: expected at least one (angle_deg, distance_m), found none")
+        self._w: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        for a, d in self.positions:
+            w = display.weights(a, d).astype(np.float32)
+            idx = np.flatnonzero(w.reshape(-1) > cutoff).astype(np.int64)
+            den = _box(w, display.window, display.downsample)
+            self._w.append((idx, w.reshape(-1)[idx], den))
+
+    def see(self, native: np.ndarray, k: int) -> np.ndarray:
+        """(h, w, 3) float32 in [0, 1]: what an eye at ``positions[k]`` perceives of ``native``."""
+        from .simulate import _box
+
+        H, W = self.display.cal.screen_h, self.display.cal.screen_w
+        img = np.asarray(native)
+        if img.shape != (H, W, 3):
+            raise InputError(f"native: expected shape ({H}, {W}, 3), found {img.shape}")
+        idx, w, den = self._w[k]
+        vals = img.reshape(-1)[idx].astype(np.float32)
+        if img.dtype == np.uint8:
+            vals *= np.float32(1.0 / 255.0)
+        dense = np.zeros(H * W * 3, dtype=np.float32)
+        dense[idx] = w * vals
+        num = _box(dense.reshape(H, W, 3), self.display.window, self.display.downsample)
+        res = np.divide(num, den, out=np.zeros_like(num), where=den > 1e-12)
+        return np.clip(res, 0.0, 1.0).astype(np.float32)
+
+    def psnr(self, ref_native: np.ndarray, test_native: np.ndarray,
+             background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+        """(P,) head-region PSNR (:func:`head_psnr`) of each position's image of ``test_native``
+        against its image of ``ref_native`` (the present full-quality frame)."""
+        return np.array([head_psnr(self.see(ref_native, k), self.see(test_native, k), background)
+                         for k in range(len(self.positions))])

@@ -15,7 +15,8 @@ Modes (the rows of :data:`holo_viewer.pipeline.live_modes.SESSION_MODES`):
     synthesized by a depth-compensated warp (``view_step``; 43 dB on the native image, 2.6x
     faster than rendering all 48).
 ``auto`` (the live command's default)
-    ``tracked`` while a face is tracked, ``all_views`` otherwise.
+    ``group`` frames: every view each frame (as ``all_views``) and, over them, exact eye images
+    (slices) for the tracked face, so no position of the cone sees an old face (issue 37).
 
 Backends: ``fast`` (the CPU paths above) or ``gsplat`` (CUDA): all 48 views in one batched gsplat
 call, tiled and interleaved on the GPU, 12-16 ms a frame on an H100/H200 (docs/live_frame.md), so
@@ -173,7 +174,8 @@ class LiveAvatarRenderer:
             if self.native_enabled:
                 s = self.session_mode
                 mode = "all_views" if self.backend == "gsplat" else s.tracked if viewer_tracked else s.untracked
-                viewer = TrackedViewer(angle_deg=angle, distance_m=distance) if mode != "all_views" else None
+                viewer = (TrackedViewer(angle_deg=angle, distance_m=distance)
+                          if mode != "all_views" and (viewer_tracked or mode != "group") else None)
                 native = self._live.frame(p.gaussians(), viewer, mode).native.copy()
         else:
             p.set_view(viewer_angle=angle, viewer_distance=distance)

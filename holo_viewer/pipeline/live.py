@@ -65,6 +65,8 @@ __all__ = ["NativeFrameConfig", "LiveFrame", "NativeFrameRenderer", "render_nati
            "LIVE_T_MIN"]
 
 AUTO_VIEW_STEP = 5  # NativeFrameConfig.view_step=None on a horizontal rig
+#: group frames serve at most this many tracked viewers (the faces a webcam finds around a Portrait)
+MAX_VIEWERS = 6
 #: fixed-point steps of the slices' warp after the first guess: 0 (the default avatar at 0.6 m: per
 #: eye 52.1 dB against 52.2 with one step, the worst eye 1 cm off 43.4 against 43.9 dB; -20 % scatter)
 SLICE_WARP_ITERS = 0
@@ -78,7 +80,7 @@ LIVE_T_MIN = 3e-3
 #: NativeFrameConfig's None for (motion_m, motion_distance_m, refresh_columns), per tracked method
 TRACKED_DEFAULTS = {"bands": (0.01, 0.05, 8), "slices": (0.005, 0.02, 2)}
 
-Mode = Literal["auto", "tracked", "all_views", "full_quilt", "eye_centred"]
+Mode = Literal["auto", "group", "tracked", "all_views", "full_quilt", "eye_centred"]
 #: the modes of NativeFrameRenderer.frame: "auto" and the rows of pipeline/live_modes.py's FRAME_MODES
 MODES = ("auto",) + tuple(FRAME_MODE)
 
@@ -340,9 +342,10 @@ class NativeFrameRenderer:
         timings.update(render=t1 - t, **done.seconds)
         return 1.0
 
-    def _synthesized(self, g: Any, timings: dict[str, float]) -> float:
+    def _synthesized(self, g: Any, timings: dict[str, float], slits: Any = None) -> float:
         """all_views with view synthesis: the source views rendered, the others warped from them
-        straight into the quilt (their float views are not kept)."""
+        straight into the quilt (their float views are not kept). ``slits``: eye slices drawn in the
+        same depth sort and projection pass (``group`` frames)."""
         from ..display.native import views_to_native
         from ..render import fast, view_synthesis
 
@@ -350,7 +353,7 @@ class NativeFrameRenderer:
         src = self._sources
         cfg = self.config.render
         fast.render(g, self._source_cams, dataclasses.replace(cfg, t_min=max(cfg.t_min, LIVE_T_MIN)),
-                    out=self._source_images)
+                    out=self._source_images, slits=slits)
         t1 = time.perf_counter()
         gn = g.numpy()
         opacity = 1.0 / (1.0 + np.exp(-np.asarray(gn.opacity_logits, dtype=np.float64)))
@@ -368,6 +371,54 @@ class NativeFrameRenderer:
         t5 = time.perf_counter()
         timings.update(render=t1 - t, depth=t2 - t1, quilt=t3 - t2, warp=t4 - t3, interleave=t5 - t4)
         return src.size / len(self.cameras)
+
+    def _group(self, gaussians: Any, viewers: Any, timings: dict[str, float]) -> float:
+        """Every position of the cone sees this frame: all views (every ``view_step``-th rendered, the
+        others synthesized by depth, as ``all_views``), and the exact eye slices of every tracked
+        viewer (up to :data:`MAX_VIEWERS`; drawn in the same depth sort and projection pass as the
+        rendered views) warped into the native subpixels those eyes receive, over the cone fill.
+        Nothing is kept from earlier frames. Without viewers, or without slices (non-rig cameras, the
+        gsplat backend), it is ``all_views``."""
+        from ..display.eyes import eye_positions, eye_view_bounds, reach_views
+        from ..display.slices import scatter_slices
+        from ..render import crossed_slit
+
+        viewers = group_viewers(viewers)
+        if not viewers or self._slice_rig is None or self.view_step <= 1 or self.config.backend != "fast":
+            return self._all_views(gaussians, None, timings)
+        t = time.perf_counter()
+        self.prepare_tracked()
+        if self._sampled is None:
+            self.prepare_all_views()
+        rig, c = self._slice_rig, self.config
+        eyes_ = [e for v in viewers for e in crossed_slit.eye_slices(rig, eye_positions(v))]
+        E = len(eyes_)
+        if self._slices.shape[0] < E:
+            H, W = self.cameras.height, self.cameras.width
+            self._slices = np.zeros((E, H, W, 3), dtype=np.float32)
+            self._slice_w = np.zeros((E, H, W), dtype=np.float32)
+        slits = crossed_slit.slit_views(rig, eyes_, self._slices[:E], t_min=max(c.render.t_min, LIVE_T_MIN))
+        fraction = self._synthesized(gaussians, timings, slits=slits)
+        t1 = time.perf_counter()
+        gn = gaussians.numpy()
+        opacity = 1.0 / (1.0 + np.exp(-np.asarray(gn.opacity_logits, dtype=np.float64)))
+        crossed_slit.slice_depth(gn.means, opacity, rig, eyes_, out=self._slice_w[:E])
+        t2 = time.perf_counter()
+        reach = reach_views(c.sigma_views, c.threshold)
+        e = 0
+        for v in viewers:  # each viewer's eyes over the cone fill (across the lobe boundary the fill stays)
+            n = 2 if v.ipd_m else 1
+            bounds = eye_view_bounds(self.calibration, v, n_views=len(self.cameras), motion_m=self.motion_m,
+                                     motion_distance_m=self.motion_distance_m)
+            segments, lobe = self.tracked_segments(v, bounds, lobes=True)
+            kv, gh = crossed_slit.warp_coefficients(rig, eyes_[e:e + n])
+            scatter_slices(self.native, self._buckets, segments[lobe == 0], bounds, reach, self._slices[e:e + n],
+                           self._slice_w[e:e + n], kv, gh, iters=SLICE_WARP_ITERS)
+            e += n
+        t3 = time.perf_counter()
+        timings.update(slice_depth=t2 - t1, scatter=t3 - t2, prepare=t1 - t - sum(
+            timings.get(k, 0.0) for k in ("render", "depth", "quilt", "warp", "interleave")))
+        return fraction + E / len(self.cameras)
 
     def _everything_device(self, g: Any, timings: dict[str, float]) -> float:
         """All views with gsplat on CUDA, tiled and interleaved on the GPU (views stay there)."""
@@ -600,6 +651,29 @@ class NativeFrameRenderer:
         t3 = time.perf_counter()
         timings.update(select=t1 - t, render=t2 - t1, interleave=t3 - t2)
         return len(cams) / len(self.cameras)
+
+
+def group_viewers(viewers: Any) -> list:
+    """None, one :class:`~holo_viewer.display.eyes.TrackedViewer` or a sequence of them -> a list of at
+    most :data:`MAX_VIEWERS` (the first ones: the tracker lists the nearest faces first).
+
+    Raises
+    ------
+    InputError
+        An entry that is not a TrackedViewer (naming its index).
+    """
+    from ..display.eyes import TrackedViewer
+
+    if viewers is None:
+        return []
+    if isinstance(viewers, TrackedViewer):
+        return [viewers]
+    out = list(viewers)
+    for i, v in enumerate(out):
+        if not isinstance(v, TrackedViewer):
+            raise InputError(f"viewers[{i}]: expected a holo_viewer.display.eyes.TrackedViewer, "
+                             f"found {type(v).__name__}")
+    return out[:MAX_VIEWERS]
 
 
 def read_pixels(interleaver: Any, calibration: Any, n_views: int) -> np.ndarray:

@@ -63,10 +63,14 @@ FRAME_MODES: tuple[FrameMode, ...] = (
               "render/lod.py, render/fast.py, render/view_synthesis.py, display/native.py",
               "every view of the default cone, untracked: level of detail, every view_step-th view rendered "
               "and the others synthesized by depth; with gsplat all on the GPU (display/device.py)"),
+    FrameMode("group", "_group", False, False,
+              "render/fast.py, render/crossed_slit.py, render/view_synthesis.py, display/native.py, display/slices.py",
+              "every position of the cone sees the present frame: all views (every view_step-th rendered, the "
+              "others synthesized by depth) and, over them, the exact eye slices of every tracked viewer (0-6)"),
     FrameMode("tracked", "_tracked", True, True,
               "display/eyes.py, render/crossed_slit.py, display/slices.py | render/fast.py, display/native.py",
               "the native subpixels a tracked viewer's eyes receive, by the renderer's tracked method "
-              "(TRACKED_METHODS), plus a round-robin refresh of the other views"),
+              "(TRACKED_METHODS), plus a round-robin refresh of the other views (everyone else sees older frames)"),
     FrameMode("eye_centred", "_eye_centred", True, True, "display/eyes.py, render/fast.py",
               "one perspective image per eye from the eye's own position, scattered into the subpixels "
               "that reach it"),
@@ -77,7 +81,8 @@ TRACKED_METHODS = {"slices": "_tracked_slices", "bands": "_tracked_bands"}
 
 
 def frame_mode(mode: str, viewer: object) -> FrameMode:
-    """The row of ``mode`` (``auto``: ``tracked`` when a viewer is given, else ``all_views``).
+    """The row of ``mode`` (``auto``: ``group``, every position of the cone sees the present frame,
+    with exact eye images for the viewers given, if any).
 
     Raises
     ------
@@ -87,7 +92,7 @@ def frame_mode(mode: str, viewer: object) -> FrameMode:
     from ..errors import InputError
 
     if mode == "auto":
-        mode = "tracked" if viewer is not None else "all_views"
+        mode = "group"
     row = FRAME_MODE.get(mode)
     if row is None:
         raise InputError(f"mode: expected one of auto, {', '.join(FRAME_MODE)}, found {mode!r}")
@@ -121,8 +126,8 @@ class SessionMode:
 
 
 SESSION_MODES: tuple[SessionMode, ...] = (
-    SessionMode("auto", "tracked", "all_views", ("prepare_tracked", "prepare_all_views"),
-                "tracked while a face is tracked, all views otherwise (the default)"),
+    SessionMode("auto", "group", "group", ("prepare_tracked", "prepare_all_views"),
+                "every view each frame, and exact eye images for every tracked face (the default)"),
     SessionMode("tracked", "tracked", "tracked", ("prepare_tracked",),
                 "always for the viewer's eyes (the last known position when no face is tracked)"),
     SessionMode("all_views", "all_views", "all_views", ("prepare_all_views",), "every view, untracked"),
