@@ -52,3 +52,9 @@ if [ ! -f "$stamp" ] || [ -n "$stale" ]; then
   "$VENV/bin/python" -m pip install -q -e ".[dev]"
   touch "$stamp"
 fi
+# numba kernels: compile and cache them once here when the clone has no cache yet, not in the first test run
+# (scripts/warm_kernels.py: ~60 s of CPU in a fresh clone; it reports and skips a step that fails)
+if ! ls holo_viewer/render/__pycache__/fast_kernels.*.nbi >/dev/null 2>&1; then
+  echo "setup: compiling the numba kernels once (scripts/warm_kernels.py)"
+  "$VENV/bin/python" scripts/warm_kernels.py || true
+fi

@@ -79,10 +79,12 @@ CLONE_SAMPLE = ("tests/test_display_calibration.py", "tests/test_display_usb.py"
 
 
 def copy_clone(target: Path) -> Path:
-    """The tracked files (as they are in the working tree) and the built extensions, copied to ``target``."""
+    """The repository's files as a commit of the working tree would hold them (tracked, plus new files git does
+    not ignore) and the built extensions, copied to ``target``."""
     import shutil
 
-    out = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True)
+    out = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=ROOT,
+                         capture_output=True, check=True)
     names = [p for p in out.stdout.decode().split("\0") if p]
     names += [str(p.relative_to(ROOT)) for p in (ROOT / "holo_viewer").rglob("*.so")]  # compiled kernels
     for name in names:
