@@ -7,7 +7,8 @@
 * Against the plain definition: the quilt is ``clip(rint(255 x))`` tiled view 0 bottom-left, and a
   column update leaves the native image equal to a full interleave of the updated quilt. Exact.
 * A spy on the function, run through every caller (the pipeline's quilt and native stages, the GUI's
-  exports, the live frames of every mode, the device path), sees each of them call it.
+  exports, the live frames of every mode, the device path, quilt-to-native and show's quilt files),
+  sees each of them call it.
 """
 
 from __future__ import annotations
@@ -115,7 +116,7 @@ def spy(monkeypatch):
     return calls
 
 
-def test_every_caller_goes_through_the_one_function(spy, monkeypatch):
+def test_every_caller_goes_through_the_one_function(spy, monkeypatch, tmp_path):
     from holo_viewer.display.cameras import make_quilt_cameras
     from holo_viewer.display.eyes import TrackedViewer
     from holo_viewer.gui import viewer as gui_viewer
@@ -159,6 +160,18 @@ def test_every_caller_goes_through_the_one_function(spy, monkeypatch):
     slices = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(view_step=1, tracked="slices", refresh_columns=2))
     slices.frame(g, mode="full_quilt")
     assert ("columns", True) in ran(lambda: slices.frame(g, viewer, "tracked"))  # the exact refresh columns
+
+    # quilt files: quilt-to-native and show interleave them through the function too
+    from holo_viewer.cli import main
+    from holo_viewer.commands import show
+    from holo_viewer.fileio import save_image
+
+    quilt_png = tmp_path / "q_qs8x6a0.75.png"
+    save_image(quilt_png, np.full((96, 96, 3), 128, np.uint8))  # 8 x 6 tiles of 12 x 16
+    assert ran(lambda: main(["quilt-to-native", str(quilt_png), "--out", str(tmp_path / "n.png")])) == [
+        ("quilt->native", True)]
+    shown = ran(lambda: next(show.frame_source(quilt_png, SMALL, None, None, False)[0]()))
+    assert shown == [("quilt->native", True)]
 
     torch = pytest.importorskip("torch")
     from holo_viewer.render import fast, gsplat_backend

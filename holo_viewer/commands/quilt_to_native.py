@@ -22,6 +22,7 @@ def run(args: argparse.Namespace) -> int:
     from ..display.calibration import DisplayCalibration
     from ..display.export import save_native_png
     from ..display.lenticular import Interleaver
+    from ..display.native import views_to_native
     from ..display.quilt import parse_quilt_filename
     from ..errors import InputError
     from ..fileio import load_image
@@ -38,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     quilt = to_uint8(load_image(args.quilt), name=str(args.quilt))
     t0 = time.perf_counter()
     il = Interleaver(cal, quilt.shape, cols, rows, args.views, mode="blend" if args.blend else "nearest")
-    native = il(quilt)
+    native = views_to_native(None, il, quilt=quilt).native
     dt = time.perf_counter() - t0
     path = save_native_png(args.out, native)
     print(f"wrote {path} ({native.shape[1]}x{native.shape[0]}, {cols}x{rows} quilt, "

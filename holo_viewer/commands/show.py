@@ -56,6 +56,7 @@ def frame_source(path: Path, cal, cols: int | None, rows: int | None, blend: boo
                  ) -> tuple[Callable[[], Iterator[np.ndarray]], float | None]:
     """(factory of native-frame iterators, the video's fps or None)."""
     from ..display.lenticular import Interleaver
+    from ..display.native import views_to_native
     from ..display.quilt import parse_quilt_filename
     from ..errors import InputError
     from ..fileio import load_image
@@ -85,7 +86,7 @@ def frame_source(path: Path, cal, cols: int | None, rows: int | None, blend: boo
         key = f.shape
         if key not in cache:
             cache[key] = Interleaver(cal, f.shape, tagged[0], tagged[1], mode="blend" if blend else "nearest")
-        return cache[key](np.ascontiguousarray(f))
+        return views_to_native(None, cache[key], quilt=np.ascontiguousarray(f)).native
 
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
