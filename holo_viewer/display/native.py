@@ -4,7 +4,8 @@
 their quilt tiles (:func:`holo_viewer.images.to_uint8`, tile layout of
 :func:`holo_viewer.display.quilt.tile_slices`), and the quilt is interleaved into the panel's
 native image (:class:`~holo_viewer.display.lenticular.Interleaver`). The export path (the
-pipeline's ``quilt`` and ``native`` stages, the GUI's exports), the live frames
+pipeline's ``quilt`` and ``native`` stages, the GUI's exports, ``quilt-to-native`` and ``show`` on
+quilt files), the live frames
 (:class:`holo_viewer.pipeline.live.NativeFrameRenderer`: every view, synthesized views, the tracked
 frames' tile columns) and the GPU path (views on a torch device gathered by a
 :class:`~holo_viewer.display.device.DeviceInterleaver`, no quilt built) all call it; they differ
@@ -24,8 +25,10 @@ torch ``views`` + DeviceInterleaver      one gather on the device -> native (no 
 =======================================  ============================================================
 
 Rounding is :func:`~holo_viewer.images.to_uint8`'s everywhere (``rint(255 x)``, clipped), so the
-paths give the same bytes (tests/test_views_to_native.py checks each caller against outputs saved before
-the callers were moved onto this function).
+paths give the same bytes (tests/test_views_to_native.py checks each form against outputs saved
+before the callers were moved onto this function, and spies on every caller). The per-eye scatters of
+tracked frames (:mod:`holo_viewer.display.slices`, :func:`holo_viewer.display.eyes.scatter_eye_images`)
+are not this chain: they write subpixels from per-eye images, not from views.
 """
 
 from __future__ import annotations
