@@ -127,11 +127,12 @@ def pad_even(frame: np.ndarray) -> np.ndarray:
 def read_frames(path: str | os.PathLike, fps: float | None = None) -> Iterator[np.ndarray]:
     """Decode a video to (H, W, 3) uint8 RGB frames: each stored frame once, or with ``fps`` at that
     constant rate (a frame held for 300 ms comes ``round(0.3 * fps)`` times: frame ``round(t * fps)``
-    is what was shown at time ``t``)."""
+    is what was shown at time ``t``; a timed video's first frame also stands for the time before it)."""
     import imageio_ffmpeg
 
-    out = ["-r", f"{float(fps):.6g}"] if fps else ["-fps_mode", "passthrough"]
-    gen = imageio_ffmpeg.read_frames(os.fspath(path), pix_fmt="rgb24", output_params=out)
+    # -copyts: the stored times (a live session's first frame is shown a little after 0), counted from 0
+    out = ["-vf", f"fps={float(fps):.6g}:start_time=0"] if fps else ["-fps_mode", "passthrough"]
+    gen = imageio_ffmpeg.read_frames(os.fspath(path), pix_fmt="rgb24", input_params=["-copyts"], output_params=out)
     meta = next(gen)
     w, h = meta["size"]
     for buf in gen:
@@ -247,7 +248,7 @@ class VideoWriter:
     def _command(self, width: int, height: int) -> list[str]:
         if self.timed:  # raw RGB in Matroska: each frame carries its time and duration
             cmd = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-f", "matroska", "-i", "-",
-                   "-fps_mode", "passthrough", "-an", "-vcodec", self.codec, "-pix_fmt", self.pixelformat]
+                   "-fps_mode", "passthrough", "-copyts", "-an", "-vcodec", self.codec, "-pix_fmt", self.pixelformat]
         else:
             cmd = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
                    "-s", f"{width}x{height}", "-r", f"{self.fps:.6g}", "-i", "-", "-an", "-vcodec", self.codec,

@@ -395,7 +395,7 @@ class _FakeRenderer:
 
 def test_ctrl_c_inside_the_frame_write_leaves_a_playable_session_video(tmp_path: Path, monkeypatch) -> None:
     """SIGINT delivered (as a terminal sends it) in the middle of piping frame 4 to ffmpeg: the frame
-    completes, the session ends as interrupted, native.mp4 decodes to the frames session.json counts."""
+    completes, the session ends as interrupted, native.mkv decodes to the frames session.json counts."""
     import signal
 
     from holo_viewer import media
@@ -425,8 +425,10 @@ def test_ctrl_c_inside_the_frame_write_leaves_a_playable_session_video(tmp_path:
     summary = session.run(_FakeRenderer())
     assert summary["status"]["end"] == "interrupted (Ctrl-C)"
     meta = json.loads((out / "session.json").read_text())
-    assert media.count_video_frames(out / "native.mp4") == meta["displayed_frames"] == len(calls) == 4
-    assert meta["summary"]["status"]["native_video_frames"] == 4
+    # the timed writer pipes a frame when the next one is shown: SIGINT in frame 4's write ends the
+    # session after frame 5 is shown, and close() pipes frame 5
+    assert media.count_video_frames(out / "native.mkv") == meta["displayed_frames"] == len(calls) == 5
+    assert meta["summary"]["status"]["native_video_frames"] == 5
     assert sorted(p.name for p in out.iterdir() if p.name.startswith(".")) == []
 
 

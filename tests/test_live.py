@@ -54,8 +54,8 @@ def test_live_headless_from_replayed_files(clip, tmp_path):
     assert s["tracks"]["speaker_found"].mean() > 0.5  # the tracker saw the rendered head
     assert s["meta"]["settings"]["sources"]["video"].startswith("file:")
     assert s["meta"]["summary"]["reaction_windows"] >= 40 // 8
-    assert (out / "native.mp4").stat().st_size > 0
-    assert not (out / "webcam.mp4").exists()  # faces are private unless --record-video
+    assert (out / "native.mkv").stat().st_size > 0
+    assert not (out / "webcam.mkv").exists()  # faces are private unless --record-video
     # the session replays deterministically
     from holo_viewer.live.replay import replay_frames
 

@@ -61,3 +61,100 @@ def test_timed_video_refuses_times_that_do_not_advance(tmp_path: Path) -> None:
         w.write(f)
     w.abort()
     assert not (tmp_path / "s.mkv").exists()
+
+
+# ---------------------------------------------------------------- the live loop's recording and keys
+class _NoiseRenderer:
+    """A new random native frame per call (the recording must keep every subpixel), a grey preview."""
+
+    def __init__(self) -> None:
+        self.rng = np.random.default_rng(1)
+        self.natives: list[np.ndarray] = []
+
+    def render(self, *args, **kwargs):
+        from holo_viewer.live.render import RenderedFrame
+
+        native = self.rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+        self.natives.append(native)
+        return RenderedFrame(native=native, preview=np.full((60, 80, 3), 0.5, np.float32), seconds=0.001)
+
+
+class _KeyWindow:
+    """A preview window: keeps what it is shown and sends ``script`` keys: (after n frames shown, key,
+    then wait s of wall time before the next key)."""
+
+    def __init__(self, script: list[tuple[int, str, float]]) -> None:
+        import time
+
+        self.time = time.perf_counter
+        self.script = list(script)
+        self.shown: list[np.ndarray] = []
+        self.frames = 0
+        self._not_before = 0.0
+
+    def show(self, image: np.ndarray) -> None:
+        self.shown.append(np.array(image))
+
+    def poll(self) -> list[str]:
+        if self.script and len(self.shown) >= self.script[0][0] and self.time() >= self._not_before:
+            _, key, wait = self.script.pop(0)
+            self._not_before = self.time() + wait
+            return [key]
+        return []
+
+
+def _session(tmp_path: Path, seconds: float = 1.0, **config):
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveSession, LiveSessionConfig
+    from holo_viewer.pipeline.live_support import SyntheticSpeaker
+
+    syn = SyntheticSpeaker(seconds)
+    cfg = LiveSessionConfig(out=str(tmp_path / "s"), tile_scale=0.1, behaviour=None, **config)
+    return LiveSession(cfg, sources.ArrayAudio(syn.waveform), None, syn)
+
+
+def _tracks(folder: Path) -> dict[str, np.ndarray]:
+    with np.load(folder / "tracks.npz") as z:
+        return {k: z[k] for k in z.files}
+
+
+def test_live_native_video_is_lossless_and_timed(tmp_path: Path) -> None:
+    """Every displayed native frame decodes bit-exact from native.mkv, held on screen until the next one:
+    decoded at 25 fps, frame round(t * 25) is the one displayed at session time t."""
+    renderer = _NoiseRenderer()
+    session = _session(tmp_path, 1.0)
+    session.run(renderer)
+    out = tmp_path / "s"
+    tr = _tracks(out)
+    stored = list(media.read_frames(out / "native.mkv"))
+    assert len(stored) == len(renderer.natives) - 1 == len(tr["display_time_s"]) >= 5  # -1: the warm-up call
+    assert all(np.array_equal(a, b) for a, b in zip(renderer.natives[1:], stored))
+    at25 = list(media.read_frames(out / "native.mkv", fps=25))
+    session_s = len(tr["time_s"]) / 25
+    assert abs(len(at25) / 25 - max(session_s, tr["display_time_s"][-1])) <= 0.08  # lasts the session
+    t = tr["display_time_s"]
+    for i in range(len(t) - 1):
+        k = int(round(t[i] * 25))
+        if int(round(t[i + 1] * 25)) > k + 1:  # held for more than a frame: check the middle of the hold
+            assert np.array_equal(at25[k + 1], stored[i])
+
+
+def test_pause_key_stops_the_clock_and_shows_paused(tmp_path: Path) -> None:
+    """space after 3 frames, 0.6 s of wall time paused, space again: no session time passes (no gap in
+    the displayed frames' times, the reaction frames still cover the audio), the preview is shown the
+    last frame with PAUSED while paused, and nothing is recorded then."""
+    import time
+
+    window = _KeyWindow([(3, "space", 0.6), (3, "space", 0.0)])
+    session = _session(tmp_path, 1.0)
+    t0 = time.perf_counter()
+    session.run(_NoiseRenderer(), preview=window)
+    wall = time.perf_counter() - t0
+    tr = _tracks(tmp_path / "s")
+    assert session.controls.log == ["pause", "pause"]
+    assert wall > 1.0 + 0.5  # the pause happened in wall time ...
+    assert len(tr["time_s"]) == 25  # ... but not in session time: the audio's 25 frames
+    assert np.diff(tr["display_time_s"]).max() < 0.4  # no 0.6 s hole in what was displayed
+    paused = window.shown[3]  # shown on the pause: the last frame with PAUSED across its middle
+    assert not np.array_equal(paused, window.shown[2])
+    assert np.array_equal(paused[:8], window.shown[2][:8])  # the status lines at the top unchanged

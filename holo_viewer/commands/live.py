@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out = parser.add_argument_group("output")
     out.add_argument("--out", default=None, metavar="DIR", help="session folder, must not exist yet (default "
                      "./session-YYYYmmdd-HHMMSS; an existing session is never overwritten)")
-    out.add_argument("--headless", action="store_true", help="no windows (CI); the session folder and native.mp4 "
+    out.add_argument("--headless", action="store_true", help="no windows (CI); the session folder and native.mkv "
                      "are still written")
     out.add_argument("--frames", type=int, default=None, help="stop after N displayed frames")
     out.add_argument("--panel", action="store_true", help="fullscreen native image on the Looking Glass monitor")
@@ -45,8 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      "eye (fastest); all_views: default cone, every 5th view rendered and the others warped by depth; "
                      "cone: the 48 cameras follow the tracked viewer (Algorithm 1's viewer angle and distance), the "
                      "whole quilt each frame (slowest)")
-    out.add_argument("--video-fps", type=fps_arg, default=10.0, help="frame rate written into native.mp4 (one frame "
-                     "per displayed frame; default 10)")
+    out.add_argument("--video-fps", type=fps_arg, default=10.0, help="nominal frame rate of native.mkv (each displayed "
+                     "frame is stored once with the time it was shown; default 10)")
     out.add_argument("--record-video", action="store_true", help="also keep the webcam video (off by default: "
                      "trainees' faces are private)")
     ctl = parser.add_argument_group("patient")

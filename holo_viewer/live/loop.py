@@ -6,8 +6,13 @@ Threads (docs/design.md "A live loop that never waits")::
     reaction thread  25 fps clock: audio up to the frame + latest speaker state -> ReactionStream
                      (one model step every k frames) -> listener frame t, recorded in the session
     main thread      latest listener frame + viewer pose + pain -> LiveAvatarRenderer -> panel window /
-                     preview window / native.mp4; keys; stops when the sources end, at --frames,
+                     preview window / native.mkv; keys; stops when the sources end, at --frames,
                      on q/Esc or Ctrl-C
+
+Pause (space) stops the session clock (:meth:`LiveSession.now`): the reaction thread, the audio it
+reads, the scenario, the tracker and the recording wait where they are, the preview shows
+"PAUSED" on the last frame, and the session resumes where it stopped. native.mkv holds each
+displayed frame once, lossless, at the session time it was shown (:mod:`holo_viewer.media`).
 
 Nothing queues between them: each publishes its newest result into a slot and the consumer takes
 whatever is newest when it is free, so a slow renderer shows fewer frames but never delays the
@@ -30,7 +35,7 @@ from ..errors import ExportError, HoloViewerError
 from ..reaction.decoding import DEFAULT_TEMPERATURE, DEFAULT_TOP_K
 from ..tracking.viewer import ViewerPose
 from .controls import Controls, Scenario
-from .session import SessionRecorder
+from .session import NATIVE_VIDEO, SessionRecorder
 
 __all__ = ["LiveSessionConfig", "LiveSession"]
 
@@ -125,7 +130,9 @@ class LiveSession:
         self.errors: list[BaseException] = []
         self.recorder = SessionRecorder(config.out, {**config.settings})
         self._start = 0.0
-        self._pause_offset = 0.0
+        #: (clock() when the current pause began or None, seconds spent paused before it); one tuple,
+        #: swapped whole, so the other threads' now() never sees half an update
+        self._pause: tuple[float | None, float] = (None, 0.0)
         self._webcam_writer = None
         #: level changes as the pain-timeline schema (holo_viewer.behaviour.timeline), for session.json
         self.pain_log: list[dict] = []
@@ -135,8 +142,19 @@ class LiveSession:
 
     # ------------------------------------------------------------------ time
     def now(self) -> float:
-        """Media time in seconds since the session started."""
-        return self.clock() - self._start
+        """Media time in seconds since the session started, stopped while paused."""
+        paused_at, offset = self._pause
+        return (self.clock() if paused_at is None else paused_at) - self._start - offset
+
+    def _update_pause(self) -> bool:
+        """Follow the pause key: stop or restart the session clock; True while paused."""
+        paused = self.controls.paused
+        paused_at, offset = self._pause
+        if paused and paused_at is None:
+            self._pause = (self.clock(), offset)
+        elif not paused and paused_at is not None:
+            self._pause = (None, offset + self.clock() - paused_at)
+        return paused
 
     def _sleep_until(self, media_t: float) -> bool:
         while not self._stop.is_set():
@@ -363,8 +381,11 @@ class LiveSession:
         shown = -1
         frames_shown = 0
         last_render = self.clock()
+        last_preview = None  # (preview image, fps, pain, pose) of the last frame: shown with "PAUSED"
+        paused_shown = False
+        t_shown = -1.0
         # Ctrl-C ends the session between frames: the frame being rendered, written and shown
-        # completes (native.mp4 then holds exactly the frames session.json counts)
+        # completes (native.mkv then holds exactly the frames session.json counts)
         interrupted = threading.Event()
         old_sigint = None
         if threading.current_thread() is threading.main_thread():
@@ -379,9 +400,13 @@ class LiveSession:
                             self.controls.key(key)
                 if self.controls.quit:
                     break
+                paused = self._update_pause()
+                if paused and not paused_shown and preview is not None and last_preview is not None:
+                    preview.show(self._overlay(*last_preview))  # the last frame, "PAUSED" on it
+                paused_shown = paused
                 item = self._listener.get()
-                if item is None or item[0] == shown or self.controls.paused:
-                    if self._media_done.is_set() and (item is None or item[0] == shown or self.controls.paused):
+                if item is None or item[0] == shown or paused:
+                    if self._media_done.is_set() and (item is None or item[0] == shown):
                         break
                     time.sleep(0.005)
                     continue
@@ -391,23 +416,29 @@ class LiveSession:
                     # the behaviour layers put the pain in the expressions already: add none on top
                     res = renderer.render(lf, pain if self._behaviour is None else 0.0, named, ang, dist, tracked)
                     self.render_ms.append(1000 * res.seconds)
+                    # each frame once at the session time it is shown (>= 1 ms after the previous one)
+                    t_shown = max(self.now(), t_shown + 0.001)
                     if res.native is not None and cfg.write_native_video:
-                        if writer is None:  # fragmented mp4, verified and renamed into place on close
-                            writer = VideoWriter(out / "native.mp4", cfg.video_fps, codec="libx264", quality=7,
-                                                 macro_block_size=8, streaming=True, what="session video")
-                        writer.write(res.native)  # a Ctrl-C during the write is raised after the frame
+                        if writer is None:  # lossless RGB, timed Matroska; verified and renamed on close
+                            writer = VideoWriter(out / NATIVE_VIDEO, cfg.video_fps, content="lossless", timed=True,
+                                                 what="session video")
+                        writer.write(res.native, t=t_shown)  # a Ctrl-C during the write is raised after it
                     if panel is not None and res.native is not None:
                         panel.show(res.native)
                     if preview is not None and res.preview is not None:
                         now = self.clock()
                         fps = 1.0 / max(now - last_render, 1e-6)
                         last_render = now
-                        preview.show(self._overlay(res.preview, fps, pain, ang, dist, tracked))
+                        last_preview = (res.preview, fps, pain, ang, dist, tracked)
+                        preview.show(self._overlay(*last_preview))
                     if on_frame is not None:
                         on_frame(res)
                 shown = frame
                 frames_shown += 1
-                self.recorder.add_display(self.now(), frame, self.render_ms[-1] if self.render_ms else 0.0)
+                # with the render call's arguments: replay --quality live repeats the call exactly
+                self.recorder.add_display(t_shown if renderer is not None else self.now(), frame,
+                                          self.render_ms[-1] if self.render_ms else 0.0, render_angle_deg=ang,
+                                          render_distance_m=dist, render_tracked=tracked)
                 if cfg.frames is not None and frames_shown >= cfg.frames:
                     break
         except KeyboardInterrupt:
@@ -421,10 +452,11 @@ class LiveSession:
             self.audio.stop()
             if self.video is not None:
                 self.video.stop()
+            end_s = max(self.now(), t_shown + 0.001)  # the native video lasts as long as the session
             for key, video in (("native_video_frames", writer), ("webcam_video_frames", self._webcam_writer)):
                 if video is not None:
                     try:  # ffmpeg's exit status and the decoded frame count checked before the rename
-                        video.close()
+                        video.close(end_s=end_s) if video.timed else video.close()
                         self.status[key] = video.frames
                     except ExportError as exc:
                         self.errors.append(exc)
@@ -435,12 +467,12 @@ class LiveSession:
         return self.summary()
 
     def _record_webcam(self, frame: np.ndarray) -> None:
-        """Append a webcam frame to webcam.mp4 (streamed to disk: memory stays flat)."""
+        """Append a webcam frame to webcam.mkv (streamed to disk: memory stays flat)."""
         from ..media import VideoWriter
 
         if self._webcam_writer is None:
-            self._webcam_writer = VideoWriter(Path(self.config.out) / "webcam.mp4", FPS, codec="libx264", quality=7,
-                                              macro_block_size=8, streaming=True, what="webcam video")
+            self._webcam_writer = VideoWriter(Path(self.config.out) / "webcam.mkv", FPS, content="preview",
+                                              what="webcam video")
         self._webcam_writer.write(frame)
 
     def _overlay(self, view: np.ndarray, fps: float, pain: float, ang: float, dist: float, tracked: bool) -> np.ndarray:
@@ -458,8 +490,23 @@ class LiveSession:
         lines = [f"{fps:4.1f} fps  render {med('render_ms')} ms  track {med('tracker_ms')} ms  react {med('reaction_window_ms')} ms",
                  f"pain {pain:.1f}  viewer {ang:+.0f} deg {dist:.2f} m {'tracked' if tracked else 'default'}"]
         lines += [f"{k}: {v}" for k, v in self.status.items() if v and v != "ok"]
-        if self.controls.paused:
-            lines.append("PAUSED")
         for i, line in enumerate(lines):
             d.text((4, 4 + 12 * i), line, fill=(255, 255, 0))
+        if self.controls.paused:
+            _centred_text(d, img.size, "PAUSED", (255, 64, 64))
         return np.asarray(img)
+
+
+def _centred_text(draw: Any, size: tuple[int, int], text: str, fill: tuple[int, int, int]) -> None:
+    """``text`` large in the middle of an image of ``size`` (w, h) on a dark box (PAUSED, starting...)."""
+    from PIL import ImageFont
+
+    w, h = size
+    try:
+        font = ImageFont.load_default(size=max(12, w // 10))
+    except TypeError:  # Pillow < 10.1: the fixed bitmap font
+        font = ImageFont.load_default()
+    x0, y0, x1, y1 = draw.textbbox((0, 0), text, font=font)
+    x, y = (w - (x1 - x0)) // 2, (h - (y1 - y0)) // 2
+    draw.rectangle((x - 6, y - 6 + y0, x + x1 - x0 + 6, y + y1 + 6), fill=(0, 0, 0))
+    draw.text((x - x0, y), text, font=font, fill=fill)

@@ -8,10 +8,13 @@
                      level), pain_shown (the pain in listener_expr from the behaviour layers; -1 without them),
                      speaker_found, speaker_{expr,jaw_pose,rotation}, listener_{expr,jaw_pose,rotation,
                      neck_pose,eyes_pose,translation} (GaussianAvatars flame_param keys), window;
-                     per displayed frame: display_time_s, display_frame, render_ms
+                     per displayed frame: display_time_s, display_frame, render_ms and the render call's
+                     render_angle_deg, render_distance_m, render_tracked (replay --quality live)
       audio.wav      the input audio (16 kHz mono; appended at each flush, valid up to the last one)
-      native.mp4     the native images shown (at --video-fps, one per displayed frame)
-      webcam.mp4     only with --record-video (faces are private by default)
+      native.mkv     the native images shown: each displayed frame once, lossless RGB (libx264rgb crf 0),
+                     at the session time it was shown (variable frame rate, plays in step with audio.wav;
+                     decode at 25 fps with holo_viewer.media.read_frames(path, fps=25))
+      webcam.mkv     only with --record-video (faces are private by default; lossy preview)
 
 tracks.npz and session.json are written atomically (temp + rename) at each flush (every ``flush_s`` seconds) and at
 the end, so an interrupted session keeps everything up to its last flush, and ``Ctrl-C`` (which
@@ -30,7 +33,13 @@ import numpy as np
 
 from ..fileio import atomic_write, save_npz
 
-__all__ = ["SessionRecorder", "TRACK_KEYS", "load_session"]
+__all__ = ["SessionRecorder", "TRACK_KEYS", "DISPLAY_KEYS", "NATIVE_VIDEO", "load_session"]
+
+#: the session's native-image video (lossless, timed; holo_viewer.media)
+NATIVE_VIDEO = "native.mkv"
+#: per displayed frame (tracks.npz)
+DISPLAY_KEYS = ("display_time_s", "display_frame", "render_ms", "render_angle_deg", "render_distance_m",
+                "render_tracked")
 
 LISTENER_KEYS = ("expr", "jaw_pose", "rotation", "neck_pose", "eyes_pose", "translation")
 SPEAKER_KEYS = ("expr", "jaw_pose", "rotation")
@@ -49,7 +58,7 @@ class SessionRecorder:
         self._rows: dict[str, list] = {k: [] for k in TRACK_KEYS}
         self._chunks: dict[str, list] = {k: [] for k in TRACK_KEYS}
         self._n = 0
-        self._display: dict[str, list] = {"display_time_s": [], "display_frame": [], "render_ms": []}
+        self._display: dict[str, list] = {k: [] for k in DISPLAY_KEYS}
         self._audio: list[np.ndarray] = []
         self._lock = threading.Lock()
         self.summary: dict[str, Any] = {}
@@ -75,11 +84,13 @@ class SessionRecorder:
                     self._chunks[k].append(np.stack(self._rows[k]))
                     self._rows[k] = []
 
-    def add_display(self, time_s: float, frame: int, render_ms: float) -> None:
+    def add_display(self, time_s: float, frame: int, render_ms: float, render_angle_deg: float = 0.0,
+                    render_distance_m: float = 0.6, render_tracked: bool = False) -> None:
+        """One displayed frame: when (session s), which 25 fps frame, its render time and viewer pose."""
         with self._lock:
-            self._display["display_time_s"].append(float(time_s))
-            self._display["display_frame"].append(int(frame))
-            self._display["render_ms"].append(float(render_ms))
+            for k, v in zip(DISPLAY_KEYS, (float(time_s), int(frame), float(render_ms), float(render_angle_deg),
+                                           float(render_distance_m), bool(render_tracked))):
+                self._display[k].append(v)
 
     def add_audio(self, samples: np.ndarray) -> None:
         if len(samples):
@@ -108,6 +119,9 @@ class SessionRecorder:
         arrays["display_time_s"] = disp["display_time_s"].astype(np.float64)
         arrays["display_frame"] = disp["display_frame"].astype(np.int64)
         arrays["render_ms"] = disp["render_ms"].astype(np.float32)
+        arrays["render_angle_deg"] = disp["render_angle_deg"].astype(np.float64)  # exactly as rendered
+        arrays["render_distance_m"] = disp["render_distance_m"].astype(np.float64)
+        arrays["render_tracked"] = disp["render_tracked"].astype(bool)
         arrays["fps"] = np.array(25)
         save_npz(self.folder / "tracks.npz", **arrays)
         # audio.wav is appended (memory stays flat in long sessions); the wave module patches the
