@@ -34,7 +34,7 @@ from .errors import ExportError, HoloViewerError
 
 __all__ = ["atomic_write", "atomic_path", "save_image", "load_image", "save_npz", "read_npz", "read_npy",
            "write_error", "reporting_write_errors", "ensure_dir", "check_writable", "remove_stale_temps",
-           "read_json", "parse_json", "check_json_depth", "MAX_JSON_BYTES", "MAX_JSON_DEPTH", "NPZ_BUDGET_BYTES"]
+           "read_json", "parse_json", "check_json_depth", "read_limited", "MAX_JSON_BYTES", "MAX_JSON_DEPTH", "NPZ_BUDGET_BYTES"]
 
 #: largest JSON file any reader parses (manifests, calibrations, sessions, scenarios, maps)
 MAX_JSON_BYTES = 64 << 20
@@ -370,9 +370,11 @@ def _reading(path: Path, error: type[HoloViewerError], what: str) -> Iterator[No
         raise error(f"{path}: {what} not found") from None
     except IsADirectoryError:
         raise error(f"{path}: expected {what}, found a directory") from None
-    except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, KeyError) as exc:
+    except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, KeyError, NotImplementedError,
+            RuntimeError) as exc:
         # a corrupt or truncated zip raises BadZipFile (not an OSError) at open and
-        # zlib.error/EOFError when a member is read: all mean "not a readable file"
+        # zlib.error/EOFError when a member is read, NotImplementedError for an unknown compression
+        # method and RuntimeError for an encrypted member: all mean "not a readable file"
         raise error(f"{path}: cannot read {what} ({exc})") from None
 
 
@@ -387,16 +389,32 @@ def read_json(path: str | os.PathLike, error: type[HoloViewerError] = HoloViewer
     """
     p = Path(path)
     with _reading(p, error, what):  # UnicodeDecodeError is a ValueError
-        with open(p, "rb") as fh:
-            size = os.fstat(fh.fileno()).st_size
-            if size > MAX_JSON_BYTES:
-                raise error(f"{p}: {what} of {size:,} bytes, over the limit of {MAX_JSON_BYTES:,} bytes "
-                            f"(fileio.MAX_JSON_BYTES)")
-            raw = fh.read(MAX_JSON_BYTES + 1)
-        if len(raw) > MAX_JSON_BYTES:
-            raise error(f"{p}: {what} of more than {MAX_JSON_BYTES:,} bytes (fileio.MAX_JSON_BYTES)")
-        text = raw.decode("utf-8")
+        text = read_limited(p, MAX_JSON_BYTES, error, what).decode("utf-8")
     return parse_json(text, error, str(p), what)
+
+
+def read_limited(path: str | os.PathLike, limit: int, error: type[Exception], what: str) -> bytes:
+    """The bytes of ``path``, refused (``error``) when there are more than ``limit``.
+
+    A regular file's size is checked before reading; the read never asks for more than the
+    file holds (``read(n)`` allocates ``n`` bytes first), and a FIFO or growing file is read in
+    1 MiB chunks up to the limit.
+    """
+    with open(path, "rb") as fh:
+        size = os.fstat(fh.fileno()).st_size
+        if size > limit:
+            raise error(f"{path}: {what} of {size:,} bytes, over the limit of {limit:,} bytes")
+        chunks = [fh.read(size + 1)]
+        total = len(chunks[0])
+        while total > size and total <= limit:  # not a regular file, or it grew: chunks up to the limit
+            chunk = fh.read(1 << 20)
+            if not chunk:
+                break
+            chunks.append(chunk)
+            total += len(chunk)
+    if total > limit:
+        raise error(f"{path}: {what} of more than {limit:,} bytes, over the limit")
+    return b"".join(chunks)
 
 
 def json_depth(text: str) -> int:

@@ -605,3 +605,46 @@ def test_live_probes_a_corrupt_video_first(tmp_path: Path, capsys, monkeypatch) 
     assert rc == 1 and "corrupt.mp4: cannot read the video" in err, err
     assert len(err.strip().splitlines()) == 1 and "ffmpeg version" not in err
     assert not out.exists()
+
+
+# --------------------------------------------------------------------------- found by the fuzz suite
+
+
+def test_fuzz_findings_stay_fixed(tmp_path: Path) -> None:
+    """Regressions the Hypothesis suite found: each a one-line error, no big allocation."""
+    import tracemalloc
+
+    from holo_viewer.avatar.ply import load_ply
+    from holo_viewer.errors import PlyError
+    from holo_viewer.reaction.audio import read_wav, write_wav
+
+    ply = tmp_path / "noprops.ply"
+    ply.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nend_header\n\x00")
+    with pytest.raises(PlyError, match=r"noprops\.ply: element 'vertex': expected properties"):
+        load_ply(ply)  # was ZeroDivisionError
+    ply.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 1\nend_header\n\n")
+    with pytest.raises(PlyError, match=r"noprops\.ply: element 'vertex': expected properties"):
+        load_ply(ply)  # was IndexError
+    wav = write_wav(tmp_path / "a.wav", np.zeros(800, np.float32), 16000)
+    data = bytearray(wav.read_bytes())
+    at = data.index(b"data") + 4
+    data[at:at + 4] = (0x10000640).to_bytes(4, "little")  # 268 MB of samples declared in 1.6 kB
+    wav.write_bytes(bytes(data))
+    tracemalloc.start()
+    try:
+        with pytest.raises(ReactionError, match=r"a\.wav: truncated WAV file .*'data' chunk declares 268,437,056 bytes"):
+            read_wav(wav)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20
+    bad_zip = tmp_path / "method.npz"
+    with zipfile.ZipFile(bad_zip, "w") as zf:
+        zf.writestr("a.npy", b"x")
+    raw = bytearray(bad_zip.read_bytes())
+    raw[8:10] = (99).to_bytes(2, "little")  # an unknown compression method in the local header
+    cd = raw.rfind(b"PK\x01\x02")
+    raw[cd + 10:cd + 12] = (99).to_bytes(2, "little")
+    bad_zip.write_bytes(bytes(raw))
+    with pytest.raises(HoloViewerError, match=r"method\.npz: cannot read"):
+        fileio.read_npz(bad_zip)  # was NotImplementedError

@@ -155,6 +155,8 @@ def _vertex_table(path: Path, header: PlyHeader, data: bytes) -> np.ndarray:
     vert = header.elements[vi]
     if vert.has_list:
         raise PlyError(f"{path}: element 'vertex': expected scalar properties, found a list property")
+    if not vert.props:
+        raise PlyError(f"{path}: element 'vertex': expected properties (x, y, z, ...), found none")
     dup = {p for p, _ in vert.props if [q for q, _ in vert.props].count(p) > 1}
     if dup:
         raise PlyError(f"{path}: element 'vertex': duplicate properties {sorted(dup)}")

@@ -36,7 +36,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import FlameError, InputError
-from ..fileio import atomic_write
+from ..fileio import atomic_write, read_limited
 from ..validation import check_array
 
 __all__ = ["REQUIRED_KEYS", "N_JOINTS", "load_flame_arrays", "save_flame_npz", "validate_flame_arrays",
@@ -578,22 +578,10 @@ def _build_dense(shape: tuple[int, int], rows: np.ndarray, cols: np.ndarray, dat
     return out
 
 
-def _read_limited(path: Path, limit: int, error: type[Exception], what: str) -> bytes:
-    """The bytes of ``path``, refused before reading when it is larger than ``limit``."""
-    with open(path, "rb") as fh:
-        size = os.fstat(fh.fileno()).st_size
-        if size > limit:
-            raise error(f"{path}: {what} of {size:,} bytes, over the limit of {limit:,} bytes")
-        data = fh.read(limit + 1)
-    if len(data) > limit:
-        raise error(f"{path}: {what} of more than {limit:,} bytes, over the limit")
-    return data
-
-
 def _load_pkl(path: Path) -> dict[str, Any]:
     source = str(path)
     try:
-        raw = _read_limited(path, MAX_PICKLE_BYTES, FlameError, "a FLAME pickle")
+        raw = read_limited(path, MAX_PICKLE_BYTES, FlameError, "a FLAME pickle")
         data = _FlameUnpickler.loads(raw, source)
     except FlameError:
         raise

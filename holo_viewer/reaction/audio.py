@@ -159,6 +159,35 @@ def log_mel_reference(audio: np.ndarray, sample_rate: int, n_frames: int | None 
     return out
 
 
+def _check_data_chunk(p: Path) -> None:
+    """Refuse a RIFF/WAVE file with a chunk (``fmt``, ``data``, ...) declaring more bytes than the file holds.
+
+    scipy allocates the declared size before reading (a 1.6 kB file declaring 268 MB of
+    samples allocated 268 MB); checked here first, from the chunk headers alone.
+    """
+    import struct
+
+    size = p.stat().st_size
+    with open(p, "rb") as fh:
+        head = fh.read(12)
+        if len(head) < 12 or head[:4] != b"RIFF" or head[8:12] != b"WAVE":
+            return  # scipy reports what it is
+        pos = 12
+        for _ in range(1000):  # chunk headers, never the samples
+            fh.seek(pos)
+            chunk = fh.read(8)
+            if len(chunk) < 8:
+                return
+            cid, csize = chunk[:4], struct.unpack("<I", chunk[4:])[0]
+            if csize > size - pos - 8:
+                name = cid.decode("latin1")
+                raise ReactionError(f"{p}: truncated WAV file (its {name!r} chunk declares {csize:,} bytes, the "
+                                    f"file holds {size - pos - 8:,} after the chunk header)")
+            if cid == b"data":
+                return
+            pos += 8 + csize + (csize & 1)
+
+
 def read_wav(path: str | os.PathLike) -> tuple[np.ndarray, int]:
     """Read a WAV file as mono float32 in [-1, 1] and its sample rate.
 
@@ -176,6 +205,7 @@ def read_wav(path: str | os.PathLike) -> tuple[np.ndarray, int]:
     p = Path(path)
     if not p.is_file():
         raise ReactionError(f"{p}: audio file not found")
+    _check_data_chunk(p)
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", wavfile.WavFileWarning)
