@@ -243,3 +243,34 @@ def test_object_arrays_are_refused(tmp_path: Path) -> None:
     with pytest.raises(FlameError, match="object"):
         load_flame_arrays(_write(tmp_path, "obj.pkl", _model(extra=np.array([None, [1]], dtype=object))))
 
+
+
+_BATCH = textwrap.dedent("""
+    import sys
+    import numpy as np
+    from holo_viewer.avatar.gaussians import Gaussians
+    from holo_viewer.avatar.ply import save_ply
+    from holo_viewer.cli import main
+    empty = Gaussians(np.zeros((0, 3), np.float32), np.zeros((0, 4), np.float32), np.zeros((0, 3), np.float32),
+                      np.zeros(0, np.float32), np.zeros((0, 1, 3), np.float32))  # the model fails first
+    save_ply(empty, sys.argv[1] + "/avatar.ply")
+    sys.exit(main(["render-batch", sys.argv[1] + "/m.jsonl", "--out", sys.argv[1] + "/out"]))
+""")
+
+
+@pytest.mark.slow  # renders the good row in a fresh interpreter (numba compiles): ~10 s, ~22 s on a busy machine
+def test_a_bad_model_row_fails_alone_in_render_batch(tmp_path: Path) -> None:
+    """The tampered pickle as one row's flame_model: that row fails, the next renders, summary.json is written."""
+    _write(tmp_path, "evil.pkl", _model(v_template=_tampered_sparse((40, 3), [0, 1, 100_000_000])))
+    rows = [{"id": "evil", "avatar": "avatar.ply", "flame_model": "evil.pkl", "frames": 1, "tile_scale": 0.05,
+             "outputs": ["quilt_png"]},
+            {"id": "good", "frames": 1, "tile_scale": 0.05, "outputs": ["quilt_png"]}]
+    (tmp_path / "m.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run([sys.executable, "-c", _BATCH, str(tmp_path)], capture_output=True, text=True, env=env,
+                          timeout=300)
+    assert proc.returncode in (0, 1), (proc.returncode, proc.stderr[-2000:])  # 139 before: a segfault
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    status = {j["id"]: (j["status"], j["error"]) for j in summary["jobs"]}
+    assert status["good"][0] == "done"
+    assert status["evil"][0] == "failed" and "evil.pkl" in status["evil"][1] and "indices" in status["evil"][1]
