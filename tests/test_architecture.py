@@ -7,7 +7,7 @@
     build      assets_build/                      -> pipeline, stage packages, base (makes the shipped assets)
     pipeline   pipeline/, testing.py              -> stage packages, base
     stages     flame/ avatar/ render/ display/ reaction/ tracking/ behaviour/  -> base (+ the edges in STAGE_EDGES)
-    base       errors validation fileio geometry camera images (_uint8: its compiled pass) cache offscreen
+    base       errors validation fileio media geometry camera images (_uint8: its compiled pass) cache offscreen
 
 No import runs back up the layers, and only ``pipeline/`` chains the stages: no other module
 imports both a face stage (``reaction``, ``flame``, the avatar rigs) and the renderer, or both
@@ -26,7 +26,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "holo_viewer"
 
-BASE = {"errors", "validation", "fileio", "geometry", "camera", "images", "_uint8", "cache", "offscreen", "__init__"}
+BASE = {"errors", "validation", "fileio", "media", "geometry", "camera", "images", "_uint8", "cache", "offscreen",
+        "__init__"}
 STAGE_PKGS = {"flame", "avatar", "render", "display", "reaction", "tracking", "behaviour"}
 #: stage -> stages it may import: the rigged avatar is bound to FLAME triangles, the reaction model
 #: speaks FLAME expressions (AU map), the renderer reads the Gaussians container, and the face tracker
