@@ -168,8 +168,131 @@ def gpu_stages(live: NativeFrameRenderer, synth: NativeFrameRenderer, frames: li
             "note": "each stage alone between synchronisations, median ms"}
 
 
+class _GroupOnly(Exception):
+    """--group-only: the group sweep's records, past the other modes."""
+
+    def __init__(self, records: list) -> None:
+        super().__init__("group only")
+        self.records = records
+
+
 def load() -> float:
     return os.getloadavg()[0]
+
+
+#: the group sweep's face: a pain flare (fast onset, hold, easing) with a nod, one level per frame
+FLARE_PAIN = (0.0, 0.9, 0.9, 0.6, 0.3, 0.0)
+FLARE_NOD = (0.0, 0.12, 0.05, -0.08, 0.0, 0.0)
+#: the tracked viewers of the group sweep (angle deg, distance m): 1 = the first, 4 = all
+GROUP_VIEWERS = ((6.0, 0.6), (-15.0, 0.5), (-4.0, 0.75), (16.0, 0.9))
+
+
+def flare_frames(pipe: Pipeline, pain=FLARE_PAIN, nod=FLARE_NOD) -> list:
+    """Deformed Gaussians of a neutral face (primes the kept state), then one per ``pain`` / ``nod``
+    (head pitch, radians) level: the face changes between every two frames."""
+    out = []
+    for p, n in zip((0.0,) + tuple(pain), (0.0,) + tuple(nod)):
+        pipe.set_face(FaceControls(pain=float(p), rotation=np.array([float(n), 0.0, 0.0])))
+        out.append(pipe.gaussians())
+    return out
+
+
+def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sheet: str | None = None) -> list[dict]:
+    """Issue 37: every live mode judged where a group stands. A pain flare with a nod
+    (:func:`flare_frames`) is played through each mode with 0, 1 and 4 tracked viewers; each frame
+    is compared with the *present* frame's full quilt, at every position of
+    :class:`~holo_viewer.display.eyes.ConeSweep` (single eyes at -20..20 deg x 0.4, 1.0 m) and at the
+    tracked viewers' eyes. Records: ``mode``, ``viewers``, ``seconds_per_frame`` (median),
+    ``tracked_eye_db`` (worst tracked eye, frames evaluated), ``cone_worst_db``, ``cone_median_db``.
+    ``tracked`` serves the first viewer only (the old default collapsed the faces to the nearest).
+    ``sheet``: a PNG of what the tracked viewer's left eye and bystanders at 0, -15, +15 deg (0.6 m)
+    see at three moments of the flare, for ``tracked`` (rows 1-3) and ``group`` (rows 4-6)."""
+    from holo_viewer.display.eyes import ConeSweep, TrackedViewer
+
+    cams = pipe.cameras()
+    frames = flare_frames(pipe)
+    display = VirtualDisplay(cal)
+    full = NativeFrameRenderer(cal, cams)
+    refs = [full.frame(g, mode="full_quilt").native.copy() for g in frames]
+    evaluated = [2, 4] if quick else [2, 3, 4, 6]  # onset, hold, easing, end (frame 0 primes, 1 is still neutral)
+    t0 = time.perf_counter()
+    cone = ConeSweep(display)
+    print(f"group sweep: {len(cone.positions)} cone positions ({time.perf_counter() - t0:.1f} s to build), "
+          f"frames {evaluated} of {len(frames) - 1}, load {load():.2f}", flush=True)
+    ref_seen = {k: [cone.see(refs[k], i) for i in range(len(cone.positions))] for k in evaluated}
+    all_viewers = [TrackedViewer(a, d) for a, d in GROUP_VIEWERS]
+    runs = [("group", 0), ("group", 1), ("group", 4), ("tracked", 1), ("tracked", 4), ("all_views", 0)]
+    records, shown = [], {}
+    moments = (1, 2, 4)  # before, onset, easing
+    for mode, n in runs:
+        viewers = all_viewers[:n]
+        live = NativeFrameRenderer(cal, cams)
+        arg = (viewers[0] if viewers else None) if mode == "tracked" else (viewers or None)
+        live.frame(frames[0], arg, mode)  # everything once (the kept state of incremental modes)
+        live.prepare_tracked()
+        live.prepare_all_views()
+        secs, natives, loads = [], {}, []
+        for k in range(1, len(frames)):
+            f = live.frame(frames[k], arg, mode)
+            secs.append(f.seconds)
+            loads.append(load())
+            if k in evaluated or k in moments:
+                natives[k] = f.native.copy()
+        cone_db = np.array([[eyes.head_psnr(ref_seen[k][i], cone.see(natives[k], i)) for i in range(len(cone.positions))]
+                            for k in evaluated])
+        eye_db = min((eyes.eye_psnr(display, refs[k], natives[k], v) for k in evaluated for v in viewers),
+                     default=None)
+        worst = cone_db.min(axis=0)
+        s = float(np.median(secs))
+        records.append({"mode": mode, "viewers": n, "served": 1 if mode == "tracked" else n,
+                        "seconds_per_frame": s, "best_seconds": float(min(secs)),
+                        "tracked_eye_db": eye_db, "cone_worst_db": float(worst.min()),
+                        "cone_median_db": float(np.median(cone_db)),
+                        "cone_worst_position": cone.positions[int(np.argmin(worst))],
+                        "cone_worst_by_position_db": {f"{a:+.0f} deg {d:.1f} m": float(w)
+                                                      for (a, d), w in zip(cone.positions, worst)},
+                        "load_1min": float(np.mean(loads)), "frames_evaluated": evaluated,
+                        "face": "pain flare " + "/".join(f"{p:g}" for p in FLARE_PAIN) + " with a nod",
+                        "viewer_positions": [list(v) for v in GROUP_VIEWERS[:n]]})
+        print(f"{mode:9s} viewers {n}  {s:.3f} s/frame (best {min(secs):.3f})  tracked eyes "
+              f"{'-' if eye_db is None else f'{eye_db:.1f}'} dB  cone worst {worst.min():.1f} dB "
+              f"(at {cone.positions[int(np.argmin(worst))]}), median {np.median(cone_db):.1f} dB, "
+              f"load {np.mean(loads):.2f}", flush=True)
+        if n == 1 and mode in ("tracked", "group"):
+            shown[mode] = {k: natives[k] for k in moments}
+    if sheet and len(shown) == 2:
+        write_sheet(sheet, display, shown, all_viewers[0], moments, refs)
+        print(f"wrote {sheet}", flush=True)
+    return records
+
+
+def write_sheet(path: str, display: VirtualDisplay, shown: dict, viewer, moments: tuple, refs: list) -> None:
+    """'tracked eye | bystander 0 | -15 | +15 deg' (0.6 m) per moment and mode, each labelled with its
+    PSNR against the present frame seen from there; the head region of each perceived image."""
+    from PIL import Image, ImageDraw
+
+    from holo_viewer.display.eyes import eye_positions
+
+    spots = [("tracked eye", *eye_positions(viewer)[0]), ("bystander 0", 0.0, 0.6),
+             ("bystander -15", -15.0, 0.6), ("bystander +15", 15.0, 0.6)]
+    rows = []
+    for mode in ("tracked", "group"):
+        for k in moments:
+            row = []
+            for name, a, d in spots:
+                r, t = display.see_many([refs[k], shown[mode][k]], a, d)
+                db = eyes.head_psnr(r, t)
+                h, w = t.shape[:2]
+                crop = t[int(h * 0.12):int(h * 0.62), int(w * 0.2):int(w * 0.8)]
+                img = Image.fromarray((np.clip(crop, 0, 1) * 255).astype(np.uint8))
+                ImageDraw.Draw(img).text((4, 4), f"{mode} frame {k} (pain {FLARE_PAIN[k - 1]:g})\n{name}: {db:.1f} dB",
+                                         fill=(255, 255, 0))
+                row.append(np.asarray(img))
+            rows.append(np.concatenate(row, axis=1))
+    sheet = np.concatenate(rows, axis=0)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(path, "wb") as fh:
+        Image.fromarray(sheet).save(fh, format="PNG")
 
 
 def run_mode(live: NativeFrameRenderer, frames: list, mode: str, viewers: list | None = None,
@@ -195,13 +318,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gpu-only", action="store_true",
                     help="with --device cuda: only the full-quality reference on the CPU, then the GPU records "
                          "(what a lent GPU machine runs first)")
-    ap.add_argument("--json", default="bench/results/live_frame.json", help="output JSON file")
+    ap.add_argument("--json", default=None,
+                    help="output JSON file (default bench/results/live_frame.json; --group-only: live_frame_group.json)")
+    ap.add_argument("--group-only", action="store_true",
+                    help="only the group sweep (issue 37): every mode judged at every position of the cone")
+    ap.add_argument("--sheet", default="docs/images/live_group_sheet.png",
+                    help="the group sweep's picture (tracked eye and bystanders at three moments of a flare)")
     ap.add_argument("--frames", type=int, default=None,
                     help="frames per mode (default 6 quick, 10 full; the median of 4 was carried by one cold frame)")
     ap.add_argument("--ref-views", type=int, default=None, help="views checked against float64 (1 quick, 2)")
     ap.add_argument("--vtk-views", type=int, default=None,
                     help="VTK views timed one call each and extrapolated; default: the whole pass")
     args = ap.parse_args(argv)
+    if args.json is None:
+        args.json = "bench/results/live_frame_group.json" if args.group_only else "bench/results/live_frame.json"
     n_frames = args.frames or (6 if args.quick else 10)
     ref_views = args.ref_views if args.ref_views is not None else (1 if args.quick else 2)
     vtk_views = args.vtk_views if args.vtk_views is not None else 10**6  # default: the whole pass
@@ -211,6 +341,8 @@ def main(argv: list[str] | None = None) -> int:
         cal = DisplayCalibration.load(None)
         pipe = Pipeline(calibration=cal)
         cams = pipe.cameras()
+        if args.group_only:
+            raise _GroupOnly(group_sweep(cal, pipe, args.quick, args.sheet))
         params: list = []
         frames = frames_of_animation(pipe, n_frames + 1, params)  # frame 0 primes the kept state
         display = VirtualDisplay(cal)
@@ -518,6 +650,10 @@ def main(argv: list[str] | None = None) -> int:
             except Exception as exc:  # no CUDA, no gsplat, or a failure there: say why, keep the CPU records
                 records.append({"mode": "all_views", "backend": "gsplat", "skipped": f"{type(exc).__name__}: {exc}"})
                 print(f"GPU skipped: {exc}", flush=True)
+        if not args.gpu_only:
+            records += group_sweep(cal, Pipeline(calibration=cal), args.quick, args.sheet)
+    except _GroupOnly as only:
+        records = only.records
     except HoloViewerError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -1,0 +1,104 @@
+"""Group frames (issue 37): every position of the viewing cone sees the present face.
+
+The default live frame (``auto`` -> ``group``) renders every view (every 5th, the others synthesized
+by depth) and the tracked viewers' exact eye slices over them. Judged as a person standing there
+sees it (:class:`holo_viewer.display.eyes.ConeSweep`, single eyes, head region) against the *present*
+frame's full quilt. Tolerances (stated once):
+
+* ``ConeSweep.see`` equals ``VirtualDisplay.see`` within 2e-4 per pixel (weights below 1e-4 of the
+  strongest are left out);
+* a pain flare (with a nod) shown to one tracked viewer at +6 deg is seen at -15, 0 and +15 deg
+  within one frame at >= 35 dB (the issue's cone target) and at the tracked eyes at >= 40 dB; the old
+  eyes-only default (``tracked``) is checked to fail there (< 25 dB: bystanders saw the neutral face);
+* comfort: with the face still, consecutive frames at fixed positions are identical without a tracked
+  viewer, and agree to >= 40 dB while a tracked viewer walks past. The issue's target is 48 dB; measured
+  41.6 dB here, 43.7-45.6 dB with full-size views, at 0 and -3 deg (the eyes' slices and the synthesized fill differ by that much where
+  they meet): **not met**.
+
+Views at tile_scale 0.25 (105x140) keep the renders cheap; the optics are the Portrait's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from holo_viewer.display.calibration import DisplayCalibration
+from holo_viewer.display.eyes import ConeSweep, TrackedViewer, eye_psnr
+from holo_viewer.display.simulate import VirtualDisplay
+from holo_viewer.errors import InputError
+from holo_viewer.pipeline import FaceControls, Pipeline, ViewSettings
+from holo_viewer.pipeline.live import NativeFrameRenderer
+
+BYSTANDERS = [(-15.0, 0.6), (0.0, 0.6), (15.0, 0.6)]
+
+
+@pytest.fixture(scope="module")
+def rig():
+    cal = DisplayCalibration.load(None)
+    pipe = Pipeline(calibration=cal, view=ViewSettings(tile_scale=0.25))
+    neutral = pipe.gaussians()
+    pipe.set_face(FaceControls(pain=0.9, rotation=np.array([0.1, 0.0, 0.0])))
+    flare = pipe.gaussians()
+    display = VirtualDisplay(cal)
+    return {"cal": cal, "cams": pipe.cameras(), "neutral": neutral, "flare": flare, "display": display,
+            "cone": ConeSweep(display, BYSTANDERS)}
+
+
+def test_cone_sweep_sees_what_the_virtual_display_sees(rig):
+    rng = np.random.default_rng(3)
+    native = rng.integers(0, 256, (2048, 1536, 3), dtype=np.uint8)
+    cone = rig["cone"]
+    for k in (0, 2):
+        a, d = cone.positions[k]
+        assert np.abs(cone.see(native, k) - rig["display"].see(native, a, d)).max() < 2e-4
+    with pytest.raises(InputError, match="native: expected shape"):
+        cone.see(native[:10], 0)
+
+
+@pytest.mark.slow
+def test_bystanders_see_a_pain_flare_within_one_frame(rig):
+    cal, cams, cone = rig["cal"], rig["cams"], rig["cone"]
+    ref = NativeFrameRenderer(cal, cams).frame(rig["flare"], mode="full_quilt").native.copy()
+    viewer = TrackedViewer(6.0, 0.6)
+    seen = {}
+    for mode in ("auto", "tracked"):
+        live = NativeFrameRenderer(cal, cams)
+        live.frame(rig["neutral"], viewer, mode)
+        live.frame(rig["neutral"], viewer, mode)
+        f = live.frame(rig["flare"], viewer, mode)  # the first frame of the flare
+        seen[mode] = (f.mode, cone.psnr(ref, f.native), eye_psnr(rig["display"], ref, f.native, viewer))
+    mode, cone_db, eye_db = seen["auto"]
+    assert mode == "group"
+    assert cone_db.min() >= 35.0, dict(zip(BYSTANDERS, cone_db))
+    assert eye_db >= 40.0
+    # the eyes-only frames this replaced: the tracked eyes saw the flare, the bystanders did not
+    _, old_cone, old_eye = seen["tracked"]
+    assert old_eye >= 40.0 and old_cone.max() < 25.0, old_cone
+
+
+@pytest.mark.slow
+def test_still_face_frames_agree_at_fixed_positions(rig):
+    cal, cams, display = rig["cal"], rig["cams"], rig["display"]
+    fixed = ConeSweep(display, [(0.0, 0.6), (-3.0, 0.6)])
+    live = NativeFrameRenderer(cal, cams)
+    a = live.frame(rig["neutral"]).native.copy()
+    b = live.frame(rig["neutral"]).native
+    assert np.array_equal(a, b)  # no viewer: nothing changes
+    prev, worst = None, np.inf
+    for angle in np.arange(-6.0, 4.6, 1.5):  # a tracked viewer walks past
+        f = live.frame(rig["neutral"], TrackedViewer(float(angle), 0.6))
+        if prev is not None:
+            worst = min(worst, float(fixed.psnr(prev, f.native).min()))
+        prev = f.native.copy()
+    assert worst >= 40.0, worst
+
+
+def test_group_frames_take_up_to_six_viewers_and_name_a_bad_one(rig):
+    live = NativeFrameRenderer(rig["cal"], rig["cams"])
+    viewers = [TrackedViewer(a, 0.6) for a in (-20, -12, -4, 4, 12, 20, 25)]
+    f = live.frame(rig["neutral"], viewers)
+    assert f.mode == "group"
+    assert f.rendered_fraction == pytest.approx((11 + 12) / 48)  # 11 source views + 6 viewers' 12 slices
+    with pytest.raises(InputError, match=r"viewers\[1\]: expected a holo_viewer.display.eyes.TrackedViewer"):
+        live.frame(rig["neutral"], [viewers[0], (5.0, 0.6)])
