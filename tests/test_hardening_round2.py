@@ -648,3 +648,23 @@ def test_fuzz_findings_stay_fixed(tmp_path: Path) -> None:
     bad_zip.write_bytes(bytes(raw))
     with pytest.raises(HoloViewerError, match=r"method\.npz: cannot read"):
         fileio.read_npz(bad_zip)  # was NotImplementedError
+
+
+def test_live_session_video_cut_short_is_never_renamed_into_place(tmp_path: Path, monkeypatch) -> None:
+    """A full disk while the session video is finished (here: one frame short) is an error, not a corrupt video."""
+    from holo_viewer import media
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveSession, LiveSessionConfig
+    from holo_viewer.live.session import NATIVE_VIDEO
+    from holo_viewer.pipeline.live_support import SyntheticSpeaker
+
+    real = media.count_video_frames
+    monkeypatch.setattr(media, "count_video_frames", lambda p: real(p) - 1)
+    syn = SyntheticSpeaker(1.0)
+    out = tmp_path / "s"
+    session = LiveSession(LiveSessionConfig(out=str(out), tile_scale=0.1, behaviour=None, frames=3),
+                          sources.ArrayAudio(syn.waveform), None, syn)
+    with pytest.raises(ExportError, match=rf"{NATIVE_VIDEO}: ffmpeg wrote 2 of 3 frames"):
+        session.run(_FakeRenderer())
+    assert not (out / NATIVE_VIDEO).exists() and not [p for p in out.iterdir() if p.name.startswith(".")]
+    assert (out / "session.json").exists()  # the session itself is kept
