@@ -311,6 +311,8 @@ def test_auto_render_mode_renders_group_frames_with_the_tracked_face():
     r.render(listener, 0.3, (), 5.0, 0.7, False)
     assert calls[0][1] == "group" and calls[0][0].angle_deg == 5.0 and calls[0][0].distance_m == 0.7
     assert calls[1] == (None, "group")
+    r.render(listener, 0.3, (), 5.0, 0.7, True, others=((-15.0, 0.9),))  # every face the tracker passes on
+    assert calls[2][1] == "group" and [(v.angle_deg, v.distance_m) for v in calls[2][0]] == [(5.0, 0.7), (-15.0, 0.9)]
     from holo_viewer.errors import InputError
 
     with pytest.raises(InputError, match="auto"):

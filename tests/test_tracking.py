@@ -173,6 +173,11 @@ def test_viewer_pose_geometry_and_easing(tmp_path):
     assert g.angle_deg == pytest.approx(0.5 * (a.min() + a.max()))
     nearest = ViewerTracker(mount).update(two, 0.0)
     assert nearest.angle_deg == pytest.approx(a[1])
+    # every face is passed on (group live frames serve each): the others, nearest first
+    d = np.hypot([0.3, 0.2], [1.0, 0.7])
+    assert np.ravel(nearest.others) == pytest.approx([a[0], d[0]])
+    assert np.ravel(g.others) == pytest.approx([a[1], d[1], a[0], d[0]])
+    assert ViewerTracker(mount).update(np.zeros((0, 3)), 1.0).others == ()
     # mount JSON
     path = tmp_path / "mount.json"
     path.write_text(json.dumps({"position_m": [0, 0.12, 0.01], "hfov_deg": 70}))

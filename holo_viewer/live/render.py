@@ -151,9 +151,12 @@ class LiveAvatarRenderer:
                 getattr(self._live, prepare)()
 
     def render(self, listener: Mapping[str, np.ndarray], pain: float, named: tuple[tuple[str, float], ...],
-               viewer_angle_deg: float, viewer_distance_m: float, viewer_tracked: bool = True) -> RenderedFrame:
+               viewer_angle_deg: float, viewer_distance_m: float, viewer_tracked: bool = True,
+               others: tuple[tuple[float, float], ...] = ()) -> RenderedFrame:
         """One frame: FLAME arrays of one listener frame (``expr``, ``jaw_pose``, ``rotation``, ...).
-        ``viewer_tracked``: a face is tracked (mode ``auto`` renders for its eyes, else all views)."""
+        ``viewer_tracked``: a face is tracked (mode ``auto`` adds exact images for its eyes to every
+        view); ``others``: the (angle, distance) of the other faces seen
+        (:attr:`holo_viewer.tracking.viewer.ViewerPose.others`), served too by group frames (up to 6 in all)."""
         import time
 
         from ..pipeline import FaceControls
@@ -176,6 +179,9 @@ class LiveAvatarRenderer:
                 mode = "all_views" if self.backend == "gsplat" else s.tracked if viewer_tracked else s.untracked
                 viewer = (TrackedViewer(angle_deg=angle, distance_m=distance)
                           if mode != "all_views" and (viewer_tracked or mode != "group") else None)
+                if mode == "group" and viewer is not None and others:
+                    viewer = [viewer] + [TrackedViewer(angle_deg=float(np.clip(a, -60, 60)),
+                                                       distance_m=float(np.clip(d, 0.05, 20.0))) for a, d in others]
                 native = self._live.frame(p.gaussians(), viewer, mode).native.copy()
         else:
             p.set_view(viewer_angle=angle, viewer_distance=distance)

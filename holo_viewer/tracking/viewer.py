@@ -153,6 +153,8 @@ def viewer_position(landmarks: np.ndarray, K: np.ndarray, yaw_rad: float = 0.0, 
 #: (at most 1 / (2 pi 1 Hz) = 0.16 s) plus a frame's latency stay under it; a stalled frame must
 #: not throw the views far ahead of the eyes
 MAX_LEAD_S = 0.3
+#: ViewerPose.others keeps at most this many faces (group live frames serve up to 6 viewers)
+MAX_OTHERS = 5
 
 
 @dataclass(frozen=True)
@@ -161,6 +163,9 @@ class ViewerPose:
 
     ``rate``: how fast the smoothed pose moves ((degrees/s, m/s), low-passed), ``lag_s``: how far
     the smoothing trails a steady motion (seconds, per component); zero when no face drives it.
+    ``others``: the (angle, distance) of the other faces seen in this webcam frame, unsmoothed,
+    nearest first, at most :data:`MAX_OTHERS` (mode ``nearest``: every face but the one the pose
+    follows; ``group``: every face, since the pose follows none). Group live frames serve each.
     """
 
     angle_deg: float
@@ -168,6 +173,7 @@ class ViewerPose:
     tracked: bool
     rate: tuple[float, float] = (0.0, 0.0)
     lag_s: tuple[float, float] = (0.0, 0.0)
+    others: tuple[tuple[float, float], ...] = ()
 
     def predicted(self, lead_s: float, max_lead_s: float = MAX_LEAD_S) -> "ViewerPose":
         """The pose ``lead_s`` seconds after the webcam frame it came from (e.g. when the frame
@@ -230,13 +236,17 @@ class ViewerTracker:
         self._last_seen: float | None = None
         self._t: float | None = None
 
-    def _target(self, positions_panel: np.ndarray) -> np.ndarray:
-        ang = np.degrees(np.arctan2(positions_panel[:, 0], positions_panel[:, 2]))
-        dist = np.linalg.norm(positions_panel, axis=1)
-        if self.config.mode == "nearest":
-            i = int(np.argmin(dist))
-            return np.array([ang[i], dist[i]])
-        return np.array([0.5 * (ang.min() + ang.max()), float(dist.mean())])
+    def _target(self, positions_panel: np.ndarray) -> tuple[np.ndarray, tuple[tuple[float, float], ...]]:
+        """The pose to follow and the other faces (see :class:`ViewerPose`), clamped."""
+        c = self.config
+        ang = np.clip(np.degrees(np.arctan2(positions_panel[:, 0], positions_panel[:, 2])),
+                      -c.max_angle_deg, c.max_angle_deg)
+        dist = np.clip(np.linalg.norm(positions_panel, axis=1), *c.distance_range_m)
+        order = np.argsort(dist, kind="stable")
+        faces = [(float(ang[i]), float(dist[i])) for i in order]
+        if c.mode == "nearest":
+            return np.array(faces[0]), tuple(faces[1:1 + MAX_OTHERS])
+        return np.array([0.5 * (ang.min() + ang.max()), float(dist.mean())]), tuple(faces[:MAX_OTHERS])
 
     def update(self, positions_cam: np.ndarray, t: float) -> ViewerPose:
         """Pose at time ``t`` (seconds) from the eye midpoints (F, 3) of the faces seen (F may be 0)."""
@@ -245,7 +255,7 @@ class ViewerTracker:
         t = check_finite_scalar(t, "t")
         lo, hi = c.distance_range_m
         if len(pos) and np.isfinite(pos).all():
-            target = self._target(self.mount.to_panel(pos))
+            target, others = self._target(self.mount.to_panel(pos))
             target = np.array([np.clip(target[0], -c.max_angle_deg, c.max_angle_deg), np.clip(target[1], lo, hi)])
             before, was_tracked = self._pose, self._last_seen is not None and self._last_seen == self._t
             self._pose = self._filter(target, t)
@@ -272,4 +282,5 @@ class ViewerTracker:
             return ViewerPose(angle_deg=float(self._pose[0]), distance_m=float(self._pose[1]), tracked=False)
         lag = self._filter.lag_s()
         return ViewerPose(angle_deg=float(self._pose[0]), distance_m=float(self._pose[1]), tracked=True,
-                          rate=(float(self._rate[0]), float(self._rate[1])), lag_s=(float(lag[0]), float(lag[1])))
+                          rate=(float(self._rate[0]), float(self._rate[1])), lag_s=(float(lag[0]), float(lag[1])),
+                          others=others)
