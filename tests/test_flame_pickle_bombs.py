@@ -203,6 +203,10 @@ def test_array_reconstruct_and_file_size_are_budgeted(tmp_path: Path, monkeypatc
     data = b"cnumpy._core.multiarray\n_reconstruct\n(cnumpy\nndarray\n(I4000000000\ntC\x01btR."
     with pytest.raises(FlameError, match="budget"):
         load_flame_arrays(_write(tmp_path, "rec.pkl", data))
+    monkeypatch.setattr(flame_io, "LOAD_BUDGET_BYTES", 10_000)  # list("x" * 1000): an object per character
+    data = b"cbuiltins\nlist\n(X" + (1000).to_bytes(4, "little") + b"x" * 1000 + b"tR."
+    with pytest.raises(FlameError, match=r"list\(\) of 1000 characters .*budget"):
+        load_flame_arrays(_write(tmp_path, "chars.pkl", data))
     monkeypatch.setattr(flame_io, "MAX_PICKLE_BYTES", 1000)
     path = _write(tmp_path, "big.pkl", _model())
     with pytest.raises(FlameError, match=r"big\.pkl: .*bytes.*limit"):

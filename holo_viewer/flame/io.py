@@ -307,6 +307,10 @@ class _FlameUnpickler(pickle._Unpickler):  # type: ignore[name-defined]  # the p
                 self._charge(int(args[0]), f"{tp.__name__}({args[0]})")
             elif tp is str and args and not isinstance(args[0], (str, bytes, int, float)):
                 raise self._refuse(f"str() of a {type(args[0]).__name__}")
+            if args and isinstance(args[0], (str, bytes, bytearray)):
+                # list("...") makes one object per character: 64 bytes each, charged like any container
+                per_item = 64 if tp in (list, tuple, set, frozenset) else 1
+                self._charge(per_item * len(args[0]), f"{tp.__name__}() of {len(args[0])} characters")
             if args and not isinstance(args[0], (str, bytes, bytearray, int)):
                 items = args[0]
                 if not isinstance(items, (list, tuple, dict, set, frozenset, collections.OrderedDict)):
