@@ -4,7 +4,15 @@ Renders (once, cached) a clip of the default head speaking (wav + mp4 from the s
 then replays it through ``LiveSession`` twice in one process:
 
 * ``no-render``: tracker + reaction threads only (the baseline: what the stream costs alone);
-* ``render``: the same plus the renderer at ``--tile-scale`` (today's fast CPU path) in the main thread.
+* ``render``: the same plus the renderer at ``--tile-scale`` (today's fast CPU path) in the main thread,
+  recording the native video as ``live`` does; then ``render_warm``: the same again in this process.
+
+With rendering, also (issue 37): ``displayed_fps`` (displayed frames over the session's wall time,
+recording on, with the load average at start and end), ``visible_change_ms`` (onset to the first
+displayed frame at or after the reflecting one whose native image changed by > 0.5 levels RMS
+from the frame before), ``first_frame_s`` (renderer built + session started -> first frame handed
+to the loop; cold in the first run, warm in the second) and ``quit_s`` (last frame -> the session's
+``run`` returned: flush and joins).
 
 Reported per run: speech-onset -> display latency (median, p95; an onset is the first 25 fps frame
 whose RMS exceeds -35 dBFS after >= 0.3 s below it; a displayed frame reflects it when the reaction
@@ -62,18 +70,70 @@ def onset_latency(tracks: dict, onsets: list[int], k: int) -> list[float]:
     return out
 
 
-def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: str = "auto") -> dict:
+class TimedRenderer:
+    """A LiveAvatarRenderer as the loop sees it, noting when each frame is handed back and how much
+    its native image changed from the frame before (RMS, 8-bit levels, every 4th pixel): when the
+    first frame came and when a change became visible."""
+
+    def __init__(self, renderer) -> None:
+        self._r = renderer
+        self.done: list[float] = []  # perf_counter when each frame was handed to the loop
+        self.change: list[float] = []  # RMS change of the native image from the previous frame
+        self._prev = None
+
+    def __getattr__(self, name):
+        return getattr(self._r, name)
+
+    def render(self, *args, **kwargs):
+        res = self._r.render(*args, **kwargs)
+        if res.native is not None:
+            cur = res.native[::4, ::4].astype(np.float32)
+            self.change.append(float("inf") if self._prev is None else
+                               float(np.sqrt(np.mean((cur - self._prev) ** 2))))
+            self._prev = cur
+        self.done.append(time.perf_counter())
+        return res
+
+
+#: RMS change of the native image (8-bit levels, every 4th pixel) that counts as visible
+VISIBLE_RMS = 0.5
+
+
+def visible_latency(tracks: dict, onsets: list[int], k: int, change: list[float]) -> list[float]:
+    """Seconds from each onset to the first displayed frame at or after the one whose reaction window
+    saw it (:func:`onset_latency`) whose native image changed visibly (> :data:`VISIBLE_RMS`) from
+    the frame displayed before it."""
+    disp_t, disp_f = tracks["display_time_s"], tracks["display_frame"]
+    ch = np.asarray(change[:len(disp_t)])
+    out = []
+    for o in onsets:
+        ok = ((disp_f // k) * k - 1 >= o)[:len(ch)] & (ch > VISIBLE_RMS)
+        if ok.any():
+            out.append(float(disp_t[np.argmax(ok)] - o / 25.0))
+    return out
+
+
+def pct(x, q):
+    return None if not len(x) else round(float(np.percentile(x, q)), 1)
+
+
+def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: str = "auto",
+                record: bool = False) -> dict:
+    """One replayed session; ``record``: the session writes its native video too (as ``live`` does)."""
     from holo_viewer.live import sources
     from holo_viewer.live.loop import LiveSessionConfig, LiveSession
     from holo_viewer.live.render import LiveAvatarRenderer
     from holo_viewer.reaction.audio import read_wav
 
-    cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=False, flush_s=60.0)
+    load_start = os.getloadavg()[0]
+    t_start = time.perf_counter()
+    cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=record, flush_s=60.0)
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
-    renderer = LiveAvatarRenderer(tile_scale=tile_scale, mode=mode) if render else None
+    renderer = TimedRenderer(LiveAvatarRenderer(tile_scale=tile_scale, mode=mode)) if render else None
     t0 = time.perf_counter()
     summary = session.run(renderer)
-    wall = time.perf_counter() - t0
+    t_end = time.perf_counter()
+    wall = t_end - t0
     with np.load(out / "tracks.npz") as z:
         tracks = {k: z[k] for k in z.files}
     wave, _ = read_wav(files["wav"])
@@ -82,10 +142,16 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     n = len(tracks["time_s"])
     shown = len(set(tracks["display_frame"].tolist()))
 
-    def pct(x, q):
-        return None if not len(x) else round(float(np.percentile(x, q)), 1)
-
-    return {
+    vis = visible_latency(tracks, onsets, 8, renderer.change) if render else []
+    timing = {}
+    if render and renderer.done:
+        timing = {"first_frame_s": round(renderer.done[0] - t_start, 2),  # renderer built + session started
+                  "quit_s": round(t_end - renderer.done[-1], 2),  # last frame -> run() returned (flush, joins)
+                  "displayed_fps": round(shown / wall, 2), "recording": record,
+                  "visible_change_ms_median": pct(1000 * np.array(vis), 50),
+                  "visible_change_ms_p95": pct(1000 * np.array(vis), 95), "onsets_visible": len(vis),
+                  "load_1min_start": round(load_start, 2), "load_1min_end": round(os.getloadavg()[0], 2)}
+    return {**timing,
         "render": render, "tile_scale": tile_scale, "render_mode": mode, "wall_s": round(wall, 2), "frames": n,
         "onsets": len(onsets), "onsets_reflected": len(lat),
         "onset_to_display_ms_median": pct(1000 * np.array(lat), 50), "onset_to_display_ms_p95": pct(1000 * np.array(lat), 95),
@@ -180,7 +246,10 @@ def main() -> int:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for render in (False, True):
-            rows.append(run_session(files, Path(tmp) / f"s{int(render)}", render, args.tile_scale, args.render_mode))
+            rows.append(run_session(files, Path(tmp) / f"s{int(render)}", render, args.tile_scale, args.render_mode,
+                                    record=render))
+        # the same again in this process: the renderer's tables and kernels are warm (first frame, warm)
+        warm = run_session(files, Path(tmp) / "s2", True, args.tile_scale, args.render_mode, record=True)
         rss = rss_run(args.rss_seconds, Path(tmp) / "rss") if args.rss_seconds > 0 else None
     base, full = rows
     ratio = (full["reaction_ms_per_window_median"] or 0) / max(base["reaction_ms_per_window_median"] or 1e-9, 1e-9)
@@ -193,16 +262,25 @@ def main() -> int:
     for k in keys:
         print(f"{k:34s} {str(base[k]):>12s} {str(full[k]):>12s}")
     print(f"reaction ms/window, render vs no-render: x{ratio:.2f}")
+    for name, row in (("cold", full), ("warm", warm)):
+        print(f"{name}: {row['displayed_fps']} displayed fps with recording (load {row['load_1min_start']} -> "
+              f"{row['load_1min_end']}), render {row['render_ms_median']} ms, visible change "
+              f"{row['visible_change_ms_median']} ms (p95 {row['visible_change_ms_p95']}, {row['onsets_visible']} onsets), "
+              f"first frame {row['first_frame_s']} s, quit {row['quit_s']} s")
     print(f"landmark fit ms (warm median / p95, cold median): {fit['fit_ms_warm_median']} / {fit['fit_ms_warm_p95']}, "
           f"{fit['fit_ms_cold_median']}")
     if rss:
         print(f"RSS over a {rss['seconds']:g} s synthetic session: {rss['rss_mb_after_10s']} -> {rss['rss_mb_end']} MB "
               f"(growth {rss['rss_growth_mb']} MB), late windows {rss['late_reaction_windows']}/{rss['reaction_windows']}")
     result = {"config": vars(args), "load_average": load, "cores": os.cpu_count(), "no_render": base, "render": full,
+              "render_warm": warm,
               "reaction_window_ratio_render_vs_baseline": round(ratio, 2), "fit": fit, "rss": rss}
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(result, indent=2))
+        from holo_viewer.fileio import atomic_write
+
+        with atomic_write(args.json, "w") as fh:
+            json.dump(result, fh, indent=2)
         print(f"wrote {args.json}")
     return 0
 
