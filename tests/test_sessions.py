@@ -158,3 +158,133 @@ def test_pause_key_stops_the_clock_and_shows_paused(tmp_path: Path) -> None:
     paused = window.shown[3]  # shown on the pause: the last frame with PAUSED across its middle
     assert not np.array_equal(paused, window.shown[2])
     assert np.array_equal(paused[:8], window.shown[2][:8])  # the status lines at the top unchanged
+
+
+# ---------------------------------------------------------------- self-contained sessions and replay
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """A 1 s synthetic session at tile scale 0.1, no behaviour layers, a scenario with a pain step
+    at 0.4 s and a named expression; then moved to another folder and its scenario file deleted."""
+    import json
+    import shutil
+
+    from holo_viewer.cli import main
+
+    root = tmp_path_factory.mktemp("rec")
+    scenario = root / "scenario.json"
+    scenario.write_text(json.dumps({"events": [{"t": 0.4, "pain": 1.0}, {"t": 0.2, "expression": "smile",
+                                                                         "intensity": 0.7, "duration": 0.5}]}))
+    out = root / "session"
+    assert main(["live", "--synthetic", "--seconds", "1.0", "--headless", "--out", str(out), "--tile-scale", "0.1",
+                 "--scenario", str(scenario), "--no-behaviour", "--render-mode", "all_views"]) == 0
+    moved = root / "elsewhere" / "session"
+    shutil.move(str(out), str(moved))
+    scenario.unlink()  # self-contained: replay needs only the folder
+    return moved
+
+
+def test_session_json_is_versioned_and_self_contained(recorded: Path) -> None:
+    import json
+
+    from holo_viewer.live.session import SCHEMA, SCHEMA_VERSION
+
+    meta = json.loads((recorded / "session.json").read_text())
+    assert meta["schema"] == SCHEMA and meta["version"] == SCHEMA_VERSION == 2
+    assert meta["scenario"]["events"][0] == {"t": 0.2, "expression": "smile", "intensity": 0.7, "duration": 0.5}
+    assert meta["mount"]["hfov_deg"] == 60.0 and meta["render"]["mode"] == "all_views"
+    assert len(meta["avatar"]["digest"]) == 32 and meta["avatar"]["name"] == "default"
+    assert meta["keys"] == [] and meta["ratings"] == []
+
+
+def test_replay_live_reproduces_native_frames_from_another_folder(recorded: Path, tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """replay --quality live from another working folder: the displayed frames again, bit-exact."""
+    from holo_viewer.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["replay", str(recorded), "--quality", "live", "--out", "again.mkv"]) == 0
+    live = list(media.read_frames(recorded / "native.mkv"))
+    again = list(media.read_frames(tmp_path / "again.mkv"))
+    assert len(live) == len(again) >= 2
+    assert all(np.array_equal(a, b) for a, b in zip(live, again))
+    assert [a.tobytes() for a in media.read_frames(recorded / "native.mkv", fps=25)] == \
+        [b.tobytes() for b in media.read_frames(tmp_path / "again.mkv", fps=25)]  # at the same times
+
+
+def test_replay_full_shows_the_pain_step_at_its_frame(recorded: Path, tmp_path: Path) -> None:
+    """The scenario's pain step at 0.4 s is the largest change between frames of the replayed video,
+    at frame round(0.4 * 25) = 10 (+-1); the video lasts as long as the session (25 frames)."""
+    from holo_viewer.cli import main
+
+    assert main(["replay", str(recorded), "--out", str(tmp_path / "full.mkv"), "--tile-scale", "0.05"]) == 0
+    frames = [f.astype(np.int16) for f in media.read_frames(tmp_path / "full.mkv", fps=25)]
+    assert len(frames) == 25
+    change = [np.abs(b - a).mean() for a, b in zip(frames, frames[1:])]
+    step = int(np.argmax(change)) + 1
+    assert abs(step - round(0.4 * 25)) <= 1, change
+
+
+def test_replay_refuses_another_avatar(recorded: Path, tmp_path: Path) -> None:
+    import json
+    import shutil
+
+    from holo_viewer.errors import InputError
+    from holo_viewer.live.replay import replay_session
+
+    copy = tmp_path / "s"
+    shutil.copytree(recorded, copy)
+    meta = json.loads((copy / "session.json").read_text())
+    meta["avatar"]["digest"] = "0" * 32
+    (copy / "session.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match=r"session.json: avatar: the session was recorded with avatar 'default' "
+                                         r"digest 0{32}.*this build's 'default' has digest"):
+        replay_session(copy, tmp_path / "r.mkv", quality="live")
+    assert not (tmp_path / "r.mkv").exists()
+
+
+def test_mute_key_keeps_the_voice_out_of_the_patients_input(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """m after 3 frames: from then on the reaction stream and audio.wav get silence; the key is recorded."""
+    import json
+    import wave
+
+    from holo_viewer.reaction.stream import ReactionStream
+
+    heard: list[np.ndarray] = []
+    real_push = ReactionStream.push_audio
+
+    def push(self, samples):
+        heard.append(np.array(samples))
+        return real_push(self, samples)
+
+    monkeypatch.setattr(ReactionStream, "push_audio", push)
+    window = _KeyWindow([(3, "m", 0.0)])
+    session = _session(tmp_path, 1.0)
+    session.run(_NoiseRenderer(), preview=window)
+    meta = json.loads((tmp_path / "s" / "session.json").read_text())
+    (press,) = [k for k in meta["keys"] if k["action"] == "mute"]
+    assert press["key"] == "m" and session.controls.muted
+    with wave.open(str(tmp_path / "s" / "audio.wav")) as w:
+        audio = np.frombuffer(w.readframes(w.getnframes()), np.int16)
+    cut = int((press["t"] + 2 / 25) * 16000)  # the reaction tick after the key press
+    assert np.abs(audio[:int(press["t"] * 16000)]).max() > 100  # the voice before
+    assert not audio[cut:].any() and len(audio) >= 15000  # silence after, the session went on
+    assert not np.concatenate(heard)[cut:].any()  # the model heard silence too
+
+
+def test_rating_keys_store_trainee_ratings_and_help_shows_the_key_map(tmp_path: Path) -> None:
+    """t selects the next trainee, 0-9 and x (10) rate; each rating is stored with its session time;
+    h shows the key map on the preview."""
+    import json
+
+    window = _KeyWindow([(2, "7", 0.0), (2, "t", 0.0), (2, "x", 0.0), (2, "3", 0.0), (2, "h", 0.0)])
+    session = _session(tmp_path, 1.0)
+    session.run(_NoiseRenderer(), preview=window)
+    meta = json.loads((tmp_path / "s" / "session.json").read_text())
+    got = [(r["trainee"], r["rating"], r["source"]) for r in meta["ratings"]]
+    assert got == [("A", 7, "key"), ("B", 10, "key"), ("B", 3, "key")]
+    times = [r["t"] for r in meta["ratings"]]
+    assert times == sorted(times) and 0 < times[0] <= 1.2
+    assert [k["action"] for k in meta["keys"]] == ["rate", "trainee", "rate", "rate", "help"]
+    assert session.controls.show_help
+    rows = np.abs(window.shown[-1].astype(int) - window.shown[2].astype(int)).sum(axis=(1, 2))
+    assert rows[40:].any()  # the key map drawn below the status lines

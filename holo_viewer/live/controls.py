@@ -11,11 +11,20 @@ from ..errors import InputError
 from ..fileio import read_json
 from ..validation import check_json_number
 
-__all__ = ["Controls", "Scenario", "ScenarioEvent", "KEYS"]
+__all__ = ["Controls", "Scenario", "ScenarioEvent", "KEYS", "KEY_HELP", "TRAINEES"]
 
-#: key symbol (VTK / X11 names) -> action
+#: key symbol (VTK / X11 names) -> action: the one key map of a live session (shown on ``h``)
 KEYS = {"Up": "pain_up", "plus": "pain_up", "equal": "pain_up", "Down": "pain_down", "minus": "pain_down",
-        "space": "pause", "p": "pause", "r": "recentre", "c": "recentre", "q": "quit", "Escape": "quit"}
+        "space": "pause", "p": "pause", "m": "mute", "r": "recentre", "c": "recentre", "h": "help",
+        "question": "help", "t": "trainee", "x": "rate", "q": "quit", "Escape": "quit",
+        **{str(d): "rate" for d in range(10)}}
+#: the key map as the preview shows it on ``h`` (keys, what they do)
+KEY_HELP = (("Up / + , Down / -", "pain up / down by 0.1"), ("space / p", "pause / resume (clock, audio, "
+            "scenario, recording)"), ("m", "mute: the patient hears nothing"), ("r / c", "recentre the viewer"),
+            ("t", "next trainee (A..H)"), ("0-9, x", "the trainee's pain rating 0-9, x = 10"),
+            ("h / ?", "show / hide this key map"), ("q / Esc", "quit"))
+#: trainee labels the ``t`` key cycles through
+TRAINEES = "ABCDEFGH"
 PAIN_STEP = 0.1
 
 
@@ -26,6 +35,11 @@ class Controls:
         self._lock = threading.Lock()
         self.pain = float(pain)
         self.paused = False
+        self.muted = False
+        self.show_help = False
+        #: the trainee whose ratings the number keys enter, and the last rating entered
+        self.trainee = TRAINEES[0]
+        self.last_rating: int | None = None
         self.quit = False
         self._recentre = False
         #: key actions applied, oldest first (for the session record and tests)
@@ -43,6 +57,14 @@ class Controls:
                 self.pain = max(0.0, round(self.pain - PAIN_STEP, 6))
             elif action == "pause":
                 self.paused = not self.paused
+            elif action == "mute":
+                self.muted = not self.muted
+            elif action == "help":
+                self.show_help = not self.show_help
+            elif action == "trainee":
+                self.trainee = TRAINEES[(TRAINEES.index(self.trainee) + 1) % len(TRAINEES)]
+            elif action == "rate":
+                self.last_rating = 10 if keysym == "x" else int(keysym)
             elif action == "recentre":
                 self._recentre = True
             elif action == "quit":
@@ -96,8 +118,17 @@ class Scenario:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Scenario":
+        """Read the JSON of the class docstring (InputError naming the file and field)."""
         p = Path(path)
-        data = read_json(p, InputError, "scenario JSON")
+        return cls.from_json(read_json(p, InputError, "scenario JSON"), p)
+
+    def to_json(self) -> dict:
+        """``{"events": [...]}`` that :meth:`from_json` reads back to the same scenario (session.json)."""
+        return {"events": [{k: v for k, v in vars(e).items() if v is not None} for e in self.events]}
+
+    @classmethod
+    def from_json(cls, data: object, p: str | os.PathLike = "scenario") -> "Scenario":
+        """The scenario of parsed JSON ``data``; ``p`` names it in errors (a file, ``session.json: scenario``)."""
         if isinstance(data, dict) and "pain_timeline" in data:
             from ..behaviour import PainTimeline
 

@@ -225,6 +225,8 @@ class LiveSession:
                 if self.now() > due + 1.0 / FPS:
                     self.late_ticks += 1
                 samples = self.audio.read(due)
+                if self.controls.muted:  # the instructor's voice stays out of the patient's input (and audio.wav)
+                    samples = np.zeros_like(samples)
                 stream.push_audio(samples)
                 self.recorder.add_audio(samples)
                 speaking, pause_onset = gate.step(samples)
@@ -359,7 +361,18 @@ class LiveSession:
         if cfg.behaviour is not None:
             bcfg = BehaviourConfig(seed=cfg.seed) if isinstance(cfg.behaviour, str) else cfg.behaviour
             self._behaviour = ListenerBehaviour(bcfg)
-        if renderer is not None:
+        import dataclasses
+
+        from .session import avatar_record
+
+        header = self.recorder.header
+        header["scenario"] = self.scenario.to_json() if self.scenario is not None else None
+        header["mount"] = dataclasses.asdict(cfg.mount) if dataclasses.is_dataclass(cfg.mount) else None
+        if renderer is not None and hasattr(renderer, "pipeline"):
+            header["avatar"] = avatar_record(renderer.pipeline)
+            header["render"] = {"mode": renderer.mode, "backend": renderer.backend, "tile_scale": cfg.tile_scale,
+                                "warmup_pain": cfg.pain}
+        if renderer is not None:  # replay --quality live repeats this call (header["render"]["warmup_pain"])
             renderer.render({"expr": np.zeros(1)}, cfg.pain, (), 0.0, 0.6)
         if self.video is not None and self.synthetic is None:
             from ..tracking.tracker import FaceTracker, TrackerConfig
@@ -397,7 +410,7 @@ class LiveSession:
                 for src in (panel, preview):
                     if src is not None and hasattr(src, "poll"):
                         for key in src.poll():
-                            self.controls.key(key)
+                            self._key(key)
                 if self.controls.quit:
                     break
                 paused = self._update_pause()
@@ -453,7 +466,8 @@ class LiveSession:
             self.audio.stop()
             if self.video is not None:
                 self.video.stop()
-            end_s = max(self.now(), t_shown + 0.001)  # the native video lasts as long as the session
+            end_s = round(max(self.now(), t_shown + 0.001), 3)  # the native video lasts as long as the session
+            self.recorder.header["end_s"] = end_s  # session time at the end (replay's video lasts as long)
             for key, video in (("native_video_frames", writer), ("webcam_video_frames", self._webcam_writer)):
                 if video is not None:
                     try:  # ffmpeg's exit status and the decoded frame count checked before the rename
@@ -466,6 +480,17 @@ class LiveSession:
         if self.errors:
             raise self.errors[0]
         return self.summary()
+
+    def _key(self, keysym: str) -> None:
+        """Apply an instructor's or trainee's key and record it (session time, key, action; ratings)."""
+        action = self.controls.key(keysym)
+        if action is None:
+            return
+        t = round(self.now(), 3)
+        self.recorder.keys.append({"t": t, "key": keysym, "action": action})
+        if action == "rate":
+            self.recorder.ratings.append({"t": t, "trainee": self.controls.trainee,
+                                          "rating": self.controls.last_rating, "source": "key"})
 
     def _record_webcam(self, frame: np.ndarray) -> None:
         """Append a webcam frame to webcam.mkv (streamed to disk: memory stays flat)."""
@@ -491,6 +516,14 @@ class LiveSession:
         lines = [f"{fps:4.1f} fps  render {med('render_ms')} ms  track {med('tracker_ms')} ms  react {med('reaction_window_ms')} ms",
                  f"pain {pain:.1f}  viewer {ang:+.0f} deg {dist:.2f} m {'tracked' if tracked else 'default'}"]
         lines += [f"{k}: {v}" for k, v in self.status.items() if v and v != "ok"]
+        if self.controls.muted:
+            lines.append("MUTED")
+        lines.append(f"trainee {self.controls.trainee}" + ("" if self.controls.last_rating is None else
+                                                            f" rated {self.controls.last_rating}"))
+        if self.controls.show_help:
+            from .controls import KEY_HELP
+
+            lines += ["keys:"] + [f"  {k}: {what}" for k, what in KEY_HELP]
         for i, line in enumerate(lines):
             d.text((4, 4 + 12 * i), line, fill=(255, 255, 0))
         if self.controls.paused:

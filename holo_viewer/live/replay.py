@@ -1,8 +1,19 @@
 """Re-render a recorded session (the same renderer, the recorded inputs: deterministic).
 
-A session recorded with ``--render-mode tracked``, ``auto`` or ``all_views`` is replayed with every
-view of the same default cone (``all_views`` with every view rendered: what those frames
-approximate, without depending on earlier frames).
+Two qualities:
+
+``live``
+    The live renderer as the session used it (mode, tile scale, the fast CPU backend), called
+    exactly as the live loop called it (its warm-up, then each displayed frame with the recorded
+    listener parameters, pain, named expressions and viewer pose): the frames of ``native.mkv``
+    again, bit-exact on the same build, from any working folder; written at the times they were
+    shown (a timed, lossless video). A session rendered on gsplat is re-rendered on the CPU.
+``full``
+    Every 25 fps frame with every view of the default cone rendered (``all_views``, no warps;
+    ``cone`` sessions: the viewer's cone): the exact quilt the live frames approximate.
+
+Everything comes from the session folder (session.json states the scenario itself, not a path);
+a session whose avatar digest differs from this build's avatar is refused.
 """
 
 from __future__ import annotations
@@ -15,47 +26,119 @@ import numpy as np
 
 from .session import LISTENER_KEYS, load_session
 
-__all__ = ["replay_frames", "replay_session"]
+__all__ = ["replay_frames", "replay_timed_frames", "replay_session", "QUALITIES"]
+
+QUALITIES = ("full", "live")
+
+
+def _scenario(session: Path, meta: dict):
+    """The session's scenario (None without one); a version-1 session names a file, which must exist."""
+    from ..errors import InputError
+    from .controls import Scenario
+
+    if meta.get("scenario") is not None:
+        return Scenario.from_json(meta["scenario"], f"{session / 'session.json'}: scenario")
+    path = meta.get("settings", {}).get("scenario")
+    if path and "version" not in meta:
+        if not Path(path).is_file():
+            raise InputError(f"{session / 'session.json'}: settings.scenario: expected the scenario file {path!r} "
+                             f"(sessions before version 2 name it by path), found none: replay would drop its "
+                             f"named expressions; run it from the folder the session was recorded in")
+        return Scenario.load(path)
+    return None
+
+
+def _renderer(session: Path, meta: dict, quality: str, tile_scale: float | None):
+    """The renderer for ``quality``, after checking the session's avatar is this build's."""
+    from ..errors import InputError
+    from .render import LiveAvatarRenderer
+    from .session import avatar_record
+
+    if quality not in QUALITIES:
+        raise InputError(f"quality: expected one of {', '.join(QUALITIES)}, found {quality!r}")
+    settings = meta.get("settings", {})
+    render = meta.get("render") or {}
+    scale = float(tile_scale if tile_scale is not None else render.get("tile_scale", settings.get("tile_scale", 1.0)))
+    mode = str(render.get("mode", settings.get("render_mode", "cone")))
+    if quality == "live":
+        renderer = LiveAvatarRenderer(tile_scale=scale, native=True, preview=False, backend="fast", mode=mode)
+    else:
+        renderer = LiveAvatarRenderer(tile_scale=scale, native=True, preview=False, backend="fast",  # exact, any machine
+                                      mode="all_views" if mode in ("tracked", "auto") else mode,
+                                      view_step=1)  # offline: every view rendered, no synthesis
+    recorded = meta.get("avatar")
+    if recorded is not None:
+        mine = avatar_record(renderer.pipeline, str(recorded.get("name", "default")))
+        if mine["digest"] != recorded.get("digest"):
+            raise InputError(f"{session / 'session.json'}: avatar: the session was recorded with avatar "
+                             f"{recorded.get('name')!r} digest {recorded.get('digest')} ({recorded.get('gaussians')} "
+                             f"Gaussians), this build's {mine['name']!r} has digest {mine['digest']} "
+                             f"({mine['gaussians']} Gaussians): replay would not show what the trainees saw")
+    return renderer
+
+
+def _frame_inputs(tr: dict, t: int, scenario) -> tuple[dict, float, tuple]:
+    """(listener FLAME arrays, pain to add, named expressions) of 25 fps frame ``t``, as the live loop had them."""
+    lf = {k: tr[f"listener_{k}"][t] for k in LISTENER_KEYS}
+    named = scenario.named_at(t / 25) if scenario is not None else ()
+    # pain_shown >= 0: the behaviour layers drew the pain into listener_expr, add none on top
+    pain = 0.0 if "pain_shown" in tr and tr["pain_shown"][t] >= 0 else float(tr["pain"][t])
+    return lf, pain, named
 
 
 def replay_frames(session: str | os.PathLike, tile_scale: float | None = None, every: int = 1) -> Iterator[np.ndarray]:
-    """Native images (H, W, 3) uint8 of every ``every``-th recorded 25 fps frame."""
-    from .render import LiveAvatarRenderer
-
+    """Native images (H, W, 3) uint8 of every ``every``-th recorded 25 fps frame, in full quality."""
     meta, tr = load_session(session)
-    scale = float(tile_scale if tile_scale is not None else meta.get("settings", {}).get("tile_scale", 1.0))
-    mode = str(meta.get("settings", {}).get("render_mode", "cone"))
-    renderer = LiveAvatarRenderer(tile_scale=scale, native=True, preview=False, backend="fast",  # exact, any machine
-                            mode="all_views" if mode in ("tracked", "auto") else mode,
-                            view_step=1)  # offline: every view rendered, no synthesis
-    scenario = None
-    sc = meta.get("settings", {}).get("scenario")
-    if sc:
-        from .controls import Scenario
-
-        try:
-            scenario = Scenario.load(sc)
-        except Exception:  # noqa: BLE001 - the scenario file may be gone: named expressions are then skipped
-            scenario = None
+    scenario = _scenario(Path(session), meta)
+    renderer = _renderer(Path(session), meta, "full", tile_scale)
     for t in range(0, len(tr["time_s"]), int(every)):
-        lf = {k: tr[f"listener_{k}"][t] for k in LISTENER_KEYS}
-        named = scenario.named_at(float(tr["time_s"][t])) if scenario is not None else ()
-        # pain_shown >= 0: the behaviour layers drew the pain into listener_expr, add none on top
-        pain = 0.0 if "pain_shown" in tr and tr["pain_shown"][t] >= 0 else float(tr["pain"][t])
+        lf, pain, named = _frame_inputs(tr, t, scenario)
         yield renderer.render(lf, pain, named, float(tr["viewer_angle_deg"][t]),
                               float(tr["viewer_distance_m"][t])).native
 
 
+def replay_timed_frames(session: str | os.PathLike, tile_scale: float | None = None) -> Iterator[tuple[float, np.ndarray]]:
+    """(display time s, native image) of every displayed frame, rendered as the live loop rendered it."""
+    from ..errors import InputError
+
+    meta, tr = load_session(session)
+    if "render_angle_deg" not in tr:
+        raise InputError(f"{Path(session) / 'tracks.npz'}: render_angle_deg: expected the render calls' viewer poses "
+                         f"(sessions of version 2), found none; use --quality full")
+    scenario = _scenario(Path(session), meta)
+    renderer = _renderer(Path(session), meta, "live", tile_scale)
+    renderer.render({"expr": np.zeros(1)}, float((meta.get("render") or {}).get("warmup_pain", 0.0)), (), 0.0, 0.6)
+    for i, t in enumerate(tr["display_frame"]):
+        lf, pain, named = _frame_inputs(tr, int(t), scenario)
+        yield float(tr["display_time_s"][i]), renderer.render(
+            lf, pain, named, float(tr["render_angle_deg"][i]), float(tr["render_distance_m"][i]),
+            bool(tr["render_tracked"][i])).native
+
+
 def replay_session(session: str | os.PathLike, out: str | os.PathLike, tile_scale: float | None = None,
-                   every: int = 1) -> int:
-    """Write the re-rendered session to ``out`` (mp4, 25 / every fps); returns the frame count."""
+                   every: int = 1, quality: str = "full") -> int:
+    """Write the re-rendered session to ``out`` (lossless RGB; ``full``: 25 / every fps, ``live``: each
+    displayed frame at the time it was shown); returns the frame count."""
     from tqdm import tqdm
 
     from ..media import VideoWriter
 
     # verified before the rename (ffmpeg's exit status, decoded frame count): a full disk is an error
-    with VideoWriter(Path(out), 25.0 / every, codec="libx264", quality=7, macro_block_size=8,
-                     what="replay video") as writer:
+    if quality == "live":
+        meta, tr = load_session(session)
+        last = float(tr["display_time_s"][-1]) + 0.001 if len(tr["display_time_s"]) else 0.0
+        end_s = max(float(meta.get("end_s", 0.0)), len(tr["time_s"]) / 25, last)  # as long as the session
+        writer = VideoWriter(Path(out), 25.0, timed=True, what="replay video")
+        try:
+            for t, img in tqdm(replay_timed_frames(session, tile_scale), desc="replay", unit="frame",
+                               total=len(tr["display_frame"])):
+                writer.write(img, t=t)
+        except BaseException:
+            writer.abort()
+            raise
+        writer.close(end_s=end_s)
+        return writer.frames
+    with VideoWriter(Path(out), 25.0 / every, what="replay video") as writer:
         for img in tqdm(replay_frames(session, tile_scale, every), desc="replay", unit="frame"):
             writer.write(img)
     return writer.frames

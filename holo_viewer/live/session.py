@@ -16,6 +16,15 @@
                      decode at 25 fps with holo_viewer.media.read_frames(path, fps=25))
       webcam.mkv     only with --record-video (faces are private by default; lossy preview)
 
+session.json (schema ``holo_viewer.session``, :data:`SCHEMA_VERSION`) holds everything replay needs, so
+a session folder can be moved and replayed anywhere: ``settings`` (the command's options),
+``scenario`` (the script itself, not its path), ``mount`` (the webcam mount), ``avatar`` (name and
+digest of the Gaussians replay must find again), ``render`` (mode, tile scale, backend), ``keys``
+(every key press: session time, key, action) and ``ratings`` (trainees' pain ratings: session
+time, trainee, rating 0-10), plus ``pain_timeline`` (the instructor's levels, the schema of
+:mod:`holo_viewer.behaviour.timeline`) and the timing summary. Per-frame numbers are float64, so
+replay renders from exactly the values the live frames were rendered from.
+
 tracks.npz and session.json are written atomically (temp + rename) at each flush (every ``flush_s`` seconds) and at
 the end, so an interrupted session keeps everything up to its last flush, and ``Ctrl-C`` (which
 ends the loop through ``finally``) keeps everything.
@@ -33,7 +42,12 @@ import numpy as np
 
 from ..fileio import atomic_write, save_npz
 
-__all__ = ["SessionRecorder", "TRACK_KEYS", "DISPLAY_KEYS", "NATIVE_VIDEO", "load_session"]
+__all__ = ["SessionRecorder", "TRACK_KEYS", "DISPLAY_KEYS", "NATIVE_VIDEO", "SCHEMA", "SCHEMA_VERSION",
+           "avatar_record", "load_session"]
+
+#: session.json's schema name and version (1: before the version field; 2: self-contained)
+SCHEMA = "holo_viewer.session"
+SCHEMA_VERSION = 2
 
 #: the session's native-image video (lossless, timed; holo_viewer.media)
 NATIVE_VIDEO = "native.mkv"
@@ -55,6 +69,11 @@ class SessionRecorder:
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.settings = dict(settings)
+        #: self-contained fields of session.json (scenario, mount, avatar, render; see the module docstring)
+        self.header: dict[str, Any] = {}
+        #: key presses and trainee ratings ({"t", "key", "action"}, {"t", "trainee", "rating", "source"})
+        self.keys: list[dict] = []
+        self.ratings: list[dict] = []
         self._rows: dict[str, list] = {k: [] for k in TRACK_KEYS}
         self._chunks: dict[str, list] = {k: [] for k in TRACK_KEYS}
         self._n = 0
@@ -77,7 +96,7 @@ class SessionRecorder:
         """One 25 fps frame; keys of :data:`TRACK_KEYS`."""
         with self._lock:
             for k in TRACK_KEYS:
-                self._rows[k].append(np.asarray(row[k], dtype=np.float32))
+                self._rows[k].append(np.asarray(row[k], dtype=np.float64))  # exact: replay renders from them
             self._n += 1
             if len(self._rows["time_s"]) >= _CHUNK:  # pack small per-frame arrays: memory stays flat
                 for k in TRACK_KEYS:
@@ -135,10 +154,42 @@ class SessionRecorder:
         self._wav.writeframes(audio.tobytes())
         self._wav_file.flush()
         self._audio_samples += len(audio)
-        doc = {"settings": self.settings, "frames": n, "displayed_frames": int(len(disp["display_time_s"])),
+        doc = {"schema": SCHEMA, "version": SCHEMA_VERSION, **self.header, "keys": list(self.keys),
+               "ratings": list(self.ratings), "settings": self.settings, "frames": n, "displayed_frames": int(len(disp["display_time_s"])),
                "audio_seconds": round(self._audio_samples / 16000, 3), "summary": self.summary}
         with atomic_write(self.folder / "session.json", "w") as fh:
             json.dump(doc, fh, indent=2, default=_json_default)
+
+
+def avatar_record(pipeline: Any, name: str = "default") -> dict[str, Any]:
+    """``{"name", "digest", "gaussians"}`` of a pipeline's avatar, which replay must find again.
+
+    The digest covers the avatar's stored arrays (its Gaussians, binding, mesh and head model: every
+    array or tensor among its attributes, two levels deep, in name order), not values computed from
+    them, so it is the same on every machine for the same avatar files.
+    """
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=16)
+
+    def feed(obj: Any, depth: int) -> None:
+        if hasattr(obj, "detach"):  # a torch tensor
+            obj = obj.detach().cpu().numpy()
+        if isinstance(obj, np.ndarray):
+            h.update(f"{obj.dtype}{obj.shape}".encode())
+            h.update(np.ascontiguousarray(obj).tobytes())
+        elif isinstance(obj, dict):
+            for k in sorted(obj, key=str):
+                h.update(str(k).encode())
+                feed(obj[k], depth)
+        elif isinstance(obj, (list, tuple)):
+            for x in obj:
+                feed(x, depth)
+        elif depth > 0 and hasattr(obj, "__dict__"):
+            feed({k: v for k, v in vars(obj).items() if not k.startswith("_")}, depth - 1)
+
+    feed(pipeline.avatar, 2)
+    return {"name": name, "digest": h.hexdigest(), "gaussians": int(len(pipeline.avatar))}
 
 
 def _json_default(o: Any) -> Any:
