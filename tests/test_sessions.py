@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 
 import numpy as np
@@ -175,8 +177,11 @@ def recorded(tmp_path_factory):
     scenario.write_text(json.dumps({"events": [{"t": 0.4, "pain": 1.0}, {"t": 0.2, "expression": "smile",
                                                                          "intensity": 0.7, "duration": 0.5}]}))
     out = root / "session"
-    assert main(["live", "--synthetic", "--seconds", "1.0", "--headless", "--out", str(out), "--tile-scale", "0.1",
-                 "--scenario", str(scenario), "--no-behaviour", "--render-mode", "all_views"]) == 0
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["live", "--synthetic", "--seconds", "1.0", "--headless", "--out", str(out), "--tile-scale",
+                     "0.1", "--scenario", str(scenario), "--no-behaviour", "--render-mode", "all_views"]) == 0
+    (root / "stdout.txt").write_text(printed.getvalue())
     moved = root / "elsewhere" / "session"
     shutil.move(str(out), str(moved))
     scenario.unlink()  # self-contained: replay needs only the folder
@@ -288,3 +293,27 @@ def test_rating_keys_store_trainee_ratings_and_help_shows_the_key_map(tmp_path: 
     assert session.controls.show_help
     rows = np.abs(window.shown[-1].astype(int) - window.shown[2].astype(int)).sum(axis=(1, 2))
     assert rows[40:].any()  # the key map drawn below the status lines
+
+
+def test_live_prints_each_start_up_step(recorded: Path) -> None:
+    """Progress lines, in order, each with the seconds since the command started."""
+    import re
+
+    lines = (recorded.parents[1] / "stdout.txt").read_text().splitlines()
+    steps = [m.group(1) for line in lines if (m := re.match(r"live: (.*) \.\.\. \(\d+\.\d s\)$", line))]
+    assert steps == ["opening devices", "loading the avatar and compiling the render kernels (cached after the "
+                     "first use)", "warming the reaction model", "rendering a first frame", "starting the session"]
+
+
+def test_preview_says_starting_not_black_during_start_up(capsys: pytest.CaptureFixture) -> None:
+    from types import SimpleNamespace
+
+    from holo_viewer.commands.live import _Progress
+
+    shown: list[np.ndarray] = []
+    preview = SimpleNamespace(window=SimpleNamespace(width=210, height=280), show=shown.append, poll=lambda: [])
+    _Progress(preview)("warming the reaction model")
+    assert capsys.readouterr().out.startswith("live: warming the reaction model ... (")
+    (img,) = shown
+    assert img.shape == (280, 210, 3) and img.mean() > 30  # not black
+    assert (img[130:150, 60:150] == (255, 255, 0)).all(axis=-1).any()  # the yellow "starting..." in the middle

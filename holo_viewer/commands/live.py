@@ -114,8 +114,15 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--pain: expected a value in [0, 1], found {args.pain}")
     mount = WebcamMount.load(args.mount) if args.mount else WebcamMount(hfov_deg=args.hfov)
     scenario = Scenario.load(args.scenario) if args.scenario else None
+    preview = None
+    if not args.headless and not args.no_preview:  # at once, saying "starting..." (not black) until frame 1
+        from ..live.windows import open_preview
+
+        preview = open_preview()
+    progress = _Progress(preview)
     synthetic = None
     video = None
+    progress("opening devices")
     if args.synthetic:
         synthetic = SyntheticSpeaker(args.seconds or 20.0, seed=args.seed)
         audio = sources.ArrayAudio(synthetic.waveform, name="synthetic")
@@ -134,22 +141,43 @@ def run(args: argparse.Namespace) -> int:
                                predict_viewer=not args.no_viewer_prediction, scenario=scenario,
                                max_seconds=args.seconds, settings=settings,
                                behaviour=behaviour_from_args(args, seed=args.seed))
+    progress("loading the avatar and compiling the render kernels (cached after the first use)")
     renderer = LiveAvatarRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview,
                                   mode=args.render_mode, backend=args.renderer)
     settings["render_backend"] = renderer.backend  # what "auto" chose (session.json)
     session = LiveSession(config, audio, video, synthetic)
-    panel = preview = None
+    session.progress = progress
+    panel = None
     if config.panel:
         from ..live.windows import open_panel
 
+        progress("opening the panel window")
         panel = open_panel(renderer.pipeline.calibration, args.monitor)
-    if config.preview:
-        from ..live.windows import open_preview
-
-        preview = open_preview()
     summary = session.run(renderer, panel=panel, preview=preview)
     interrupted = str(summary["status"].get("end", "")).startswith("interrupted")
     print(f"session written to {args.out}: {session.recorder.n_frames} frames at 25 fps, "
           f"{summary['displayed_frames']} displayed; reaction windows {summary['reaction_windows']} "
           f"({summary['late_reaction_windows']} late); render {summary['render_ms']}")
     return 130 if interrupted else 0
+
+
+class _Progress:
+    """Print each start-up step with the seconds since the command started (flushed at once) and
+    show it on the preview window under "starting..."."""
+
+    def __init__(self, preview: object | None) -> None:
+        import time
+
+        self._t0 = time.perf_counter()
+        self._preview = preview
+
+    def __call__(self, step: str) -> None:
+        import time
+
+        print(f"live: {step} ... ({time.perf_counter() - self._t0:.1f} s)", flush=True)
+        if self._preview is not None:
+            from ..live.loop import starting_image
+
+            w, h = self._preview.window.width, self._preview.window.height
+            self._preview.show(starting_image(w, h, step))
+            self._preview.poll()  # let the window draw now

@@ -37,7 +37,7 @@ from ..tracking.viewer import ViewerPose
 from .controls import Controls, Scenario
 from .session import NATIVE_VIDEO, SessionRecorder
 
-__all__ = ["LiveSessionConfig", "LiveSession"]
+__all__ = ["LiveSessionConfig", "LiveSession", "starting_image"]
 
 FPS = 25
 #: seconds without a new tracked frame after which the speaker face decays to neutral
@@ -139,6 +139,8 @@ class LiveSession:
         self._pain_source = "key"
         self._behaviour = None
         self._speech_gate = None
+        #: called with a line for each start-up step (the live command prints it and shows it on the preview)
+        self.progress: Callable[[str], None] = lambda line: None
 
     # ------------------------------------------------------------------ time
     def now(self) -> float:
@@ -352,6 +354,7 @@ class LiveSession:
         from ..reaction.api import load_default_bundle
         from ..reaction.stream import ReactionStream
 
+        self.progress("warming the reaction model")
         self._stream = ReactionStream(load_default_bundle(), temperature=cfg.temperature,
                                       top_k=DEFAULT_TOP_K if cfg.temperature else None, seed=cfg.seed)
         from ..behaviour import BehaviourConfig, ListenerBehaviour
@@ -373,15 +376,18 @@ class LiveSession:
             header["render"] = {"mode": renderer.mode, "backend": renderer.backend, "tile_scale": cfg.tile_scale,
                                 "warmup_pain": cfg.pain}
         if renderer is not None:  # replay --quality live repeats this call (header["render"]["warmup_pain"])
+            self.progress("rendering a first frame")
             renderer.render({"expr": np.zeros(1)}, cfg.pain, (), 0.0, 0.6)
         if self.video is not None and self.synthetic is None:
             from ..tracking.tracker import FaceTracker, TrackerConfig
             from ..tracking.viewer import WebcamMount
 
             self._mount = cfg.mount or WebcamMount(hfov_deg=cfg.hfov_deg)
+            self.progress("warming the face tracker")
             self._face_tracker = FaceTracker(TrackerConfig(hfov_deg=self._mount.hfov_deg))
             self._face_tracker(np.zeros((64, 64, 3), np.uint8), 0.0)  # warm up (first calls are slow)
             self._face_tracker.reset()
+        self.progress("starting the session")
         self.audio.start()
         if self.video is not None:
             self.video.start()
@@ -544,3 +550,15 @@ def _centred_text(draw: Any, size: tuple[int, int], text: str, fill: tuple[int, 
     x, y = (w - (x1 - x0)) // 2, (h - (y1 - y0)) // 2
     draw.rectangle((x - 6, y - 6 + y0, x + x1 - x0 + 6, y + y1 + 6), fill=(0, 0, 0))
     draw.text((x - x0, y), text, font=font, fill=fill)
+
+
+def starting_image(width: int, height: int, step: str) -> np.ndarray:
+    """(height, width, 3) uint8: "starting..." and the current start-up ``step`` on dark grey (the
+    preview before the first frame, instead of black)."""
+    from PIL import Image, ImageDraw
+
+    img = Image.new("RGB", (width, height), (40, 40, 48))
+    d = ImageDraw.Draw(img)
+    _centred_text(d, img.size, "starting...", (255, 255, 0))
+    d.text((8, height - 24), step, fill=(220, 220, 220))
+    return np.asarray(img)
