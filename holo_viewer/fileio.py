@@ -26,7 +26,7 @@ import time
 import zipfile
 import zlib
 from pathlib import Path
-from typing import IO, Iterator
+from typing import IO, Callable, Iterator
 
 import numpy as np
 
@@ -502,36 +502,50 @@ def _read_npz_members(zf: zipfile.ZipFile, path: Path, error: type[HoloViewerErr
     for info in infos:
         name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
         with zf.open(info) as fh:
-            version = np.lib.format.read_magic(fh)
-            if version not in ((1, 0), (2, 0)):
-                raise ValueError(f"member {info.filename}: unsupported .npy version {version}")
-            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                           else np.lib.format.read_array_header_2_0)
-            shape, fortran, dtype = read_header(fh)
-            if dtype.hasobject:
-                raise ValueError(f"member {info.filename}: an array of Python objects (pickles are not loaded)")
-            nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
-            if nbytes > left:
-                raise error(f"{path}: {what}: member {name!r} of shape {shape} and dtype {dtype} needs "
-                            f"{nbytes:,} bytes, over the budget of {budget:,} (fileio.NPZ_BUDGET_BYTES)")
-            buf = bytearray(nbytes)
-            got = fh.readinto(buf) if nbytes else 0
-            if got != nbytes:
-                raise ValueError(f"member {info.filename}: truncated ({got} of {nbytes} bytes)")
-            if fh.read(1):
-                raise ValueError(f"member {info.filename}: more data than its header declares")
-            left -= nbytes
-        arr = np.frombuffer(buf, dtype=dtype)
-        out[name] = arr.reshape(shape, order="F" if fortran else "C")
+            out[name] = _read_npy_stream(fh, f"member {name!r}", left, lambda msg: error(
+                f"{path}: {what}: {msg}, over the budget of {budget:,} (fileio.NPZ_BUDGET_BYTES)"))
+        left -= out[name].nbytes
     return out
+
+
+def _read_npy_stream(fh: IO[bytes], name: str, left: int, over: Callable[[str], Exception]) -> np.ndarray:
+    """One ``.npy`` stream: header checked (no objects, at most ``left`` bytes) before its buffer exists.
+
+    ``over(message)`` is the error raised when the array needs more than ``left`` bytes; a
+    stream shorter or longer than its header declares is a ``ValueError``.
+    """
+    version = np.lib.format.read_magic(fh)
+    if version not in ((1, 0), (2, 0)):
+        raise ValueError(f"{name}: unsupported .npy version {version}")
+    read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, fortran, dtype = read_header(fh)
+    if dtype.hasobject:
+        raise ValueError(f"{name}: an array of Python objects (pickles are not loaded)")
+    nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+    if nbytes > left:
+        raise over(f"{name} of shape {shape} and dtype {dtype} needs {nbytes:,} bytes")
+    buf = bytearray(nbytes)
+    got = fh.readinto(buf) if nbytes else 0
+    if got != nbytes:
+        raise ValueError(f"{name}: truncated ({got} of {nbytes} bytes)")
+    if fh.read(1):
+        raise ValueError(f"{name}: more data than its header declares")
+    return np.frombuffer(buf, dtype=dtype).reshape(shape, order="F" if fortran else "C")
 
 
 def read_npy(path: str | os.PathLike, error: type[HoloViewerError] = HoloViewerError,
              what: str = "file") -> np.ndarray:
-    """The array of an ``.npy`` file (no pickles); errors as :func:`read_npz`."""
-    with _reading(Path(path), error, what):
-        arr = np.load(path, allow_pickle=False)
-        if not isinstance(arr, np.ndarray):
-            arr.close()
-            raise ValueError("expected a single .npy array, found an .npz archive")
-        return arr
+    """The array of an ``.npy`` file (no pickles); errors as :func:`read_npz`.
+
+    The header's size is checked against the file's before the buffer is allocated (a 100-byte
+    file declaring 80 GB is refused, not allocated).
+    """
+    p = Path(path)
+    with _reading(p, error, what):
+        with open(p, "rb") as fh:
+            if fh.read(4) == b"PK\x03\x04":
+                raise ValueError("expected a single .npy array, found an .npz archive")
+            fh.seek(0)
+            size = os.fstat(fh.fileno()).st_size
+            return _read_npy_stream(fh, "array", size, lambda msg: error(
+                f"{p}: cannot read {what}: {msg}, more than the file's {size:,} bytes hold"))

@@ -162,6 +162,20 @@ def test_npz_header_is_checked_before_the_buffer_is_allocated(tmp_path: Path, mo
     assert got["b"][0] == "x" and got["a"].flags.writeable
 
 
+def test_npy_header_larger_than_the_file_is_refused_unallocated(tmp_path: Path, monkeypatch) -> None:
+    path = tmp_path / "coeffs.npy"
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (10**10,)})
+    path.write_bytes(header.getvalue() + bytes(64))  # 80 GB declared in 200 bytes
+    allocs: list[int] = []
+    monkeypatch.setattr(fileio, "bytearray", lambda n: allocs.append(n) or bytearray(n), raising=False)
+    with pytest.raises(ReactionError, match=r"coeffs\.npy: cannot read 3DMM.*needs 80,000,000,000 bytes"):
+        fileio.read_npy(path, ReactionError, "3DMM coefficients")
+    assert allocs == []
+    np.save(path, np.arange(5.0))
+    np.testing.assert_array_equal(fileio.read_npy(path), np.arange(5.0))
+
+
 def test_npz_member_longer_than_its_header_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "long.npz"
     header = io.BytesIO()
