@@ -1,11 +1,15 @@
 """Test-suite time per file: each test file run alone (one process, no xdist), its wall and CPU seconds.
 
 Usage: python bench/test_times.py [--json bench/results/test_times.json] [--markers "not slow"] [FILE ...]
+       python bench/test_times.py --from-json RESULTS.json [...] --write-slow tests/slow_tests.txt [--slow-cpu 1.0]
 
 Prints a table (files by CPU, slowest first, with their slowest tests) and writes JSON. CPU is user + system
 time of the pytest process and the children it waited for (Xvfb, CLI subprocesses), so it stays meaningful
 on a busy machine where wall time does not; the table in docs/development.md comes from this script.
-Per-test times come from tests/conftest.py (``$HOLO_TEST_TIMES``).
+Per-test times come from tests/conftest.py (``$HOLO_TEST_TIMES``). ``--write-slow`` lists the tests that took
+more than ``--slow-cpu`` seconds of CPU (set-up and tear-down included) in tests/slow_tests.txt, which conftest
+turns into the ``slow`` marker (left out of ``make test-fast``); each file keeps its cheapest test fast, so the
+fast run still covers every file.
 """
 
 from __future__ import annotations
@@ -47,19 +51,54 @@ def time_file(path: Path, markers: str | None) -> dict:
             "tests": {k: [round(v[0], 3), round(v[1], 3)] for k, v in tests.items()}}
 
 
+def _write_json(path: Path, markers: str | None, rows: list[dict]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"markers": markers, "cpus": os.cpu_count(), "python": platform.python_version(),
+                                "load_average_end": os.getloadavg(),
+                                "total_wall_s": round(sum(r["wall_s"] for r in rows), 1),
+                                "total_cpu_s": round(sum(r["cpu_s"] for r in rows), 1), "files": rows}, indent=1))
+
+
+def slow_tests(rows: list[dict], cpu_limit: float) -> list[str]:
+    """Node ids over ``cpu_limit`` CPU seconds, except each file's cheapest test (every file stays in the fast run)."""
+    out = []
+    for r in rows:
+        tests = sorted(r["tests"].items(), key=lambda kv: kv[1][1])
+        out += [k for k, v in tests[1:] if v[1] > cpu_limit]
+    return sorted(out)
+
+
+def write_slow_list(path: Path, rows: list[dict], cpu_limit: float) -> list[str]:
+    names = slow_tests(rows, cpu_limit)
+    head = (f"# tests over {cpu_limit} s of CPU when their file runs alone (bench/test_times.py --write-slow); "
+            "conftest marks them slow\n")
+    path.write_text(head + "".join(f"{n}\n" for n in names))
+    return names
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("files", nargs="*", type=Path, help="test files (default: every tests/test_*.py)")
     ap.add_argument("--markers", default=None, help='pytest -m expression, e.g. "not slow" (make test-fast)')
     ap.add_argument("--json", type=Path, default=None, help="write the results here")
     ap.add_argument("--top", type=int, default=3, help="slowest tests listed per file")
+    ap.add_argument("--from-json", type=Path, nargs="*", default=None, help="report earlier results, run nothing")
+    ap.add_argument("--write-slow", type=Path, default=None, help="write the slow-test list (tests/slow_tests.txt)")
+    ap.add_argument("--slow-cpu", type=float, default=1.0, help="CPU seconds over which a test is slow")
+    ap.add_argument("--markdown", action="store_true", help="print the per-file table as markdown (docs/development.md)")
     args = ap.parse_args()
-    files = [p.resolve() for p in args.files] or sorted((ROOT / "tests").glob("test_*.py"))
     rows = []
-    for path in files:
-        r = time_file(path, args.markers)
-        rows.append(r)
-        print(f"{r['file']:<42} {r['wall_s']:>7.1f} s wall {r['cpu_s']:>7.1f} s CPU  {r['summary']}", flush=True)
+    if args.from_json:
+        for p in args.from_json:
+            rows += json.loads(p.read_text())["files"]
+    else:
+        files = [p.resolve() for p in args.files] or sorted((ROOT / "tests").glob("test_*.py"))
+        for path in files:
+            r = time_file(path, args.markers)
+            rows.append(r)
+            print(f"{r['file']:<42} {r['wall_s']:>7.1f} s wall {r['cpu_s']:>7.1f} s CPU  {r['summary']}", flush=True)
+            if args.json:  # after every file, so an interrupted run keeps what it measured
+                _write_json(args.json, args.markers, rows)
     rows.sort(key=lambda r: -r["cpu_s"])
     print(f"\n{'file':<42} {'wall s':>7} {'CPU s':>7}  slowest tests (CPU s)")
     for r in rows:
@@ -69,11 +108,20 @@ def main() -> int:
     total_wall, total_cpu = sum(r["wall_s"] for r in rows), sum(r["cpu_s"] for r in rows)
     print(f"{'total':<42} {total_wall:>7.1f} {total_cpu:>7.1f}  ({len(rows)} files, load average "
           f"{os.getloadavg()[0]:.1f} at the end)")
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"markers": args.markers, "cpus": os.cpu_count(), "python": platform.python_version(),
-                                         "load_average_end": os.getloadavg(), "total_wall_s": round(total_wall, 1),
-                                         "total_cpu_s": round(total_cpu, 1), "files": rows}, indent=1))
+    if args.markdown:
+        slow = set(slow_tests(rows, args.slow_cpu)) if args.write_slow else set()
+        print("\n| file | tests | CPU s | of it in fast tests | slowest test (CPU s) |\n|---|---:|---:|---:|---|")
+        for r in rows:
+            fast = sum(v[1] for k, v in r["tests"].items() if k not in slow)
+            top = max(r["tests"].items(), key=lambda kv: kv[1][1], default=("::-", [0, 0]))
+            print(f"| `{Path(r['file']).name}` | {len(r['tests'])} | {r['cpu_s']:.1f} | {fast:.1f} | "
+                  f"`{top[0].split('::', 1)[1][:50]}` {top[1][1]:.1f} |")
+    if args.write_slow:
+        names = write_slow_list(args.write_slow, rows, args.slow_cpu)
+        fast = sum(v[1] for r in rows for k, v in r["tests"].items() if k not in set(names))
+        print(f"wrote {args.write_slow}: {len(names)} slow tests; the others took {fast:.1f} s of CPU")
+    if args.json and not args.from_json:
+        _write_json(args.json, args.markers, rows)
     return 0 if all(r["exit_code"] in (0, 5) for r in rows) else 1
 
 

@@ -84,6 +84,24 @@ def xvfb_server():
 
 
 
+# ------------------------------------------------------------------ the slow marker from tests/slow_tests.txt
+def _slow_list() -> set[str]:
+    path = Path(__file__).with_name("slow_tests.txt")
+    if not path.is_file():
+        return set()
+    return {ln.split("#", 1)[0].strip() for ln in path.read_text().splitlines()} - {""}
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests listed in tests/slow_tests.txt (written by ``bench/test_times.py --write-slow``: the tests that took
+    more than a second of CPU) get the ``slow`` marker, like those marked in their files: ``make test-fast``
+    (``-m "not slow"``) leaves them out, ``make test`` runs them."""
+    slow = _slow_list()
+    for item in items:
+        if item.nodeid in slow:
+            item.add_marker(pytest.mark.slow)
+
+
 # ------------------------------------------------------------------ per-test CPU times (bench/test_times.py)
 _TIMES_PATH = os.environ.get("HOLO_TEST_TIMES")
 _times: dict[str, list[float]] = {}
