@@ -23,6 +23,7 @@ import shutil
 import stat
 import tempfile
 import time
+import tokenize
 import zipfile
 import zlib
 from pathlib import Path
@@ -518,7 +519,11 @@ def _read_npy_stream(fh: IO[bytes], name: str, left: int, over: Callable[[str], 
     if version not in ((1, 0), (2, 0)):
         raise ValueError(f"{name}: unsupported .npy version {version}")
     read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-    shape, fortran, dtype = read_header(fh)
+    try:
+        shape, fortran, dtype = read_header(fh)
+    except (SyntaxError, tokenize.TokenError, TypeError, IndexError, KeyError, AttributeError, RecursionError) as exc:
+        # numpy parses the header text with tokenize/ast: a malformed one raises these, not ValueError
+        raise ValueError(f"{name}: malformed .npy header ({type(exc).__name__}: {exc})") from None
     if dtype.hasobject:
         raise ValueError(f"{name}: an array of Python objects (pickles are not loaded)")
     nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize

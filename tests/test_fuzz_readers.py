@@ -142,6 +142,22 @@ def test_npz_reader_fuzzed(tmp_path: Path) -> None:
     run()
 
 
+def test_npy_reader_fuzzed(tmp_path: Path) -> None:
+    from holo_viewer.fileio import read_npy
+
+    buf = io.BytesIO()
+    np.save(buf, np.arange(12.0).reshape(3, 4))
+    valid = buf.getvalue()
+
+    @FUZZ
+    @given(_mutations(valid))
+    def run(data: bytes) -> None:
+        path = _write(tmp_path, "f.npy", data)
+        _within_budget(lambda: read_npy(path))
+
+    run()
+
+
 def test_session_folders_fuzzed(tmp_path: Path) -> None:
     from holo_viewer.live.session import TRACK_KEYS, load_session
 

@@ -662,6 +662,11 @@ def test_fuzz_findings_stay_fixed(tmp_path: Path) -> None:
     bad_zip.write_bytes(bytes(raw))
     with pytest.raises(HoloViewerError, match=r"method\.npz: cannot read"):
         fileio.read_npz(bad_zip)  # was NotImplementedError
+    header = b"{'descr': ('<f8',\n"
+    bad_npy = tmp_path / "header.npy"
+    bad_npy.write_bytes(b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header)
+    with pytest.raises(HoloViewerError, match=r"header\.npy: cannot read .*malformed \.npy header"):
+        fileio.read_npy(bad_npy)  # was tokenize.TokenError
 
 
 def test_live_session_video_cut_short_is_never_renamed_into_place(tmp_path: Path, monkeypatch) -> None:
