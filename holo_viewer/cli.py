@@ -42,6 +42,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "track": ("track", "track a speaker's face in a video: speaker.npz (25 fps FLAME parameters) for react"),
     "live": ("live", "live session: microphone + webcam (or replayed files) -> reacting, viewer-tracked hologram"),
     "replay": ("replay", "re-render a recorded live session to a native-image video, deterministically"),
+    "report": ("report", "debrief a recorded live session: report.png, a text summary, a review video with audio"),
 }
 
 

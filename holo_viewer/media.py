@@ -52,7 +52,8 @@ import numpy as np
 from .errors import ExportError
 from .fileio import atomic_path
 
-__all__ = ["VideoWriter", "write_video", "count_video_frames", "read_frames", "ffmpeg_exe", "pad_even", "CODECS"]
+__all__ = ["VideoWriter", "write_video", "count_video_frames", "read_frames", "mux_audio", "ffmpeg_exe", "pad_even",
+           "CODECS"]
 
 #: ffmpeg flags that make an MP4 playable while it is written (fragments, index up front)
 STREAMING_MOVFLAGS = "+frag_keyframe+empty_moov+default_base_moof"
@@ -428,3 +429,31 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: floa
         for frame in frames:
             writer.write(frame)
     return Path(path)
+
+
+def mux_audio(video: str | os.PathLike, audio: str | os.PathLike, out: str | os.PathLike, fps: float = 25.0,
+              what: str = "review video") -> Path:
+    """``video`` at a constant ``fps`` (a timed video's frames held as they were shown, from time 0)
+    with ``audio`` muxed in (AAC), lossless RGB video (:data:`CODECS` ``"lossless"``), atomically.
+
+    Raises
+    ------
+    ExportError
+        ffmpeg failed (its message is quoted) or the result holds no frames; nothing is written.
+    """
+    out = Path(out)
+    policy = CODECS["lossless"]
+    with atomic_path(out) as tmp:
+        fmt = {".mp4": "mp4", ".mkv": "matroska", ".mov": "mov"}.get(out.suffix.lower(), "matroska")
+        cmd = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-copyts", "-i", os.fspath(video),
+               "-i", os.fspath(audio), "-map", "0:v:0", "-map", "1:a:0", "-vf", f"fps={float(fps):.6g}:start_time=0",
+               "-vcodec", policy["codec"], "-pix_fmt", policy["pixelformat"], *policy["output_params"],
+               "-c:a", "aac", "-b:a", "128k", "-f", fmt, os.fspath(tmp)]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            last = (proc.stderr.strip().splitlines() or ["no message"])[-1][:300]
+            raise ExportError(f"{out}: cannot write the {what}: ffmpeg exited with status {proc.returncode} ({last}); "
+                              f"nothing was written")
+        if count_video_frames(tmp) < 1:
+            raise ExportError(f"{out}: ffmpeg wrote no frames of the {what}; nothing was written")
+    return out

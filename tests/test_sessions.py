@@ -317,3 +317,54 @@ def test_preview_says_starting_not_black_during_start_up(capsys: pytest.CaptureF
     (img,) = shown
     assert img.shape == (280, 210, 3) and img.mean() > 30  # not black
     assert (img[130:150, 60:150] == (255, 255, 0)).all(axis=-1).any()  # the yellow "starting..." in the middle
+
+
+# ---------------------------------------------------------------- report
+def test_report_picture_text_ratings_csv_and_review_video(recorded: Path, tmp_path: Path) -> None:
+    """report --ratings CSV --video: the ratings land in session.json, each trainee's error and bias
+    against the pain shown when they rated, a PNG, the text next to it, a 25 fps video with audio."""
+    import json
+    import shutil
+
+    from PIL import Image
+
+    from holo_viewer.cli import main
+
+    s = tmp_path / "s"
+    shutil.copytree(recorded, s)
+    (tmp_path / "r.csv").write_text("t,trainee,rating\n0.2,A,3\n0.8,A,9\n0.9,B,10\n")
+    assert main(["report", str(s), "--out", str(tmp_path / "report.png"), "--ratings", str(tmp_path / "r.csv"),
+                 "--video", str(tmp_path / "review.mp4")]) == 0
+    meta = json.loads((s / "session.json").read_text())
+    assert [(r["trainee"], r["rating"], r["source"]) for r in meta["ratings"]] == [("A", 3, "csv"), ("A", 9, "csv"),
+                                                                                   ("B", 10, "csv")]
+    # no behaviour layers: the pain shown is the scenario's level, 0 before 0.4 s and 1 (10) after
+    text = (tmp_path / "report.txt").read_text()
+    assert "trainee A: 2 ratings, mean error 2.0, bias +1.0" in text  # (3 - 0) and (9 - 10)
+    assert "trainee B: 1 ratings, mean error 0.0, bias +0.0" in text
+    assert Image.open(tmp_path / "report.png").size == (1300, 1200)
+    frames = list(media.read_frames(tmp_path / "review.mp4"))
+    assert len(frames) == round(meta["end_s"] * 25) and frames[0].shape == (2048, 1536, 3)
+    from holo_viewer.media import ffmpeg_exe
+    import subprocess
+
+    probe = subprocess.run([ffmpeg_exe(), "-hide_banner", "-i", str(tmp_path / "review.mp4")], capture_output=True,
+                           text=True).stderr
+    assert "Audio: aac" in probe
+
+
+def test_ratings_csv_errors_name_the_row(recorded: Path, tmp_path: Path) -> None:
+    import shutil
+
+    from holo_viewer.errors import InputError
+    from holo_viewer.live.session import add_ratings_csv
+
+    s = tmp_path / "s"
+    shutil.copytree(recorded, s)
+    for body, match in [("t,who,rating\n1,A,3\n", "expected a header with columns t, trainee, rating"),
+                        ("t,trainee,rating\n1,A,11\n", r"row 2: expected t >= 0 s and a rating 0-10"),
+                        ("t,trainee,rating\n1,A,3\nsoon,B,2\n", r"row 3: t and rating: expected numbers, found 'soon'"),
+                        ("t,trainee,rating\n1,,3\n", "row 2: trainee: expected a label")]:
+        (tmp_path / "r.csv").write_text(body)
+        with pytest.raises(InputError, match=match):
+            add_ratings_csv(s, tmp_path / "r.csv")

@@ -43,7 +43,7 @@ import numpy as np
 from ..fileio import atomic_write, save_npz
 
 __all__ = ["SessionRecorder", "TRACK_KEYS", "DISPLAY_KEYS", "NATIVE_VIDEO", "SCHEMA", "SCHEMA_VERSION",
-           "avatar_record", "load_session"]
+           "avatar_record", "add_ratings_csv", "load_session"]
 
 #: session.json's schema name and version (1: before the version field; 2: self-contained)
 SCHEMA = "holo_viewer.session"
@@ -190,6 +190,48 @@ def avatar_record(pipeline: Any, name: str = "default") -> dict[str, Any]:
 
     feed(pipeline.avatar, 2)
     return {"name": name, "digest": h.hexdigest(), "gaussians": int(len(pipeline.avatar))}
+
+
+def add_ratings_csv(folder: str | os.PathLike, csv_path: str | os.PathLike) -> int:
+    """Add trainees' ratings from a CSV (header ``t,trainee,rating``: session seconds >= 0, a label,
+    an integer 0-10) to the session's session.json (source ``csv``; rewritten atomically); returns
+    how many. InputError naming the file, row and column for anything else."""
+    import csv
+
+    from ..errors import InputError
+    from ..fileio import read_json
+
+    p, src = Path(folder), Path(csv_path)
+    load_session(p)  # a session folder, readable
+    try:
+        with open(src, newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+            header = set(rows[0]) if rows else set()
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(f"{src}: cannot read the ratings CSV ({exc})") from exc
+    if not rows or not {"t", "trainee", "rating"} <= header:
+        raise InputError(f"{src}: expected a header with columns t, trainee, rating and at least one row, found "
+                         f"{sorted(header) if rows else 'no rows'}")
+    new = []
+    for i, row in enumerate(rows, start=2):
+        try:
+            t = float(row["t"])
+            rating = float(row["rating"])
+        except (TypeError, ValueError):
+            raise InputError(f"{src}: row {i}: t and rating: expected numbers, found {row['t']!r}, "
+                             f"{row['rating']!r}") from None
+        if not (np.isfinite(t) and t >= 0) or not (rating == int(rating) and 0 <= rating <= 10):
+            raise InputError(f"{src}: row {i}: expected t >= 0 s and a rating 0-10 (whole numbers), found t {t}, "
+                             f"rating {rating}")
+        trainee = (row["trainee"] or "").strip()
+        if not trainee:
+            raise InputError(f"{src}: row {i}: trainee: expected a label, found an empty cell")
+        new.append({"t": round(t, 3), "trainee": trainee, "rating": int(rating), "source": "csv"})
+    meta = read_json(p / "session.json", InputError, "session metadata")
+    meta["ratings"] = sorted(list(meta.get("ratings") or []) + new, key=lambda r: r["t"])
+    with atomic_write(p / "session.json", "w") as fh:
+        json.dump(meta, fh, indent=2, default=_json_default)
+    return len(new)
 
 
 def _json_default(o: Any) -> Any:
