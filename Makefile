@@ -38,6 +38,7 @@ bench: setup
 	$(PY) bench/lenticular_speed.py --json bench/results/lenticular_speed.json
 	$(PY) bench/reaction_latency.py --json bench/results/reaction_latency.json
 	$(PY) bench/react_metrics_speed.py --json bench/results/react_metrics_speed.json
+	$(PY) bench/listener_behaviour.py --out bench/results/listener_behaviour.json
 	$(PY) bench/live_latency.py --json bench/results/live_latency.json
 	$(PY) bench/live_frame.py --json bench/results/live_frame.json
 	$(PY) bench/cpu_scaling.py --json bench/results/cpu_scaling.json
