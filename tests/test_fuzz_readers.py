@@ -128,32 +128,22 @@ def _npz_bytes(**arrays: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def test_npz_reader_fuzzed(tmp_path: Path) -> None:
-    from holo_viewer.fileio import read_npz
+@pytest.mark.parametrize("suffix", [".npz", ".npy"])
+def test_npz_and_npy_readers_fuzzed(tmp_path: Path, suffix: str) -> None:
+    from holo_viewer.fileio import read_npy, read_npz
 
-    valid = _npz_bytes(a=np.arange(12.0).reshape(3, 4), b=np.array(["x", "yz"]))
-
-    @FUZZ
-    @given(_mutations(valid))
-    def run(data: bytes) -> None:
-        path = _write(tmp_path, "f.npz", data)
-        _within_budget(lambda: read_npz(path))
-
-    run()
-
-
-def test_npy_reader_fuzzed(tmp_path: Path) -> None:
-    from holo_viewer.fileio import read_npy
-
-    buf = io.BytesIO()
-    np.save(buf, np.arange(12.0).reshape(3, 4))
-    valid = buf.getvalue()
+    if suffix == ".npz":
+        valid, read = _npz_bytes(a=np.arange(12.0).reshape(3, 4), b=np.array(["x", "yz"])), read_npz
+    else:
+        buf = io.BytesIO()
+        np.save(buf, np.arange(12.0).reshape(3, 4))
+        valid, read = buf.getvalue(), read_npy
 
     @FUZZ
     @given(_mutations(valid))
     def run(data: bytes) -> None:
-        path = _write(tmp_path, "f.npy", data)
-        _within_budget(lambda: read_npy(path))
+        path = _write(tmp_path, "f" + suffix, data)
+        _within_budget(lambda: read(path))
 
     run()
 
