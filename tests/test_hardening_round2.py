@@ -687,3 +687,15 @@ def test_live_session_video_cut_short_is_never_renamed_into_place(tmp_path: Path
         session.run(_FakeRenderer())
     assert not (out / NATIVE_VIDEO).exists() and not [p for p in out.iterdir() if p.name.startswith(".")]
     assert (out / "session.json").exists()  # the session itself is kept
+
+
+def test_no_video_is_written_around_media() -> None:
+    """Every video writer of the package and apps/ goes through media.VideoWriter (verified, atomic)."""
+    offenders = []
+    for path in sorted([*(ROOT / "holo_viewer").rglob("*.py"), *(ROOT / "apps").rglob("*.py")]):
+        if path.name == "media.py":
+            continue
+        text = path.read_text(encoding="utf-8")
+        offenders += [f"{path.relative_to(ROOT)}: {needle}" for needle in ("get_writer(", "write_frames(")
+                      if needle in text]
+    assert offenders == []
