@@ -210,11 +210,8 @@ def join_segments(segments: list[str | os.PathLike], out: str | os.PathLike, fra
 
 
 def read_video_frames(path: str | os.PathLike) -> Iterator[np.ndarray]:
-    """Decode a video (mp4 or MPEG-TS) to (H, W, 3) uint8 RGB frames (for checks and tests)."""
-    import imageio_ffmpeg
+    """Decode a video (mp4 or MPEG-TS) to (H, W, 3) uint8 RGB frames, each stored frame once
+    (:func:`holo_viewer.media.read_frames`; for checks and tests)."""
+    from ..media import read_frames
 
-    gen = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24")
-    meta = next(gen)
-    w, h = meta["size"]
-    for buf in gen:
-        yield np.frombuffer(buf, np.uint8).reshape(h, w, 3)
+    return read_frames(path)
