@@ -205,7 +205,7 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
     tracked viewers' eyes. Records: ``mode``, ``viewers``, ``seconds_per_frame`` (median),
     ``tracked_eye_db`` (worst tracked eye, frames evaluated), ``cone_worst_db``, ``cone_median_db``.
     ``tracked`` serves the first viewer only (the old default collapsed the faces to the nearest).
-    ``sheet``: a PNG of what the tracked viewer's left eye and bystanders at 0, -15, +15 deg (0.6 m)
+    ``sheet``: a picture (PNG, or JPEG by its suffix) of what the tracked viewer's left eye and bystanders at 0, -15, +15 deg (0.6 m)
     see at three moments of the flare, for ``tracked`` (rows 1-3) and ``group`` (rows 4-6)."""
     from holo_viewer.display.eyes import ConeSweep, TrackedViewer
 
@@ -291,8 +291,9 @@ def write_sheet(path: str, display: VirtualDisplay, shown: dict, viewer, moments
             rows.append(np.concatenate(row, axis=1))
     sheet = np.concatenate(rows, axis=0)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
+    jpeg = path.lower().endswith((".jpg", ".jpeg"))
     with atomic_write(path, "wb") as fh:
-        Image.fromarray(sheet).save(fh, format="PNG")
+        Image.fromarray(sheet).save(fh, format="JPEG" if jpeg else "PNG", **({"quality": 88} if jpeg else {}))
 
 
 def run_mode(live: NativeFrameRenderer, frames: list, mode: str, viewers: list | None = None,
@@ -322,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="output JSON file (default bench/results/live_frame.json; --group-only: live_frame_group.json)")
     ap.add_argument("--group-only", action="store_true",
                     help="only the group sweep (issue 37): every mode judged at every position of the cone")
-    ap.add_argument("--sheet", default="docs/images/live_group_sheet.png",
+    ap.add_argument("--sheet", default="docs/images/live_group_sheet.jpg",
                     help="the group sweep's picture (tracked eye and bystanders at three moments of a flare)")
     ap.add_argument("--frames", type=int, default=None,
                     help="frames per mode (default 6 quick, 10 full; the median of 4 was carried by one cold frame)")
