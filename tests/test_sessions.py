@@ -368,3 +368,23 @@ def test_ratings_csv_errors_name_the_row(recorded: Path, tmp_path: Path) -> None
         (tmp_path / "r.csv").write_text(body)
         with pytest.raises(InputError, match=match):
             add_ratings_csv(s, tmp_path / "r.csv")
+
+
+def test_behaviour_layer_keys_switch_the_layers(tmp_path: Path) -> None:
+    """g, b, a, s switch gaze, blinks, breathing, sway in the running behaviour; b twice: back on."""
+    import json
+
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveSession, LiveSessionConfig
+    from holo_viewer.pipeline.live_support import SyntheticSpeaker
+
+    syn = SyntheticSpeaker(1.0)
+    session = LiveSession(LiveSessionConfig(out=str(tmp_path / "s"), tile_scale=0.1),  # behaviour on (default)
+                          sources.ArrayAudio(syn.waveform), None, syn)
+    window = _KeyWindow([(2, "g", 0.0), (2, "b", 0.0), (2, "a", 0.0), (2, "s", 0.0), (2, "b", 0.0)])
+    session.run(_NoiseRenderer(), preview=window)
+    c = session._behaviour.config
+    assert (c.gaze, c.blinks, c.breathing, c.sway) == (False, True, False, False)
+    meta = json.loads((tmp_path / "s" / "session.json").read_text())
+    assert [k["action"] for k in meta["keys"]] == ["toggle_gaze", "toggle_blinks", "toggle_breathing", "toggle_sway",
+                                                   "toggle_blinks"]

@@ -11,17 +11,21 @@ from ..errors import InputError
 from ..fileio import read_json
 from ..validation import check_json_number
 
-__all__ = ["Controls", "Scenario", "ScenarioEvent", "KEYS", "KEY_HELP", "TRAINEES"]
+__all__ = ["Controls", "Scenario", "ScenarioEvent", "KEYS", "KEY_HELP", "LAYER_KEYS", "TRAINEES"]
 
 #: key symbol (VTK / X11 names) -> action: the one key map of a live session (shown on ``h``)
 KEYS = {"Up": "pain_up", "plus": "pain_up", "equal": "pain_up", "Down": "pain_down", "minus": "pain_down",
         "space": "pause", "p": "pause", "m": "mute", "r": "recentre", "c": "recentre", "h": "help",
         "question": "help", "t": "trainee", "x": "rate", "q": "quit", "Escape": "quit",
+        "g": "toggle_gaze", "b": "toggle_blinks", "a": "toggle_breathing", "s": "toggle_sway",
         **{str(d): "rate" for d in range(10)}}
+#: the behaviour layers (holo_viewer.behaviour.BehaviourConfig switches) the toggle_* keys turn on and off
+LAYER_KEYS = ("gaze", "blinks", "breathing", "sway")
 #: the key map as the preview shows it on ``h`` (keys, what they do)
 KEY_HELP = (("Up / + , Down / -", "pain up / down by 0.1"), ("space / p", "pause / resume (clock, audio, "
             "scenario, recording)"), ("m", "mute: the patient hears nothing"), ("r / c", "recentre the viewer"),
             ("t", "next trainee (A..H)"), ("0-9, x", "the trainee's pain rating 0-9, x = 10"),
+            ("g / b / a / s", "gaze / blinks / breathing / sway on or off"),
             ("h / ?", "show / hide this key map"), ("q / Esc", "quit"))
 #: trainee labels the ``t`` key cycles through
 TRAINEES = "ABCDEFGH"
@@ -40,6 +44,8 @@ class Controls:
         #: the trainee whose ratings the number keys enter, and the last rating entered
         self.trainee = TRAINEES[0]
         self.last_rating: int | None = None
+        #: behaviour layers to switch, oldest first (the reaction thread takes them)
+        self._layer_toggles: list[str] = []
         self.quit = False
         self._recentre = False
         #: key actions applied, oldest first (for the session record and tests)
@@ -65,6 +71,8 @@ class Controls:
                 self.trainee = TRAINEES[(TRAINEES.index(self.trainee) + 1) % len(TRAINEES)]
             elif action == "rate":
                 self.last_rating = 10 if keysym == "x" else int(keysym)
+            elif action.startswith("toggle_"):
+                self._layer_toggles.append(action[len("toggle_"):])
             elif action == "recentre":
                 self._recentre = True
             elif action == "quit":
@@ -75,6 +83,12 @@ class Controls:
     def set_pain(self, pain: float) -> None:
         with self._lock:
             self.pain = min(1.0, max(0.0, float(pain)))
+
+    def take_layer_toggles(self) -> list[str]:
+        """The behaviour layers switched since the last call (names of :data:`LAYER_KEYS`)."""
+        with self._lock:
+            t, self._layer_toggles = self._layer_toggles, []
+            return t
 
     def take_recentre(self) -> bool:
         """True once after a recentre key."""

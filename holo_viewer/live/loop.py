@@ -21,6 +21,7 @@ reaction stream. Every result carries its media time, so latency is measured end
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import signal
 import threading
@@ -276,6 +277,9 @@ class LiveSession:
                 if beh is not None:  # eyes on the tracked viewer, blinks, breathing, sway, pain dynamics
                     from ..behaviour import viewer_target
 
+                    for layer in self.controls.take_layer_toggles():  # the g / b / a / s keys
+                        beh.config = dataclasses.replace(beh.config, **{layer: not getattr(beh.config, layer)})
+
                     lf = beh.step(lf, pain, viewer_target(float(np.clip(ang, -60, 60)), float(np.clip(dist, 0.05, 20))),
                                   speaking, pause_onset)
                     shown = beh.last["pain"]
@@ -364,8 +368,6 @@ class LiveSession:
         if cfg.behaviour is not None:
             bcfg = BehaviourConfig(seed=cfg.seed) if isinstance(cfg.behaviour, str) else cfg.behaviour
             self._behaviour = ListenerBehaviour(bcfg)
-        import dataclasses
-
         from .session import avatar_record
 
         header = self.recorder.header
