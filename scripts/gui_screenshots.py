@@ -34,7 +34,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out-dir", default="docs/images")
     ap.add_argument("--window-size", type=int, nargs=2, default=(1200, 680))
     ap.add_argument("--max-kb", type=int, default=280)
+    ap.add_argument("--screen-fit", action="store_true",
+                    help="only viewer_screen_WxH.png: the default window for this X screen (no --window-size)")
     args = ap.parse_args(argv)
+    if args.screen_fit:
+        return screen_fit(Path(args.out_dir), args.max_kb)
 
     from holo_viewer.pipeline.scene import load_scene
     from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
@@ -68,6 +72,30 @@ def main(argv: list[str] | None = None) -> int:
     print("viewer_scrub.png", save_small(out / "viewer_scrub.png", viewer.screenshot(), args.max_kb), "KB")
     xdo("mouseup", 1)
     viewer.run(timeout=0.5)
+    viewer.close()
+    return 0
+
+
+def screen_fit(out: Path, max_kb: int) -> int:
+    """The window as ``holo-viewer view`` opens it on this X screen (size from the screen), the thumbnail
+    in, saved as ``viewer_screen_WxH.png`` (W x H: the screen)."""
+    from holo_viewer.gui.screen import x_screen_size
+    from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
+    from holo_viewer.pipeline.scene import load_scene
+
+    out.mkdir(parents=True, exist_ok=True)
+    sw, sh = x_screen_size()
+    from holo_viewer.commands.view import open_window
+
+    pipe = load_scene("default").pipeline
+    viewer = open_window(lambda: HoloViewer(pipe, ViewerConfig(out_dir="/tmp", show_status=False)))
+    viewer.open()
+    viewer.run(timeout=1.0)
+    viewer.poll_thumbnail(wait=True)
+    viewer.run(timeout=0.3)
+    name = f"viewer_screen_{sw}x{sh}.png"
+    w, h = viewer.plotter.ren_win.GetSize()
+    print(name, f"window {w}x{h}", save_small(out / name, viewer.screenshot(), max_kb), "KB")
     viewer.close()
     return 0
 

@@ -12,6 +12,7 @@ or avatar is retuned. Regenerate the golden image with ``HOLO_UPDATE_GOLDEN=1``.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -73,7 +74,7 @@ def window(xvfb, tmp_path):
     from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
 
     cfg = ViewerConfig(window_size=(960, 540), out_dir=str(tmp_path / "exports"), sweep_frames=3,
-                       sweep_scale=0.1, thumbnail_scale=0.1, preview_scale=0.5)
+                       sweep_scale=0.1, thumbnail_scale=0.1, preview_scale=0.5, splat_view=False)
     viewer = HoloViewer(_small_scene(), cfg)
     viewer.open()  # map the window without entering the event loop
     yield viewer
@@ -99,7 +100,12 @@ def _press(viewer, key: str) -> None:
 
 
 @pytest.fixture(scope="module")
-def xdotool(xvfb):
+def xdotool(xvfb, xdotool_exe):
+    return xdotool_exe
+
+
+@pytest.fixture(scope="module")
+def xdotool_exe():
     exe = shutil.which("xdotool")
     if exe is None:
         pytest.skip("xdotool is not installed (apt-get install xdotool); the real-input tests send X key presses "
@@ -280,13 +286,14 @@ def test_i_key_saves_a_screenshot_and_leaves_the_sliders_alone(window, xin):
 
 
 def test_builtin_vtk_and_pyvista_keys_do_nothing(window, xin):
-    """Bug 3: w/s wireframe/surface, 3 stereo, e quit, f/p/v camera and picking, Up/Down/+/- zoom."""
+    """Bug 3: w wireframe, 3 stereo, e quit, f/p camera and picking, Up/Down/+/- zoom (``s`` and ``v`` are
+    ours now: splats and look-through)."""
     scene = _camera_state(window.scene_renderer)
     thumb = _camera_state(window.thumb_panel.renderer)
     shot = window.read_pixels("quilt").copy()
-    xin.key("w", "3", "f", "p", "v", "j", "t", "u", "e", "Up", "Down", "plus", "minus", timeout=0.6)
+    xin.key("w", "3", "f", "p", "j", "t", "u", "e", "Up", "Down", "plus", "minus", timeout=0.6)
     xin.move(*xin.centre("quilt"))  # the zoom keys used to act on the panel under the pointer
-    assert not xin.key("Up", "Up", "plus", "w", "s", timeout=0.6)  # the loop is still running ('e' did not quit)
+    assert not xin.key("Up", "Up", "plus", "w", timeout=0.6)  # the loop is still running ('e' did not quit)
     assert window.mesh_actor.GetProperty().GetRepresentation() == 2  # surface
     assert not window.plotter.ren_win.GetStereoRender()
     assert _camera_state(window.scene_renderer) == scene
@@ -375,10 +382,11 @@ def test_value_entry_arrow_keys_and_reset_to_neutral(window, xin):
     xin.key("Return")
     xin.type("nosuch 1")
     xin.key("Return")
-    assert "no slider named 'nosuch'" in window.errors[-1]
+    assert "no slider named 'nosuch'" in window.errors[-1] and window._message.startswith("error: ")
     frusta = window.frusta  # the 48 frusta are moved, never rebuilt
     v0 = window.selected_view
     assert xin.key("Right", until=lambda: window.selected_view == v0 + 1, timeout=3)
+    assert "error" not in window._message and "nosuch" not in window.status.GetInput()  # a success clears it
     assert window.frusta is frusta and window.frusta_actor.mapper.dataset is frusta
     np.testing.assert_allclose(np.array(window.selected.points), np.array(frusta.points)[5 * (v0 + 1): 5 * (v0 + 2)])
     assert f"view {v0 + 1}/" in window.preview_panel.title.GetInput()
@@ -445,25 +453,185 @@ def test_layout_readable_at_800x450(xvfb, tmp_path):
                                                      thumbnail_scale=0.1))
     try:
         viewer.open()
-        ren = viewer.slider_renderer
-        boxes = []
-        for spec in viewer._specs.values():
-            assert spec.label.GetTextProperty().GetFontSize() >= 11
-            bb = _text_box(spec.label, ren)
-            knob_y = viewer.plotter.ren_win.GetSize()[1] - 1 - viewer.slider_point(spec.key)[1]
-            assert bb[2] > knob_y, f"{spec.title}: title not above its own slider"
-            boxes.append((spec.title, bb, knob_y))
-        for (t1, b1, _), (t2, b2, k2) in zip(boxes, boxes[1:]):
-            assert b2[3] < b1[2], f"titles {t1!r} and {t2!r} overlap"
-            assert k2 < b1[2] - 2, f"slider of {t2!r} runs into the title {t1!r}"
-        # the quilt title sits above the thumbnail image, not on it
-        panel = viewer.thumb_panel
-        bb = _text_box(panel.title, panel.renderer)
-        assert panel.title.GetTextProperty().GetFontSize() >= 11
-        img_top = _image_top_pixel(panel)
-        assert bb[2] >= img_top - 1, (bb, img_top)
+        _assert_layout_readable(viewer)
     finally:
         viewer.close()
+
+
+def _assert_layout_readable(viewer) -> None:
+    """Every slider title above its own slider, none overlapping; the quilt title above the thumbnail."""
+    ren = viewer.slider_renderer
+    boxes = []
+    for spec in viewer._specs.values():
+        assert spec.label.GetTextProperty().GetFontSize() >= 11
+        bb = _text_box(spec.label, ren)
+        knob_y = viewer.plotter.ren_win.GetSize()[1] - 1 - viewer.slider_point(spec.key)[1]
+        assert bb[2] > knob_y, f"{spec.title}: title not above its own slider"
+        boxes.append((spec.title, bb, knob_y))
+    for (t1, b1, _), (t2, b2, k2) in zip(boxes, boxes[1:]):
+        assert b2[3] < b1[2], f"titles {t1!r} and {t2!r} overlap"
+        assert k2 < b1[2] - 2, f"slider of {t2!r} runs into the title {t1!r}"
+    # the quilt title sits above the thumbnail image, not on it
+    panel = viewer.thumb_panel
+    bb = _text_box(panel.title, panel.renderer)
+    assert panel.title.GetTextProperty().GetFontSize() >= 11
+    img_top = _image_top_pixel(panel)
+    assert bb[2] >= img_top - 1, (bb, img_top)
+
+
+SCREENS = ((1280, 720), (1366, 768), (1920, 1080), (2560, 1440))
+
+
+def test_entry_hints_and_errors_use_the_au_names():
+    from holo_viewer.errors import InputError
+    from holo_viewer.gui.keys import KeysMixin
+    from holo_viewer.gui.widgets import _Slider
+
+    specs = {"expr2": _Slider("expr2", "AU9 nose wrinkler", (0, 1.5), "%.2f", None, None, "face", aliases=("au9", "au9")),
+             "pain": _Slider("pain", "pain (PSPI face)", (0, 1), "%.2f", None, None, "face")}
+    entry = KeysMixin()
+    entry._specs = specs
+    assert [s.entry_name for s in specs.values()] == ["au9", "pain"]
+    assert entry.find_slider("AU9") == "expr2"
+    with pytest.raises(InputError) as err:
+        entry.find_slider("expr9")
+    assert "au9, pain" in str(err.value) and "expr2" not in str(err.value)
+
+
+def test_viewer_angle_slider_stays_where_the_avatar_was_fitted():
+    from types import SimpleNamespace as NS
+
+    from holo_viewer.gui.sliders import FITTED_YAW_DEG, viewer_angle_range
+
+    cal = NS(view_cone=40.0)
+    fitted = NS(avatar=object(), model=NS(is_default_head=True), view=NS(view_cone=None), calibration=cal)
+    lo, hi = viewer_angle_range(fitted)
+    assert (lo, hi) == (-10.0, 10.0) and hi + 40.0 / 2 <= FITTED_YAW_DEG  # the outermost view stays fitted
+    assert viewer_angle_range(NS(**{**vars(fitted), "view": NS(view_cone=60.0)})) == (-1.0, 1.0)
+    assert viewer_angle_range(NS(**{**vars(fitted), "avatar": None})) == (-30.0, 30.0)  # mesh only
+    assert viewer_angle_range(NS(**{**vars(fitted), "model": NS()})) == (-30.0, 30.0)  # another model
+
+
+@pytest.fixture()
+def splat_window(xvfb, tmp_path):
+    """A viewer with the splat view on (the default), 800x450, small scene."""
+    from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
+
+    viewer = HoloViewer(_small_scene(), ViewerConfig(window_size=(800, 450), out_dir=str(tmp_path),
+                                                     thumbnail_scale=0.1, auto_thumbnail=False))
+    viewer.open()
+    yield viewer
+    viewer.close()
+
+
+def _scene_readback(viewer) -> np.ndarray:
+    """The 3D scene's pixels as on screen, (H, W, 3) with row 0 at the top."""
+    viewer.run(timeout=0.3)
+    return viewer.read_pixels("scene")[::-1]
+
+
+def test_splat_view_looking_through_a_quilt_camera_shows_its_quilt_tile(splat_window, xdotool):
+    """``v`` (real key) looks through the selected view; with the overlays off (``o``) the scene read back
+    from the screen holds that view's quilt tile (Pipeline.quilt()) at full resolution."""
+    from holo_viewer.display.quilt import split_quilt
+    from holo_viewer.images import psnr
+
+    viewer = splat_window
+    xin = XInput(xdotool, viewer)
+    assert viewer.show_splats and not viewer.mesh_actor.GetVisibility()  # the splats are the picture
+    viewer.select_view(10)
+    xin.move(*viewer.slider_point("view"))  # key presses go to the window under the pointer
+    assert xin.key("v", until=lambda: viewer.look_through == 10, timeout=5)
+    assert xin.key("o", until=lambda: not viewer.show_frusta, timeout=5)
+    scene = _scene_readback(viewer)
+    pipe = viewer.pipeline
+    cams, cal = pipe.cameras(), pipe.calibration
+    tile = split_quilt(pipe.quilt(), cal.cols, cal.rows, len(cams))[10]
+    h, w = tile.shape[:2]
+    oy, ox = (scene.shape[0] - h) // 2, (scene.shape[1] - w) // 2
+    crop = scene[oy:oy + h, ox:ox + w] / 255.0
+    assert psnr(tile / 255.0, crop) >= 40.0
+    assert psnr(split_quilt(pipe.quilt(), cal.cols, cal.rows, len(cams))[30] / 255.0, crop) < 40.0  # can fail
+    assert xin.key("Right", until=lambda: viewer.look_through == 11, timeout=5)  # follows the selection
+    assert xin.key("v", until=lambda: viewer.look_through is None, timeout=5)
+
+
+def test_splat_view_follows_the_camera_reduced_while_dragging(splat_window, xdotool):
+    """A real drag in the scene: while the button is down the splat image is the reduced one, after the
+    release the full-resolution image of the new camera pose, which matches the float64 reference
+    renderer at that pose (between the quilt cameras)."""
+    from holo_viewer.images import psnr
+    from holo_viewer.pipeline import render_images
+
+    viewer = splat_window
+    xin = XInput(xdotool, viewer)
+    x0, y0, x1, y1 = viewer.panel_box("scene")
+    H = viewer.plotter.ren_win.GetSize()[1]
+    cx, cy = (x0 + x1) // 2, H - (y0 + y1) // 2
+    xin.move(cx, cy)
+    assert xin.key("o", until=lambda: not viewer.show_frusta, timeout=5)  # overlays off
+    before = viewer.splat_image.copy()
+    xin.xdo("mousedown", 1)
+    try:
+        for k in range(1, 4):
+            xin.move(cx + 25 * k, cy)
+            xin.settle(timeout=0.3)
+        assert not viewer._splat_full and viewer.timings.splat_drag_ms is not None
+    finally:
+        xin.xdo("mouseup", 1)
+    assert xin.settle(until=lambda: viewer._splat_full, timeout=10)
+    scene = _scene_readback(viewer)
+    assert np.abs(scene.astype(int) - before).mean() > 1.0  # the camera moved: a new picture
+    cams = viewer.splat_cameras()
+    assert (cams.width, cams.height) == (scene.shape[1], scene.shape[0])
+    ref = render_images(viewer.pipeline.gaussians(), cams, backend="reference")[0]  # float64
+    band = np.zeros(scene.shape[:2], dtype=bool)  # the text and the axes stay in the corners
+    band[int(0.12 * band.shape[0]):int(0.75 * band.shape[0])] = True
+    assert psnr(ref, scene / 255.0, mask=band) >= 40.0
+    assert psnr(ref, before / 255.0, mask=band) < 40.0  # the test can fail
+
+
+def test_default_window_fits_each_screen_size():
+    from holo_viewer.gui.screen import window_size_for_screen
+
+    for sw, sh in SCREENS:
+        w, h = window_size_for_screen((sw, sh))
+        assert 800 <= w <= sw and 450 <= h <= sh - 60, (sw, sh, w, h)  # room for a title / panel bar
+    assert window_size_for_screen(None) == (1400, 800)
+
+
+@pytest.mark.parametrize("screen", SCREENS, ids=[f"{w}x{h}" for w, h in SCREENS])
+def test_window_sized_from_the_screen_lays_out_without_clipping(xvfb_server, xdotool_exe, screen, tmp_path,
+                                                                 monkeypatch):
+    """On an X screen of each size the default window fits on the screen (measured by the X server)
+    and every slider, title, panel and the status line lie inside it, readable."""
+    from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
+
+    monkeypatch.delenv("VTK_DEFAULT_OPENGL_WINDOW", raising=False)
+    with xvfb_server(f"{screen[0]}x{screen[1]}x24") as display:
+        monkeypatch.setenv("DISPLAY", display)
+        viewer = HoloViewer(_small_scene(), ViewerConfig(out_dir=str(tmp_path), thumbnail_scale=0.1))
+        try:
+            viewer.open()
+            viewer.run(timeout=0.3)
+            geo = subprocess.run([xdotool_exe, "getwindowgeometry", str(viewer.window_id())], capture_output=True,
+                                 text=True, check=True, timeout=10).stdout
+            size = [int(v) for v in geo.split("Geometry:")[1].split()[0].split("x")]
+            pos = [int(v) for v in geo.split("Position:")[1].split()[0].split(",")]
+            assert size == list(viewer.plotter.ren_win.GetSize()), geo
+            assert pos[0] >= 0 and pos[1] >= 0 and pos[0] + size[0] <= screen[0] and pos[1] + size[1] <= screen[1], geo
+            W, H = size
+            for which in ("scene", "preview", "quilt", "sliders"):
+                x0, y0, x1, y1 = viewer.panel_box(which)
+                assert 0 <= x0 < x1 < W and 0 <= y0 < y1 < H and (x1 - x0) > 150 and (y1 - y0) > 150, which
+            for key in viewer._specs:
+                x, y = viewer.slider_point(key)
+                assert 0 <= x < W and 0 <= y < H, key
+            status = _text_box(viewer.status, viewer.scene_renderer)
+            assert status[0] >= viewer.panel_box("scene")[0] and status[2] >= 0, status
+            _assert_layout_readable(viewer)
+        finally:
+            viewer.close()
 
 
 def _text_box(actor, renderer) -> list[float]:
@@ -515,6 +683,42 @@ def test_view_without_a_display_exits_1_pointing_to_xvfb_and_snapshot(monkeypatc
     monkeypatch.setenv("DISPLAY", ":4711")  # nothing listens there
     assert main(["view", "--avatar", "none"]) == 1
     assert "cannot open the X display" in capsys.readouterr().err
+
+
+def test_a_refused_x_window_is_one_clear_line_and_view_tries_again():
+    """VTK falls back to an EGL window when the X server refuses its connection; that is a DisplayError
+    of one line (not pyvista's MismatchedInteractorError later), and ``view`` tries again first."""
+    from holo_viewer.commands.view import open_window
+    from holo_viewer.errors import DisplayError
+    from holo_viewer.gui.screen import require_x_window
+
+    class vtkEGLRenderWindow:  # noqa: N801 - the class name VTK falls back to
+        pass
+
+    class vtkXOpenGLRenderWindow:  # noqa: N801
+        pass
+
+    require_x_window(vtkXOpenGLRenderWindow())
+    with pytest.raises(DisplayError) as err:
+        require_x_window(vtkEGLRenderWindow())
+    msg = str(err.value)
+    assert "\n" not in msg and "refused" in msg and "vtkEGLRenderWindow" in msg and "snapshot" in msg
+    calls = []
+
+    def flaky():
+        calls.append(1)
+        if len(calls) < 3:
+            raise DisplayError("refused")
+        return "window"
+    assert open_window(flaky) == "window" and len(calls) == 3
+    calls.clear()
+
+    def refused():
+        calls.append(1)
+        raise DisplayError("refused")
+    with pytest.raises(DisplayError):
+        open_window(refused, tries=2)
+    assert len(calls) == 2
 
 
 def test_view_toolkit_option_and_deprecated_backend(monkeypatch, capsys):
@@ -595,6 +799,41 @@ def test_snapshot_command_writes_png(tmp_path):
     assert rc == 0
     img = load_image(out)
     assert img.shape == (270, 480, 3) and img.std() > 0.02
+
+
+def test_snapshot_face_figure_options(tmp_path, capsys):
+    """--expr NAME=VALUE (AU names), --angle, --view and --close-up set what the viewer's entry and z set."""
+    import argparse
+
+    from holo_viewer.cli import main
+    from holo_viewer.commands.snapshot import apply_settings
+    from holo_viewer.errors import InputError
+    from holo_viewer.gui.offscreen_viewer import offscreen_viewer
+    from holo_viewer.pipeline.scene import load_scene
+
+    def ns(**kw):
+        return argparse.Namespace(**{"expr": [], "angle": None, "view": None, "close_up": False, **kw})
+
+    with offscreen_viewer(load_scene("none"), window_size=(480, 270)) as viewer:
+        far = viewer.screenshot()
+        au9 = viewer.find_slider("au9")
+        apply_settings(viewer, ns(expr=["au9=1", "jaw=0.2"], angle=12.5, view=5, close_up=True))
+        assert viewer.pipeline.face.expr[int(au9[4:])] == pytest.approx(1.0)
+        assert viewer.pipeline.face.jaw_pose[0] == pytest.approx(0.2)
+        assert viewer.pipeline.view.viewer_angle == pytest.approx(12.5) and viewer.selected_view == 5
+        viewer.plotter.ren_win.Render()
+        assert np.abs(viewer.screenshot().astype(int) - far).mean() > 5  # the close-up frames the head
+        for bad, words in ((["au99=1"], "no slider named 'au99'"), (["au9"], "NAME=VALUE"),
+                           (["pain=2"], "pain (PSPI face): expected 0.00..1.00")):
+            with pytest.raises(InputError, match=re.escape(words)):
+                apply_settings(viewer, ns(expr=bad))
+        with pytest.raises(InputError, match=re.escape("viewer angle (deg): expected -30.0..+30.0, found 45.0")):
+            apply_settings(viewer, ns(angle=45.0))
+    out = tmp_path / "face.png"
+    assert main(["snapshot", "--avatar", "none", "--out", str(out), "--window-size", "480", "270",
+                 "--expr", "au9=1", "--close-up"]) == 0 and out.exists()
+    assert main(["snapshot", "--avatar", "none", "--out", str(out), "--expr", "au99=1"]) == 1
+    assert "no slider named 'au99'" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------ open3d

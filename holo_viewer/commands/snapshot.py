@@ -5,6 +5,7 @@ It draws what ``holo-viewer view`` draws, with the same ellipsoid options and de
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from .view import add_glyph_arguments, glyph_config
 
@@ -24,6 +25,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--smile", type=float, default=0.0)
     parser.add_argument("--window-size", type=int, nargs=2, default=(1400, 800), metavar=("W", "H"))
     parser.add_argument("--help-overlay", action="store_true", help="draw the key help in the image")
+    parser.add_argument("--expr", action="append", default=[], metavar="NAME=VALUE",
+                        help="set a face slider as in the viewer's value entry (an AU code such as au9, or smile, "
+                             "jaw, pain); repeatable")
+    parser.add_argument("--view", type=int, default=None, metavar="K", help="selected view (preview panel)")
+    parser.add_argument("--angle", type=float, default=None, metavar="DEG",
+                        help="viewer angle in degrees (the viewer's slider range)")
+    parser.add_argument("--close-up", action="store_true", help="frame the head only (the viewer's key z)")
     add_glyph_arguments(parser)
 
 
@@ -36,8 +44,35 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.avatar, args.flame_model, args.flame_params, args.calibration, backend=args.renderer,
                        face=face)
     with offscreen_viewer(scene, window_size=tuple(args.window_size), **glyph_config(args)) as viewer:
+        apply_settings(viewer, args)
         if args.help_overlay:
             viewer.toggle_help()
         path = viewer.save_screenshot(args.out)
     print(f"wrote {path}")
     return 0
+
+
+def apply_settings(viewer: Any, args: argparse.Namespace) -> None:
+    """Set ``--expr``, ``--angle`` and ``--view`` through the viewer's value entry (same names, ranges and
+    errors as typing them in the window), then ``--close-up``; waits for the thumbnail."""
+    from ..errors import InputError
+
+    entries = []
+    for item in args.expr:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip() or not value.strip():
+            raise InputError(f"--expr: expected NAME=VALUE (e.g. au9=1 or pain=0.6), found {item!r}")
+        entries.append(f"{name.strip()} {value.strip()}")
+    if args.angle is not None:
+        entries.append(f"angle {args.angle}")
+    if args.view is not None:
+        entries.append(f"view {args.view}")
+    for text in entries:
+        n_errors = len(viewer.errors)
+        viewer.apply_entry(text)
+        if len(viewer.errors) > n_errors:  # the release handler put it on the status line
+            raise InputError(viewer.errors[-1])
+    if args.close_up:
+        viewer.head_closeup()
+    if entries:
+        viewer._update_thumbnail(wait=True)

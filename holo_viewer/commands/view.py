@@ -5,8 +5,12 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
+from typing import Callable, TypeVar
 
-__all__ = ["add_arguments", "add_glyph_arguments", "glyph_config", "require_display", "run"]
+__all__ = ["add_arguments", "add_glyph_arguments", "glyph_config", "open_window", "require_display", "run"]
+
+T = TypeVar("T")
 
 
 def add_glyph_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,7 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out-dir", default="holo_viewer_out", help="folder for exports (keys k, n, x, i)")
     add_glyph_arguments(parser)
     parser.add_argument("--pain", type=float, default=0.0, help="initial pain intensity in [0, 1]")
-    parser.add_argument("--window-size", type=int, nargs=2, default=(1400, 800), metavar=("W", "H"))
+    parser.add_argument("--window-size", type=int, nargs=2, default=None, metavar=("W", "H"),
+                        help="window size in pixels (default: 94%% x 86%% of the screen, at most 1600 x 960)")
 
 
 def require_display() -> None:
@@ -65,21 +70,12 @@ def require_display() -> None:
     display = os.environ.get("DISPLAY", "")
     if not display:
         raise DisplayError(f"view: no X display (DISPLAY is not set); {hint}")
-    import ctypes
-    import ctypes.util
+    from ..gui.screen import x_screen_size
 
-    lib = ctypes.util.find_library("X11")
-    if lib is None:
-        return  # cannot check here; VTK will report it
-    x11 = ctypes.CDLL(lib)
-    x11.XOpenDisplay.restype = ctypes.c_void_p
-    x11.XOpenDisplay.argtypes = [ctypes.c_char_p]
-    x11.XCloseDisplay.argtypes = [ctypes.c_void_p]
-    handle = x11.XOpenDisplay(display.encode())
-    if not handle:
-        raise DisplayError(f"view: cannot open the X display DISPLAY={display}; {hint}")
-    x11.XCloseDisplay(handle)
-
+    try:
+        x_screen_size(display)
+    except OSError:
+        raise DisplayError(f"view: cannot open the X display DISPLAY={display}; {hint}") from None
 
 def run(args: argparse.Namespace) -> int:
     from ..pipeline.scene import load_scene
@@ -105,8 +101,9 @@ def run(args: argparse.Namespace) -> int:
         return 0
     from ..gui.viewer import HoloViewer, ViewerConfig
 
-    cfg = ViewerConfig(window_size=tuple(args.window_size), out_dir=args.out_dir, **glyph_config(args))
-    viewer = HoloViewer(scene.pipeline, cfg, frames=scene.frames)
+    size = None if args.window_size is None else tuple(args.window_size)
+    cfg = ViewerConfig(window_size=size, out_dir=args.out_dir, **glyph_config(args))
+    viewer = open_window(lambda: HoloViewer(scene.pipeline, cfg, frames=scene.frames))
     print("press h in the window for the keys (q quits)")
     viewer.show()
     for path in viewer.exports:
@@ -114,3 +111,18 @@ def run(args: argparse.Namespace) -> int:
     for err in viewer.errors:
         print(f"error shown in the window: {err}", file=sys.stderr)
     return 0
+
+
+def open_window(make: Callable[[], T], tries: int = 3) -> T:
+    """``make()`` the window, trying again when the X server refused VTK's connection (a busy server
+    refuses a few); the last refusal's one-line DisplayError goes to the caller."""
+    from ..errors import DisplayError
+
+    for attempt in range(tries):
+        try:
+            return make()
+        except DisplayError:
+            if attempt == tries - 1:
+                raise
+            time.sleep(0.2)
+    raise AssertionError("unreachable")
