@@ -201,6 +201,7 @@ def test_session_json_is_versioned_and_self_contained(recorded: Path) -> None:
     assert meta["keys"] == [] and meta["ratings"] == []
 
 
+@pytest.mark.slow
 def test_replay_live_reproduces_native_frames_from_another_folder(recorded: Path, tmp_path: Path,
                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
     """replay --quality live from another working folder: the displayed frames again, bit-exact."""
@@ -216,6 +217,7 @@ def test_replay_live_reproduces_native_frames_from_another_folder(recorded: Path
         [b.tobytes() for b in media.read_frames(tmp_path / "again.mkv", fps=25)]  # at the same times
 
 
+@pytest.mark.slow
 def test_replay_full_shows_the_pain_step_at_its_frame(recorded: Path, tmp_path: Path) -> None:
     """The scenario's pain step at 0.4 s is the largest change between frames of the replayed video,
     at frame round(0.4 * 25) = 10 (+-1); the video lasts as long as the session (25 frames)."""
