@@ -390,3 +390,22 @@ def test_behaviour_layer_keys_switch_the_layers(tmp_path: Path) -> None:
     meta = json.loads((tmp_path / "s" / "session.json").read_text())
     assert [k["action"] for k in meta["keys"]] == ["toggle_gaze", "toggle_blinks", "toggle_breathing", "toggle_sway",
                                                    "toggle_blinks"]
+
+
+def test_session_json_v2_fields_of_the_wrong_type_are_named(recorded: Path, tmp_path: Path) -> None:
+    import json
+    import shutil
+
+    from holo_viewer.errors import InputError
+    from holo_viewer.live.session import load_session
+
+    for key, value, match in [("avatar", "default", "avatar: expected a JSON object or null, found str"),
+                              ("ratings", {"A": 3}, "ratings: expected a JSON array or null, found dict"),
+                              ("end_s", "long", "end_s")]:
+        copy = tmp_path / key
+        shutil.copytree(recorded, copy)
+        meta = json.loads((copy / "session.json").read_text())
+        meta[key] = value
+        (copy / "session.json").write_text(json.dumps(meta))
+        with pytest.raises(InputError, match=match):
+            load_session(copy)

@@ -274,6 +274,13 @@ def _check_meta(meta: Any, path: Path) -> None:
         raise InputError(f"{path}: settings: expected a JSON object, found {type(settings).__name__}")
     if settings.get("tile_scale") is not None:
         check_json_number(settings["tile_scale"], f"{path}: settings.tile_scale", low=0.0, high=4.0, low_open=True)
+    for key, kind in (("scenario", dict), ("mount", dict), ("avatar", dict), ("render", dict), ("keys", list),
+                      ("ratings", list)):  # the version-2 fields
+        if meta.get(key) is not None and not isinstance(meta[key], kind):
+            raise InputError(f"{path}: {key}: expected a JSON {'object' if kind is dict else 'array'} or null, "
+                             f"found {type(meta[key]).__name__} {meta[key]!r:.60}")
+    if meta.get("end_s") is not None:
+        check_json_number(meta["end_s"], f"{path}: end_s", low=0.0)
     for key in ("render_mode", "scenario"):
         if settings.get(key) is not None and not isinstance(settings[key], str):
             raise InputError(f"{path}: settings.{key}: expected a string, found {type(settings[key]).__name__} "
