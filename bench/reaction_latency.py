@@ -4,7 +4,8 @@ For a synthesized 10-s speaker clip the listener is streamed window by window: e
 runs the speaker encoders on the last ``speaker_window`` frames, the decoder on the listener
 past, and decodes k tokens. Reported: per-window latency (median, p90) in ms, the window's
 real-time duration (k / 25 s) and the real-time factor RTF = latency / duration (< 1 is
-faster than real time); the log-mel cost per window is listed separately. Correctness check:
+faster than real time); the audio-feature cost per window (log-mel, or for a speech-feature model
+the streaming ``SpeechTracker``: silero-vad on the new chunks, Praat on the block) is listed separately. Correctness check:
 streaming window by window (a new ``generate`` call per window, past fed back) gives the same
 frames as one offline call (argmax), max |difference| is reported as ``error``.
 
@@ -23,7 +24,7 @@ import torch
 
 from holo_viewer.fileio import atomic_write
 from holo_viewer.flame.expressions import default_au_map, jaw_for_expression
-from holo_viewer.reaction.api import load_default_bundle
+from holo_viewer.reaction.api import load_default_bundle, speaker_audio_features
 from holo_viewer.reaction.audio import AudioConfig, log_mel
 from holo_viewer.reaction.data import SyntheticConfig, synth_speaker
 from holo_viewer.reaction.model import generate
@@ -46,7 +47,8 @@ def main() -> None:
                        np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64))
     T = data_cfg.n_frames
     hop = AudioConfig().hop
-    feats = log_mel(sp.waveform, 16000, T)[None]
+    feats = speaker_audio_features(sp.waveform, 16000, T, cfg)[None]
+    speech = getattr(cfg, "audio_features", "log_mel") == "speech"
     speaker = torch.from_numpy(sp.state)[None]
     pain = torch.tensor([0.5])
     k = cfg.k
@@ -60,9 +62,20 @@ def main() -> None:
             frames = []
             start = cfg.speaker_window  # a full speaker window of context
             generate(model, cent, feats, speaker, pain, n_frames=k, start=start)  # warm-up
+            tracker = None
+            if speech:
+                from holo_viewer.reaction.speech import SpeechTracker
+
+                tracker = SpeechTracker()
+                tracker.push(sp.waveform[:start * hop])
+                tracker.frames()
             for t0 in range(start, T - k + 1, k):
                 a = time.perf_counter()
-                log_mel(sp.waveform[max(0, (t0 - 2) * hop):(t0 + 1) * hop], 16000)  # new audio of this window
+                if tracker is not None:  # the new audio of this window through the streaming features
+                    tracker.push(sp.waveform[t0 * hop:(t0 + k) * hop])
+                    tracker.frames()
+                else:
+                    log_mel(sp.waveform[max(0, (t0 - 2) * hop):(t0 + 1) * hop], 16000)  # new audio of this window
                 b = time.perf_counter()
                 out = generate(model, cent, feats, speaker, pain, listener_past=past if past.shape[1] else None,
                                start=t0, n_frames=k, temperature=temp, top_k=top_k, seed=t0)
@@ -82,7 +95,7 @@ def main() -> None:
                          "latency_ms_median": float(np.median(lat_a)), "latency_ms_p90": float(np.percentile(lat_a, 90)),
                          "logmel_ms_median": float(np.median(mel_ms)), "window_ms": window_ms,
                          "rtf_median": float(np.median(lat_a) / window_ms), "error_stream_vs_offline": err})
-    print(f"{'threads':>7} {'decoding':<18} {'median ms':>10} {'p90 ms':>8} {'log-mel ms':>10} "
+    print(f"{'threads':>7} {'decoding':<18} {'median ms':>10} {'p90 ms':>8} {'audio ms':>10} "
           f"{'window ms':>9} {'RTF':>7} {'err':>8}")
     for r in rows:
         e = "-" if r["error_stream_vs_offline"] is None else f"{r['error_stream_vs_offline']:.1e}"
