@@ -4,7 +4,11 @@ Modules (import what you need; this package imports nothing heavy on its own):
 
 ``features``      face-state / FLAME / 25-D REACT attribute layouts and the attribute map
 ``audio``         log-mel frames at 25 fps (torch) + numpy reference, WAV I/O
-``data``          seeded synthetic dyadic dataset
+``speech``        speech features that survive the microphone (VAD, level, pitch, pauses), streaming tracker
+``tts``           espeak-ng speakers in rooms (the shipped model's training speech)
+``data``          seeded synthetic dyadic dataset (harmonic or text-to-speech speakers)
+``decoding``      the default decoding (seeded top-k sampling at temperature 0.8)
+``listening``     listener-behaviour measures on FLAME sequences (nods, contingency, blinks, gaze)
 ``react_format``  reader for REACT 2023/2024-format data
 ``tokens``        k-means codebook tokenizer of face states
 ``model``         1-D conv encoders, cross-modal fusion, Transformer encoder-decoder, token head; streaming
