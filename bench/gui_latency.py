@@ -12,7 +12,11 @@ VTK events from code instead. Rows:
 * drag step -> mesh on screen (the live scrub: one pointer motion, the mesh follows);
 * release -> ellipsoids on screen (the Gaussians of the new face drawn in the 3D scene);
 * release -> preview on screen (the selected view rendered by the fast renderer);
-* release -> quilt thumbnail on screen (rendered in the worker process, shown by the loop).
+* release -> quilt thumbnail on screen (rendered in the worker process, shown by the loop);
+* camera drag step -> splat image on screen (reduced resolution), release -> full-resolution splats on
+  screen (a real left drag in the 3D scene, the splat view on: the ``view`` default);
+* idle redraw: frames per second of ``Render()`` with nothing changed; launch: avatar load + window
+  to first pixels.
 
 Beside each on-screen time it prints the viewer's own timer for the same update (what the
 status line shows, measured inside the callback) and the ratio on-screen / own timer. The
@@ -40,7 +44,7 @@ PANELS = ("scene", "preview", "quilt")
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=3, help="drags per slider")
-    ap.add_argument("--window-size", type=int, nargs=2, default=(1400, 800))
+    ap.add_argument("--window-size", type=int, nargs=2, default=None, help="default: sized from the screen")
     ap.add_argument("--input", choices=("xdotool", "events"), default=None,
                     help="real X input (default when xdotool is installed) or VTK events fired from code")
     ap.add_argument("--timeout", type=float, default=15.0, help="seconds to wait for a panel to change")
@@ -63,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     scene = load_scene("default")
     load_s = time.perf_counter() - t0
-    cfg = ViewerConfig(window_size=tuple(args.window_size), show_status=False)
+    cfg = ViewerConfig(window_size=None if args.window_size is None else tuple(args.window_size), show_status=False)
     t0 = time.perf_counter()
     viewer = HoloViewer(scene.pipeline, cfg)
     viewer.open()
@@ -155,26 +159,61 @@ def main(argv: list[str] | None = None) -> int:
                             "release_thumbnail_ms": rel["quilt"], "own_live_ms": own_live,
                             "own_preview_ms": tm.preview_ms, "own_thumbnail_ms": tm.thumbnail_ms})
             settle(0.2)
+    cam_records = []
+    x0, y0, x1, y1 = viewer.panel_box("scene")
+    cx, cy = (x0 + x1) // 2, H - (y0 + y1) // 2
+    for rep in range(args.repeats * 2 if viewer.show_splats and method == "xdotool" else 0):
+        xdo("mousemove", "--window", wid, cx, cy)
+        xdo("mousedown", 1)
+        settle(0.2)
+        before = grab()
+        t = time.perf_counter()
+        xdo("mousemove", "--window", wid, cx + (30 if rep % 2 == 0 else -30), cy)
+        drag = wait_changes(before, t, ("scene",))["scene"]
+        own_drag = viewer.timings.splat_drag_ms
+        settle(0.2)
+        before = grab()
+        t = time.perf_counter()
+        xdo("mouseup", 1)
+        end = time.perf_counter() + args.timeout
+        while not viewer._splat_full and time.perf_counter() < end:
+            viewer.step()
+            time.sleep(0.001)
+        full = (time.perf_counter() - t) * 1e3 if viewer._splat_full else float("nan")
+        cam_records.append({"drag_splat_ms": drag, "release_full_splat_ms": full, "own_drag_ms": own_drag,
+                            "own_full_ms": viewer.timings.splat_ms})
+        settle(0.2)
+    renders = []
+    for _ in range(20):
+        t = time.perf_counter()
+        viewer.plotter.ren_win.Render()
+        renders.append(time.perf_counter() - t)
+    idle_fps = 1.0 / statistics.median(renders)
+    records += cam_records
     if args.screenshot:
         viewer.save_screenshot(args.screenshot)
+    size = tuple(viewer.plotter.ren_win.GetSize())
     viewer._looping = False
     viewer.close()
     load1 = os.getloadavg()[0]
 
     def col(name: str) -> list[float]:
-        return [r[name] for r in records if r[name] is not None and r[name] == r[name]]
+        return [r[name] for r in records if r.get(name) is not None and r[name] == r[name]]
 
     n_g = len(scene.pipeline.avatar)
     print(f"default avatar: {n_g} Gaussians, {cfg.max_glyphs} drawn as ellipsoids (the view command's default); "
-          f"load {load_s:.1f} s, window {build_s:.1f} s")
-    print(f"X display {os.environ.get('DISPLAY')}, {args.window_size[0]}x{args.window_size[1]}, input {method}"
+          f"load {load_s:.1f} s, window {build_s:.1f} s (launch to first pixels {load_s + build_s:.1f} s); "
+          f"idle redraw {idle_fps:.1f} fps; splat view {'on' if viewer.show_splats else 'off'}")
+    print(f"X display {os.environ.get('DISPLAY')}, window {size[0]}x{size[1]}, input {method}"
           + (f" (input overhead: xdotool run {statistics.median(overhead):.0f} ms median, included)" if overhead
              else "") + f", cpu count {os.cpu_count()}, load average {load0:.1f} -> {load1:.1f}")
     print(f"{'event -> pixels changed':<36} {'median ms':>10} {'max ms':>8} {'own timer ms':>13} {'ratio':>6}  n")
     rows = (("drag_mesh_ms", "drag step -> mesh on screen", "own_live_ms"),
-            ("release_glyphs_ms", "release -> ellipsoids on screen", None),
+            ("release_glyphs_ms", "release -> 3D scene on screen", None),
             ("release_preview_ms", "release -> preview on screen", "own_preview_ms"),
-            ("release_thumbnail_ms", "release -> quilt thumbnail on screen", "own_thumbnail_ms"))
+            ("release_thumbnail_ms", "release -> quilt thumbnail on screen", "own_thumbnail_ms"),
+            ("drag_splat_ms", "camera drag -> reduced splats", "own_drag_ms"),
+            ("release_full_splat_ms", "camera release -> full splats", "own_full_ms"))
     summary = {}
     for name, label, own in rows:
         v = col(name)
@@ -192,11 +231,11 @@ def main(argv: list[str] | None = None) -> int:
         from holo_viewer.fileio import atomic_write
 
         with atomic_write(args.json, "w") as fh:
-            json.dump({"config": {"window_size": list(args.window_size), "input": method, "n_gaussians": n_g,
+            json.dump({"config": {"window_size": list(size), "input": method, "n_gaussians": n_g,
                                   "max_glyphs": cfg.max_glyphs, "glyph_min_opacity": cfg.glyph_min_opacity,
                                   "preview_scale": cfg.preview_scale, "thumbnail_scale": cfg.thumbnail_scale,
                                   "repeats": args.repeats, "cpu_count": os.cpu_count()},
-                       "load_average": [load0, load1], "input_overhead_ms": overhead, "summary": summary,
+                       "load_average": [load0, load1], "idle_fps": idle_fps, "launch_s": load_s + build_s, "input_overhead_ms": overhead, "summary": summary,
                        "records": records}, fh, indent=2)
     return 0
 

@@ -85,10 +85,7 @@ def screen_fit(out: Path, max_kb: int) -> int:
 
     out.mkdir(parents=True, exist_ok=True)
     sw, sh = x_screen_size()
-    from holo_viewer.commands.view import open_window
-
-    pipe = load_scene("default").pipeline
-    viewer = open_window(lambda: HoloViewer(pipe, ViewerConfig(out_dir="/tmp", show_status=False)))
+    viewer = HoloViewer(load_scene("default").pipeline, ViewerConfig(out_dir="/tmp", show_status=False))
     viewer.open()
     viewer.run(timeout=1.0)
     viewer.poll_thumbnail(wait=True)

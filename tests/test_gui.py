@@ -591,6 +591,45 @@ def test_splat_view_follows_the_camera_reduced_while_dragging(splat_window, xdot
     assert psnr(ref, before / 255.0, mask=band) < 40.0  # the test can fail
 
 
+def test_panel_shows_the_native_image_zoomed_and_what_a_placed_eye_sees(xvfb, xdotool, tmp_path):
+    """``p`` (real key) cycles the upper panel: selected view -> native image (interleaved from the
+    quilt thumbnail; ``]`` zooms) -> the simulated eye's picture, which follows the eye sliders."""
+    from holo_viewer.display.lenticular import Interleaver
+    from holo_viewer.display.simulate import VirtualDisplay
+    from holo_viewer.gui.previews import zoom_centre
+    from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
+
+    viewer = HoloViewer(_small_scene(), ViewerConfig(window_size=(960, 540), out_dir=str(tmp_path),
+                                                     thumbnail_scale=0.1, splat_view=False))
+    try:
+        viewer.open()
+        xin = XInput(xdotool, viewer)
+        xin.move(*xin.centre("scene"))
+        cal = viewer.pipeline.calibration
+        assert xin.key("p", until=lambda: viewer.panel_mode == "native", timeout=5)
+        quilt = viewer.thumb_panel.image
+        native = Interleaver(cal, quilt.shape, cols=cal.cols, rows=cal.rows)(quilt)
+        assert native.shape == (cal.screen_h, cal.screen_w, 3)
+        assert np.array_equal(viewer.preview_panel.image, native) and "native" in viewer.preview_panel.title.GetInput()
+        assert xin.key("bracketright", until=lambda: viewer.native_zoom == 2, timeout=5)
+        assert np.array_equal(viewer.preview_panel.image, zoom_centre(native, 2))
+        assert viewer.preview_panel.image.shape[:2] == (cal.screen_h // 2, cal.screen_w // 2)
+        assert xin.key("p", until=lambda: viewer.panel_mode == "eye", timeout=5)
+        eye = VirtualDisplay(cal, n_views=len(viewer.pipeline.cameras()), downsample=4)
+        seen0 = eye.see(native, viewer.eye_angle, viewer.eye_distance)
+        np.testing.assert_allclose(viewer.preview_panel.image / 255.0, seen0, atol=1 / 255 + 1e-6)
+        xin.key("Return")
+        xin.type("eye 12")
+        assert xin.key("Return", until=lambda: viewer.eye_angle == 12.0, timeout=5)
+        seen = eye.see(native, 12.0, viewer.eye_distance)
+        np.testing.assert_allclose(viewer.preview_panel.image / 255.0, seen, atol=1 / 255 + 1e-6)
+        assert np.abs(seen - seen0).mean() > 1e-3  # another eye position, another picture
+        assert "eye at +12.0 deg" in viewer.preview_panel.title.GetInput()
+        assert xin.key("p", until=lambda: viewer.panel_mode == "view", timeout=5)
+    finally:
+        viewer.close()
+
+
 def test_default_window_fits_each_screen_size():
     from holo_viewer.gui.screen import window_size_for_screen
 
@@ -685,12 +724,11 @@ def test_view_without_a_display_exits_1_pointing_to_xvfb_and_snapshot(monkeypatc
     assert "cannot open the X display" in capsys.readouterr().err
 
 
-def test_a_refused_x_window_is_one_clear_line_and_view_tries_again():
+def test_a_refused_x_window_is_one_clear_line_and_the_viewer_tries_again():
     """VTK falls back to an EGL window when the X server refuses its connection; that is a DisplayError
-    of one line (not pyvista's MismatchedInteractorError later), and ``view`` tries again first."""
-    from holo_viewer.commands.view import open_window
+    of one line (not pyvista's MismatchedInteractorError later), and the viewer tries again first."""
     from holo_viewer.errors import DisplayError
-    from holo_viewer.gui.screen import require_x_window
+    from holo_viewer.gui.screen import open_window, require_x_window
 
     class vtkEGLRenderWindow:  # noqa: N801 - the class name VTK falls back to
         pass

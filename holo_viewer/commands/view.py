@@ -5,12 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
-from typing import Callable, TypeVar
 
-__all__ = ["add_arguments", "add_glyph_arguments", "glyph_config", "open_window", "require_display", "run"]
-
-T = TypeVar("T")
+__all__ = ["add_arguments", "add_glyph_arguments", "glyph_config", "require_display", "run"]
 
 
 def add_glyph_arguments(parser: argparse.ArgumentParser) -> None:
@@ -103,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
 
     size = None if args.window_size is None else tuple(args.window_size)
     cfg = ViewerConfig(window_size=size, out_dir=args.out_dir, **glyph_config(args))
-    viewer = open_window(lambda: HoloViewer(scene.pipeline, cfg, frames=scene.frames))
+    viewer = HoloViewer(scene.pipeline, cfg, frames=scene.frames)  # retries a refused X window itself
     print("press h in the window for the keys (q quits)")
     viewer.show()
     for path in viewer.exports:
@@ -111,18 +107,3 @@ def run(args: argparse.Namespace) -> int:
     for err in viewer.errors:
         print(f"error shown in the window: {err}", file=sys.stderr)
     return 0
-
-
-def open_window(make: Callable[[], T], tries: int = 3) -> T:
-    """``make()`` the window, trying again when the X server refused VTK's connection (a busy server
-    refuses a few); the last refusal's one-line DisplayError goes to the caller."""
-    from ..errors import DisplayError
-
-    for attempt in range(tries):
-        try:
-            return make()
-        except DisplayError:
-            if attempt == tries - 1:
-                raise
-            time.sleep(0.2)
-    raise AssertionError("unreachable")

@@ -17,7 +17,8 @@ class KeysMixin:
     def _key_actions(self) -> dict[str, Callable[[], Any]]:
         return {"h": self.toggle_help, "q": self.quit, "m": self.toggle_mesh, "l": self.toggle_wireframe,
                 "g": self.toggle_gaussians, "c": self.cycle_glyph_color, "o": self.toggle_frusta,
-                "s": self.toggle_splats, "v": self.toggle_look_through, "r": self.reset_camera, "z": self.head_closeup, "0": self.reset_face, "Left": lambda: self.step_view(-1),
+                "p": self.cycle_panel, "bracketright": lambda: self.zoom_native(1),
+                "bracketleft": lambda: self.zoom_native(-1), "s": self.toggle_splats, "v": self.toggle_look_through, "r": self.reset_camera, "z": self.head_closeup, "0": self.reset_face, "Left": lambda: self.step_view(-1),
                 "Right": lambda: self.step_view(1), "Return": self.start_entry, "KP_Enter": self.start_entry,
                 "k": self.export_quilt, "n": self.export_native, "x": self.export_sweep_video,
                 "i": self.save_screenshot}

@@ -1,4 +1,9 @@
-"""The viewer's image panels: the selected view (fast renderer) and the quilt thumbnail (worker process)."""
+"""The viewer's image panels: the upper one shows (key ``p``) the selected view (fast renderer), the native
+(lenticular) image, or what an eye placed at the panel sees (``display/simulate.py``); the lower one the
+quilt thumbnail (worker process).
+
+The native image and the eye's picture are made from the quilt thumbnail (``thumbnail_scale`` x the
+tiles), so they follow the sliders when the thumbnail does (on release)."""
 
 from __future__ import annotations
 
@@ -8,6 +13,11 @@ from typing import Any
 import numpy as np
 
 from .widgets import scale_cameras
+
+#: what the upper image panel shows, in the order ``p`` cycles through
+PANEL_MODES = ("view", "native", "eye")
+#: native-image zoom steps (``]`` in, ``[`` out): the centre 1/z of the image
+NATIVE_ZOOMS = (1, 2, 4, 8, 16)
 
 
 class PreviewsMixin:
@@ -25,15 +35,90 @@ class PreviewsMixin:
     def _update_preview_title(self) -> None:
         if not hasattr(self, "preview_panel"):
             return
-        n = len(self.pipeline.cameras())
-        self.preview_panel.set_title(f"view {self.selected_view}/{n - 1} "
-                                     f"({self._view_angle(self.selected_view):+.1f} deg)")
+        mode = getattr(self, "panel_mode", "view")
+        if mode == "native":
+            cal = self.pipeline.calibration
+            self.preview_panel.set_title(f"native {cal.screen_w}x{cal.screen_h}, zoom {self.native_zoom}x")
+        elif mode == "eye":
+            self.preview_panel.set_title(f"eye at {self.eye_angle:+.1f} deg, {self.eye_distance:.2f} m")
+        else:
+            n = len(self.pipeline.cameras())
+            self.preview_panel.set_title(f"view {self.selected_view}/{n - 1} "
+                                         f"({self._view_angle(self.selected_view):+.1f} deg)")
 
     def _update_preview(self) -> None:
         if self.pipeline.avatar is None:
             return
-        img = self.pipeline.render_view(self.selected_view, cameras=self._preview_cameras())
+        mode = getattr(self, "panel_mode", "view")
+        if mode == "view":
+            img = self.pipeline.render_view(self.selected_view, cameras=self._preview_cameras())
+        else:
+            native = self.native_preview()
+            if native is None:
+                return  # shown when the thumbnail quilt arrives
+            img = self.eye_preview(native) if mode == "eye" else zoom_centre(native, self.native_zoom)
         self.preview_panel.update(img)
+        self._update_preview_title()
+
+    def native_preview(self) -> np.ndarray | None:
+        """(screen_h, screen_w, 3) uint8 native image interleaved from the current quilt thumbnail (None
+        until one is shown); cached per thumbnail."""
+        quilt = self.thumb_panel.image
+        if quilt is None:
+            return None
+        key = (self._thumb_key, quilt.shape, bool(self.pipeline.view.blend))
+        if getattr(self, "_native_key", None) != key:
+            from ..display.lenticular import Interleaver
+
+            cal = self.pipeline.calibration
+            inter = Interleaver(cal, quilt.shape, cols=cal.cols, rows=cal.rows,
+                                mode="blend" if self.pipeline.view.blend else "nearest")
+            self._native, self._native_key = inter(quilt), key
+        return self._native
+
+    def eye_preview(self, native: np.ndarray) -> np.ndarray:
+        """What an eye at (``eye_angle``, ``eye_distance``) sees of ``native`` (simulated, 1/4 resolution)."""
+        from ..display.simulate import VirtualDisplay
+
+        cal = self.pipeline.calibration
+        if getattr(self, "_eye_display", None) is None:
+            self._eye_display = VirtualDisplay(cal, n_views=len(self.pipeline.cameras()), downsample=4)
+        return self._eye_display.see(native, self.eye_angle, self.eye_distance)
+
+    def cycle_panel(self) -> None:
+        """The upper image panel shows the next of :data:`PANEL_MODES` (key ``p``)."""
+        if self.pipeline.avatar is None:
+            self._set_status("no Gaussian avatar to render (--avatar none)")
+            self._render()
+            return
+        self.panel_mode = PANEL_MODES[(PANEL_MODES.index(self.panel_mode) + 1) % len(PANEL_MODES)]
+        self._update_preview_title()
+        self._update_preview()
+        self._render()
+
+    def zoom_native(self, step: int) -> None:
+        """Zoom the native image in (``step`` > 0, key ``]``) or out (``[``) about its centre."""
+        i = NATIVE_ZOOMS.index(self.native_zoom)
+        self.native_zoom = NATIVE_ZOOMS[int(np.clip(i + step, 0, len(NATIVE_ZOOMS) - 1))]
+        if self.panel_mode != "native":
+            self.panel_mode = "native"
+        self._update_preview()
+        self._render()
+
+    def set_eye(self, *, angle: float | None = None, distance: float | None = None) -> None:
+        """Place the simulated eye: ``angle`` degrees from the panel normal, ``distance`` metres."""
+        from ..errors import InputError
+
+        if angle is not None:
+            self.eye_angle = float(angle)
+        if distance is not None:
+            if not distance > 0:
+                raise InputError(f"eye distance: expected > 0 m, found {distance}")
+            self.eye_distance = float(distance)
+        if self.panel_mode != "eye":
+            self.panel_mode = "eye"
+        self._update_preview()
+        self._render()
 
     def render_thumbnail(self) -> np.ndarray:
         """(rows*h, cols*w, 3) uint8 quilt at ``thumbnail_scale`` of the current Gaussians (blocking)."""
@@ -74,6 +159,8 @@ class PreviewsMixin:
         key, img = done
         self.thumb_panel.update(img)
         self._thumb_key = key
+        if getattr(self, "panel_mode", "view") != "view":
+            self._update_preview()  # the native image and the eye's picture come from the thumbnail
         self._render_now()
         if key == self._thumb_pending_key:
             self._thumb_pending_key = None
@@ -82,3 +169,12 @@ class PreviewsMixin:
         self._render()
         return True
 
+
+def zoom_centre(img: np.ndarray, zoom: int) -> np.ndarray:
+    """The centre 1/``zoom`` of ``img`` (rows and columns), pixels unchanged."""
+    if zoom <= 1:
+        return img
+    h, w = img.shape[:2]
+    ch, cw = max(1, h // zoom), max(1, w // zoom)
+    y0, x0 = (h - ch) // 2, (w - cw) // 2
+    return img[y0:y0 + ch, x0:x0 + cw]

@@ -11,11 +11,14 @@ import ctypes.util
 import os
 
 import sys
-from typing import Any
+import time
+from typing import Any, Callable, TypeVar
 
 from ..errors import DisplayError, InputError
 
-__all__ = ["DEFAULT_WINDOW", "x_screen_size", "window_size_for_screen", "require_x_window"]
+__all__ = ["DEFAULT_WINDOW", "x_screen_size", "window_size_for_screen", "require_x_window", "open_window"]
+
+T = TypeVar("T")
 
 #: the window size when the screen size is unknown (offscreen, no libX11)
 DEFAULT_WINDOW: tuple[int, int] = (1400, 800)
@@ -81,3 +84,16 @@ def require_x_window(ren_win: Any) -> None:
     display = os.environ.get("DISPLAY", "")
     raise DisplayError(f"view: the X server at DISPLAY={display} refused VTK's window (VTK made a {cls} instead, "
                        "which gets no X input); try again, or render without a display: holo-viewer snapshot")
+
+
+def open_window(make: Callable[[], T], tries: int = 3) -> T:
+    """``make()`` a window, trying again when the X server refused VTK's connection (a busy server
+    refuses a few); the last refusal's one-line DisplayError goes to the caller."""
+    for attempt in range(tries):
+        try:
+            return make()
+        except DisplayError:
+            if attempt == tries - 1:
+                raise
+            time.sleep(0.2)
+    raise AssertionError("unreachable")

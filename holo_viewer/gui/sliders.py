@@ -73,6 +73,12 @@ class SlidersMixin:
         if pipe.avatar is not None:
             n = len(pipe.avatar)
             specs += [
+                _Slider("eye_angle", "eye angle (deg)", (-30.0, 30.0), "%+.1f", None,
+                        lambda v: self.set_eye(angle=v), "simulated eye", aliases=("eye",)),
+                _Slider("eye_distance", "eye distance (m)", (0.2, 2.0), "%.2f", None,
+                        lambda v: self.set_eye(distance=v), "simulated eye"),
+            ]
+            specs += [
                 _Slider("glyphs", "ellipsoids drawn", (min(100, n), max(min(20000, n), min(100, n) + 1)), "%.0f",
                         None, lambda v: self.set_glyphs(count=int(round(v))), "Gaussians", aliases=("count",)),
                 _Slider("sigmas", "ellipsoid size (sigma)", (0.5, 3.0), "%.2f", None,
@@ -93,7 +99,7 @@ class SlidersMixin:
             "pain": float(f.pain), "angle": float(v.viewer_angle),
             "distance": float(v.viewer_distance or 0.65), "cone": float(v.view_cone or cal.view_cone),
             "view": float(self.selected_view), "glyphs": float(self.glyph_count), "sigmas": self.glyph_sigmas,
-            "min_opacity": self.glyph_min_opacity,
+            "min_opacity": self.glyph_min_opacity, "eye_angle": self.eye_angle, "eye_distance": self.eye_distance,
         }[key]
 
     def _add_sliders(self) -> None:

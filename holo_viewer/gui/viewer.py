@@ -52,7 +52,7 @@ from .keys import KeysMixin
 from .previews import PreviewsMixin
 from .scene import mesh_polydata
 from .scene_view import SceneMixin
-from .screen import DEFAULT_WINDOW, require_x_window, window_size_for_screen, x_screen_size
+from .screen import DEFAULT_WINDOW, open_window, require_x_window, window_size_for_screen, x_screen_size
 from .sliders import SlidersMixin
 from .splat_view import SplatViewMixin
 from .viewer_config import HELP_TEXT, KEYS, ViewerConfig
@@ -122,21 +122,28 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         self._releasing = ""  # key of the slider whose release is being handled
         self._size: tuple[int, int] = _window_size(self.config.window_size, off_screen)
         self._init_splats()
+        self.panel_mode = "view"  # the upper image panel: view / native / eye (key p)
+        self.native_zoom = 1
+        self.eye_angle = float(pipeline.view.viewer_angle)
+        self.eye_distance = float(pipeline.view.viewer_distance or 0.65)
         if self.show_splats:  # the splats are the picture; mesh and ellipsoids on request (m, g)
             self.show_mesh = False
             self.show_gaussians = False
         self._font = _font_px(self._size[1])
 
-        self.plotter = pv.Plotter(shape=(2, 3), groups=[(np.s_[:], 0), (np.s_[:], 1)],
-                                  col_weights=[1.15, 2.4, 1.2], window_size=list(self._size),
-                                  off_screen=off_screen, title=self.config.title, border=False,
-                                  theme=_theme(self.config))
-        if not off_screen:
-            try:
-                require_x_window(self.plotter.ren_win)
-            except DisplayError:
-                self.plotter.close()
-                raise
+        def make_plotter() -> Any:
+            plotter = pv.Plotter(shape=(2, 3), groups=[(np.s_[:], 0), (np.s_[:], 1)],
+                                 col_weights=[1.15, 2.4, 1.2], window_size=list(self._size), off_screen=off_screen,
+                                 title=self.config.title, border=False, theme=_theme(self.config))
+            if not off_screen:
+                try:
+                    require_x_window(plotter.ren_win)
+                except DisplayError:
+                    plotter.close()
+                    raise
+            return plotter
+
+        self.plotter = open_window(make_plotter)  # a refused X window: tried again, then one clear line
         self._build()
         self._building = False
 
