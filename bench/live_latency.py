@@ -7,11 +7,12 @@ then replays it through ``LiveSession`` twice in one process:
 * ``render``: the same plus the renderer at ``--tile-scale`` (today's fast CPU path) in the main thread,
   recording the native video as ``live`` does; then ``render_warm``: the same again in this process.
 
-With rendering, also (issue 37): ``displayed_fps`` (displayed frames over the session's wall time,
+With rendering, also (issue 37): ``displayed_fps`` (displayed frames over the session's media time,
 recording on, with the load average at start and end), ``visible_change_ms`` (onset to the first
 displayed frame at or after the reflecting one whose native image changed by > 0.5 levels RMS
 from the frame before), ``first_frame_s`` (renderer built + session started -> first frame handed
-to the loop; cold in the first run, warm in the second) and ``quit_s`` (last frame -> the session's
+to the loop; cold in the first run, warm in the second: kernels and imports loaded, the renderer's
+tables built again) and ``quit_s`` (last frame -> the session's
 ``run`` returned: flush and joins).
 
 Reported per run: speech-onset -> display latency (median, p95; an onset is the first 25 fps frame
@@ -147,7 +148,7 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     if render and renderer.done:
         timing = {"first_frame_s": round(renderer.done[0] - t_start, 2),  # renderer built + session started
                   "quit_s": round(t_end - renderer.done[-1], 2),  # last frame -> run() returned (flush, joins)
-                  "displayed_fps": round(shown / wall, 2), "recording": record,
+                  "displayed_fps": round(shown / (n / 25.0), 2), "recording": record,
                   "visible_change_ms_median": pct(1000 * np.array(vis), 50),
                   "visible_change_ms_p95": pct(1000 * np.array(vis), 95), "onsets_visible": len(vis),
                   "load_1min_start": round(load_start, 2), "load_1min_end": round(os.getloadavg()[0], 2)}

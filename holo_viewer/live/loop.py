@@ -435,8 +435,9 @@ class LiveSession:
                 ang, dist, tracked = self._render_pose()
                 if renderer is not None:
                     # the behaviour layers put the pain in the expressions already: add none on top
+                    others = self._viewer.get()[1].others if tracked else ()  # the other faces seen
                     res = renderer.render(lf, pain if self._behaviour is None else 0.0, named, ang, dist, tracked,
-                                          others=self._viewer.get()[1].others if tracked else ())
+                                          **({"others": others} if others else {}))
                     self.render_ms.append(1000 * res.seconds)
                     # each frame once at the session time it is shown (>= 1 ms after the previous one)
                     t_shown = max(self.now(), t_shown + 0.001)
