@@ -40,8 +40,12 @@ needs, where its work is done), and every quilt goes through
     :func:`~holo_viewer.display.eyes.scatter_eye_images`). Two views instead of dozens of bands,
     but a different picture from the 48-view light field: its error against full quality is
     the perspective difference (bench/live_frame.py measures it).
+``group``
+    Every position of the cone sees the present frame (issue 37): ``all_views``, then the eye slices
+    of every tracked viewer given (0-6; a TrackedViewer or a sequence of them) warped into the
+    subpixels their eyes receive, over that fill. Nothing is kept from earlier frames.
 ``auto``
-    ``tracked`` when a viewer is given, ``all_views`` otherwise.
+    ``group``.
 
 The first frame of a :class:`NativeFrameRenderer` (or after a change of avatar size) renders everything.
 """
@@ -62,7 +66,7 @@ from ..render.config import RenderConfig
 from .live_modes import FRAME_MODE, TRACKED_METHODS, frame_mode
 
 __all__ = ["NativeFrameConfig", "LiveFrame", "NativeFrameRenderer", "render_native", "MODES", "TRACKED_DEFAULTS",
-           "LIVE_T_MIN"]
+           "LIVE_T_MIN", "MAX_VIEWERS", "group_viewers"]
 
 AUTO_VIEW_STEP = 5  # NativeFrameConfig.view_step=None on a horizontal rig
 #: group frames serve at most this many tracked viewers (the faces a webcam finds around a Portrait)
@@ -283,9 +287,10 @@ class NativeFrameRenderer:
         ----------
         gaussians : Gaussians
             The deformed avatar (N Gaussians; N fixed while the renderer keeps state).
-        viewer : TrackedViewer or None
-            The tracked viewer; needed by ``tracked``.
-        mode : {"auto", "tracked", "all_views", "full_quilt"}
+        viewer : TrackedViewer, sequence of TrackedViewer, or None
+            The tracked viewer; needed by ``tracked``; ``group`` (and ``auto``) serves every viewer of
+            a sequence (the first :data:`MAX_VIEWERS`).
+        mode : {"auto", "group", "tracked", "all_views", "full_quilt", "eye_centred"}
 
         Returns
         -------
@@ -700,7 +705,7 @@ def render_native(gaussians: Any, cameras: Cameras, calibration: Any, viewer: An
                   config: NativeFrameConfig | None = None) -> LiveFrame:
     """One native frame; the mode chooser for the pipeline and the live loop.
 
-    ``tracked`` while a viewer is given (a face is tracked), ``all_views`` otherwise (``mode="auto"``).
+    ``mode="auto"``: ``group``, every view and the exact eye images of the viewers given, if any.
     Keeps one :class:`NativeFrameRenderer` per (calibration, cameras, config) between calls, so a tracked
     frame reuses the previous frames' views; hold your own ``NativeFrameRenderer`` to control that state.
 
@@ -711,7 +716,7 @@ def render_native(gaussians: Any, cameras: Cameras, calibration: Any, viewer: An
         Quilt cameras.
     calibration : DisplayCalibration
     viewer : TrackedViewer or None
-    mode : {"auto", "tracked", "all_views", "full_quilt"}
+    mode : {"auto", "group", "tracked", "all_views", "full_quilt", "eye_centred"}
     config : NativeFrameConfig, optional
 
     Returns
