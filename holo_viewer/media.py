@@ -249,7 +249,8 @@ class VideoWriter:
     def _command(self, width: int, height: int) -> list[str]:
         if self.timed:  # raw RGB in Matroska: each frame carries its time and duration
             cmd = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-f", "matroska", "-i", "-",
-                   "-fps_mode", "passthrough", "-copyts", "-an", "-vcodec", self.codec, "-pix_fmt", self.pixelformat]
+                   "-fps_mode", "passthrough", "-copyts", "-enc_time_base", "1:1000",  # ms, not 1/fps: no rounding
+                   "-an", "-vcodec", self.codec, "-pix_fmt", self.pixelformat]
         else:
             cmd = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
                    "-s", f"{width}x{height}", "-r", f"{self.fps:.6g}", "-i", "-", "-an", "-vcodec", self.codec,

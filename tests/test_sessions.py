@@ -132,8 +132,11 @@ def test_live_native_video_is_lossless_and_timed(tmp_path: Path) -> None:
     assert len(stored) == len(renderer.natives) - 1 == len(tr["display_time_s"]) >= 5  # -1: the warm-up call
     assert all(np.array_equal(a, b) for a, b in zip(renderer.natives[1:], stored))
     at25 = list(media.read_frames(out / "native.mkv", fps=25))
-    session_s = len(tr["time_s"]) / 25
-    assert abs(len(at25) / 25 - max(session_s, tr["display_time_s"][-1])) <= 0.08  # lasts the session
+    import json
+
+    end_s = json.loads((out / "session.json").read_text())["end_s"]  # the session time when it ended
+    assert end_s >= max(len(tr["time_s"]) / 25, tr["display_time_s"][-1])
+    assert abs(len(at25) / 25 - end_s) <= 0.04  # the video lasts the session
     t = tr["display_time_s"]
     for i in range(len(t) - 1):
         k = int(round(t[i] * 25))
@@ -409,3 +412,19 @@ def test_session_json_v2_fields_of_the_wrong_type_are_named(recorded: Path, tmp_
         (copy / "session.json").write_text(json.dumps(meta))
         with pytest.raises(InputError, match=match):
             load_session(copy)
+
+
+def test_timed_video_keeps_times_off_the_frame_grid(tmp_path: Path) -> None:
+    """Times between 25 fps ticks (a live loop shows frames whenever they are ready) are stored to the
+    millisecond, not rounded to 1/fps (which bumped frames 12 ms apart onto later ticks)."""
+    import re
+    import subprocess
+
+    times = (0.292, 0.384, 0.412, 0.424, 0.5646)
+    with media.VideoWriter(tmp_path / "s.mkv", 25, timed=True) as w:
+        for f, t in zip(_frames(5), times):
+            w.write(f, t=t)
+        w.close(end_s=0.7)
+    info = subprocess.run([media.ffmpeg_exe(), "-hide_banner", "-copyts", "-i", str(tmp_path / "s.mkv"), "-vf",
+                           "showinfo", "-f", "null", "-"], capture_output=True, text=True).stderr
+    assert [float(x) for x in re.findall(r"pts_time:([0-9.]+)", info)] == [0.292, 0.384, 0.412, 0.424, 0.565]

@@ -461,7 +461,8 @@ class LiveSession:
                 # with the render call's arguments: replay --quality live repeats the call exactly
                 self.recorder.add_display(t_shown if renderer is not None else self.now(), frame,
                                           self.render_ms[-1] if self.render_ms else 0.0, render_angle_deg=ang,
-                                          render_distance_m=dist, render_tracked=tracked)
+                                          render_distance_m=dist, render_tracked=tracked,
+                                          render_others=others if renderer is not None else ())
                 if cfg.frames is not None and frames_shown >= cfg.frames:
                     break
         except KeyboardInterrupt:

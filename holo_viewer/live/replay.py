@@ -110,9 +110,12 @@ def replay_timed_frames(session: str | os.PathLike, tile_scale: float | None = N
     renderer.render({"expr": np.zeros(1)}, float((meta.get("render") or {}).get("warmup_pain", 0.0)), (), 0.0, 0.6)
     for i, t in enumerate(tr["display_frame"]):
         lf, pain, named = _frame_inputs(tr, int(t), scenario)
+        # the other faces a group frame served (as the live loop passed them: only when there were any)
+        others = tuple((float(a), float(d)) for a, d in tr["render_others"][i] if np.isfinite(a)) \
+            if "render_others" in tr else ()
         yield float(tr["display_time_s"][i]), renderer.render(
             lf, pain, named, float(tr["render_angle_deg"][i]), float(tr["render_distance_m"][i]),
-            bool(tr["render_tracked"][i])).native
+            bool(tr["render_tracked"][i]), **({"others": others} if others else {})).native
 
 
 def replay_session(session: str | os.PathLike, out: str | os.PathLike, tile_scale: float | None = None,

@@ -9,7 +9,8 @@
                      speaker_found, speaker_{expr,jaw_pose,rotation}, listener_{expr,jaw_pose,rotation,
                      neck_pose,eyes_pose,translation} (GaussianAvatars flame_param keys), window;
                      per displayed frame: display_time_s, display_frame, render_ms and the render call's
-                     render_angle_deg, render_distance_m, render_tracked (replay --quality live)
+                     render_angle_deg, render_distance_m, render_tracked, render_others ((MAX_OTHERS, 2) the
+                     other faces' angle and distance, NaN-padded) (replay --quality live)
       audio.wav      the input audio (16 kHz mono; appended at each flush, valid up to the last one)
       native.mkv     the native images shown: each displayed frame once, lossless RGB (libx264rgb crf 0),
                      at the session time it was shown (variable frame rate, plays in step with audio.wav;
@@ -41,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from ..fileio import atomic_write, save_npz
+from ..tracking.viewer import MAX_OTHERS
 
 __all__ = ["SessionRecorder", "TRACK_KEYS", "DISPLAY_KEYS", "NATIVE_VIDEO", "SCHEMA", "SCHEMA_VERSION",
            "avatar_record", "add_ratings_csv", "load_session"]
@@ -53,7 +55,7 @@ SCHEMA_VERSION = 2
 NATIVE_VIDEO = "native.mkv"
 #: per displayed frame (tracks.npz)
 DISPLAY_KEYS = ("display_time_s", "display_frame", "render_ms", "render_angle_deg", "render_distance_m",
-                "render_tracked")
+                "render_tracked", "render_others")
 
 LISTENER_KEYS = ("expr", "jaw_pose", "rotation", "neck_pose", "eyes_pose", "translation")
 SPEAKER_KEYS = ("expr", "jaw_pose", "rotation")
@@ -104,11 +106,16 @@ class SessionRecorder:
                     self._rows[k] = []
 
     def add_display(self, time_s: float, frame: int, render_ms: float, render_angle_deg: float = 0.0,
-                    render_distance_m: float = 0.6, render_tracked: bool = False) -> None:
-        """One displayed frame: when (session s), which 25 fps frame, its render time and viewer pose."""
+                    render_distance_m: float = 0.6, render_tracked: bool = False,
+                    render_others: tuple[tuple[float, float], ...] = ()) -> None:
+        """One displayed frame: when (session s), which 25 fps frame, its render time and the viewer
+        poses it was rendered for (the followed one, and the other faces of a group frame)."""
+        others = np.full((MAX_OTHERS, 2), np.nan)
+        if len(render_others):
+            others[:len(render_others)] = np.asarray(render_others, np.float64)[:MAX_OTHERS]
         with self._lock:
             for k, v in zip(DISPLAY_KEYS, (float(time_s), int(frame), float(render_ms), float(render_angle_deg),
-                                           float(render_distance_m), bool(render_tracked))):
+                                           float(render_distance_m), bool(render_tracked), others)):
                 self._display[k].append(v)
 
     def add_audio(self, samples: np.ndarray) -> None:
@@ -130,7 +137,9 @@ class SessionRecorder:
             for k in TRACK_KEYS:
                 parts = self._chunks[k] + ([np.stack(self._rows[k])] if self._rows[k] else [])
                 arrays[k] = np.concatenate(parts) if parts else np.zeros((0,), np.float32)
-            disp = {k: np.asarray(v) for k, v in self._display.items()}
+            disp = {k: np.asarray(v) for k, v in self._display.items() if k != "render_others"}
+            disp["render_others"] = np.stack(self._display["render_others"]) if self._display["render_others"] \
+                else np.zeros((0, MAX_OTHERS, 2))
             audio = np.concatenate(self._audio) if self._audio else np.zeros(0, np.int16)
             self._audio = []
         arrays["speaker_found"] = arrays["speaker_found"].astype(bool) if n else np.zeros(0, bool)
@@ -141,6 +150,7 @@ class SessionRecorder:
         arrays["render_angle_deg"] = disp["render_angle_deg"].astype(np.float64)  # exactly as rendered
         arrays["render_distance_m"] = disp["render_distance_m"].astype(np.float64)
         arrays["render_tracked"] = disp["render_tracked"].astype(bool)
+        arrays["render_others"] = disp["render_others"].astype(np.float64)
         arrays["fps"] = np.array(25)
         save_npz(self.folder / "tracks.npz", **arrays)
         # audio.wav is appended (memory stays flat in long sessions); the wave module patches the
