@@ -1,4 +1,5 @@
-"""Screenshots of the viewer for docs/gui.md: the default window, the help overlay, a scrub in progress.
+"""Screenshots of the viewer for docs/gui.md: the default window, the help overlay, a scrub in progress,
+the native-image and eye panels; ``--screen-fit``: the window as sized for this X screen.
 
 Run under an X server with xdotool (``xvfb-run -a -s "-screen 0 1920x1080x24" python
 scripts/gui_screenshots.py``). The scrub is a real mouse drag on the pain slider, captured while the
@@ -72,6 +73,18 @@ def main(argv: list[str] | None = None) -> int:
     print("viewer_scrub.png", save_small(out / "viewer_scrub.png", viewer.screenshot(), args.max_kb), "KB")
     xdo("mouseup", 1)
     viewer.run(timeout=0.5)
+    viewer.poll_thumbnail(wait=True)
+    xdo("key", "p")  # the native image, zoomed 4x (the lenticular stripes)
+    viewer.run(until=lambda: viewer.panel_mode == "native", timeout=5)
+    xdo("key", "bracketright", "bracketright")
+    viewer.run(until=lambda: viewer.native_zoom == 4, timeout=5)
+    viewer.run(timeout=0.3)
+    print("viewer_native.png", save_small(out / "viewer_native.png", viewer.screenshot(), args.max_kb), "KB")
+    xdo("key", "p")  # what an eye 10 deg right of the panel, 0.5 m away, sees
+    viewer.run(until=lambda: viewer.panel_mode == "eye", timeout=5)
+    viewer.set_eye(angle=10.0, distance=0.5)
+    viewer.run(timeout=0.3)
+    print("viewer_eye.png", save_small(out / "viewer_eye.png", viewer.screenshot(), args.max_kb), "KB")
     viewer.close()
     return 0
 

@@ -630,6 +630,28 @@ def test_panel_shows_the_native_image_zoomed_and_what_a_placed_eye_sees(xvfb, xd
         viewer.close()
 
 
+def test_clicking_a_camera_selects_it(window, xin):
+    ren = window.scene_renderer
+    window.plotter.ren_win.Render()
+    H = window.plotter.ren_win.GetSize()[1]
+
+    def where(i: int) -> tuple[int, int]:
+        ren.SetWorldPoint(*window.pipeline.cameras().positions[i], 1.0)
+        ren.WorldToDisplay()
+        x, y, _ = ren.GetDisplayPoint()
+        return int(round(x)), int(round(H - 1 - y))
+
+    target = 5 if window.selected_view != 5 else 6
+    xin.move(*where(target))
+    xin.xdo("click", 1)
+    assert xin.settle(until=lambda: window.selected_view == target, timeout=5)
+    assert window._specs["view"].value == target
+    x, y = where(0)  # a drag that starts on a camera turns the scene; it selects nothing
+    xin.drag((x, y), (x + 40, y + 10))
+    xin.settle(timeout=0.5)
+    assert window.selected_view == target
+
+
 def test_default_window_fits_each_screen_size():
     from holo_viewer.gui.screen import window_size_for_screen
 

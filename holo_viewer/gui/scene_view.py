@@ -241,6 +241,28 @@ class SceneMixin:
         self.glyph_actor.SetVisibility(self.show_gaussians)
         self._update_glyph_header()
 
+    def camera_at(self, x: int, y: int, radius: float = 10.0) -> int | None:
+        """The quilt camera whose centre is drawn within ``radius`` pixels of display pixel (x, y) (y from
+        the bottom), the nearest; None when the cameras are hidden or none is that close."""
+        if not self.show_frusta:
+            return None
+        ren = self.scene_renderer
+        best, best_d = None, radius
+        for i, p in enumerate(self.pipeline.cameras().positions):
+            ren.SetWorldPoint(*p, 1.0)
+            ren.WorldToDisplay()
+            px, py, pz = ren.GetDisplayPoint()
+            d = float(np.hypot(px - x, py - y))
+            if 0.0 <= pz <= 1.0 and d <= best_d:
+                best, best_d = i, d
+        return best
+
+    def _guarded_click(self, x: int, y: int) -> None:
+        """A click in the scene selects the quilt camera under it."""
+        index = self.camera_at(x, y)
+        if index is not None:
+            self._guarded(self.select_view, index)
+
     def toggle_mesh(self) -> None:
         self.show_mesh = not self.show_mesh
         self.mesh_actor.SetVisibility(self.show_mesh)

@@ -303,7 +303,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         """Our keys only; mouse to the 3D scene only; renders coalesced by the loop."""
         iren.clear_key_event_callbacks()  # pyvista's q/b/v/C/Up/Down/plus/minus
         inter = iren.interactor
-        style = _scene_only_style(inter, self.scene_renderer)
+        style = _scene_only_style(inter, self.scene_renderer, on_click=self._guarded_click)
         iren.style = style
         self._style = style
         self._observers = [(inter, inter.AddObserver("KeyPressEvent", self._on_key)),

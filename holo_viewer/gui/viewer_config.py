@@ -38,7 +38,7 @@ KEYS: tuple[tuple[str, str, str], ...] = (
 
 MOUSE_HELP = (
     ("left drag", "rotate"), ("shift + left drag", "pan"), ("ctrl + left drag", "spin"),
-    ("right drag, wheel", "zoom"), ("middle drag", "pan"),
+    ("right drag, wheel", "zoom"), ("middle drag", "pan"), ("click a camera", "select its view"),
 )
 
 

@@ -177,12 +177,14 @@ class _Slider:
         self.value_text.SetInput(self.fmt % self.value)
 
 
-def _scene_only_style(interactor: Any, scene_renderer: Any) -> Any:
+def _scene_only_style(interactor: Any, scene_renderer: Any,
+                      on_click: Callable[[int, int], None] | None = None) -> Any:
     """Trackball camera style that moves the 3D scene only and ignores VTK's built-in keys.
 
     Button presses and wheel turns outside the scene renderer are dropped (the image panels
     cannot be tilted or zoomed); releases always end the current interaction; ``CharEvent``
-    (VTK's w/s/3/e/q/f/p/r/j/t/u/c/a keys) does nothing.
+    (VTK's w/s/3/e/q/f/p/r/j/t/u/c/a keys) does nothing. A left press and release in the scene
+    at most 3 pixels apart is a click: ``on_click(x, y)`` (display pixels, y from the bottom).
     """
     import vtk
 
@@ -192,13 +194,21 @@ def _scene_only_style(interactor: Any, scene_renderer: Any) -> Any:
         x, y = interactor.GetEventPosition()
         return bool(scene_renderer.IsInViewport(x, y))
 
+    pressed: list[tuple[int, int]] = []
+
     def forward(method: str, only_in_scene: bool) -> Callable:
         def cb(obj: Any, _event: str) -> None:
             if only_in_scene and not in_scene():
                 return
             if only_in_scene:
                 obj.SetCurrentRenderer(scene_renderer)
+            if method == "OnLeftButtonDown":
+                pressed[:] = [tuple(interactor.GetEventPosition())]
             getattr(obj, method)()
+            if method == "OnLeftButtonUp" and pressed and on_click is not None:
+                (x0, y0), (x, y) = pressed.pop(), interactor.GetEventPosition()
+                if abs(x - x0) <= 3 and abs(y - y0) <= 3:
+                    on_click(int(x), int(y))
         return cb
 
     for event, method, scene_only in (
