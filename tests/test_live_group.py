@@ -9,7 +9,8 @@ frame's full quilt. Tolerances (stated once):
   strongest are left out);
 * a pain flare (with a nod) shown to one tracked viewer at +6 deg is seen at -15, 0 and +15 deg
   within one frame at >= 35 dB (the issue's cone target) and at the tracked eyes at >= 40 dB; the old
-  eyes-only default (``tracked``) is checked to fail there (< 25 dB: bystanders saw the neutral face);
+  eyes-only default (``tracked``) is checked to fail there (< 25 dB: bystanders saw the neutral face;
+  measured 17 dB);
 * comfort: with the face still, consecutive frames at fixed positions are identical without a tracked
   viewer, and agree to >= 40 dB while a tracked viewer walks past. The issue's target is 48 dB; measured
   41.6 dB here, 43.7-45.6 dB with full-size views, at 0 and -3 deg (the eyes' slices and the synthesized fill differ by that much where
@@ -41,8 +42,10 @@ def rig():
     pipe.set_face(FaceControls(pain=0.9, rotation=np.array([0.1, 0.0, 0.0])))
     flare = pipe.gaussians()
     display = VirtualDisplay(cal)
-    return {"cal": cal, "cams": pipe.cameras(), "neutral": neutral, "flare": flare, "display": display,
-            "cone": ConeSweep(display, BYSTANDERS)}
+    cams = pipe.cameras()
+    return {"cal": cal, "cams": cams, "neutral": neutral, "flare": flare, "display": display,
+            "cone": ConeSweep(display, BYSTANDERS),
+            "group": NativeFrameRenderer(cal, cams)}  # group frames keep nothing: one renderer serves every test
 
 
 def test_cone_sweep_sees_what_the_virtual_display_sees(rig):
@@ -63,25 +66,25 @@ def test_bystanders_see_a_pain_flare_within_one_frame(rig):
     viewer = TrackedViewer(6.0, 0.6)
     seen = {}
     for mode in ("auto", "tracked"):
-        live = NativeFrameRenderer(cal, cams)
+        live = rig["group"] if mode == "auto" else NativeFrameRenderer(cal, cams)
         live.frame(rig["neutral"], viewer, mode)
         live.frame(rig["neutral"], viewer, mode)
         f = live.frame(rig["flare"], viewer, mode)  # the first frame of the flare
-        seen[mode] = (f.mode, cone.psnr(ref, f.native), eye_psnr(rig["display"], ref, f.native, viewer))
-    mode, cone_db, eye_db = seen["auto"]
+        seen[mode] = (f.mode, cone.psnr(ref, f.native), f.native.copy())
+    mode, cone_db, native = seen["auto"]
     assert mode == "group"
     assert cone_db.min() >= 35.0, dict(zip(BYSTANDERS, cone_db))
-    assert eye_db >= 40.0
-    # the eyes-only frames this replaced: the tracked eyes saw the flare, the bystanders did not
-    _, old_cone, old_eye = seen["tracked"]
-    assert old_eye >= 40.0 and old_cone.max() < 25.0, old_cone
+    assert eye_psnr(rig["display"], ref, native, viewer) >= 40.0
+    # the eyes-only frames this replaced: the bystanders saw the old face
+    _, old_cone, _ = seen["tracked"]
+    assert old_cone.max() < 25.0, old_cone
 
 
 @pytest.mark.slow
 def test_still_face_frames_agree_at_fixed_positions(rig):
-    cal, cams, display = rig["cal"], rig["cams"], rig["display"]
+    display = rig["display"]
     fixed = ConeSweep(display, [(0.0, 0.6), (-3.0, 0.6)])
-    live = NativeFrameRenderer(cal, cams)
+    live = rig["group"]
     a = live.frame(rig["neutral"]).native.copy()
     b = live.frame(rig["neutral"]).native
     assert np.array_equal(a, b)  # no viewer: nothing changes
@@ -95,7 +98,7 @@ def test_still_face_frames_agree_at_fixed_positions(rig):
 
 
 def test_group_frames_take_up_to_six_viewers_and_name_a_bad_one(rig):
-    live = NativeFrameRenderer(rig["cal"], rig["cams"])
+    live = rig["group"]
     viewers = [TrackedViewer(a, 0.6) for a in (-20, -12, -4, 4, 12, 20, 25)]
     f = live.frame(rig["neutral"], viewers)
     assert f.mode == "group"
