@@ -1,13 +1,13 @@
 """Test-suite time per file: each test file run alone (one process, no xdist), its wall and CPU seconds.
 
 Usage: python bench/test_times.py [--json bench/results/test_times.json] [--markers "not slow"] [FILE ...]
-       python bench/test_times.py --from-json RESULTS.json [...] --write-slow tests/slow_tests.txt [--slow-cpu 1.0]
+       python bench/test_times.py --from-json RESULTS.json [...] --write-slow tests/slow_tests.txt [--slow-cpu 0.5]
 
 Prints a table (files by CPU, slowest first, with their slowest tests) and writes JSON. CPU is user + system
 time of the pytest process and the children it waited for (Xvfb, CLI subprocesses), so it stays meaningful
 on a busy machine where wall time does not; the table in docs/development.md comes from this script.
 Per-test times come from tests/conftest.py (``$HOLO_TEST_TIMES``). ``--write-slow`` lists the tests that took
-more than ``--slow-cpu`` seconds of CPU (set-up and tear-down included) in tests/slow_tests.txt, which conftest
+more than ``--slow-cpu`` (0.5) seconds of CPU (set-up and tear-down included) in tests/slow_tests.txt, which conftest
 turns into the ``slow`` marker (left out of ``make test-fast``); each file keeps its cheapest test fast, so the
 fast run still covers every file, unless even that test takes over KEEP_LIMIT (5 s; the Ray cluster's file).
 """
@@ -90,7 +90,7 @@ def main() -> int:
     ap.add_argument("--top", type=int, default=3, help="slowest tests listed per file")
     ap.add_argument("--from-json", type=Path, nargs="*", default=None, help="report earlier results, run nothing")
     ap.add_argument("--write-slow", type=Path, default=None, help="write the slow-test list (tests/slow_tests.txt)")
-    ap.add_argument("--slow-cpu", type=float, default=1.0, help="CPU seconds over which a test is slow")
+    ap.add_argument("--slow-cpu", type=float, default=0.5, help="CPU seconds over which a test is slow")
     ap.add_argument("--markdown", action="store_true", help="print the per-file table as markdown (docs/development.md)")
     ap.add_argument("--fast-json", type=Path, nargs="*", default=(),
                     help='with --markdown: results of a --markers "not slow" run, for the fast-run column')

@@ -94,7 +94,7 @@ def _slow_list() -> set[str]:
 
 def pytest_collection_modifyitems(config, items):
     """Tests listed in tests/slow_tests.txt (written by ``bench/test_times.py --write-slow``: the tests that took
-    more than a second of CPU) get the ``slow`` marker, like those marked in their files: ``make test-fast``
+    more than 0.5 s of CPU) get the ``slow`` marker, like those marked in their files: ``make test-fast``
     (``-m "not slow"``) leaves them out, ``make test`` runs them."""
     slow = _slow_list()
     for item in items:
