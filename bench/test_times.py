@@ -92,8 +92,6 @@ def main() -> int:
     ap.add_argument("--write-slow", type=Path, default=None, help="write the slow-test list (tests/slow_tests.txt)")
     ap.add_argument("--slow-cpu", type=float, default=0.5, help="CPU seconds over which a test is slow")
     ap.add_argument("--markdown", action="store_true", help="print the per-file table as markdown (docs/development.md)")
-    ap.add_argument("--fast-json", type=Path, nargs="*", default=(),
-                    help='with --markdown: results of a --markers "not slow" run, for the fast-run column')
     args = ap.parse_args()
     rows = []
     if args.from_json:
@@ -117,16 +115,18 @@ def main() -> int:
     print(f"{'total':<42} {total_wall:>7.1f} {total_cpu:>7.1f}  ({len(rows)} files, load average "
           f"{os.getloadavg()[0]:.1f} at the end)")
     if args.markdown:
-        fast = {r["file"]: r for p in args.fast_json for r in json.loads(p.read_text())["files"]}
-        print("\n| file | tests | CPU s | fast tests | their CPU s | slowest test (CPU s) |\n|---|---:|---:|---:|---:|---|")
+        listed = ROOT / "tests" / "slow_tests.txt"
+        slow = {ln.split("#", 1)[0].strip() for ln in listed.read_text().splitlines()} if listed.is_file() else set()
+        print("\n| file | tests | CPU s | slow | CPU s of the others | slowest test (CPU s) |\n|---|---:|---:|---:|---:|---|")
         for r in rows:
             top = max(r["tests"].items(), key=lambda kv: kv[1][1], default=("::-", [0, 0]))
-            f = fast.get(r["file"])
-            fast_cols = f"{len(f['tests'])} | {f['cpu_s']:.1f}" if f else "- | -"
-            print(f"| `{Path(r['file']).name}` | {len(r['tests'])} | {r['cpu_s']:.1f} | {fast_cols} | "
+            n_slow = sum(k in slow for k in r["tests"])
+            fast = sum(v[1] for k, v in r["tests"].items() if k not in slow)
+            print(f"| `{Path(r['file']).name}` | {len(r['tests'])} | {r['cpu_s']:.1f} | {n_slow} | {fast:.1f} | "
                   f"`{top[0].split('::', 1)[1][:50]}` {top[1][1]:.1f} |")
         print(f"| total | {sum(len(r['tests']) for r in rows)} | {sum(r['cpu_s'] for r in rows):.1f} | "
-              f"{sum(len(f['tests']) for f in fast.values())} | {sum(f['cpu_s'] for f in fast.values()):.1f} | |")
+              f"{sum(k in slow for r in rows for k in r['tests'])} | "
+              f"{sum(v[1] for r in rows for k, v in r['tests'].items() if k not in slow):.1f} | |")
     if args.write_slow:
         names = write_slow_list(args.write_slow, rows, args.slow_cpu)
         fast = sum(v[1] for r in rows for k, v in r["tests"].items() if k not in set(names))
