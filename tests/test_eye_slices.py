@@ -427,11 +427,11 @@ def test_tracked_slices_frame_against_the_full_path(cams, blend):
     reference = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(blend=blend))
     g0 = _scene(5, 3000, log_scale=(-6.0, -4.5))
     rng = np.random.default_rng(7)
-    live.frame(g0, eyes.TrackedViewer(0.0, 0.6))
+    live.frame(g0, eyes.TrackedViewer(0.0, 0.6), mode="tracked")
     for step in range(2):
         g = _moved(g0, step)
         viewer = eyes.TrackedViewer(float(rng.uniform(-12, 12)), float(rng.uniform(0.5, 0.9)))
-        f = live.frame(g, viewer)
+        f = live.frame(g, viewer, mode="tracked")
         assert f.mode == "tracked" and {"render", "depth", "scatter"} <= set(f.timings)
         ref = reference.frame(g, mode="full_quilt").native
         assert (f.native != ref).any()  # approximate, and the unseen subpixels hold the last frame
@@ -450,9 +450,9 @@ def test_tracked_slices_at_the_cone_edge(cams, angle, blend):
     live = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(blend=blend, motion_m=0.005, motion_distance_m=0.02, refresh_columns=0))
     reference = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(blend=blend))
     g = _scene(6, 3000, log_scale=(-6.0, -4.5))
-    live.frame(_moved(g, 0), eyes.TrackedViewer(0.0, 0.6))  # everything, from another frame
+    live.frame(_moved(g, 0), eyes.TrackedViewer(0.0, 0.6), mode="tracked")  # everything, from another frame
     viewer = eyes.TrackedViewer(angle, 0.6)
-    f = live.frame(g, viewer)
+    f = live.frame(g, viewer, mode="tracked")
     assert f.mode == "tracked"
     ref = reference.frame(g, mode="full_quilt").native
     assert eyes.eye_psnr(display, ref, f.native, viewer) > 40.0

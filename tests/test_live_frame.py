@@ -264,12 +264,12 @@ def test_tracked_frame_matches_full_path_where_eyes_see(display, small_cameras, 
     live = NativeFrameRenderer(SMALL, small_cameras, cfg)
     reference = NativeFrameRenderer(SMALL, small_cameras, cfg)
     g0 = _scene(0)
-    first = live.frame(g0, eyes.TrackedViewer(0.0, 0.6))
+    first = live.frame(g0, eyes.TrackedViewer(0.0, 0.6), mode="tracked")
     assert first.mode == "full_quilt" and first.rendered_fraction == 1.0  # nothing to keep yet
     for step in range(2):
         g = _moved(g0, step)
         viewer = eyes.TrackedViewer(float(rng.uniform(-15, 15)), float(rng.uniform(0.45, 0.9)))
-        f = live.frame(g, viewer)
+        f = live.frame(g, viewer, mode="tracked")
         assert f.mode == "tracked" and 0.0 < f.rendered_fraction < 0.6
         ref = reference.frame(g, mode="full_quilt").native
         differs = f.native != ref
@@ -290,9 +290,9 @@ def test_full_quilt_and_all_views_modes(small_cameras):
     views = fast.render(g, small_cameras, RenderConfig()).images
     expected = Interleaver(SMALL, (840, 840, 3))(tile_quilt(views, 8, 6, as_uint8=True))
     np.testing.assert_array_equal(f.native, expected)
-    assert live.frame(g).mode == "all_views"
+    assert live.frame(g).mode == "group"  # auto: group frames; without a viewer every view, as all_views
     np.testing.assert_array_equal(live.frame(g, mode="all_views").native, expected)
-    lod = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(lod_fraction=0.5, view_step=1)).frame(g)
+    lod = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(lod_fraction=0.5, view_step=1)).frame(g, mode="all_views")
     assert lod.mode == "all_views" and not np.array_equal(lod.native, expected)
     assert eyes.psnr(expected / 255.0, lod.native / 255.0) > 15.0
     with pytest.raises(InputError, match="viewer"):
@@ -375,8 +375,9 @@ def test_eye_centred_writes_only_received_subpixels(display, small_cameras):
 
 def test_render_native_picks_the_mode(small_cameras):
     g = _scene(2)
-    assert render_native(g, small_cameras, SMALL).mode == "all_views"
-    assert render_native(g, small_cameras, SMALL, eyes.TrackedViewer(5.0, 0.6)).mode == "tracked"
+    assert render_native(g, small_cameras, SMALL).mode == "group"  # auto: every viewer sees the present
+    assert render_native(g, small_cameras, SMALL, eyes.TrackedViewer(5.0, 0.6)).mode == "group"
+    assert render_native(g, small_cameras, SMALL, eyes.TrackedViewer(5.0, 0.6), mode="tracked").mode == "tracked"
 
 
 def test_lod_keeps_the_largest_contributions():
