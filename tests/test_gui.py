@@ -234,15 +234,18 @@ def test_view_sliders_move_frusta_not_mesh(window):
 def test_keys_write_their_files(window, tmp_path):
     from holo_viewer.fileio import load_image
 
-    for key in ("k", "n", "i", "x"):
+    for key in ("k", "n", "i", "x", "X"):
         _press(window, key)
     window.wait_exports(timeout=120)
+    assert "pain sweep: this FLAME model has no action-unit map" in window.errors[-1]  # X: the synthetic model
     out = sorted(p.name for p in (tmp_path / "exports").iterdir())
     quilts = [n for n in out if n.endswith("_qs8x6a0.75.png")]
     natives = [n for n in out if n.endswith("_native.png")]
     shots = [n for n in out if n.startswith("screenshot")]
-    videos = [n for n in out if n.endswith(".mp4")]
+    videos = [n for n in out if n.endswith("_qs8x6a0.75.mp4")]
+    native_videos = [n for n in out if n.endswith("_native.mp4")]
     assert len(quilts) == 1 and len(natives) == 1 and len(shots) == 1 and len(videos) == 1, out
+    assert len(native_videos) == 1 and native_videos[0].startswith("sweep-expression-"), out
     assert not [n for n in out if ".tmp" in n]  # atomic writes leave no temporaries
     q = load_image(tmp_path / "exports" / quilts[0])
     cams = window.pipeline.cameras()
@@ -254,6 +257,11 @@ def test_keys_write_their_files(window, tmp_path):
 
     frames = iio.imread(tmp_path / "exports" / videos[0])
     assert frames.shape[0] == 3
+    from holo_viewer.display.lenticular import Interleaver
+
+    panel = iio.imread(tmp_path / "exports" / native_videos[0])  # lossless RGB: the interleaved quilts
+    assert panel.shape == (3, cal.screen_h, cal.screen_w, 3)
+    assert np.array_equal(panel[1], Interleaver(cal, frames[1].shape, cols=cal.cols, rows=cal.rows)(frames[1]))
 
 
 def test_toggles_and_help(window):
@@ -367,7 +375,7 @@ def test_exports_run_in_the_background_with_progress_in_the_window(window, xin, 
     assert xin.key("h", until=lambda: window.help_actor.GetVisibility(), timeout=3)  # not blocked
     assert xin.key("m", until=lambda: not window.mesh_actor.GetVisibility(), timeout=3)
     gate.set()
-    assert xin.settle(until=lambda: len(window.exports) == 4, timeout=120), window.errors
+    assert xin.settle(until=lambda: len(window.exports) == 5, timeout=120), window.errors  # x: quilt + native mp4
     assert "wrote" in window.status.GetInput()
     names = sorted(p.name for p in (tmp_path / "exports").iterdir())
     assert any(n.endswith("_qs8x6a0.75.png") for n in names) and any(n.endswith("_native.png") for n in names)
@@ -723,6 +731,8 @@ def test_avatar_none_explains_the_black_panels(xvfb, tmp_path):
         assert "--avatar none" in viewer.preview_panel.message.GetInput()
         assert "--avatar none" in viewer.thumb_panel.message.GetInput()
         assert "glyphs" not in viewer.sliders
+        viewer.press_key("c")  # no ellipsoids to recolour: said so, nothing claimed
+        assert "no ellipsoids to colour" in viewer._message and viewer.glyph_color == "colour"
         job_error = None
         try:
             viewer.export_quilt()

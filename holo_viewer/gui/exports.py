@@ -75,43 +75,57 @@ class ExportsMixin:
             return path
         return self._submit("exporting native image", work)
 
-    def export_sweep_video(self) -> Job:
-        """Write an mp4 of quilts sweeping smile 0 -> 1 -> 0 at the current pain (tiles at ``sweep_scale``),
-        in the background. Models without an action-unit map sweep their first expression component."""
+    def export_sweep_video(self, what: str = "expression") -> Job:
+        """Write two mp4s in the background, the quilt video (tiles at ``sweep_scale``) and the panel's
+        native video (the same quilts interleaved for the calibration), of a sweep 0 -> 1 -> 0: of smile
+        (``what="expression"``, key ``x``; a model without an action-unit map sweeps its first expression
+        component) or of pain (``what="pain"``, key ``X``), the rest of the face as it is."""
         from ..display.export import write_quilt_video
+        from ..display.lenticular import Interleaver
         from ..display.quilt import quilt_filename
         from .thumbnail_worker import render_thumbnail
 
         cfg = self.config
         pipe = self._export_pipeline()
         cal = pipe.calibration
-        path = self._out(quilt_filename(f"sweep-{self._stamp()}", cal.cols, cal.rows, cal.aspect, suffix=".mp4"))
+        stem = f"sweep-{what}-{self._stamp()}"
+        path = self._out(quilt_filename(stem, cal.cols, cal.rows, cal.aspect, suffix=".mp4"))
+        native_path = self._out(f"{stem}_native.mp4")
         base = pipe.face
         weights = np.sin(np.linspace(0.0, np.pi, max(2, cfg.sweep_frames)))
         try:
-            pipe.au_map  # noqa: B018 - named expressions need the model's action-unit map
+            pipe.au_map  # noqa: B018 - named expressions and pain need the model's action-unit map
+            has_aus = True
+        except HoloViewerError:
+            has_aus = False
+        if what == "pain":
+            if not has_aus:
+                raise InputError("pain sweep: this FLAME model has no action-unit map (pain is made of AUs)")
 
             def sweep(w: float) -> FaceControls:
-                return base.with_named("smile", w)
-        except HoloViewerError:  # a FLAME model without an AU map: sweep its first component
+                return base.replace(pain=w)
+        elif what == "expression":
             def sweep(w: float) -> FaceControls:
-                return base.with_expr_component(0, cfg.expr_range * w)
+                return base.with_named("smile", w) if has_aus else base.with_expr_component(0, cfg.expr_range * w)
+        else:
+            raise InputError(f"sweep: expected 'expression' or 'pain', found {what!r}")
 
-        def work(job: Job) -> Path:
+        def work(job: Job) -> list[Path]:
             cams = scale_cameras(pipe.cameras(), cfg.sweep_scale)
-
-            def frames() -> Any:
-                for k, w in enumerate(weights):
-                    pipe.set_face(sweep(float(w)))
-                    yield render_thumbnail(pipe.gaussians(), cams, pipe.backend, pipe.render_config, cal.cols,
-                                           cal.rows)
-                    job.progress(k + 1, len(weights), "frames")
-
+            quilts = []
             job.progress(0, len(weights), "frames")
-            write_quilt_video(path, frames(), fps=cfg.sweep_fps, total=len(weights), preset="veryfast",
-                              progress=False)
-            return path
-        return self._submit("exporting sweep video", work)
+            for k, w in enumerate(weights):
+                pipe.set_face(sweep(float(w)))
+                quilts.append(render_thumbnail(pipe.gaussians(), cams, pipe.backend, pipe.render_config, cal.cols,
+                                               cal.rows))
+                job.progress(k + 1, len(weights), "frames")
+            write_quilt_video(path, quilts, fps=cfg.sweep_fps, total=len(quilts), preset="veryfast", progress=False)
+            inter = Interleaver(cal, quilts[0].shape, cols=cal.cols, rows=cal.rows,
+                                mode="blend" if pipe.view.blend else "nearest")
+            write_quilt_video(native_path, (inter(q) for q in quilts), fps=cfg.sweep_fps, total=len(quilts),
+                              preset="veryfast", progress=False)
+            return [path, native_path]
+        return self._submit(f"exporting {what} sweep video", work)
 
     def _collect_jobs(self) -> None:
         for job in self._jobs.finished():
@@ -120,7 +134,8 @@ class ExportsMixin:
                     f"{type(job.error).__name__}: {job.error}"
                 self._show_error(f"{job.label} failed: {msg}")
             else:
-                self._record(job.result)
+                for path in job.result if isinstance(job.result, list) else [job.result]:
+                    self._record(path)
         if self._jobs.pending:
             line = self._jobs.status_line()
             if line != self._last_job_line:

@@ -20,7 +20,7 @@ class KeysMixin:
                 "p": self.cycle_panel, "bracketright": lambda: self.zoom_native(1),
                 "bracketleft": lambda: self.zoom_native(-1), "s": self.toggle_splats, "v": self.toggle_look_through, "r": self.reset_camera, "z": self.head_closeup, "0": self.reset_face, "Left": lambda: self.step_view(-1),
                 "Right": lambda: self.step_view(1), "Return": self.start_entry, "KP_Enter": self.start_entry,
-                "k": self.export_quilt, "n": self.export_native, "x": self.export_sweep_video,
+                "k": self.export_quilt, "n": self.export_native, "x": self.export_sweep_video, "X": lambda: self.export_sweep_video("pain"),
                 "i": self.save_screenshot}
 
     def press_key(self, keysym: str, char: str = "") -> None:

@@ -198,6 +198,10 @@ class SceneMixin:
 
     def cycle_glyph_color(self) -> None:
         """Next ellipsoid colour mode (key ``c``); the status line says how to read it."""
+        if self.pipeline.avatar is None:
+            self._set_status("no Gaussian avatar to draw (--avatar none): no ellipsoids to colour")
+            self._render()
+            return
         modes = GLYPH_COLOR_MODES
         self.set_glyphs(color=modes[(modes.index(self.glyph_color) + 1) % len(modes)])
         self._set_status({"colour": "ellipsoid colour: each Gaussian's own (DC) colour",

@@ -31,7 +31,8 @@ KEYS: tuple[tuple[str, str, str], ...] = (
     ("Return", "Return", "type a value (pain 0.6), Esc cancels"),
     ("k", "k", "export the quilt PNG"),
     ("n", "n", "export the native (lenticular) PNG"),
-    ("x", "x", "export an expression-sweep mp4"),
+    ("x", "x", "export smile-sweep mp4s (quilt + native)"),
+    ("X", "X", "export pain-sweep mp4s (quilt + native)"),
     ("i", "i", "save a screenshot PNG"),
 )
 
