@@ -18,6 +18,7 @@ SAME_ROLE = {
     "model.py": "the package's model (flame.model: the head; reaction.model: the reaction generator)",
     "live.py": "the live frame: commands/ its subcommand, pipeline/ its native-frame renderer",
     "replay.py": "replay of a recorded live session: commands/ its subcommand, live/ the replay itself",
+    "report.py": "a recorded session's debrief: commands/ its subcommand, live/ the report itself",
     "scene.py": "the scene shown: pipeline/ loads it from files, gui/ draws it",
     "viewer.py": "an interactive window: gui/ the hologram viewer, tracking/ the tracker's webcam viewer",
     "video.py": "video frames of the package: tracking/ reads webcam/video input, batch/ writes render-batch videos",
