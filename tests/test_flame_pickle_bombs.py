@@ -43,7 +43,10 @@ _RUNNER = textwrap.dedent("""
         rc, msg = 0, "loaded"
     except HoloViewerError as exc:
         rc, msg = 1, str(exc)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    # VmHWM is this process's own peak RSS; ru_maxrss is not: exec copies the parent's high-water mark into it
+    # (an xdist worker that once held 2.9 GB made every child "peak" at 2.9 GB)
+    with open("/proc/self/status") as fh:
+        peak = next(int(line.split()[1]) for line in fh if line.startswith("VmHWM:")) * 1024
     print(json.dumps({"msg": msg, "peak": peak}))
     sys.exit(rc)
 """)
