@@ -530,10 +530,10 @@ class LiveSession:
             lines.append("MUTED")
         lines.append(f"trainee {self.controls.trainee}" + ("" if self.controls.last_rating is None else
                                                             f" rated {self.controls.last_rating}"))
-        if self.controls.show_help:
+        if self.controls.show_help:  # the key map in place of the status lines, so a small preview still shows it
             from .controls import KEY_HELP
 
-            lines += ["keys:"] + [f"  {k}: {what}" for k, what in KEY_HELP]
+            lines = lines[:1] + ["keys:"] + [f"  {k}: {what}" for k, what in KEY_HELP]
         for i, line in enumerate(lines):
             d.text((4, 4 + 12 * i), line, fill=(255, 255, 0))
         if self.controls.paused:
