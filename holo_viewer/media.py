@@ -334,9 +334,13 @@ class VideoWriter:
                     self._proc.stdin.write(_mkv_block(t_ms, duration_ms, len(data)))  # type: ignore[union-attr]
                 self._write_frame(data)
             except (BrokenPipeError, OSError) as exc:
+                if self._proc is not None:
+                    with contextlib.suppress(subprocess.TimeoutExpired):
+                        self._proc.wait(timeout=5)  # ffmpeg's last words are in its log once it has exited
+                why = self._ffmpeg_message() or exc  # read before abort() closes the log
                 self.abort()
                 raise ExportError(f"{self.path}: cannot write the {self.what}: ffmpeg stopped "
-                                  f"({self._ffmpeg_message() or exc}); nothing was written") from None
+                                  f"({why}); nothing was written") from None
             self.frames += 1
 
     def _write_frame(self, data: memoryview) -> None:

@@ -699,3 +699,21 @@ def test_no_video_is_written_around_media() -> None:
         offenders += [f"{path.relative_to(ROOT)}: {needle}" for needle in ("get_writer(", "write_frames(")
                       if needle in text]
     assert offenders == []
+
+
+def test_a_broken_ffmpeg_pipe_is_our_error_naming_the_file(tmp_path: Path, monkeypatch) -> None:
+    """ffmpeg gone while a frame is piped (the race a full disk makes): ExportError with ffmpeg's last
+    words, no temporary left; the log was once read after abort() had closed it (ValueError)."""
+    from holo_viewer import media
+    from holo_viewer.errors import ExportError
+
+    writer = media.VideoWriter(tmp_path / "v.mkv", 10, what="test video")
+    writer.write(np.zeros((16, 16, 3), np.uint8))
+
+    def broken(data):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr(writer, "_write_frame", broken)
+    with pytest.raises(ExportError, match=r"v\.mkv: cannot write the test video: ffmpeg stopped"):
+        writer.write(np.zeros((16, 16, 3), np.uint8))
+    assert os.listdir(tmp_path) == []
