@@ -336,7 +336,7 @@ class VideoWriter:
             except (BrokenPipeError, OSError) as exc:
                 if self._proc is not None:
                     with contextlib.suppress(subprocess.TimeoutExpired):
-                        self._proc.wait(timeout=5)  # ffmpeg's last words are in its log once it has exited
+                        self._proc.wait(timeout=1)  # ffmpeg's last words are in its log once it has exited
                 why = self._ffmpeg_message() or exc  # read before abort() closes the log
                 self.abort()
                 raise ExportError(f"{self.path}: cannot write the {self.what}: ffmpeg stopped "
