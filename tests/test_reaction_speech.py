@@ -10,8 +10,9 @@ import pytest
 
 from holo_viewer.errors import InputError, ReactionError
 from holo_viewer.reaction.audio import read_wav
-from holo_viewer.reaction.speech import (SPEECH_FEATURES, SpeechTracker, frame_energy_db, low_pitch_cues,
-                                         pause_onsets, speech_features, speech_runs)
+from holo_viewer.reaction.speech import (SPEECH_FEATURES, PauseDetector, SpeechGate, SpeechTracker, frame_energy_db,
+                                         low_pitch_cues, pause_onsets, speech_cues, speech_features, speech_mask,
+                                         speech_runs)
 
 DATA = Path(__file__).parent / "data" / "speech"
 CLIPS = ("librispeech_198-209-0000.wav", "jfk_inaugural_1961.wav")  # the second is held out of all tuning
@@ -73,6 +74,35 @@ def test_stream_equals_offline(clips):
         assert r.shape == (n, f.shape[1])
         np.testing.assert_allclose(r, f[:n], atol=1e-5)
         assert tr._audio.shape[0] <= 2.4 * 16000 + 1024 + 8 * 640 + step  # memory stays flat
+
+
+def test_pause_gate_streamed_equals_offline_and_pause_onsets(clips):
+    """One pause-onset definition: the behaviour layers' streaming gate (frame by frame, as live
+    delivers audio), its offline form and :func:`pause_onsets` of the model's features agree on
+    both recordings; the gate's cue comes when 200 ms of silence are complete (onset + 4 frames)."""
+    for name in CLIPS:
+        x, sr, f = clips[name]
+        T = f.shape[0]
+        gate = SpeechGate()
+        streamed = np.array([gate.step(x[640 * i:640 * (i + 1)]) for i in range(T)])
+        speaking, known = speech_cues(x, T)
+        np.testing.assert_array_equal(streamed[:, 0], speaking)
+        np.testing.assert_array_equal(streamed[:, 1], known)
+        onsets = pause_onsets(f[:, 0], f[:, 1])
+        assert onsets.size >= 3
+        np.testing.assert_array_equal(np.flatnonzero(known) - 4, onsets)
+        np.testing.assert_array_equal(speaking, speech_mask(f[:, 0], f[:, 1]))
+
+
+def test_pause_detector_on_a_hand_built_mask():
+    """1 s of speech, 0.5 s pause -> onset at frame 25, known at 29; 0.4 s speech too short; a 0.12 s
+    gap does not break a run."""
+    mask = np.r_[np.zeros(3), np.ones(25), np.zeros(12), np.ones(10), np.zeros(12), np.ones(20), np.zeros(3),
+                 np.ones(5), np.zeros(10)]
+    det = PauseDetector()
+    got = [(i, o) for i, m in enumerate(mask) if (o := det.step(float(m), -20.0)[1]) is not None]
+    assert got == [(3 + 25 + 4, 28), (3 + 25 + 12 + 10 + 12 + 28 + 4, 90)]
+    np.testing.assert_array_equal(pause_onsets(mask), [28, 90])
 
 
 def test_channels_in_range_and_meaningful(clips):

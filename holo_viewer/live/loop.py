@@ -362,7 +362,7 @@ class LiveSession:
         self._stream = ReactionStream(load_default_bundle(), temperature=cfg.temperature,
                                       top_k=DEFAULT_TOP_K if cfg.temperature else None, seed=cfg.seed)
         from ..behaviour import BehaviourConfig, ListenerBehaviour
-        from ..behaviour.speech import SpeechGate
+        from ..reaction.speech import SpeechGate
 
         self._speech_gate = SpeechGate()
         if cfg.behaviour is not None:

@@ -43,7 +43,7 @@ def with_behaviour(params: dict[str, np.ndarray], behaviour: Any = DEFAULT_BEHAV
     ``pain_shown`` (T,): the pain in the face at each frame.
     """
     from ..behaviour import BehaviourConfig, apply_behaviour
-    from ..behaviour.speech import speech_cues
+    from ..reaction.speech import speech_cues
 
     cfg = BehaviourConfig(seed=int(seed)) if isinstance(behaviour, str) else behaviour
     T = int(np.asarray(params["expr"]).shape[0])

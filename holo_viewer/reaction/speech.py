@@ -45,7 +45,8 @@ from ..validation import check_array
 
 __all__ = ["SPEECH_FEATURES", "N_SPEECH_FEATURES", "SpeechState", "speech_features", "vad_probabilities",
            "frame_energy_db", "praat_pitch", "speech_mask", "speech_runs", "pause_onsets", "low_pitch_cues",
-           "SpeechTracker", "block_pitch", "PITCH_BLOCK"]
+           "SpeechTracker", "block_pitch", "PITCH_BLOCK", "PauseDetector", "SpeechGate",
+           "speech_cues"]
 
 SAMPLE_RATE = 16000
 HOP = 640  # samples per 25-fps frame
@@ -416,3 +417,86 @@ class SpeechTracker:
             seg = self._audio[max(lo, self._start) - self._start:hi - self._start].astype(np.float64)
             out[j] = 10.0 * np.log10(float((seg * seg).sum()) / ENERGY_WINDOW + 1e-10)
         return out
+
+
+# ---- the one pause-onset definition, streamed ------------------------------------------------------
+class PauseDetector:
+    """:func:`pause_onsets` frame by frame: step with each frame's VAD probability and level (dB).
+
+    The speech decision is :func:`speech_mask`'s (the recurrence of :func:`speech_features`); a pause
+    onset becomes known at the frame that completes ``MIN_SILENCE_S`` of silence after a speech run
+    of >= ``MIN_SPEECH_S`` (silences shorter than ``MIN_SILENCE_S`` do not end a run), and
+    :meth:`step` then returns the onset's own frame (the first silent one). Over a clip the onsets
+    equal ``pause_onsets(features[:, 0], features[:, 1])`` exactly (tested on the real recordings).
+    """
+
+    def __init__(self) -> None:
+        self.state = SpeechState()
+        self._gap = _frames_for(MIN_SILENCE_S)
+        self._need = _frames_for(MIN_SPEECH_S)
+
+    def step(self, vad: float, energy_db: float) -> tuple[bool, int | None]:
+        """(speaking now, the frame of a pause onset that became known at this frame or None)."""
+        s = self.state
+        i = s.frame
+        _recurrences(np.array([vad], np.float64), np.array([energy_db], np.float64), np.zeros(1), s)
+        onset = None
+        if (not s.speaking and s.last_speech >= 0 and i - s.last_speech == self._gap
+                and s.last_speech - s.run_start + 1 >= self._need):
+            onset = s.last_speech + 1
+        return s.speaking, onset
+
+
+class SpeechGate:
+    """The speech cues of the behaviour layers (blinks at pauses, gaze, brow raises), streamed.
+
+    :meth:`step` takes the samples of one 25-fps frame (640 at 16 kHz) as the live loop delivers
+    them and returns ``(speaking, pause_onset)``: whether the speaker talks now (:func:`speech_mask`
+    of the silero-vad probability and the level) and whether a pause onset (:class:`PauseDetector`,
+    the definition of :func:`pause_onsets`) became known at this frame, 200 ms after the silence
+    began. :func:`speech_cues` is the same over a whole clip.
+    """
+
+    def __init__(self) -> None:
+        self._vad_model = _load_vad()
+        self._vad_model.reset_states()
+        self._tail = np.zeros(ENERGY_WINDOW, np.float32)  # the last samples (energy window, VAD chunk rest)
+        self._pending = np.zeros(0, np.float32)  # samples not yet in a VAD chunk
+        self._prob = 0.0
+        self._n = 0  # samples received
+        self.detector = PauseDetector()
+
+    def step(self, samples: np.ndarray) -> tuple[bool, bool]:
+        """(speaking, pause onset known now) for the next frame; ``samples`` is that frame's audio."""
+        x = np.nan_to_num(np.asarray(samples, dtype=np.float32).reshape(-1))
+        self._n += x.shape[0]
+        self._pending = np.concatenate([self._pending, x])
+        n_chunks = self._pending.shape[0] // CHUNK
+        if n_chunks:
+            probs = vad_probabilities(self._pending[:n_chunks * CHUNK], model=self._vad_model)
+            self._prob = float(probs[-1])
+            self._pending = self._pending[n_chunks * CHUNK:]
+        self._tail = np.concatenate([self._tail, x])[-ENERGY_WINDOW:]
+        seg = self._tail.astype(np.float64)
+        db = 10.0 * np.log10(float((seg * seg).sum()) / ENERGY_WINDOW + 1e-10)
+        speaking, onset = self.detector.step(self._prob, db)
+        return speaking, onset is not None
+
+
+def speech_cues(audio: np.ndarray, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """:class:`SpeechGate` over a whole clip: (speaking, pause_onset), each (n_frames,) bool.
+
+    Frame t sees samples ``[640 t, 640 (t + 1))``; ``pause_onset[t]`` is True where a pause onset
+    became known (its first silent frame + 4: 200 ms of silence complete). Offline: the VAD,
+    the level and :func:`pause_onsets` of the whole clip; equal to the streamed gate (tested).
+    """
+    n_frames = int(n_frames)
+    x = np.nan_to_num(np.asarray(audio, dtype=np.float32).reshape(-1))
+    need = n_frames * HOP
+    x = x[:need] if x.shape[0] >= need else np.concatenate([x, np.zeros(need - x.shape[0], np.float32)])
+    vad = _frame_vad(vad_probabilities(x), n_frames)
+    rows = _recurrences(vad, frame_energy_db(x, n_frames), np.zeros(n_frames), SpeechState())
+    speaking = speech_mask(rows[:, 0], rows[:, 1])
+    known = np.zeros(n_frames, bool)
+    known[pause_onsets(rows[:, 0], rows[:, 1]) + _frames_for(MIN_SILENCE_S) - 1] = True
+    return speaking, known
