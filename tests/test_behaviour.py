@@ -13,7 +13,7 @@ import pytest
 from holo_viewer.behaviour import (DEFAULT_FRAMING, DEFAULT_JOINTS, PANEL_HEIGHT_M, BehaviourConfig,
                                    ListenerBehaviour, PainTimeline, apply_behaviour, default_target,
                                    eye_directions, viewer_target)
-from holo_viewer.behaviour.layers import BlinkLayer, BreathingLayer, GazeLayer, PainDynamics, SwayLayer
+from holo_viewer.behaviour.layers import BlinkLayer, BreathingLayer, BrowLayer, GazeLayer, PainDynamics, SwayLayer
 from holo_viewer.errors import InputError
 
 FPS = 25
@@ -73,6 +73,43 @@ def test_gaze_on_target_share_and_aversions(speaking, lo, hi):
     assert np.median(off[on]) < 1.5 and np.median(off[~on]) > 5.0
     # micro-saccades: the fixation moves while on target
     assert np.std(np.array([x.yaw_deg for x in s])[on]) > 0.1
+
+
+def test_brow_raises_answer_pauses():
+    """30 min with a pause onset every 3.75 s (16 / min): 2-6 raises / min, each starting 0.05-0.3 s
+    after its cue, 0.75-1.55 s long, >= 4 s apart, apex 0.4-0.65; none without pauses."""
+    T = FPS * 1800
+    cue = np.zeros(T, bool)
+    cue[::int(3.75 * FPS)] = True
+    lay = BrowLayer(seed=2)
+    v = np.array([lay.step(bool(c)) for c in cue])
+    runs = _runs(v > 0)
+    assert 2 * 30 <= len(runs) <= 6 * 30
+    starts = np.array([a for a, _ in runs])
+    lags = (starts - np.flatnonzero(cue)[np.searchsorted(np.flatnonzero(cue), starts) - 1]) / FPS
+    assert lags.min() >= 0.04 and lags.max() <= 0.34
+    lengths = np.array([n for _, n in runs]) / FPS
+    assert lengths.min() >= 0.7 and lengths.max() <= 1.6 and np.diff(starts).min() >= 4 * FPS
+    assert 0.4 <= min(v[a:a + n].max() for a, n in runs) and v.max() <= 0.65
+    quiet = BrowLayer(seed=2)
+    assert not any(quiet.step(False) for _ in range(FPS * 120))
+
+
+def test_brow_raises_on_the_face_and_off_when_switched_off():
+    from holo_viewer.flame.expressions import default_au_map, estimate_aus
+
+    T = FPS * 24
+    po = np.zeros(T, bool)
+    po[::FPS * 3] = True
+    au = default_au_map(24)
+    params = _still(T)
+    params["expr"] = np.tile(au.matrix[list(au.names).index("AU12")] * 2.0, (T, 1))  # the model's smile stays
+    on = estimate_aus(apply_behaviour(params, BehaviourConfig(seed=1), pause_onsets=po)["expr"], au)
+    off = estimate_aus(apply_behaviour(params, BehaviourConfig(seed=1, brows=False), pause_onsets=po)["expr"], au)
+    i1, i2, i12 = (list(au.names).index(n) for n in ("AU1", "AU2", "AU12"))
+    raised = 0.5 * (on[:, i1] + on[:, i2])
+    assert len(_runs(raised >= 1.0)) >= 1 and np.allclose(on[:, i1], on[:, i2], atol=1e-6)
+    assert np.abs(off[:, [i1, i2]]).max() < 1e-6 and np.allclose(on[:, i12], 2.0, atol=1e-5)
 
 
 def test_breathing_rate_and_sway_amplitude():

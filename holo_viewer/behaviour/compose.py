@@ -31,13 +31,13 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import InputError
-from .layers import FPS, BlinkLayer, BreathingLayer, GazeLayer, PainDynamics, SwayLayer
+from .layers import FPS, BlinkLayer, BreathingLayer, BrowLayer, GazeLayer, PainDynamics, SwayLayer
 
 __all__ = ["BehaviourConfig", "ListenerBehaviour", "apply_behaviour", "DEFAULT_JOINTS", "DEFAULT_FRAMING",
            "PANEL_HEIGHT_M", "viewer_target", "default_target", "eye_directions", "LAYERS"]
 
 #: the switchable layers, in the order of ``--no-LAYER`` flags
-LAYERS = ("gaze", "blinks", "breathing", "sway", "flares")
+LAYERS = ("gaze", "blinks", "brows", "breathing", "sway", "flares")
 
 #: the default head's rest joints (root, neck, jaw, eye at +x, eye at -x), metres (FLAME frame)
 DEFAULT_JOINTS = np.array([[0.0, -0.175, -0.02], [0.0, -0.07, -0.025], [0.0, -0.042075, -0.0070978],
@@ -74,12 +74,13 @@ def default_target() -> np.ndarray:
 class BehaviourConfig:
     """Switches and settings of the no-data layers (docs/behaviour.md).
 
-    ``gaze``, ``blinks``, ``breathing``, ``sway``, ``flares``: each layer on/off (``--no-gaze`` ...);
+    ``gaze``, ``blinks``, ``brows``, ``breathing``, ``sway``, ``flares``: each layer on/off (``--no-gaze`` ...);
     pain itself is always shown (its level is the instructor's), ``flares`` only adds episodes.
     """
 
     gaze: bool = True
     blinks: bool = True
+    brows: bool = True
     breathing: bool = True
     sway: bool = True
     flares: bool = True
@@ -219,10 +220,12 @@ class ListenerBehaviour:
         self._pinv = np.linalg.pinv(self.au_map.matrix)
         names = self.au_map.names
         self._i43 = names.index("AU43") if "AU43" in names else None
+        self._brows = np.array([1.0 if n in ("AU1", "AU2") else 0.0 for n in names])  # AU1, AU2 (0-5 scale)
         self.joints = np.asarray(joints, dtype=np.float64)
         self.fps = float(fps)
         self.gaze = GazeLayer(c.seed, fps=fps)
         self.blinks = BlinkLayer(c.seed, rate_per_min=c.blink_rate_per_min, fps=fps)
+        self.brows = BrowLayer(c.seed, fps=fps)
         self.breathing = BreathingLayer(c.seed, fps=fps)
         self.sway = SwayLayer(c.seed, std_deg=c.sway_deg, std_mm=c.sway_mm, fps=fps)
         self.pain = PainDynamics(c.seed, flares=c.flares, flare_rate_per_min=c.flare_rate_per_min, fps=fps)
@@ -258,6 +261,11 @@ class ListenerBehaviour:
             delta = np.maximum(self._pain_vector(p) - aus, 0.0)
             expr = expr + delta @ self.au_map.matrix
             aus = aus + delta
+        brow = self.brows.step(pause_onset)
+        if c.brows and brow > 0:  # a brow raise (AU1 + AU2), max-combined like the pain face
+            delta = np.maximum(5.0 * brow - aus, 0.0) * self._brows
+            expr = expr + delta @ self.au_map.matrix
+            aus = aus + delta
         blink = self.blinks.step(p, pause_onset)
         if c.blinks and self._i43 is not None and blink > 0:
             a = min(1.0, aus[self._i43])
@@ -290,7 +298,8 @@ class ListenerBehaviour:
                 y, pt = _yaw_pitch(Rhead.T @ (tgt - centre))
                 Re = _yaw_pitch_matrix(y + math.radians(g.yaw_deg), pt + math.radians(g.pitch_deg))
                 out["eyes_pose"][3 * e:3 * e + 3] = _axis_angle(Re)
-        self.last = {"pain": p, "blink": blink if c.blinks else 0.0, "breath": breath if c.breathing else 0.0,
+        self.last = {"pain": p, "blink": blink if c.blinks else 0.0, "brows": brow if c.brows else 0.0,
+                     "breath": breath if c.breathing else 0.0,
                      "gaze_on_target": float(g.on_target) if c.gaze else float("nan")}
         out["expr"] = expr
         return out

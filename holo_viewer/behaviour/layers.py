@@ -10,7 +10,8 @@ draws unchanged.
 Anchors (docs/behaviour.md): listeners look at the speaker 60-80 % of listening time with brief
 aversions and small saccades (Argyle & Cook 1976; Kendon 1967); spontaneous blinks 10-25 per
 minute lasting 100-400 ms (Bentivoglio et al. 1997; Doughty 2001), listeners' blinks cluster at
-the speaker's pauses (Nakano & Kitazawa 2010); breathing 12-20 per minute; pain in episodes with
+the speaker's pauses (Nakano & Kitazawa 2010); listeners answer a pause with a backchannel
+(a nod, a smile, a brow raise: Ward & Tsukahara 2000; Chovil 1991); breathing 12-20 per minute; pain in episodes with
 a fast onset (apex within ~1 s), a hold and an easing (Prkachin & Solomon 2008).
 """
 
@@ -21,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GazeLayer", "GazeSample", "BlinkLayer", "BreathingLayer", "SwayLayer", "PainDynamics",
+__all__ = ["GazeLayer", "GazeSample", "BlinkLayer", "BrowLayer", "BreathingLayer", "SwayLayer", "PainDynamics",
            "blink_profile", "smoothstep"]
 
 FPS = 25.0
@@ -155,6 +156,46 @@ class BlinkLayer:
             self.duration = 0.05 + self.closed + float(self.rng.uniform(0.10, 0.15))
             self.next = max(self._interval(pain), self.start + self.duration + 0.3)
         return blink_profile(self.t - self.start, self.duration, self.closed)
+
+
+# ============================================================================ brow raises
+class BrowLayer:
+    """Brow raises (AU1 + AU2, inner and outer brow raiser) as a listener's backchannel.
+
+    At a speaker's pause onset (the cue arrives when 200 ms of silence are complete) a raise
+    starts 0.05-0.3 s later with probability ``pause_p``, at most one per ``refractory_s``: rise
+    0.15-0.25 s (smoothstep), hold 0.2-0.6 s, fall 0.4-0.7 s, apex ``U(0.4, 0.65)`` of full
+    intensity (AU 2-3.3 on the 0-5 scale). Nothing without pauses: a raise answers speech.
+    Returns the raise in [0, 1] of full intensity.
+    """
+
+    def __init__(self, seed: int = 0, pause_p: float = 0.25, refractory_s: float = 4.0, fps: float = FPS) -> None:
+        self.rng = _rng(seed, 6)
+        self.dt = 1.0 / fps
+        self.pause_p, self.refractory = float(pause_p), float(refractory_s)
+        self.t = 0.0
+        self.raise_: tuple[float, float, float, float, float] | None = None  # start, rise, hold, fall, amp
+
+    def step(self, pause_onset: bool = False) -> float:
+        self.t += self.dt
+        if pause_onset:
+            u, delay = float(self.rng.uniform()), float(self.rng.uniform(0.05, 0.3))
+            shape = (float(self.rng.uniform(0.15, 0.25)), float(self.rng.uniform(0.2, 0.6)),
+                     float(self.rng.uniform(0.4, 0.7)), float(self.rng.uniform(0.4, 0.65)))
+            free = self.raise_ is None or self.t - self.raise_[0] >= self.refractory
+            if free and u < self.pause_p:
+                self.raise_ = (self.t + delay, *shape)
+        if self.raise_ is None:
+            return 0.0
+        start, rise, hold, fall, amp = self.raise_
+        v = self.t - start
+        if v < 0 or v >= rise + hold + fall:
+            return 0.0
+        if v < rise:
+            return amp * smoothstep(v / rise)
+        if v < rise + hold:
+            return amp
+        return amp * (1.0 - smoothstep((v - rise - hold) / fall))
 
 
 # ============================================================================ breathing
