@@ -63,6 +63,23 @@ def test_nod_contingency_against_shifts():
         nod_contingency([locked[0]], pauses, [60.0])
 
 
+def test_nod_contingency_pools_realisations_with_one_shift():
+    """Realisations of one recording share each shift: 20 copies of one nod train give exactly the
+    single train's test (independent shifts would shrink the null's spread and the p-value); nods
+    locked to the pauses in every realisation stay significant."""
+    rng = np.random.default_rng(3)
+    pauses = np.sort(rng.uniform(0, 14, 4))
+    nods = np.sort(rng.uniform(0, 14, 3))
+    one = nod_contingency([nods], [pauses], [14.0], n_shifts=300, seed=5)
+    pooled = nod_contingency([nods] * 20, [pauses] * 20, [14.0] * 20, n_shifts=300, seed=5, groups=[0] * 20)
+    assert (pooled.share, pooled.ratio, pooled.p) == pytest.approx((one.share, one.ratio, one.p))
+    locked = [np.sort(pauses[rng.choice(4, 2, replace=False)] + rng.uniform(0.3, 0.9, 2)) for _ in range(20)]
+    c = nod_contingency(locked, [pauses] * 20, [14.0] * 20, n_shifts=300, groups=[7] * 20)
+    assert c.share == 1.0 and c.p < 0.05 and c.ratio > 2
+    with pytest.raises(InputError, match="share their length"):
+        nod_contingency([nods] * 2, [pauses] * 2, [14.0, 12.0], groups=[0, 0])
+
+
 def test_blinks_by_duration():
     e = np.zeros(300)
     e[10:15] = 1.0  # 0.2 s: a blink

@@ -114,7 +114,8 @@ def _share(nods: Sequence[np.ndarray], pauses: Sequence[np.ndarray], lo: float, 
 
 
 def nod_contingency(nod_times: Sequence[np.ndarray], pause_times: Sequence[np.ndarray], durations: Sequence[float],
-                    lo: float = 0.2, hi: float = 1.0, n_shifts: int = 1000, seed: int = 0) -> NodContingency:
+                    lo: float = 0.2, hi: float = 1.0, n_shifts: int = 1000, seed: int = 0,
+                    groups: Sequence[int] | None = None) -> NodContingency:
     """Contingency of nod onsets on pause onsets, pooled over clips.
 
     Parameters
@@ -124,6 +125,10 @@ def nod_contingency(nod_times: Sequence[np.ndarray], pause_times: Sequence[np.nd
     lo, hi : the window after a pause onset, seconds
     n_shifts : circular shifts; each shifts every clip's nod times by its own uniform offset
     seed : seed of the shifts
+    groups : one label per clip, optional: clips with the same label (seeded realisations of one
+        listener on one recording: the same pauses and length) share one offset per shift, so the
+        shifted shares keep whatever the realisations have in common (a conservative null for
+        realisations that are not independent); default every clip on its own
 
     Returns
     -------
@@ -139,10 +144,20 @@ def nod_contingency(nod_times: Sequence[np.ndarray], pause_times: Sequence[np.nd
     n_p = int(sum(q.size for q in pauses))
     if tot == 0:
         return NodContingency(0, n_p, float("nan"), float("nan"), float("nan"), 1.0)
+    if groups is not None:
+        labels = list(groups)
+        if len(labels) != len(nods):
+            raise InputError(f"nod_contingency: expected one group label per clip ({len(nods)}), found {len(labels)}")
+        uniq = sorted(set(labels), key=labels.index)
+        member = np.array([uniq.index(g) for g in labels])
+        gdur = np.array([dur[member == k][0] for k in range(len(uniq))])
+        if not np.allclose(dur, gdur[member]):
+            raise InputError("nod_contingency: expected clips of one group to share their length, found "
+                             f"{sorted(set(np.round(dur, 3)))} s")
     rng = np.random.default_rng(seed)
     shifted = np.empty(n_shifts)
     for s in range(n_shifts):
-        off = rng.uniform(0.0, dur)
+        off = rng.uniform(0.0, dur) if groups is None else rng.uniform(0.0, gdur)[member]
         h, _ = _share([np.mod(n + o, d) for n, o, d in zip(nods, off, dur)], pauses, lo, hi)
         shifted[s] = h / tot
     share = hit / tot
