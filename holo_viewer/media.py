@@ -141,21 +141,27 @@ def read_frames(path: str | os.PathLike, fps: float | None = None) -> Iterator[n
 
 
 def count_video_frames(path: str | os.PathLike) -> int:
-    """Frames ffmpeg decodes from ``path``.
+    """Frames ffmpeg reads from ``path``: its video packets, one per frame for every codec written
+    here, counted by a stream copy (``-c copy -f null``) without decoding them. A file cut short
+    loses its last packet and counts one frame less, as a decode does; the decoding count took
+    ~0.1 s of CPU per 2048x1536 lossless frame (a live session's quit and each replayed frame paid
+    it), the packet count ~0.01 s for 20 frames.
 
     Raises
     ------
     ExportError
         ffmpeg cannot read the file (its last message is quoted).
     """
-    import imageio_ffmpeg
+    import re
 
-    try:
-        n, _ = imageio_ffmpeg.count_frames_and_secs(os.fspath(path))
-    except (RuntimeError, OSError, ValueError) as exc:
-        last = str(exc).strip().splitlines()[-1:] or [""]
-        raise ExportError(f"{path}: not a readable video ({last[0][:300]})") from exc
-    return int(n)
+    proc = subprocess.run([ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", os.fspath(path), "-map", "0:v:0",
+                           "-c", "copy", "-f", "null", "-"], capture_output=True)
+    err = proc.stderr.decode("utf-8", "replace")
+    counts = re.findall(r"frame=\s*(\d+)", err)
+    if proc.returncode != 0 or not counts:
+        last = err.strip().splitlines()[-1:] or ["no message"]
+        raise ExportError(f"{path}: not a readable video ({last[0][:300]})")
+    return int(counts[-1])
 
 
 @contextlib.contextmanager
