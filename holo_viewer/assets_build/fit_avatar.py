@@ -51,7 +51,7 @@ from ..render.differentiable import render_view
 from ..pipeline.settings import FaceControls
 
 __all__ = ["AvatarFitConfig", "AvatarFit", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "surface_colors",
-           "orbit_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity"]
+           "orbit_cameras", "sheared_cameras", "camera_yaws", "training_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity"]
 
 #: (mesh vertices, faces, cameras, indices) -> ((n, H, W, 3) float images in [0, 1], (n, H, W) bool masks)
 TargetRenderer = Callable[[np.ndarray, np.ndarray, Cameras, Sequence[int]], "tuple[np.ndarray, np.ndarray]"]
@@ -72,6 +72,10 @@ class AvatarFitConfig:
     quilt_views: tuple[int, ...] = (0, 4, 9, 14, 19, 24, 28, 33, 38, 43, 47)
     #: orbit cameras (yaw, pitch) in degrees about the framing centre, from quilt view 24
     orbit: tuple[tuple[float, float], ...] = ((-30.0, 0.0), (30.0, 0.0), (0.0, 12.0), (0.0, -12.0))
+    #: "rotated": the orbit cameras turn to face the centre (their key lights turn with them, so the
+    #: mesh is lit unlike in any quilt view; the first shipped fit); "sheared": they keep the quilt
+    #: cameras' orientation with an off-axis principal point, as the quilt's own cameras (world-fixed lights)
+    orbit_mode: str = "rotated"
     lr_means: float = 2e-3
     lr_means_final: float = 2e-4
     lr_log_scales: float = 5e-3
@@ -84,6 +88,8 @@ class AvatarFitConfig:
     eps_pos: float = 1.0
     w_scale: float = 1.0
     eps_scale: float = 0.6
+    #: opacity regulariser ``w_opacity mean(o (1 - o))`` (o = sigmoid(logit)): pushes towards 0 or 1
+    w_opacity: float = 0.0
     seed: int = 0
     dtype: str = "float32"
 
@@ -242,6 +248,62 @@ def orbit_cameras(cameras: Cameras, index: int, angles: Sequence[tuple[float, fl
     return Cameras(np.stack(out), K, cameras.width, cameras.height, near=cameras.near, far=cameras.far)
 
 
+def sheared_cameras(cameras: Cameras, index: int, angles: Sequence[tuple[float, float]], centre: np.ndarray
+                    ) -> Cameras:
+    """Copies of camera ``index`` moved on the sphere about ``centre`` by (yaw, pitch) degrees (as
+    :func:`orbit_cameras`) but keeping its orientation: the principal point is shifted so ``centre``
+    stays at the pixel it had (an off-axis frustum, like the quilt's own cameras). Lights set from the
+    camera orientation (``flame.preview.render_mesh_cameras``) are then the same as in the quilt views."""
+    from ..geometry import rodrigues_np
+
+    w2c0 = np.asarray(cameras.world_to_cam[index], np.float64)
+    K0 = np.asarray(cameras.K[index], np.float64)
+    R0, t0 = w2c0[:3, :3], w2c0[:3, 3]
+    C0 = -R0.T @ t0
+    c = np.asarray(centre, np.float64)
+    p0 = K0 @ (R0 @ c + t0)
+    px0 = p0[:2] / p0[2]
+    w2cs, Ks = [], []
+    for yaw, pitch in angles:
+        R = (rodrigues_np(np.array([0.0, math.radians(yaw), 0.0]))
+             @ rodrigues_np(np.array([math.radians(pitch), 0.0, 0.0])))
+        C = c + R @ (C0 - c)
+        t = -R0 @ C
+        w2c = np.eye(4)
+        w2c[:3, :3], w2c[:3, 3] = R0, t
+        pc = R0 @ c + t
+        K = K0.copy()
+        K[0, 2] = px0[0] - K0[0, 0] * pc[0] / pc[2]
+        K[1, 2] = px0[1] - K0[1, 1] * pc[1] / pc[2]
+        w2cs.append(w2c)
+        Ks.append(K)
+    return Cameras(np.stack(w2cs), np.stack(Ks), cameras.width, cameras.height, near=cameras.near, far=cameras.far)
+
+
+def camera_yaws(cameras: Cameras, centre: np.ndarray) -> np.ndarray:
+    """(N,) horizontal angle (degrees, + toward world +x) of each camera centre seen from ``centre``
+    (bench/face_realism.py's ``camera_angles``)."""
+    R, t = np.asarray(cameras.world_to_cam)[:, :3, :3], np.asarray(cameras.world_to_cam)[:, :3, 3]
+    rel = -np.einsum("vji,vj->vi", R, t) - np.asarray(centre, np.float64)[None]
+    return np.degrees(np.arctan2(rel[:, 0], rel[:, 2]))
+
+
+def training_cameras(pipe: Any, config: AvatarFitConfig) -> tuple[Cameras, np.ndarray]:
+    """The training cameras (quilt subset + orbit, full resolution) and their horizontal angles (deg)."""
+    cams = pipe.cameras()
+    (framing,), _ = pipe.compute("framing")
+    centre = np.asarray(framing[0])
+    quilt_idx = [int(i) for i in config.quilt_views]
+    if config.orbit_mode not in ("rotated", "sheared"):
+        raise InputError(f"orbit_mode: expected 'rotated' or 'sheared', found {config.orbit_mode!r}")
+    make = orbit_cameras if config.orbit_mode == "rotated" else sheared_cameras
+    orbit = make(cams, len(cams) // 2, config.orbit, centre) if config.orbit else None
+    full = Cameras(np.concatenate([cams.world_to_cam[quilt_idx]] + ([orbit.world_to_cam] if orbit else [])),
+                   np.concatenate([cams.K[quilt_idx]] + ([orbit.K] if orbit else [])), cams.width, cams.height,
+                   near=cams.near, far=cams.far)
+    return full, camera_yaws(full, centre)
+
+
 def scaled_cameras(cameras: Cameras, scale: float) -> Cameras:
     """The same cameras at ``scale`` x the resolution (an integer downsampling factor 1/scale): focal
     lengths and principal points scaled (pixel edges line up with 1/scale x 1/scale blocks)."""
@@ -277,6 +339,8 @@ class Dataset:
     names: list[str]
     vertices: list[np.ndarray]
     skipped: list[str] = dataclasses.field(default_factory=list)  # poses whose target render hung
+    #: [min, max] horizontal angle (deg) of the cameras about the framing centre (``fit_angle_range_deg``)
+    angle_range_deg: tuple[float, float] = (float("nan"), float("nan"))
 
 
 def _render_isolated(target_renderer: TargetRenderer, verts: np.ndarray, faces: np.ndarray, cameras: Cameras,
@@ -327,13 +391,7 @@ def build_dataset(pipe: Any, poses: Sequence[TrainingPose], target_renderer: Tar
     """
     from tqdm import tqdm
 
-    cams = pipe.cameras()
-    (framing,), _ = pipe.compute("framing")
-    quilt_idx = [int(i) for i in config.quilt_views]
-    orbit = orbit_cameras(cams, len(cams) // 2, config.orbit, np.asarray(framing[0])) if config.orbit else None
-    full = Cameras(np.concatenate([cams.world_to_cam[quilt_idx]] + ([orbit.world_to_cam] if orbit else [])),
-                   np.concatenate([cams.K[quilt_idx]] + ([orbit.K] if orbit else [])), cams.width, cams.height,
-                   near=cams.near, far=cams.far)
+    full, yaws = training_cameras(pipe, config)
     scaled_cameras(full, config.train_scale)  # checks the factor
     faces = pipe.model.faces.cpu().numpy()
     imgs, masks, frames, verts_all, names, skipped = [], [], [], [], [], []
@@ -357,7 +415,8 @@ def build_dataset(pipe: Any, poses: Sequence[TrainingPose], target_renderer: Tar
         verts_all.append(verts)
     if not imgs:
         raise InputError(f"build_dataset: no pose could be rendered (skipped {skipped})")
-    return Dataset(np.stack(imgs), np.stack(masks), frames, full, names, verts_all, skipped)
+    return Dataset(np.stack(imgs), np.stack(masks), frames, full, names, verts_all, skipped,
+                   (float(np.min(yaws)), float(np.max(yaws))))
 
 
 # =============================================================================== loss
@@ -458,6 +517,9 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
             loss = loss + l1 / config.views_per_step
         reg = (config.w_pos * torch.relu(torch.linalg.norm(params["means"], dim=-1) - config.eps_pos).mean()
                + config.w_scale * torch.relu(torch.exp(params["log_scales"]) - config.eps_scale).mean())
+        if config.w_opacity > 0:
+            o = torch.sigmoid(params["opacity"])
+            reg = reg + config.w_opacity * (o * (1 - o)).mean()
         total = loss + reg
         opt.zero_grad(set_to_none=True)
         total.backward()
@@ -496,16 +558,17 @@ def initial_with_surface_colors(local: Gaussians, binding: np.ndarray, model: An
 
 
 def fidelity(avatar: Any, faces: dict[str, FaceControls], views: Sequence[int], target_renderer: TargetRenderer,
-             images: dict[str, np.ndarray] | None = None, timeout_s: float | None = 300.0
-             ) -> dict[str, dict[int, float]]:
+             images: dict[str, np.ndarray] | None = None, timeout_s: float | None = 300.0,
+             view: Any = None) -> dict[str, dict[int, float]]:
     """PSNR of the avatar's quilt views (``Pipeline.views()``, full resolution) against the target render
     of the same posed mesh and camera, over the mesh mask (the target's 8-bit VTK buffer, as in
     bench/face_realism.py; NaN when it does not finish in ``timeout_s``, rendered in a child process);
     ``images`` (optional) receives, per
-    expression, the (len(views), H, 2W, 3) side-by-side pairs (Gaussians | mesh)."""
+    expression, the (len(views), H, 2W, 3) side-by-side pairs (Gaussians | mesh); ``view`` (a
+    ``pipeline.ViewSettings``, optional) e.g. moves the cone (``viewer_angle``)."""
     from ..pipeline.core import Pipeline
 
-    pipe = Pipeline(avatar=avatar)
+    pipe = Pipeline(avatar=avatar, view=view)
     cams = pipe.cameras()
     f = pipe.model.faces.cpu().numpy()
     out: dict[str, dict[int, float]] = {}

@@ -379,8 +379,10 @@ def appearance_digest(model: Any) -> str:
 
 
 def save_fitted_avatar(path: str | Path, local: Gaussians, binding: np.ndarray, model: Any, colour_source: str,
-                       head_path: str | Path | None = None, info: dict | None = None) -> Path:
-    """Write fitted local Gaussians (float16) + binding, keyed by the head file's digest and ``colour_source``."""
+                       head_path: str | Path | None = None, info: dict | None = None,
+                       fit_angle_range_deg: tuple[float, float] | None = None) -> Path:
+    """Write fitted local Gaussians (float16) + binding, keyed by the head file's digest and ``colour_source``;
+    ``fit_angle_range_deg`` = [min, max] horizontal angle (deg) of the fit's cameras about the framing centre."""
     import json
 
     from ..flame.default_head import default_head_path
@@ -406,6 +408,11 @@ def save_fitted_avatar(path: str | Path, local: Gaussians, binding: np.ndarray, 
     out["colour_source"] = np.array(str(colour_source))
     out["n_faces"] = np.array(int(model.faces.shape[0]))
     out["info"] = np.array(json.dumps(info or {}))
+    if fit_angle_range_deg is not None:
+        rng = np.asarray(fit_angle_range_deg, np.float64)
+        if rng.shape != (2,) or not np.all(np.isfinite(rng)) or rng[0] > rng[1]:
+            raise InputError(f"fit_angle_range_deg: expected [min, max] finite degrees, found {fit_angle_range_deg!r}")
+        out["fit_angle_range_deg"] = rng
     from ..fileio import atomic_write
 
     target = Path(path)
@@ -432,7 +439,8 @@ def _unit_quats(q: np.ndarray) -> np.ndarray:
 
 def load_fitted_avatar(path: str | Path) -> tuple[Gaussians, np.ndarray, dict[str, Any]]:
     """Local Gaussians (float32), binding (N,) int64 and the keys (``head_sha256``, ``colour_source``,
-    ``format``, ``n_faces``, ``info``) of a fitted-avatar file.
+    ``format``, ``n_faces``, ``info``, ``fit_angle_range_deg``: [min, max] degrees or None for a file
+    without it) of a fitted-avatar file.
 
     Raises
     ------
@@ -464,7 +472,14 @@ def load_fitted_avatar(path: str | Path) -> tuple[Gaussians, np.ndarray, dict[st
         raise AvatarError(f"{path}: fitted default avatar: field 'binding': expected ({len(local)},), "
                           f"found {binding.shape}")
     keys = {"format": int(z["format"]), "head_sha256": str(z["head_sha256"]), "colour_source": str(z["colour_source"]),
-            "n_faces": int(z["n_faces"]), "info": json.loads(str(z["info"])) if "info" in z else {}}
+            "n_faces": int(z["n_faces"]), "info": json.loads(str(z["info"])) if "info" in z else {},
+            "fit_angle_range_deg": None}
+    if "fit_angle_range_deg" in z:
+        rng = np.asarray(z["fit_angle_range_deg"], np.float64)
+        if rng.shape != (2,) or not np.all(np.isfinite(rng)) or rng[0] > rng[1]:
+            raise AvatarError(f"{path}: fitted avatar: field 'fit_angle_range_deg': expected [min, max] finite "
+                              f"degrees, found {rng.tolist()}")
+        keys["fit_angle_range_deg"] = [float(rng[0]), float(rng[1])]
     return local, binding, keys
 
 
