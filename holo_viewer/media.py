@@ -310,11 +310,11 @@ class VideoWriter:
                                   f"(the previous frame's time), found {t}")
         f = to_uint8(frame, name="frame")
         if f.ndim != 3 or f.shape[2] != 3:
-            raise ExportError(f"{self.path}: frame {self.frames}: expected (H, W, 3), found {f.shape}")
+            raise ExportError(f"{self.path}: frame {index}: expected (H, W, 3), found {f.shape}")
         if self._shape is None:
             self._shape = f.shape
         elif f.shape != self._shape:
-            raise ExportError(f"{self.path}: frame {self.frames}: expected shape {self._shape} like frame 0, "
+            raise ExportError(f"{self.path}: frame {index}: expected shape {self._shape} like frame 0, "
                               f"found {f.shape}")
         if self.macro_block_size <= 1 and self.pixelformat == "yuv420p":
             f = pad_even(f)

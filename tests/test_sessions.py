@@ -429,3 +429,22 @@ def test_timed_video_keeps_times_off_the_frame_grid(tmp_path: Path) -> None:
     info = subprocess.run([media.ffmpeg_exe(), "-hide_banner", "-copyts", "-i", str(tmp_path / "s.mkv"), "-vf",
                            "showinfo", "-f", "null", "-"], capture_output=True, text=True).stderr
     assert [float(x) for x in re.findall(r"pts_time:([0-9.]+)", info)] == [0.292, 0.384, 0.412, 0.424, 0.565]
+
+
+def test_replay_writer_thread_raises_the_writers_error_and_writes_nothing(tmp_path: Path) -> None:
+    """replay --quality live pipes frames from a thread: an error there (a frame of another size) is
+    raised in the caller, and nothing is renamed into place."""
+    from holo_viewer.live.replay import _ThreadedWriter
+
+    w = _ThreadedWriter(media.VideoWriter(tmp_path / "r.mkv", 25, timed=True))
+    a, b = _frames(1)[0], _frames(1, 20, 20)[0]
+    w.write(a, t=0.0)
+    w.write(b, t=0.1)
+    with pytest.raises(ExportError, match=r"r.mkv: frame 1: expected shape \(33, 65, 3\) like frame 0"):
+        w.close(end_s=0.2)
+    w.abort()
+    assert not (tmp_path / "r.mkv").exists()
+    ok = _ThreadedWriter(media.VideoWriter(tmp_path / "ok.mkv", 25, timed=True))
+    for i, f in enumerate(_frames(3)):
+        ok.write(f, t=i * 0.1)
+    assert ok.close(end_s=0.4) == 3 and media.count_video_frames(tmp_path / "ok.mkv") == 3
