@@ -66,3 +66,94 @@ def test_sheared_cameras_keep_the_orientation_and_the_centre_pixel():
     lim = Pipeline(model=pipe.model, avatar=False, view=ViewSettings(tile_scale=0.1, viewer_angle=-10.0)).cameras()
     np.testing.assert_allclose(lim.world_to_cam[0][:3, :3], cams.world_to_cam[24][:3, :3], atol=1e-12)
     assert fa.camera_yaws(lim, c)[0] == pytest.approx(-30.0, abs=0.5)
+
+
+# ----------------------------------------------------------------------------- the binding transfer
+def _two_identities(n_vertices=120, seed=3):
+    """A random model and a second identity of the same topology (its shape components moved)."""
+    from holo_viewer.flame.model import FlameModel
+    from holo_viewer.flame.synthetic import random_flame_arrays
+
+    a = random_flame_arrays(n_vertices=n_vertices, n_shape=4, n_expr=4, seed=seed)
+    b = dict(a)
+    b["v_template"] = a["v_template"] + a["shapedirs"][..., :4] @ np.array([1.5, -1.0, 0.8, 0.5])
+    return FlameModel.from_arrays(a), FlameModel.from_arrays(b)
+
+
+def _albedo(seed):
+    rng = np.random.default_rng(seed)
+    w = rng.uniform(0.1, 0.9, size=(3, 3))
+
+    def albedo_at(face_idx, bary):
+        return np.clip(0.5 + 0.4 * np.sin(np.asarray(face_idx, float)[:, None] * w[0] + bary @ w), 0, 1)
+
+    return albedo_at
+
+
+def test_transfer_keeps_each_gaussian_on_its_triangle_with_the_new_albedo():
+    """Transferred to another identity of the same topology, each Gaussian stays bound to its triangle
+    (world position = that triangle's frame on the new head times the kept local offset, float64
+    reference bind_to_world_np), a Gaussian lying on its source triangle lies on the new triangle's
+    plane inside it, and its colour is the new albedo at its surface point ("albedo") or the fitted
+    colour scaled by the albedo ratio ("shade"); deterministic."""
+    from holo_viewer.avatar.binding import bind_to_world_np, face_frames_np, world_to_local_np
+    from holo_viewer.avatar.gaussians import SH_C0
+
+    src, dst = _two_identities()
+    vs, vd = src.v_template.double().numpy(), dst.v_template.double().numpy()
+    f = src.faces.numpy()
+    rng = np.random.default_rng(0)
+    binding = rng.integers(0, len(f), 200)
+    bary = rng.dirichlet([2, 2, 2], size=200)  # points inside the source triangles, on their planes
+    p = np.einsum("nk,nkc->nc", bary, vs[f[binding]])
+    g = random_gaussians(200, sh_degree=1, seed=2)
+    mu, q, ls = world_to_local_np(p, np.tile([1.0, 0, 0, 0], (200, 1)), g.log_scales.astype(np.float64), binding, vs, f)
+    g = g.replace(means=mu.astype(np.float32), quats=q.astype(np.float32))
+    sa, da = _albedo(1), _albedo(2)
+    for mode in ("albedo", "shade"):
+        t = fa.transfer_avatar(g, binding, vs, f, sa, da, mode=mode)
+        np.testing.assert_array_equal(t.means, g.means)  # the binding and local frame are kept
+        np.testing.assert_array_equal(t.sh, fa.transfer_avatar(g, binding, vs, f, sa, da, mode=mode).sh)
+        wm, _, _ = bind_to_world_np(t.means, t.quats, t.log_scales, binding, vd, f)
+        rot, scale, centre, _ = face_frames_np(vd, f)
+        np.testing.assert_allclose(wm, centre[binding] + scale[binding, None] * np.einsum(
+            "nij,nj->ni", rot[binding], t.means.astype(np.float64)), atol=1e-9)
+        nrm = rot[binding][:, :, 1]  # a1: the face normal
+        assert np.abs(((wm - vd[f[binding, 0]]) * nrm).sum(1)).max() < 1e-6 * scale.max()  # on the plane
+        bd = fa.surface_points(t, binding, vd, f)
+        assert bd.min() >= 0 and np.all(np.abs(bd.sum(1) - 1) < 1e-9)
+        dc = t.sh[:, 0] * SH_C0 + 0.5
+        if mode == "albedo":
+            np.testing.assert_allclose(dc, da(binding, fa.surface_points(g, binding, vs, f)), atol=1e-5)
+            assert np.all(t.sh[:, 1:] == 0)
+        else:
+            bs = fa.surface_points(g, binding, vs, f)
+            gain = np.clip((da(binding, bs) + 0.03) / (sa(binding, bs) + 0.03), 0, 4)
+            want = np.clip(np.clip(g.sh[:, 0] * SH_C0 + 0.5, 0, 1) * gain, 0, 1)
+            np.testing.assert_allclose(dc, want, atol=1e-5)
+    with pytest.raises(InputError, match="transfer mode"):
+        fa.transfer_avatar(g, binding, vs, f, sa, da, mode="paint")
+
+
+def test_added_lash_gaussians_lie_on_their_faces_and_are_seeded():
+    """add_gaussians_on_faces puts n Gaussians on the given faces' surface (area-weighted), labelled,
+    the same for one seed and different for another; prune_faintest keeps the count and the most opaque."""
+    src, _ = _two_identities()
+    v, f = src.v_template.double().numpy(), src.faces.numpy()
+    g = random_gaussians(50, sh_degree=1, seed=0).replace(extra={"region": np.zeros(50, np.int16)})
+    b = np.arange(50) % len(f)
+    faces = np.array([3, 9, 27])
+    g2, b2 = fa.add_gaussians_on_faces(g, b, v, f, faces, 30, _albedo(0), seed=4, region=7)
+    assert len(g2) == 80 and set(b2[50:]) <= set(faces) and np.all(g2.extra["region"][50:] == 7)
+    bary = fa.surface_points(g2.subset(np.arange(50, 80)), b2[50:], v, f)
+    assert bary.min() >= 0
+    assert np.abs(g2.means[50:, 1]).max() < 1e-6  # on the triangle's plane (local normal offset 0)
+    g3, b3 = fa.add_gaussians_on_faces(g, b, v, f, faces, 30, _albedo(0), seed=4, region=7)
+    np.testing.assert_array_equal(g2.means, g3.means)
+    np.testing.assert_array_equal(b2, b3)
+    g4, _ = fa.add_gaussians_on_faces(g, b, v, f, faces, 30, _albedo(0), seed=5, region=7)
+    assert not np.array_equal(g2.means, g4.means)
+    kept, kb = fa.prune_faintest(g2, b2, 50, protect=np.arange(80) >= 50)
+    assert len(kept) == 50 and np.all(kb[-30:] == b2[50:])
+    o = g2.opacity_logits[:50]
+    assert set(np.round(kept.opacity_logits[:20], 5)) == set(np.round(np.sort(o)[30:], 5))

@@ -51,7 +51,8 @@ from ..render.differentiable import render_view
 from ..pipeline.settings import FaceControls
 
 __all__ = ["AvatarFitConfig", "AvatarFit", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "surface_colors",
-           "orbit_cameras", "sheared_cameras", "camera_yaws", "training_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity"]
+           "orbit_cameras", "sheared_cameras", "camera_yaws", "training_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity",
+           "transfer_avatar", "add_gaussians_on_faces", "prune_faintest"]
 
 #: (mesh vertices, faces, cameras, indices) -> ((n, H, W, 3) float images in [0, 1], (n, H, W) bool masks)
 TargetRenderer = Callable[[np.ndarray, np.ndarray, Cameras, Sequence[int]], "tuple[np.ndarray, np.ndarray]"]
@@ -589,3 +590,100 @@ def fidelity(avatar: Any, faces: dict[str, FaceControls], views: Sequence[int], 
 def replace_config(config: AvatarFitConfig, **changes: Any) -> AvatarFitConfig:
     """A copy of ``config`` with some fields replaced."""
     return dataclasses.replace(config, **changes)
+
+
+# =============================================================================== transfer to another identity
+
+
+def transfer_avatar(local: Gaussians, binding: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                    src_albedo_at: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                    dst_albedo_at: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                    mode: str = "shade", eps: float = 0.03, max_gain: float = 4.0) -> Gaussians:
+    """A fitted avatar's Gaussians for another head of the same topology (issue 35).
+
+    The binding is kept: each Gaussian stays on its triangle with its local offset, rotation and
+    scale (all in the triangle's frame, so they follow the new identity's geometry). Colours are
+    re-initialised at each Gaussian's surface point (:func:`surface_points` on ``vertices``, the
+    source rest mesh; barycentric, so the same point on the new head): ``mode="albedo"`` sets SH DC to
+    the new albedo (higher SH zero); ``mode="shade"`` (default) keeps the fitted shading, scaling
+    every SH coefficient per channel by ``(dst + eps) / (src + eps)`` (clamped to ``max_gain``), so
+    the baked lighting of the source fit carries over to the new skin and hair."""
+    if mode not in ("shade", "albedo"):
+        raise InputError(f"transfer mode: expected 'shade' or 'albedo', found {mode!r}")
+    b = np.asarray(binding)
+    bary = surface_points(local, b, vertices, faces)
+    a_dst = np.clip(np.asarray(dst_albedo_at(b, bary), np.float64), 0.0, 1.0)
+    sh = np.asarray(local.sh, np.float64).copy()
+    if mode == "albedo":
+        sh[:] = 0.0
+        sh[:, 0] = (a_dst - 0.5) / SH_C0
+    else:
+        a_src = np.clip(np.asarray(src_albedo_at(b, bary), np.float64), 0.0, 1.0)
+        gain = np.clip((a_dst + eps) / (a_src + eps), 0.0, max_gain)
+        c = np.clip(sh[:, 0] * SH_C0 + 0.5, 0.0, 1.0)
+        sh[:, 1:] *= gain[:, None, :]
+        sh[:, 0] = (np.clip(c * gain, 0.0, 1.0) - 0.5) / SH_C0
+    return local.replace(sh=sh.astype(np.float32))
+
+
+def add_gaussians_on_faces(local: Gaussians, binding: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                           face_ids: np.ndarray, n: int, albedo_at: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                           seed: int = 0, size: float = 4e-4, opacity: float = 0.5,
+                           region: int | None = None) -> tuple[Gaussians, np.ndarray]:
+    """``local`` plus ``n`` new Gaussians on ``face_ids`` (area-weighted, uniform in each triangle, on
+    its surface): flat discs ``size`` metres wide (a tenth as thick) lying in the triangle, of the
+    albedo at their point and ``opacity``; e.g. for the lashes, which the generator leaves bare.
+    ``region`` labels them in ``extra["region"]`` when ``local`` has one. Deterministic in ``seed``."""
+    from ..avatar.binding import world_to_local_np
+    from ..geometry import rotmat_to_quat_np
+
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces)
+    ids = np.asarray(face_ids, np.int64)
+    if n < 1 or ids.size == 0:
+        raise InputError(f"add_gaussians_on_faces: expected n >= 1 and some faces, found n={n}, {ids.size} faces")
+    rng = np.random.default_rng(seed)
+    tri = v[f[ids]]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    if not area.sum() > 0:
+        raise InputError("add_gaussians_on_faces: the faces have no area")
+    nb = ids[rng.choice(len(ids), size=int(n), p=area / area.sum())]
+    uv = rng.uniform(size=(int(n), 2))
+    uv[uv.sum(1) > 1] = 1 - uv[uv.sum(1) > 1]
+    bary = np.column_stack([1 - uv.sum(1), uv])
+    t = v[f[nb]]
+    p = np.einsum("nk,nkc->nc", bary, t)
+    e0 = t[:, 1] - t[:, 0]
+    nrm = np.cross(e0, t[:, 2] - t[:, 0])
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
+    a0 = e0 / np.maximum(np.linalg.norm(e0, axis=1, keepdims=True), 1e-30)
+    rot = np.stack([a0, nrm, np.cross(a0, nrm)], axis=2)
+    ls = np.log(np.tile([size, 0.1 * size, size], (int(n), 1)))
+    mu, q, lsl = world_to_local_np(p, rotmat_to_quat_np(rot), ls, nb, v, f)
+    col = np.clip(np.asarray(albedo_at(nb, bary), np.float64), 0.0, 1.0)
+    sh = np.zeros((int(n),) + local.sh.shape[1:], np.float32)
+    sh[:, 0] = (col - 0.5) / SH_C0
+    o = np.full(int(n), math.log(opacity / (1 - opacity)), np.float32)
+    extra = dict(local.extra)
+    if "region" in extra:
+        extra["region"] = np.concatenate([np.asarray(extra["region"]),
+                                          np.full(int(n), -1 if region is None else region, np.int16)])
+    g = local.numpy(np.float32)
+    new = Gaussians(np.concatenate([g.means, mu.astype(np.float32)]), np.concatenate([g.quats, q.astype(np.float32)]),
+                    np.concatenate([g.log_scales, lsl.astype(np.float32)]), np.concatenate([g.opacity_logits, o]),
+                    np.concatenate([g.sh, sh]), extra=extra)
+    return new, np.concatenate([np.asarray(binding, np.int64), nb])
+
+
+def prune_faintest(local: Gaussians, binding: np.ndarray, n_keep: int, protect: np.ndarray | None = None
+                   ) -> tuple[Gaussians, np.ndarray]:
+    """The ``n_keep`` Gaussians left after dropping the least opaque ones (``protect``: (N,) bool never
+    dropped), in their original order: keeps the count (and the file size) when others are added."""
+    o = np.asarray(local.opacity_logits, np.float64).reshape(len(local), -1)[:, 0].copy()
+    if protect is not None:
+        o[np.asarray(protect, bool)] = np.inf
+    drop = len(local) - int(n_keep)
+    if drop <= 0:
+        return local, np.asarray(binding)
+    keep = np.sort(np.argsort(o, kind="stable")[drop:])
+    return local.subset(keep), np.asarray(binding)[keep]
