@@ -118,7 +118,7 @@ def display():
 
 @pytest.fixture(scope="module", params=["nearest", "blend"])
 def small_interleaver(request):
-    return Interleaver(SMALL, (840, 840, 3), mode=request.param)
+    return _interleaver(request.param)
 
 
 def _read_columns(il: Interleaver, subpixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -127,9 +127,20 @@ def _read_columns(il: Interleaver, subpixels: np.ndarray) -> tuple[np.ndarray, n
     return view, col
 
 
-@pytest.mark.parametrize("angle,distance", [(0.0, 0.6), (14.0, 0.5), (-21.0, 0.8), (3.0, 1.5)])
-def test_view_columns_cover_every_received_sample(display, small_interleaver, angle, distance):
-    il = small_interleaver
+_INTERLEAVERS: dict = {}
+
+
+def _interleaver(mode: str) -> Interleaver:
+    if mode not in _INTERLEAVERS:
+        _INTERLEAVERS[mode] = Interleaver(SMALL, (840, 840, 3), mode=mode)
+    return _INTERLEAVERS[mode]
+
+
+# each position once, in one interleave mode each (the blend's second view is the mode's own rule)
+@pytest.mark.parametrize("mode,angle,distance", [("nearest", 0.0, 0.6), ("blend", 14.0, 0.5), ("nearest", -21.0, 0.8),
+                                                 ("blend", 3.0, 1.5)])
+def test_view_columns_cover_every_received_sample(display, mode, angle, distance):
+    il = _interleaver(mode)
     viewer = eyes.TrackedViewer(angle, distance)
     margin = dict(motion_m=0.01, motion_distance_m=0.04)
     cols = eyes.view_columns(SMALL, viewer, 105, mode=il.mode, **margin)
@@ -195,8 +206,12 @@ def test_interleaver_update_and_readers(small_interleaver):
     view, col = _read_columns(il, np.arange(il.shape[0] * il.shape[1] * 3))
     n = il.shape[0] * il.shape[1] * 3
     hit = cols[view, col // 16]
-    want = np.unique(np.concatenate([np.arange(n)] * (1 if il.mode == "nearest" else 2))[hit])
-    np.testing.assert_array_equal(np.unique(subs), want)
+    mark = np.zeros(n, dtype=bool)  # (a set by marks: np.unique's sort of millions took seconds)
+    mark[np.concatenate([np.arange(n)] * (1 if il.mode == "nearest" else 2))[hit]] = True
+    want = np.flatnonzero(mark)
+    got = np.zeros(n, dtype=bool)
+    got[subs] = True
+    np.testing.assert_array_equal(np.flatnonzero(got), want)
     for dtype in (np.uint8, np.float32):
         q = rng.integers(0, 256, il.quilt_shape).astype(dtype)
         if dtype == np.float32:
@@ -217,8 +232,8 @@ def test_update_columns_equals_update_of_readers(small_interleaver):
     il = small_interleaver
     rng = np.random.default_rng(6)
     nb = -(-105 // 16)
-    for trial in range(3):
-        cols = rng.random((il.n_views, nb)) < (0.05, 0.3, 1.0)[trial]
+    for density in (0.05, 1.0):  # a few columns, every column
+        cols = rng.random((il.n_views, nb)) < density
         subs = il.readers(cols, block=16)
         for dtype in (np.uint8, np.float32):
             q = rng.integers(0, 256, il.quilt_shape).astype(dtype)
