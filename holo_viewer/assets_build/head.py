@@ -19,9 +19,9 @@ import numpy as np
 
 from ..fileio import atomic_write
 from ..flame.default_head import ict_facekit_path
-from .ict import N_IDENTITY, build_from_ict, load_ict
+from .ict import DEFAULT_HAIR, IPD, N_IDENTITY, HairStyle, build_from_ict, load_ict
 
-__all__ = ["build_default_head", "write_default_head", "BUILDER_VERSION"]
+__all__ = ["build_default_head", "build_patient_head", "write_default_head", "BUILDER_VERSION"]
 
 #: Bumped whenever the generated head changes (stored in the asset).
 BUILDER_VERSION = 3  # 3: converted from ICT Face Model Light (issue 17)
@@ -49,6 +49,21 @@ def build_default_head(ict_path: str | os.PathLike | None = None, n_identity: in
     """
     path = ict_facekit_path(required=True) if ict_path is None else Path(ict_path)
     arrays = build_from_ict(load_ict(path), n_identity=int(n_identity))
+    arrays["builder_version"] = np.array(BUILDER_VERSION, dtype=np.int64)
+    return arrays
+
+
+def build_patient_head(identity: np.ndarray, ipd: float = IPD, hair: HairStyle = DEFAULT_HAIR,
+                       ict_path: str | os.PathLike | None = None, n_identity: int = N_IDENTITY,
+                       ict: dict | None = None) -> dict[str, np.ndarray]:
+    """A patient's head (docs/patients.md): ICT's neutral plus ``identity`` (coefficients of ICT's
+    identity modes), scaled to ``ipd`` metres between the eyeball centres, with the ``hair`` shell.
+    The identity modes stay in the head as its shape components (around the patient). ``ict``: the
+    arrays of :func:`~.ict.load_ict`, to convert several patients from one read."""
+    if ict is None:
+        path = ict_facekit_path(required=True) if ict_path is None else Path(ict_path)
+        ict = load_ict(path)
+    arrays = build_from_ict(ict, n_identity=int(n_identity), identity=identity, ipd=ipd, hair=hair)
     arrays["builder_version"] = np.array(BUILDER_VERSION, dtype=np.int64)
     return arrays
 

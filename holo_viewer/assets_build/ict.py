@@ -41,7 +41,7 @@ from ..geometry import vertex_normals
 from ..flame.default_head import EXPRESSION_NAMES
 
 __all__ = ["load_ict", "build_from_ict", "REGION_NAMES", "AU_TO_ICT", "N_IDENTITY", "EYE_MIDPOINT", "IPD",
-           "KINTREE", "PARTS", "smoothstep"]
+           "KINTREE", "PARTS", "smoothstep", "HairStyle", "DEFAULT_HAIR"]
 
 #: ICT vertex ranges (inclusive) of the parts, from the model's README.
 PARTS = {
@@ -97,6 +97,31 @@ HAIR_PROFILE = ((-40.0, 0.003), (-10.0, 0.006), (15.0, 0.011), (45.0, 0.017), (9
 HAIR_RAMP_DEG = 14.0  # the shell grows from the hairline to full thickness over this elevation band
 HAIR_TUCK = 0.0006  # the rim lies this far under the skin (no gap)
 HAIR_EDGE_DEG = 1.5  # the shell leaves the skin this far (degrees) below the hairline, rising steeply
+
+
+@dataclass(frozen=True)
+class HairStyle:
+    """A hair shell: where the scalp carries hair and how far the shell stands off it.
+
+    ``hairline``: (|azimuth| deg, elevation deg) pairs, the lower edge of the hair (as ``HAIRLINE``);
+    ``top``: the same for an upper edge (a bald crown: hair only below it), or None; ``profile``:
+    (elevation deg, metres) thickness pairs (as ``HAIR_PROFILE``); ``ramp_deg``: the band over which
+    the shell rises from its edge to full thickness; ``azimuth_gain``: optional (|azimuth| deg, factor)
+    pairs scaling the thickness by azimuth (fuller at the back or the sides); ``hang``: below the
+    head's widest level the shell hangs straight down as a curtain (long hair, a bob) instead of
+    following the neck and ears in.
+    """
+
+    hairline: tuple = HAIRLINE
+    profile: tuple = HAIR_PROFILE
+    top: tuple | None = None
+    ramp_deg: float = HAIR_RAMP_DEG
+    azimuth_gain: tuple | None = None
+    hang: bool = False
+
+
+#: today's default head's short hair
+DEFAULT_HAIR = HairStyle()
 #: jawOpen motions (metres) below which the jaw corrective fades out where the jaw weight is 0
 JAW_FADE = (0.0003, 0.001)
 #: AU26 (jaw drop) at coefficient 1 = ``jawOpen`` scaled to this jaw rotation (degrees).
@@ -186,7 +211,8 @@ class _Head:
 PART_ORDER = tuple(PARTS)
 
 
-def _convert(ict: dict[str, np.ndarray], n_identity: int) -> _Head:
+def _convert(ict: dict[str, np.ndarray], n_identity: int, identity: np.ndarray | None = None,
+             ipd: float = IPD) -> _Head:
     n_src = ict["neutral"].shape[0]
     part = np.zeros(n_src, np.int64)
     for i, name in enumerate(PART_ORDER):
@@ -205,9 +231,15 @@ def _convert(ict: dict[str, np.ndarray], n_identity: int) -> _Head:
     fuv = uv_map[fuv_src]
 
     neutral = ict["neutral"].astype(np.float64)
+    if identity is not None:  # a patient: ICT's neutral plus its identity modes (ICT units, ~1 = 1 s.d.)
+        c = np.asarray(identity, np.float64).reshape(-1)
+        if len(c) > len(ict["identity_deltas"]) or not np.all(np.isfinite(c)):
+            raise FlameError(f"identity: expected at most {len(ict['identity_deltas'])} finite coefficients, "
+                             f"found {len(c)}")
+        neutral = neutral + np.einsum("k,kvc->vc", c, ict["identity_deltas"][:len(c)].astype(np.float64))
     cl = _eyeball_centre(neutral[PARTS["sclera_left"][0]:PARTS["sclera_left"][1] + 1])
     cr = _eyeball_centre(neutral[PARTS["sclera_right"][0]:PARTS["sclera_right"][1] + 1])
-    s = IPD / float(np.linalg.norm(cl - cr))
+    s = float(ipd) / float(np.linalg.norm(cl - cr))
     mid = 0.5 * (cl + cr)
     v = (neutral - mid) * s + EYE_MIDPOINT
     eye_centres = (np.stack([cl, cr]) - mid) * s + EYE_MIDPOINT
@@ -228,21 +260,54 @@ def _hair_angles(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return az, el
 
 
-def hair_coverage(p: np.ndarray) -> np.ndarray:
-    """(N,) elevation (degrees) of each point above the hairline (> 0: under the hair)."""
+def hair_coverage(p: np.ndarray, style: HairStyle = DEFAULT_HAIR) -> np.ndarray:
+    """(N,) elevation (degrees) of each point inside the hair's edges (> 0: under the hair)."""
     az, el = _hair_angles(p)
-    a, e = np.array(HAIRLINE).T
-    return el - np.interp(np.abs(az), a, e)
+    a, e = np.array(style.hairline).T
+    cov = el - np.interp(np.abs(az), a, e)
+    if style.top is not None:
+        a, e = np.array(style.top).T
+        cov = np.minimum(cov, np.interp(np.abs(az), a, e) - el)
+    return cov
 
 
-def hair_thickness(p: np.ndarray) -> np.ndarray:
+def hair_thickness(p: np.ndarray, style: HairStyle = DEFAULT_HAIR) -> np.ndarray:
     """Signed offset (metres) of the hair shell over a scalp point (negative = tucked under the skin)."""
-    _, el = _hair_angles(p)
-    a, t = np.array(HAIR_PROFILE).T
+    az, el = _hair_angles(p)
+    a, t = np.array(style.profile).T
     full = np.interp(el, a, t)
-    x = np.clip((hair_coverage(p) + HAIR_EDGE_DEG) / HAIR_RAMP_DEG, 0.0, 1.0)
+    if style.azimuth_gain is not None:
+        a, g = np.array(style.azimuth_gain).T
+        full = full * np.interp(np.abs(az), a, g)
+    x = np.clip((hair_coverage(p, style) + HAIR_EDGE_DEG) / style.ramp_deg, 0.0, 1.0)
     ramp = 1.0 - (1.0 - x) ** 2  # steep at the hairline (a crisp edge, no z-fighting band), flat on top
     return -HAIR_TUCK + (full + HAIR_TUCK) * ramp
+
+
+def _hang(pos: np.ndarray, coverage: np.ndarray, n_az: int = 72, n_y: int = 64) -> np.ndarray:
+    """Hair below the widest level falls straight: each point moves out horizontally (about the vertical
+    axis through ``HAIR_CENTRE``) to the largest radius of the shell above it at its azimuth (a
+    running maximum from the top over azimuth/height bins, averaged over 5 neighbouring azimuths),
+    behind the ears only, and easing back onto the skin over the last 2.5 degrees before the hair's edge
+    (``coverage``), so the curtain's edges close onto the head."""
+    d = pos[:, [0, 2]] - HAIR_CENTRE[[0, 2]]
+    r = np.hypot(d[:, 0], d[:, 1])
+    az = np.arctan2(d[:, 0], d[:, 1])
+    ab = np.floor((az + np.pi) / (2 * np.pi) * n_az).astype(np.int64) % n_az
+    y = pos[:, 1]
+    yb = np.clip(np.floor((y - y.min()) / max(np.ptp(y), 1e-9) * n_y).astype(np.int64), 0, n_y - 1)
+    grid = np.zeros((n_az, n_y))
+    np.maximum.at(grid, (ab, yb), r)
+    top_down = np.maximum.accumulate(grid[:, ::-1], axis=1)[:, ::-1]
+    top_down = sum(np.roll(top_down, k, axis=0) for k in range(-2, 3)) / 5.0
+    # only behind the ears (the face and the hairline in front keep to the head)
+    w = smoothstep(np.degrees(np.abs(az)), 95.0, 115.0) * smoothstep(coverage, 0.0, 2.5)
+    r_new = r + w * np.maximum(top_down[ab, yb] - r, 0.0)
+    scale = r_new / np.maximum(r, 1e-9)
+    out = pos.copy()
+    out[:, 0] = HAIR_CENTRE[0] + d[:, 0] * scale
+    out[:, 2] = HAIR_CENTRE[2] + d[:, 1] * scale
+    return out
 
 
 def _subdivide(f: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
@@ -256,9 +321,9 @@ def _subdivide(f: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
     return nf, uniq
 
 
-def _hair(h: _Head, skin_parts: np.ndarray) -> dict[str, np.ndarray]:
+def _hair(h: _Head, skin_parts: np.ndarray, style: HairStyle = DEFAULT_HAIR) -> dict[str, np.ndarray]:
     """The hair shell: parent vertices, subdivision, offsets, UVs."""
-    cov = hair_coverage(h.v)
+    cov = hair_coverage(h.v, style)
     skin_v = skin_parts[h.part]
     # every skin triangle with a corner where the shell rises: the patch's rim then lies where the
     # shell is tucked under the skin
@@ -279,7 +344,9 @@ def _hair(h: _Head, skin_parts: np.ndarray) -> dict[str, np.ndarray]:
     nrm_all = vertex_normals(h.v, h.f[skin_v[h.f].all(1)])
     nrm = interp @ nrm_all
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    pos = base + hair_thickness(base)[:, None] * nrm
+    pos = base + hair_thickness(base, style)[:, None] * nrm
+    if style.hang:
+        pos = _hang(pos, hair_coverage(base, style))
     # UVs in tile 7: u along the comb direction (crown -> hairline), v = |azimuth about the crown| / pi
     pole = np.array([0.0, 1.0, -0.35])
     pole /= np.linalg.norm(pole)
@@ -291,7 +358,8 @@ def _hair(h: _Head, skin_parts: np.ndarray) -> dict[str, np.ndarray]:
     phi = np.arctan2(q @ ex, q @ ez)
     u = 7.01 + 0.98 * theta / theta.max()
     vv = 0.01 + 0.98 * np.abs(phi) / np.pi
-    return {"interp": interp, "faces": f1, "vertices": pos, "uv": np.c_[u, vv], "coverage": hair_coverage(base)}
+    return {"interp": interp, "faces": f1, "vertices": pos, "uv": np.c_[u, vv],
+            "coverage": hair_coverage(base, style)}
 
 
 # --------------------------------------------------------------------------- regions
@@ -444,9 +512,15 @@ def _regressor_row(v: np.ndarray, cand: np.ndarray, target: np.ndarray, mirror: 
 # --------------------------------------------------------------------------- build
 
 
-def build_from_ict(ict: dict[str, np.ndarray], n_identity: int = N_IDENTITY) -> dict[str, np.ndarray]:
-    """The default head's arrays (float64 / int64) from the ICT arrays of :func:`load_ict`."""
-    h = _convert(ict, n_identity)
+def build_from_ict(ict: dict[str, np.ndarray], n_identity: int = N_IDENTITY, identity: np.ndarray | None = None,
+                   ipd: float = IPD, hair: HairStyle = DEFAULT_HAIR) -> dict[str, np.ndarray]:
+    """The default head's arrays (float64 / int64) from the ICT arrays of :func:`load_ict`.
+
+    ``identity`` (ICT identity-mode coefficients added to ICT's neutral), ``ipd`` (metres between the
+    eyeball centres) and ``hair`` make a patient's head (docs/patients.md); the defaults give the
+    default head.
+    """
+    h = _convert(ict, n_identity, identity, ipd)
     po = {nm: i for i, nm in enumerate(PART_ORDER)}
     skin_parts = np.zeros(len(PART_ORDER), bool)
     skin_parts[[po["face"], po["head_neck"]]] = True
@@ -520,7 +594,8 @@ def build_from_ict(ict: dict[str, np.ndarray], n_identity: int = N_IDENTITY) -> 
     expr[eyeball] = 0.0
 
     # ---- hair shell
-    hair = _hair(h, skin_parts)
+    style = hair
+    hair = _hair(h, skin_parts, style)
     interp = hair["interp"]
     n_h = interp.shape[0]
 
@@ -543,7 +618,7 @@ def build_from_ict(ict: dict[str, np.ndarray], n_identity: int = N_IDENTITY) -> 
     uv = np.concatenate([h.uv, hair["uv"]])
     faces_uv = np.concatenate([h.fuv, hair["faces"] + n_uv0])
 
-    region = np.concatenate([_regions(h, hair_coverage(h.v)), np.full(n_h, REGION_NAMES.index("hair"))])
+    region = np.concatenate([_regions(h, hair_coverage(h.v, style)), np.full(n_h, REGION_NAMES.index("hair"))])
 
     # ---- joint regressor
     mirror = _mirror_map(v_all)

@@ -23,6 +23,7 @@ the mesh's units. See docs/appearance.md.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -31,7 +32,38 @@ from ..flame.appearance import (_BROW, _HAIR, _LIP, _SKIN, _VERTEX_COLORS, EYE_T
                                 MATERIAL_TEXTURE, MATERIALS, TEXTURE_SIZE, TEXTURE_TILE, AppearanceMesh, HeadAppearance,
                                 _signed_dist_polygon, _to_local, assemble_appearance, face_frame)
 
-__all__ = ["generate_appearance", "rasterize_uv", "face_frame", "eye_axis"]
+__all__ = ["generate_appearance", "rasterize_uv", "face_frame", "eye_axis", "Look", "DEFAULT_LOOK"]
+
+
+@dataclass(frozen=True)
+class Look:
+    """Who the skin, hair and eyes belong to (a patient: docs/patients.md); the defaults paint the
+    default head. Colours are linear-ish albedo in [0, 1].
+
+    ``skin``: base skin albedo (by Fitzpatrick type); ``redness``: scale of the cheek/nose/ear flush
+    (less visible on dark skin); ``periorbital``: scale of the darker skin around the eyes; ``beard``:
+    the cool shadow of shaved stubble (0 for a woman); ``lip``: lip albedo; ``hair`` / ``brow``: hair
+    and brow colours; ``grey``: fraction of white strands in hair and brows; ``brow_density``: brow
+    strands relative to 1400 a brow; ``age``: 0 young .. 1 old: deeper forehead lines and crow's
+    feet, nasolabial and marionette folds, under-eye lines, age spots, coarser texture;
+    ``iris`` / ``iris_outer``: iris colours at the pupil and at the limbus.
+    """
+
+    skin: tuple = tuple(_SKIN)
+    redness: float = 1.0
+    periorbital: float = 1.0
+    beard: float = 1.0
+    lip: tuple = tuple(_LIP)
+    hair: tuple = tuple(_HAIR)
+    brow: tuple = tuple(_BROW)
+    grey: float = 0.0
+    brow_density: float = 1.0
+    age: float = 0.0
+    iris: tuple = (0.36, 0.25, 0.14)
+    iris_outer: tuple = (0.24, 0.20, 0.14)
+
+
+DEFAULT_LOOK = Look()
 
 
 
@@ -218,7 +250,8 @@ def _smooth_indicator(ind: np.ndarray, faces: np.ndarray, iterations: int) -> np
 class _Painter:
     """Shared state of one generation: mesh, frame, landmarks in the frame, soft region maps."""
 
-    def __init__(self, vertices, faces, region, region_names, landmarks, seed):
+    def __init__(self, vertices, faces, region, region_names, landmarks, seed, look: Look = DEFAULT_LOOK):
+        self.look = look
         self.v = vertices
         self.f = faces
         self.region = region
@@ -246,7 +279,8 @@ class _Painter:
         s = self.seed
         lm = self.lm
         n = len(q)
-        col = np.tile(_SKIN, (n, 1))
+        L = self.look
+        col = np.tile(np.asarray(L.skin, np.float64), (n, 1))
         # large-scale tone and mottling
         tone = _fbm(q / 45.0, s + 1, 3)
         col *= (1.0 + 0.10 * tone)[:, None]
@@ -264,19 +298,19 @@ class _Painter:
         red += 0.8 * soft.get("ears", 0.0)
         red *= 1.0 + 0.5 * _fbm(q / 4.0, s + 3, 2)
         red = np.clip(red, 0, 1.2)
-        col *= (1.0 - red[:, None] * np.array([0.02, 0.17, 0.14]))
+        col *= (1.0 - red[:, None] * (L.redness * np.array([0.02, 0.17, 0.14])))
         # periorbital: slightly darker, cooler, most below the eyes
         for eye in (range(36, 42), range(42, 48)):
             c = lm[list(eye)].mean(0)
             d = q - c
             w = np.exp(-(d[:, 0] ** 2 / (2 * 15.0 ** 2) + (d[:, 1] + 5.0) ** 2 / (2 * 9.0 ** 2)))
-            col *= (1.0 - w[:, None] * np.array([0.10, 0.13, 0.10]))
+            col *= (1.0 - w[:, None] * (L.periorbital * np.array([0.10, 0.13, 0.10])))
         # subtle beard shadow on the upper lip, chin and jaw (below the mouth corners' level)
         jaw = _smoothstep(lm[33, 1] + 2.0, lm[33, 1] - 6.0, q[:, 1])
         jaw = jaw * _smoothstep(lm[8, 1] - 25.0, lm[8, 1] - 5.0, q[:, 1])
         jaw *= _smoothstep(-40.0, -15.0, q[:, 2] - lm[8, 2] + 50.0) * _smoothstep(70.0, 50.0, np.abs(q[:, 0]))
         jaw *= 1.0 - soft.get("lips_mask", 0.0)
-        col *= (1.0 - 0.06 * jaw[:, None] * np.array([1.0, 0.9, 0.75]))
+        col *= (1.0 - (0.06 * L.beard) * jaw[:, None] * np.array([1.0, 0.9, 0.75]))
         # pores: small dark dots, denser on nose and cheeks
         pore_density = 0.5 + 0.5 * np.clip(red, 0, 1)
         pn = _vnoise(q / 0.55, s + 4)
@@ -287,7 +321,7 @@ class _Painter:
         w1 = np.abs(np.sin((q[:, 0] + q[:, 1] + 2.0 * _fbm(q / 3.0, s + 6, 2)) * 2.2))
         w2 = np.abs(np.sin((q[:, 0] - q[:, 1] + 2.0 * _fbm(q / 3.0, s + 7, 2)) * 2.6))
         micro = _smoothstep(0.15, 0.0, np.minimum(w1, w2))
-        col *= (1.0 - 0.035 * micro)[:, None]
+        col *= (1.0 - (0.035 * (1.0 + 1.5 * L.age)) * micro)[:, None]
         cy = _cyl(q)
         # forehead lines (horizontal, broken)
         brow_top = max(lm[17:27, 1].max(), 0.0)
@@ -300,7 +334,7 @@ class _Painter:
         dist = (ph - np.round(ph)) * 8.5
         seg = _smoothstep(0.3, 0.6, _vnoise(np.c_[cy[:, 0] / 22.0, np.round(ph), np.zeros(n)], s + 9))
         lines = np.exp(-(dist / 0.8) ** 2) * fore * seg
-        col *= (1.0 - 0.045 * lines)[:, None]
+        col *= (1.0 - (0.045 * (1.0 + 3.0 * L.age)) * lines)[:, None]
         # crow's feet: radial lines from the lateral eye corners
         for k, sgn in ((36, -1.0), (45, 1.0)):
             corner = _cyl(lm[k:k + 1])[0] + [sgn * 4.0, 0.0]
@@ -313,7 +347,9 @@ class _Painter:
             pa = (ang + 0.25 * _fbm(np.c_[r / 6.0, ang, np.zeros(n)], s + 10, 2)) / spacing
             dd = (pa - np.round(pa)) * spacing * r
             crow = np.exp(-(dd / 0.4) ** 2) * region
-            col *= (1.0 - 0.07 * crow)[:, None]
+            col *= (1.0 - (0.07 * (1.0 + 2.5 * L.age)) * crow)[:, None]
+        if L.age > 0:
+            col = self.age_marks(q, col)
         # lips
         col = self.lips(q, col)
         # brows: strands over a faint shadow
@@ -321,7 +357,52 @@ class _Painter:
             dens, shade = brow_map(cy)
             col *= (1.0 - 0.10 * shade)[:, None]
             a = 1.0 - np.exp(-3.0 * dens)
-            col = col * (1.0 - a[:, None]) + (_BROW[None, :] * (0.85 + 0.3 * shade[:, None])) * a[:, None]
+            col = col * (1.0 - a[:, None]) + (self.brow_rgb(cy)[:, :] * (0.85 + 0.3 * shade[:, None])) * a[:, None]
+        return col
+
+    def brow_rgb(self, cy: np.ndarray) -> np.ndarray:
+        """(N, 3) brow strand colour: the brow colour, a ``grey`` share of white hairs."""
+        brow = np.asarray(self.look.brow, np.float64)
+        if self.look.grey <= 0:
+            return np.broadcast_to(brow[None, :], (len(cy), 3))
+        hair_id = _noise1(cy[:, 0] / 0.25 + 3.0 * _noise1(cy[:, 1] / 2.0, self.seed + 31), self.seed + 32)
+        white = _smoothstep(1.0 - self.look.grey - 0.05, 1.0 - self.look.grey + 0.05, hair_id)[:, None]
+        return brow[None, :] * (1 - white) + np.array([0.62, 0.60, 0.57])[None, :] * white
+
+    def age_marks(self, q: np.ndarray, col: np.ndarray) -> np.ndarray:
+        """Folds and marks of an older face (scaled by ``look.age``): nasolabial and marionette folds,
+        lines under the eyes, sparse age spots."""
+        lm, s, a = self.lm, self.seed, self.look.age
+        n = len(q)
+
+        def fold(p0, p1, width, depth):
+            d = p1 - p0
+            t = np.clip(((q[:, :2] - p0) @ d) / (d @ d), 0.0, 1.0)
+            dist = np.linalg.norm(q[:, :2] - (p0 + t[:, None] * d), axis=1)
+            front = _smoothstep(-25.0, -10.0, q[:, 2] - lm[30, 2])
+            prof = np.exp(-(dist / width) ** 2) * np.sin(np.pi * np.clip(t, 0.02, 0.98)) ** 0.5 * front
+            # a dark crease with a light ridge on its outer side (the cheek fold)
+            return prof * depth
+
+        for sgn, ala, corner in ((-1, 31, 48), (1, 35, 54)):
+            p0 = lm[ala, :2] + [sgn * 3.0, 2.0]
+            p1 = lm[corner, :2] + [sgn * 4.0, -6.0]
+            col *= (1.0 - a * fold(p0, p1, 1.3, 0.22) * (1 + 0.3 * _fbm(q / 3.0, s + 90, 2)))[:, None]
+            col *= (1.0 + a * fold(p0 + [sgn * 3.0, 0], p1 + [sgn * 3.0, 0], 2.5, 0.05))[:, None]
+            m0 = lm[corner, :2] + [sgn * 1.0, -2.0]
+            m1 = m0 + [sgn * 3.0, -15.0]
+            col *= (1.0 - a * fold(m0, m1, 1.0, 0.16))[:, None]
+        for eye in (range(36, 42), range(42, 48)):
+            c = lm[list(eye)].mean(0)
+            d = q - c
+            for k, off in enumerate((6.0, 9.5)):
+                arc = d[:, 1] + off - 0.012 * d[:, 0] ** 2
+                w = np.exp(-(arc / 0.6) ** 2) * _smoothstep(16.0, 8.0, np.abs(d[:, 0])) * (d[:, 2] > -15)
+                col *= (1.0 - a * (0.10 - 0.03 * k) * w)[:, None]
+        spots = _smoothstep(0.78, 0.9, _fbm(q / 2.2, s + 91, 2) * 0.5 + 0.5) \
+            * _smoothstep(0.4, 0.7, _vnoise(q / 25.0, s + 92))
+        col *= (1.0 - a * 0.18 * spots[:, None] * np.array([0.8, 1.0, 1.15]))
+        col *= (1.0 + a * 0.04 * (_vnoise(q / 1.2, s + 93) - 0.5))[:, None]
         return col
 
     def lips(self, q: np.ndarray, col: np.ndarray) -> np.ndarray:
@@ -331,7 +412,7 @@ class _Painter:
         inside = _smoothstep(0.35, -0.35, d_outer) * near
         self.lip_weight = inside
         n = len(q)
-        lipc = np.tile(_LIP, (n, 1)) * (1.0 + 0.06 * _fbm(q / 3.0, self.seed + 20, 2))[:, None]
+        lipc = np.tile(np.asarray(self.look.lip, np.float64), (n, 1)) * (1.0 + 0.06 * _fbm(q / 3.0, self.seed + 20, 2))[:, None]
         # darker, wetter toward the inner contour
         d_inner = _signed_dist_polygon(q[:, :2], lm[60:68, :2])
         lipc *= (1.0 - 0.18 * _smoothstep(3.0, 0.0, d_inner))[:, None]
@@ -378,7 +459,7 @@ class _Painter:
                 d = curve(np.minimum(t + dt, 1.0)) - curve(np.maximum(t - dt, 0.0))
                 return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
-            n_strands = 1400
+            n_strands = int(round(1400 * self.look.brow_density))
             t = rng.random(n_strands) ** 1.15
             s = np.clip(rng.normal(0.0, 0.45, n_strands), -1.0, 1.0)
             half = 5.0 - 2.8 * t  # half thickness mm
@@ -459,9 +540,13 @@ class _Painter:
         lum = 0.6 + 0.3 * c1 + 0.15 * c3
         lum *= 0.82 + 0.3 * c2
         lum *= 1.0 + 0.15 * _fbm(np.c_[strand / 40.0, polar / 20.0, np.zeros(n)], s + 43, 2)
-        col = _HAIR[None, :] * lum[:, None]
+        col = np.asarray(self.look.hair, np.float64)[None, :] * lum[:, None]
         warm = _noise1(strand * 0.5 + 3.0, s + 44)
         col *= (1.0 + 0.15 * (warm - 0.5))[:, None] * np.array([1.04, 1.0, 0.94])
+        if self.look.grey > 0:  # white strands: a per-strand choice, slightly yellowed
+            g = self.look.grey
+            white = _smoothstep(1.0 - g - 0.04, 1.0 - g + 0.04, _noise1(strand * 1.7 + 9.0, s + 47))[:, None]
+            col = col * (1 - white) + np.array([0.80, 0.78, 0.74])[None, :] * lum[:, None] * white
         # darker roots near the crown whorl
         col *= (0.6 + 0.4 * _smoothstep(0.0, 30.0, polar))[:, None]
         return col
@@ -510,8 +595,8 @@ class _Painter:
         pupil = 0.36
         fib = _noise1((psi / (2 * np.pi)) * 160.0 + 3.0 * rho, s + 1)
         fib2 = _noise1((psi / (2 * np.pi)) * 45.0 + 40.0, s + 2)
-        base = np.array([0.36, 0.25, 0.14])
-        outer = np.array([0.24, 0.20, 0.14])
+        base = np.asarray(self.look.iris, np.float64)
+        outer = np.asarray(self.look.iris_outer, np.float64)
         t = _smoothstep(pupil, 1.0, rho)[:, None]
         iris = base * (1 - t) + outer * t
         iris = iris * (0.75 + 0.5 * fib[:, None] * (0.7 + 0.3 * fib2[:, None]))
@@ -731,7 +816,7 @@ def generate_appearance(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray,
                         vertex_region: np.ndarray, region_names: Sequence[str], landmarks: np.ndarray,
                         seed: int = 0, size: int = TEXTURE_SIZE, eye_size: int = EYE_TEXTURE_SIZE,
                         textures: Mapping[str, np.ndarray] | None = None,
-                        alpha: Mapping[str, np.ndarray] | None = None) -> HeadAppearance:
+                        alpha: Mapping[str, np.ndarray] | None = None, look: Look = DEFAULT_LOOK) -> HeadAppearance:
     """Paint the head's albedo (see the module docstring).
 
     Parameters
@@ -756,6 +841,8 @@ def generate_appearance(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray,
     textures, alpha : dict, optional
         Textures painted before (e.g. loaded from the shipped PNGs): only the materials and the
         vertex colours are computed (fast); shapes are checked against ``size`` / ``eye_size``.
+    look : Look
+        Skin, hair and eye colours and age (a patient's; default: the default head's).
 
     Returns
     -------
@@ -765,6 +852,6 @@ def generate_appearance(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray,
         return assemble_appearance(vertices, faces, uv, faces_uv, vertex_region, region_names, landmarks, textures,
                                    alpha, seed=seed, size=size, eye_size=eye_size)
     mesh = AppearanceMesh.from_arrays(vertices, faces, uv, faces_uv, vertex_region, region_names, landmarks)
-    p = _Painter(mesh.vertices, mesh.faces, mesh.region, mesh.region_names, mesh.landmarks, seed)
+    p = _Painter(mesh.vertices, mesh.faces, mesh.region, mesh.region_names, mesh.landmarks, seed, look)
     painted, painted_alpha = _paint(p, mesh, size, eye_size)
     return mesh.appearance(painted, painted_alpha, seed=seed, size=size, eye_size=eye_size)

@@ -26,7 +26,8 @@ from ..errors import AvatarError, InputError
 
 __all__ = ["PATIENT_FORMAT", "PatientInfo", "Patient", "AvatarChoice", "patients_dir", "list_patients",
            "patient_names", "patient_info", "load_patient", "load_patient_model", "load_patient_avatar",
-           "resolve_avatar", "avatar_spec_help", "SEXES", "FITZPATRICK", "file_sha256"]
+           "resolve_avatar", "avatar_spec_help", "SEXES", "FITZPATRICK", "file_sha256", "check_files",
+           "patient_summary", "load_avatar_file", "head_for_avatar_file"]
 
 PATIENT_FORMAT = 1
 SEXES = ("female", "male")

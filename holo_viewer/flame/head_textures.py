@@ -39,6 +39,9 @@ __all__ = ["head_appearance", "appearance_inputs", "build_head_textures", "save_
 
 PREFIX = "default_head_albedo"
 MANIFEST_NAME = f"{PREFIX}.json"
+#: a patient's textures (assets/patients/<name>/, docs/patients.md): ``albedo_{name}.png`` + ``albedo.json``
+PATIENT_PREFIX = "albedo"
+PATIENT_MANIFEST = f"{PATIENT_PREFIX}.json"
 TEXTURE_NAMES = ("face", "head", "hair", "eye_left", "eye_right", "lashes")
 ALPHA_NAMES = ("lashes",)
 
@@ -109,20 +112,21 @@ def mesh_key(inputs: dict[str, np.ndarray], seed: int = 0) -> str:
     return h.hexdigest()[:16]
 
 
-def save_textures(app: HeadAppearance, folder: str | Path, key: str) -> list[Path]:
-    """Write the textures as PNGs plus the manifest, atomically; returns the paths (manifest last)."""
+def save_textures(app: HeadAppearance, folder: str | Path, key: str, prefix: str = PREFIX) -> list[Path]:
+    """Write the textures as PNGs plus the manifest, atomically; returns the paths (manifest last).
+    ``prefix``: file names ``{prefix}_{name}.png`` and ``{prefix}.json`` (a patient's: ``albedo``)."""
     from ..fileio import atomic_write, ensure_dir, save_image
 
     out = ensure_dir(folder, "texture folder")
-    paths = [save_image(Path(out) / f"{PREFIX}_{n}.png", app.textures[n]) for n in TEXTURE_NAMES]
+    paths = [save_image(Path(out) / f"{prefix}_{n}.png", app.textures[n]) for n in TEXTURE_NAMES]
     for n in ALPHA_NAMES:
         if n in app.alpha:
-            paths.append(save_image(Path(out) / f"{PREFIX}_{n}_alpha.png", app.alpha[n]))
+            paths.append(save_image(Path(out) / f"{prefix}_{n}_alpha.png", app.alpha[n]))
     manifest = {"appearance_version": APPEARANCE_VERSION, "seed": int(app.seed), "mesh_key": key,
-                "textures": {n: f"{PREFIX}_{n}.png" for n in TEXTURE_NAMES},
-                "alpha": {n: f"{PREFIX}_{n}_alpha.png" for n in ALPHA_NAMES if n in app.alpha},
+                "textures": {n: f"{prefix}_{n}.png" for n in TEXTURE_NAMES},
+                "alpha": {n: f"{prefix}_{n}_alpha.png" for n in ALPHA_NAMES if n in app.alpha},
                 "sizes": {"skin_hair": TEXTURE_SIZE, "eyes": EYE_TEXTURE_SIZE, "lashes": LASH_TEXTURE_SIZE}}
-    target = Path(out) / MANIFEST_NAME
+    target = Path(out) / f"{prefix}.json"
     with atomic_write(target, "w") as fh:
         json.dump(manifest, fh, indent=1)
         fh.write("\n")
@@ -130,13 +134,13 @@ def save_textures(app: HeadAppearance, folder: str | Path, key: str) -> list[Pat
     return paths
 
 
-def load_textures(folder: str | Path, key: str | None = None) -> tuple[dict, dict, int]:
+def load_textures(folder: str | Path, key: str | None = None, manifest: str = MANIFEST_NAME) -> tuple[dict, dict, int]:
     """Read the textures written by :func:`save_textures`.
 
     Parameters
     ----------
     folder : path
-        Folder holding ``default_head_albedo.json`` and the PNGs.
+        Folder holding ``default_head_albedo.json`` (or ``manifest``) and the PNGs.
     key : str, optional
         Expected :func:`mesh_key`; a different one raises (textures painted for another mesh).
 
@@ -153,7 +157,7 @@ def load_textures(folder: str | Path, key: str | None = None) -> tuple[dict, dic
     from ..fileio import load_image, read_json
 
     folder = Path(folder)
-    mpath = folder / MANIFEST_NAME
+    mpath = folder / manifest
     man = read_json(mpath, FlameError, "head texture manifest")
     if not isinstance(man, dict) or not isinstance(man.get("textures"), dict):
         raise FlameError(f"{mpath}: expected a JSON object with 'textures', found {type(man).__name__}")
@@ -209,6 +213,14 @@ def head_appearance(model: Any, seed: int = 0, verbose: bool = False) -> HeadApp
     from ..cache import cache_dir
 
     args = {k: inputs[k] for k in ("vertices", "faces", "uv", "faces_uv", "vertex_region", "region_names", "landmarks")}
+    own = (getattr(model, "metadata", {}) or {}).get("appearance_dir")
+    if own is not None:  # a patient's head (avatar.patients): its own textures, never repainted with the default look
+        from ..fileio import read_json
+
+        man = read_json(Path(own) / PATIENT_MANIFEST, FlameError, "head texture manifest")
+        s = int(man.get("seed", 0)) if isinstance(man, dict) else 0  # painted with the patient's seed
+        textures, alpha, s = load_textures(own, mesh_key(inputs, s), PATIENT_MANIFEST)
+        return _appearance(**args, seed=s, textures=textures, alpha=alpha)
     for folder in (assets_dir(), cache_dir() / "head_textures" / key):
         if not (folder / MANIFEST_NAME).exists():
             continue
@@ -233,13 +245,16 @@ def head_appearance(model: Any, seed: int = 0, verbose: bool = False) -> HeadApp
     return app
 
 
-def build_head_textures(model: Any, out: str | Path | None = None, seed: int = 0) -> list[Path]:
-    """Paint ``model``'s textures and write them (default: ``assets/``) for shipping."""
+def build_head_textures(model: Any, out: str | Path | None = None, seed: int = 0, prefix: str = PREFIX,
+                        look: Any = None) -> list[Path]:
+    """Paint ``model``'s textures and write them (default: ``assets/``) for shipping; ``look``: a
+    patient's :class:`~holo_viewer.assets_build.texture_painter.Look` (default: the default head's)."""
     inputs = appearance_inputs(model)
     if inputs is None:
         raise InputError("build_head_textures: the model has no uv / faces_uv / vertex_region / region_names "
                          "metadata or no 68 landmarks; nothing to paint")
     key = mesh_key(inputs, seed)
+    extra = {} if look is None else {"look": look}
     app = _appearance(**{k: inputs[k] for k in ("vertices", "faces", "uv", "faces_uv", "vertex_region",
-                                                         "region_names", "landmarks")}, seed=seed)
-    return save_textures(app, assets_dir() if out is None else out, key)
+                                                         "region_names", "landmarks")}, seed=seed, **extra)
+    return save_textures(app, assets_dir() if out is None else out, key, prefix)
