@@ -224,6 +224,35 @@ def rss_run(seconds: float, out: Path) -> dict:
             "late_reaction_windows": session.late_windows, "reaction_windows": len(session.window_ms)}
 
 
+def startup_run(cold: bool, out: Path, frames: int = 3) -> dict:
+    """``holo-viewer live --synthetic --headless --frames N`` in a child process (the command as a user
+    starts it, full-size tiles): seconds from the process start to its "first frame shown" line, and
+    quit = the last frame -> the session closed (printed by the command) + that line -> the process
+    exited. ``cold``: an empty ``NUMBA_CACHE_DIR`` (every kernel compiles, as on first use)."""
+    import subprocess
+
+    env = dict(os.environ)
+    if cold:
+        env["NUMBA_CACHE_DIR"] = str(out / "numba_cache")
+    cmd = [sys.executable, "-m", "holo_viewer", "live", "--synthetic", "--seconds", "6", "--headless",
+           "--frames", str(frames), "--out", str(out / "session")]
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
+    first = closed = None
+    closing_s = None
+    for line in proc.stdout:  # type: ignore[union-attr]
+        if "first frame shown" in line:
+            first = time.perf_counter() - t0
+        elif line.startswith("live: closed "):
+            closed, closing_s = time.perf_counter(), float(line.split()[2])
+    proc.wait()
+    t_exit = time.perf_counter()
+    return {"cold": cold, "first_frame_s": None if first is None else round(first, 2),
+            "quit_s": None if closed is None else round(closing_s + t_exit - closed, 2),
+            "returncode": proc.returncode, "load_1min_start": round(load, 2)}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=8.0, help="clip length")
@@ -233,7 +262,23 @@ def main() -> int:
     ap.add_argument("--rss-seconds", type=float, default=0.0, help="also run a synthetic session this long for RSS")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "holo_viewer_live_bench"))
     ap.add_argument("--json", default=None)
+    ap.add_argument("--startup-only", action="store_true", help="only the start-up runs: the live command's first "
+                    "frame cold (empty kernel cache) and warm, and its quit time")
     args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:  # the live command as a user starts it (issue 33)
+        startup = [startup_run(cold, Path(tmp) / f"start{i}") for i, cold in enumerate((True, False))]
+    print("start-up (holo-viewer live --synthetic --headless --frames 3, full-size tiles): first frame "
+          f"cold {startup[0]['first_frame_s']} s (load {startup[0]['load_1min_start']}), warm "
+          f"{startup[1]['first_frame_s']} s (load {startup[1]['load_1min_start']}); quit {startup[1]['quit_s']} s")
+    if args.startup_only:
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            from holo_viewer.fileio import atomic_write
+
+            with atomic_write(args.json, "w") as fh:
+                json.dump({"config": vars(args), "cores": os.cpu_count(), "startup": startup}, fh, indent=2)
+            print(f"wrote {args.json}")
+        return 0
 
     from holo_viewer.pipeline.live_support import write_talking_head_clip
 
@@ -274,7 +319,7 @@ def main() -> int:
         print(f"RSS over a {rss['seconds']:g} s synthetic session: {rss['rss_mb_after_10s']} -> {rss['rss_mb_end']} MB "
               f"(growth {rss['rss_growth_mb']} MB), late windows {rss['late_reaction_windows']}/{rss['reaction_windows']}")
     result = {"config": vars(args), "load_average": load, "cores": os.cpu_count(), "no_render": base, "render": full,
-              "render_warm": warm,
+              "render_warm": warm, "startup": startup,
               "reaction_window_ratio_render_vs_baseline": round(ratio, 2), "fit": fit, "rss": rss}
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

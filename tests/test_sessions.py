@@ -308,7 +308,9 @@ def test_live_prints_each_start_up_step(recorded: Path) -> None:
     lines = (recorded.parents[1] / "stdout.txt").read_text().splitlines()
     steps = [m.group(1) for line in lines if (m := re.match(r"live: (.*) \.\.\. \(\d+\.\d s\)$", line))]
     assert steps == ["opening devices", "loading the avatar and compiling the render kernels (cached after the "
-                     "first use)", "warming the reaction model", "rendering a first frame", "starting the session"]
+                     "first use)", "warming the reaction model", "rendering a first frame", "starting the session",
+                     "first frame shown"]
+    assert re.fullmatch(r"live: closed \d+\.\d s after the last frame", lines[-2]), lines[-2:]
 
 
 def test_preview_says_starting_not_black_during_start_up(capsys: pytest.CaptureFixture) -> None:

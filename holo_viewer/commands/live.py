@@ -153,7 +153,18 @@ def run(args: argparse.Namespace) -> int:
 
         progress("opening the panel window")
         panel = open_panel(renderer.pipeline.calibration, args.monitor)
-    summary = session.run(renderer, panel=panel, preview=preview)
+    import time
+
+    shown: list[float] = []  # when each frame was handed back: the first is the start-up's end
+
+    def on_frame(_res: object) -> None:
+        if not shown:
+            progress("first frame shown")
+        shown[-1:] = [time.perf_counter()]
+
+    summary = session.run(renderer, panel=panel, preview=preview, on_frame=on_frame)
+    if shown:  # quit: the last frame -> the session closed (threads joined, recording flushed, verified)
+        print(f"live: closed {time.perf_counter() - shown[-1]:.1f} s after the last frame", flush=True)
     interrupted = str(summary["status"].get("end", "")).startswith("interrupted")
     print(f"session written to {args.out}: {session.recorder.n_frames} frames at 25 fps, "
           f"{summary['displayed_frames']} displayed; reaction windows {summary['reaction_windows']} "
