@@ -57,3 +57,21 @@ def test_unknown_data_kinds_are_named():
         train_config_from_dict({"data": {"voices": "robot"}})
     with pytest.raises(ReactionError, match="data.audio_features"):
         train_config_from_dict({"data": {"audio_features": "mfcc"}})
+
+
+@needs_espeak
+def test_live_synthetic_speaker_is_heard_as_speech(monkeypatch):
+    """``live --synthetic`` and the talking-head clip speak with a text-to-speech voice the model hears
+    (VAD speech, pause onsets); without espeak-ng the harmonic voice comes with a warning naming it."""
+    from holo_viewer.pipeline.live_support import SyntheticSpeaker, speaker_clip
+    from holo_viewer.reaction.speech import speech_features
+
+    syn = SyntheticSpeaker(10.0, seed=1)
+    assert syn.waveform.shape == (250 * 640,) and syn.states.shape[0] == 250
+    f = speech_features(syn.waveform, 16000)
+    assert 0.3 < np.mean(f[:, 0] >= 0.5) < 0.95 and len(pause_onsets(f[:, 0], f[:, 1])) >= 1
+    assert np.ptp(syn.states[:, :-6], axis=0).max() > 0.5  # its face moves with the voice
+    monkeypatch.setattr("holo_viewer.reaction.tts.shutil.which", lambda name: None)
+    with pytest.warns(RuntimeWarning, match="espeak-ng not found.*harmonic voice"):
+        sp = speaker_clip(10.0, 1, 16)
+    assert sp.waveform.shape[0] >= 250 * 640

@@ -21,7 +21,7 @@ from ..errors import InputError
 from ..validation import check_finite_scalar
 
 __all__ = ["webcam_camera", "HeadRenderer", "write_talking_head_clip", "HEAD_CENTRE", "SyntheticSpeaker",
-           "FaceStates"]
+           "speaker_clip", "FaceStates"]
 
 #: a point between the default head's eyes (FLAME frame, metres): the webcam's look-at target
 HEAD_CENTRE = np.array([0.0, 0.02, 0.06])
@@ -93,21 +93,46 @@ class HeadRenderer:
         return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
+def speaker_clip(seconds: float, seed: int, salt: int) -> Any:
+    """A synthetic speaker (:class:`holo_viewer.reaction.data.SpeakerClip`) of at least 10 s whose
+    voice the reaction model hears as speech: an espeak-ng text-to-speech voice with a face moving
+    with it (:func:`holo_viewer.reaction.data.tts_speaker`). Where espeak-ng is not installed, the
+    harmonic synthetic voice, with a RuntimeWarning saying that the model does not hear it as speech.
+    (At least 10 s are synthesized: the generators normalise slow sway per clip.)"""
+    import warnings
+    from dataclasses import replace
+
+    from ..flame.expressions import default_au_map, jaw_for_expression
+    from ..reaction.data import SyntheticConfig, synth_speaker, tts_speaker
+    from ..reaction.tts import espeak_available
+
+    au = default_au_map()
+    cfg = SyntheticConfig(seconds=max(float(seconds), 10.0))
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(salt)]))
+    jaw = np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64)
+    if espeak_available():
+        sp, _ = tts_speaker(rng, replace(cfg, still_face_fraction=0.0), au.names, jaw)
+        return sp
+    warnings.warn("espeak-ng not found: the synthetic speaker is the harmonic voice, which the reaction model "
+                  "does not hear as speech, so the patient will hardly react (apt-get install espeak-ng)",
+                  RuntimeWarning, stacklevel=3)
+    return synth_speaker(rng, cfg, au.names, jaw)
+
+
 def write_talking_head_clip(out_dir: str | os.PathLike, seconds: float = 4.0, seed: int = 0,
                             width: int = 480, height: int = 360, hfov_deg: float = 60.0, distance: float = 0.45,
                             n_gaussians: int = 30_000, fps: int = 25) -> dict[str, Path]:
     """Write ``speaker.wav`` (16 kHz) + ``speaker.mp4`` (the head speaking) + ``truth.npz``.
 
-    The speaker comes from the reaction module's synthetic conversation generator (voice and
-    face move together: mouth with the syllable envelope, brows on pitch accents, smiles,
-    nods); the head is rendered frame by frame at 25 fps. ``truth.npz`` holds the driving
+    The speaker is :func:`speaker_clip`'s (an espeak-ng voice with a face moving with it: mouth
+    with the level, brows on pitch accents, smiles, nods; the harmonic voice where espeak-ng is
+    missing); the head is rendered frame by frame at 25 fps. ``truth.npz`` holds the driving
     FLAME parameters (``expr``, ``jaw_pose``, ``rotation``) and the states.
     """
     from ..fileio import save_npz
     from ..media import VideoWriter
-    from ..flame.expressions import default_au_map, jaw_for_expression
+    from ..flame.expressions import default_au_map
     from ..reaction.audio import write_wav
-    from ..reaction.data import SyntheticConfig, synth_speaker
     from ..reaction.features import flame_from_state
 
     seconds = check_finite_scalar(seconds, "seconds", low=0.2, high=600.0)
@@ -116,19 +141,15 @@ def write_talking_head_clip(out_dir: str | os.PathLike, seconds: float = 4.0, se
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     au_map = default_au_map()
-    # synthesize at least 10 s and cut: the generator's slow head sway is normalised per clip, which
-    # blows up on clips of a second or two
-    cfg = SyntheticConfig(seconds=max(float(seconds), 10.0))
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 15]))
-    sp = synth_speaker(rng, cfg, au_map.names, np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64))
+    sp = speaker_clip(seconds, seed, 15)
     T = int(round(seconds * fps))
     state = sp.state[:T]
-    waveform = sp.waveform[: T * cfg.audio.hop]
+    waveform = sp.waveform[: T * 640]
     fl = flame_from_state(state, au_map)
     renderer = HeadRenderer(n_gaussians=n_gaussians)
     cam = webcam_camera(width, height, hfov_deg, distance)
     wav = out / "speaker.wav"
-    write_wav(wav, waveform, cfg.audio.sample_rate)
+    write_wav(wav, waveform, 16000)
     video = out / "speaker.mp4"
     with VideoWriter(video, fps, content="preview", quality=8, what="speaker video") as writer:
         for t in range(fl["expr"].shape[0]):
@@ -142,23 +163,16 @@ def write_talking_head_clip(out_dir: str | os.PathLike, seconds: float = 4.0, se
 class SyntheticSpeaker:
     """A synthetic speaker (voice + face states at 25 fps) and a slowly moving synthetic viewer.
 
-    ``states`` (T, n_au + 6) and ``waveform`` (T * 640,) float32 at 16 kHz, from the reaction
-    module's conversation generator (at least 10 s are synthesized and cut, see
-    :func:`write_talking_head_clip`).
+    ``states`` (T, n_au + 6) and ``waveform`` (T * 640,) float32 at 16 kHz: :func:`speaker_clip`'s
+    text-to-speech speaker (the harmonic voice, with a warning, where espeak-ng is missing).
     """
 
     def __init__(self, seconds: float, seed: int = 0) -> None:
-        from ..flame.expressions import default_au_map, jaw_for_expression
-        from ..reaction.data import SyntheticConfig, synth_speaker
-
         seconds = check_finite_scalar(seconds, "seconds", low=0.04, high=3600.0)
-        au = default_au_map()
-        cfg = SyntheticConfig(seconds=max(float(seconds), 10.0))
-        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 16]))
-        sp = synth_speaker(rng, cfg, au.names, np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64))
+        sp = speaker_clip(seconds, seed, 16)
         T = int(round(seconds * 25))
         self.states = sp.state[:T]
-        self.waveform = sp.waveform[: T * cfg.audio.hop]
+        self.waveform = sp.waveform[: T * 640]
 
     @staticmethod
     def viewer(t: float) -> tuple[float, float]:
