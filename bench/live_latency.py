@@ -114,6 +114,26 @@ def visible_latency(tracks: dict, onsets: list[int], k: int, change: list[float]
     return out
 
 
+def backchannel_latency(tracks: dict, pauses: list[int], backchannels: list[int], change: list[float],
+                        within_s: float = 2.0) -> list[float | None]:
+    """Speech pause -> visible backchannel, with the visible-change timing of :func:`visible_latency`.
+
+    For each pause onset frame, the first backchannel onset frame (a nod, brow raise or smile in the
+    recorded listener) at or after it and within ``within_s``; then the first displayed frame at or
+    after that frame whose native image changed visibly (> :data:`VISIBLE_RMS`). Returns per pause
+    the seconds from the pause onset to that display, or None (no backchannel, or never shown).
+    """
+    disp_t, disp_f = tracks["display_time_s"], tracks["display_frame"]
+    ch = np.asarray(change[:len(disp_t)])
+    b = np.sort(np.asarray(backchannels, dtype=np.int64))
+    out: list[float | None] = []
+    for p in pauses:
+        later = b[(b >= p) & (b <= p + within_s * 25)]
+        ok = (disp_f[:len(ch)] >= later[0]) & (ch > VISIBLE_RMS) if later.size else np.zeros(0, bool)
+        out.append(float(disp_t[np.argmax(ok)] - p / 25.0) if ok.any() else None)
+    return out
+
+
 def pct(x, q):
     return None if not len(x) else round(float(np.percentile(x, q)), 1)
 
