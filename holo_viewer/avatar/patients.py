@@ -27,7 +27,7 @@ from ..errors import AvatarError, InputError
 __all__ = ["PATIENT_FORMAT", "PatientInfo", "Patient", "AvatarChoice", "patients_dir", "list_patients",
            "patient_names", "patient_info", "load_patient", "load_patient_model", "load_patient_avatar",
            "resolve_avatar", "avatar_spec_help", "SEXES", "FITZPATRICK", "file_sha256", "check_files",
-           "patient_summary", "load_avatar_file", "head_for_avatar_file"]
+           "patient_summary", "load_avatar_file", "head_for_avatar_file", "load_choice"]
 
 PATIENT_FORMAT = 1
 SEXES = ("female", "male")
@@ -323,3 +323,32 @@ def patient_summary(info: PatientInfo) -> dict[str, Any]:
 
 def dumps_summary(rows: list[dict[str, Any]]) -> str:
     return json.dumps(rows, indent=1)
+
+
+def load_choice(spec: str | AvatarChoice | None, need_gaussians: bool = False) -> tuple[Any, Any, str, str]:
+    """(head model, rigged avatar or False, description, name) for ``default``, ``none``, a patient or a
+    fitted ``.npz`` (PLY avatars are loaded by ``pipeline.load_scene``). ``need_gaussians``: a patient
+    that is not fitted yet is an AvatarError instead of its mesh alone."""
+    choice = resolve_avatar(spec)
+    if choice.kind == "default":
+        from .default_gaussians import default_avatar
+
+        av = default_avatar()
+        return av.flame_model, av, f"default head + default avatar ({len(av)} Gaussians)", "default"
+    if choice.kind == "none":
+        from ..flame.default_head import load_default_model
+
+        return load_default_model(), False, "FLAME mesh only", "none"
+    if choice.kind == "patient":
+        info = patient_info(choice.name)
+        who = f"patient {info.name} ({info.sex}, {info.age}, type {info.fitzpatrick})"
+        if not info.fitted:
+            if need_gaussians:
+                load_patient_avatar(info.name)  # raises: not fitted yet
+            return load_patient_model(info.name), False, f"{who}: not fitted yet, mesh only", info.name
+        av = load_patient_avatar(info.name)
+        return av.flame_model, av, f"{who}, {len(av)} Gaussians", info.name
+    if choice.kind == "npz":
+        av = load_avatar_file(choice.path)
+        return av.flame_model, av, f"fitted avatar {choice.path.name} ({len(av)} Gaussians)", str(choice.path)
+    raise InputError(f"--avatar {choice}: a PLY avatar is loaded by the scene loader, not here")

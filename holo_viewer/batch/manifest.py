@@ -2,7 +2,9 @@
 
 A row names
 
-* the **avatar**: ``avatar`` = ``default`` (the embedded head and its 100k-Gaussian avatar) or a PLY
+* the **avatar**: ``avatar`` = ``default`` (the embedded head and its 100k-Gaussian avatar), a fitted
+  patient's name (docs/patients.md; its head and avatar files go into the job hash), a fitted avatar
+  ``.npz``, or a PLY
   (a GaussianAvatars ``point_cloud.ply`` with ``flame_model`` and optionally ``avatar_params``, its
   ``flame_param.npz`` identity; or a plain 3DGS PLY, shown as it is);
 * what **drives** it, exactly one of
@@ -138,7 +140,7 @@ class JobSpec:
         """The input files the job reads, by field name."""
         out = {k: getattr(self, k) for k in ("flame_model", "avatar_params", "flame_params", "speaker_audio",
                                               "speaker_params")}
-        if self.avatar != "default":
+        if self.avatar != "default" and not _is_patient(self.avatar):
             out["avatar"] = self.avatar
         if self.calibration is not None and os.path.exists(self.calibration):
             out["calibration"] = self.calibration
@@ -241,10 +243,18 @@ def _parse_row(row: dict[str, Any], line: int, base: Path, from_csv: bool) -> Jo
     r = _Row(row, base, from_csv)
     kw: dict[str, Any] = {"line": line, "id": r.str("id", f"line{line}")}
     avatar = r.str("avatar", "default")
-    kw["avatar"] = "default" if avatar.lower() == "default" else r.path("avatar", must_exist=True)
+    if _is_patient(avatar.lower()):
+        from ..pipeline.scene import patient_files
+
+        if not patient_files(avatar.lower())[0]:
+            raise ManifestError(f"avatar: patient {avatar.lower()!r} is not fitted yet (no avatar.npz); a batch "
+                                "renders Gaussians")
+        kw["avatar"] = avatar.lower()
+    else:
+        kw["avatar"] = "default" if avatar.lower() == "default" else r.path("avatar", must_exist=True)
     for key in ("flame_model", "avatar_params"):
         kw[key] = r.path(key, must_exist=True) if key in row else None
-    if kw["avatar"] == "default" and (kw["flame_model"] or kw["avatar_params"]):
+    if (kw["avatar"] == "default" or _is_patient(kw["avatar"])) and (kw["flame_model"] or kw["avatar_params"]):
         raise ManifestError("flame_model/avatar_params: expected them only with a PLY avatar, found them with "
                             "avatar 'default' (the default avatar is bound to the embedded head)")
 
@@ -514,11 +524,23 @@ def _shipped_inputs(spec: JobSpec) -> dict[str, Path]:
     names = []
     if spec.avatar == "default":
         names += ["default_head", "default_avatar"]
+    extra = {}
+    if _is_patient(spec.avatar):  # a patient: its head, textures and fitted avatar
+        from ..pipeline.scene import patient_files
+
+        extra = {f"patient:{p.name}": p for p in patient_files(spec.avatar)[1]}
     if spec.driver in ("reaction", "synthetic_reaction"):
         names.append("reaction_checkpoint")
     if spec.calibration is None:
         names.append("calibration")
-    return {k: assets_dir() / SHIPPED_ASSETS[k] for k in names}
+    return {**{k: assets_dir() / SHIPPED_ASSETS[k] for k in names}, **extra}
+
+
+def _is_patient(name: str) -> bool:
+    """Whether ``name`` is a shipped patient's name (not a path)."""
+    from ..pipeline.scene import is_patient
+
+    return is_patient(name)
 
 
 @functools.lru_cache(maxsize=4)

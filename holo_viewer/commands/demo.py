@@ -42,6 +42,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_renderer_argument(parser, help="splat renderer")
     parser.add_argument("--seed", type=seed_arg, default=0, help="seed of the synthesized speaker clip")
     parser.add_argument("--skip-head-renders", action="store_true", help="do not write head/ (faster)")
+    from .avatar_args import add_avatar_argument
+
+    add_avatar_argument(parser, kinds=("default", "patient", "npz"), help="whose quilt and video; files are named "
+                        "after it (default_*.png for the default)")
     from .behaviour_args import add_behaviour_arguments
 
     add_behaviour_arguments(parser, pain_timeline=False)
@@ -110,10 +114,19 @@ def run(args: argparse.Namespace) -> int:
         steps.set_postfix_str(name)
         steps.update(1)
 
-    # 1. the default avatar
+    # 1. the avatar (default, or --avatar's patient / fitted file)
     t0 = time.perf_counter()
-    pipe = Pipeline(backend=args.renderer, face=FaceControls(named=(("smile", args.smile),), pain=args.pain))
-    step("load default avatar", t0, f"{len(pipe.avatar)} Gaussians, {pipe.model.n_vertices} vertices")
+    face = FaceControls(named=(("smile", args.smile),), pain=args.pain)
+    stem = "default"
+    if getattr(args, "avatar", "default") == "default":
+        pipe = Pipeline(backend=args.renderer, face=face)
+    else:
+        from ..avatar.patients import load_choice
+
+        model, avatar, _, name = load_choice(args.avatar, need_gaussians=True)
+        pipe = Pipeline(model=model, avatar=avatar, backend=args.renderer, face=face)
+        stem = Path(name).stem
+    step(f"load {stem} avatar", t0, f"{len(pipe.avatar)} Gaussians, {pipe.model.n_vertices} vertices")
 
     # 2. head renders (issue 2)
     t0 = time.perf_counter()
@@ -129,11 +142,11 @@ def run(args: argparse.Namespace) -> int:
     cal = pipe.calibration
     t0 = time.perf_counter()
     (quilt,), quilt_t = pipe.compute("quilt")
-    qpath = save_image(out / quilt_filename("default", cal.cols, cal.rows, cal.aspect), quilt)
+    qpath = save_image(out / quilt_filename(stem, cal.cols, cal.rows, cal.aspect), quilt)
     step("quilt (smile + pain)", t0, f"{qpath.name} {quilt.shape[1]}x{quilt.shape[0]}")
     t0 = time.perf_counter()
     (native,), native_t = pipe.compute("native")
-    npath = save_image(out / "default_native.png", native)
+    npath = save_image(out / f"{stem}_native.png", native)
     step("native image", t0, f"{npath.name} {native.shape[1]}x{native.shape[0]} ({cal.source or 'calibration'})")
     first = StageTimings()
     first.add(quilt_t)
@@ -178,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
     report = StreamReport(n_frames=0, budget=0.0, policy="all")
     quilts = (r.quilt for r in pipe.iter_stream(frames, fps=fps, output="quilt", policy="all", base=base,
                                                  report=report))
-    vpath = write_quilt_video(out / quilt_filename("default_reaction", cal.cols, cal.rows, cal.aspect,
+    vpath = write_quilt_video(out / quilt_filename(f"{stem}_reaction", cal.cols, cal.rows, cal.aspect,
                                                    suffix=".mp4"), quilts, fps=fps, total=len(frames),
                               preset="veryfast")
     step("reaction quilt video", t_video, f"{vpath.name}: {report.summary()}")

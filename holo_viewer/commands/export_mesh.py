@@ -48,6 +48,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--au-map", metavar="JSON", type=Path, default=None,
                         help="AU -> expression-coefficient map; needed for --pain with a user FLAME model")
     parser.add_argument("--teeth", action="store_true", help="add GaussianAvatars-style teeth")
+    from .avatar_args import add_avatar_argument
+
+    add_avatar_argument(parser, kinds=("default", "patient", "npz"), help="whose head (a fitted .npz: the head it "
+                        "was fitted to)")
     parser.add_argument("--out", metavar="FILE", type=Path, required=True,
                         help="output mesh: .obj, .ply or .glb")
 
@@ -85,9 +89,21 @@ def parse_expr_assignments(items: Sequence[str], names: Sequence[str] | None, n_
     return out
 
 
-def _load_model(path: Path | None, add_teeth: bool):
+def _load_model(path: Path | None, add_teeth: bool, avatar: str = "default"):
     import torch
 
+    if avatar != "default":
+        if path is not None:
+            raise InputError(f"--avatar {avatar} and --flame-model {path}: give one head, not both")
+        from ..avatar.patients import head_for_avatar_file, patient_info, resolve_avatar
+        from ..flame.model import FlameModel
+
+        choice = resolve_avatar(avatar)
+        head = patient_info(choice.name).head_path if choice.kind == "patient" else \
+            head_for_avatar_file(choice.path)[1]
+        model = FlameModel.load(head, n_shape=None, n_expr=None, add_teeth=add_teeth, dtype=torch.float64)
+        model.metadata["appearance_dir"] = str(head.parent) if choice.kind == "patient" else None
+        return model
     if path is not None:
         from ..flame.model import FlameModel
 
@@ -95,6 +111,13 @@ def _load_model(path: Path | None, add_teeth: bool):
     from ..flame.default_head import load_default_model
 
     return load_default_model(add_teeth=add_teeth, dtype=torch.float64)
+
+
+def _which(args: argparse.Namespace) -> str:
+    avatar = getattr(args, "avatar", "default")
+    if args.flame_model is not None:
+        return str(args.flame_model)
+    return "default head" if avatar == "default" else f"the head of {avatar}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -107,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
                                                                high=PAIN_RANGE[1])
     from ..pipeline import FaceControls, Pipeline
 
-    model = _load_model(args.flame_model, args.teeth)
+    model = _load_model(args.flame_model, args.teeth, getattr(args, "avatar", "default"))
     expr = np.zeros(model.n_expr)
     for idx, value in parse_expr_assignments(args.expr, model.expression_names, model.n_expr).items():
         expr[idx] = value
@@ -127,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     faces = model.faces.cpu().numpy()
     path = write_mesh(out, verts, faces)
     print(f"wrote {path}: {verts.shape[0]} vertices, {faces.shape[0]} faces "
-          f"({'default head' if args.flame_model is None else args.flame_model}"
+          f"({_which(args)}"
           f"{f', pain {pain:g}' if pain is not None else ''}{f', jaw {jaw_deg:g} deg' if jaw_deg else ''})")
     return 0
 

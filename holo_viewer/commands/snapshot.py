@@ -14,7 +14,9 @@ __all__ = ["add_arguments", "run"]
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="holo_viewer_snapshot.png", help="PNG file to write (atomic)")
-    parser.add_argument("--avatar", default="default", help="'default', 'none' or a PLY (as for view)")
+    from .avatar_args import add_avatar_argument
+
+    add_avatar_argument(parser, help="what the image shows (as for view)")
     parser.add_argument("--flame-model", default=None, metavar="PKL")
     parser.add_argument("--flame-params", default=None, metavar="NPZ")
     parser.add_argument("--calibration", default=None, metavar="JSON")

@@ -32,8 +32,9 @@ def glyph_config(args: argparse.Namespace) -> dict:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--avatar", default="default",
-                        help="'default' (embedded head + avatar), 'none' (mesh only), or a 3DGS / GaussianAvatars PLY")
+    from .avatar_args import add_avatar_argument
+
+    add_avatar_argument(parser, help="what the window shows")
     parser.add_argument("--flame-model", default=None, metavar="PKL",
                         help="FLAME model .pkl/.npz (default: the embedded default head)")
     parser.add_argument("--flame-params", default=None, metavar="NPZ",

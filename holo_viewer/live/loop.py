@@ -374,7 +374,7 @@ class LiveSession:
         header["scenario"] = self.scenario.to_json() if self.scenario is not None else None
         header["mount"] = dataclasses.asdict(cfg.mount) if dataclasses.is_dataclass(cfg.mount) else None
         if renderer is not None and hasattr(renderer, "pipeline"):
-            header["avatar"] = avatar_record(renderer.pipeline)
+            header["avatar"] = avatar_record(renderer.pipeline, getattr(renderer, "avatar_name", "default"))
             header["render"] = {"mode": renderer.mode, "backend": renderer.backend, "tile_scale": cfg.tile_scale,
                                 "warmup_pain": cfg.pain}
         if renderer is not None:  # replay --quality live repeats this call (header["render"]["warmup_pain"])

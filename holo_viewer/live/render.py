@@ -94,7 +94,7 @@ class LiveAvatarRenderer:
 
     def __init__(self, tile_scale: float = 1.0, native: bool = True, preview: bool = False, backend: str = "auto",
                  calibration: Any = None, render_threads: int | None = None, mode: str = "auto",
-                 view_step: int | None = None) -> None:
+                 view_step: int | None = None, avatar: str = "default") -> None:
         import os
 
         from ..pipeline.live_modes import SESSION_MODE
@@ -106,6 +106,8 @@ class LiveAvatarRenderer:
             raise InputError(f"mode: expected one of {', '.join(SESSION_MODE)}, found {mode!r}")
         self.mode = mode
         self.session_mode = SESSION_MODE[mode]
+        #: ``default``, a patient's name or a fitted .npz (docs/patients.md); session.json records it
+        self.avatar_name = str(avatar)
         self.native_enabled = bool(native)
         self.preview_enabled = bool(preview)
         self.backend = resolve_backend(backend)
@@ -133,8 +135,14 @@ class LiveAvatarRenderer:
         from ..pipeline import Pipeline, ViewSettings
         from ..render.config import RenderConfig
 
+        who = {}
+        if self.avatar_name != "default":  # a patient (fitted: live renders Gaussians) or a fitted .npz
+            from ..pipeline.scene import load_avatar
+
+            model, avatar, _, self.avatar_name = load_avatar(self.avatar_name, need_gaussians=True)
+            who = {"model": model, "avatar": avatar}
         self.pipeline = Pipeline(calibration=calibration, view=ViewSettings(tile_scale=tile_scale),
-                                 backend=self.backend, render_config=RenderConfig(num_threads=threads))
+                                 backend=self.backend, render_config=RenderConfig(num_threads=threads), **who)
         self._live = None
         if self.session_mode.tracked is None:  # cone: the pipeline renders the viewer's whole quilt
             if self.backend == "gsplat":

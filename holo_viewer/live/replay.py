@@ -60,13 +60,15 @@ def _renderer(session: Path, meta: dict, quality: str, tile_scale: float | None)
     render = meta.get("render") or {}
     scale = float(tile_scale if tile_scale is not None else render.get("tile_scale", settings.get("tile_scale", 1.0)))
     mode = str(render.get("mode", settings.get("render_mode", "cone")))
+    recorded = meta.get("avatar")
+    avatar = str(recorded.get("name", "default")) if isinstance(recorded, dict) else "default"  # a patient's name
     if quality == "live":
-        renderer = LiveAvatarRenderer(tile_scale=scale, native=True, preview=False, backend="fast", mode=mode)
+        renderer = LiveAvatarRenderer(tile_scale=scale, native=True, preview=False, backend="fast", mode=mode,
+                                      avatar=avatar)
     else:
         renderer = LiveAvatarRenderer(tile_scale=scale, native=True, preview=False, backend="fast",  # exact, any machine
                                       mode="all_views" if mode in ("tracked", "auto") else mode,
-                                      view_step=1)  # offline: every view rendered, no synthesis
-    recorded = meta.get("avatar")
+                                      view_step=1, avatar=avatar)  # offline: every view rendered, no synthesis
     if recorded is not None:
         mine = avatar_record(renderer.pipeline, str(recorded.get("name", "default")))
         if mine["digest"] != recorded.get("digest"):

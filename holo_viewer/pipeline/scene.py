@@ -2,7 +2,8 @@
 and ``apps/stream_sequence.py``); headless, below the GUI.
 
 ``--avatar``: ``default`` (the embedded default head and its Gaussian avatar), ``none``
-(mesh only), or a PLY: a GaussianAvatars ``point_cloud.ply`` (local Gaussians + ``binding_0``,
+(mesh only), a patient's name (docs/patients.md: its head and fitted avatar, or its head alone
+until it is fitted), a fitted avatar ``.npz`` (on the head it was fitted to), or a PLY: a GaussianAvatars ``point_cloud.ply`` (local Gaussians + ``binding_0``,
 rigged to the FLAME model) or a plain 3DGS PLY (world Gaussians, shown as they are: they do
 not follow the sliders). ``--flame-model``: a FLAME ``.pkl`` / ``.npz`` (default: the embedded
 head). ``--flame-params``: a ``flame_param.npz`` sequence (frame 0 is shown first).
@@ -13,6 +14,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -21,7 +23,30 @@ from .avatars import StaticAvatar
 from .core import Pipeline
 from .settings import FaceControls, flame_sequence_frames
 
-__all__ = ["Scene", "load_scene", "StaticAvatar"]
+__all__ = ["Scene", "load_scene", "StaticAvatar", "load_avatar", "is_patient", "patient_files"]
+
+
+def load_avatar(spec: str, need_gaussians: bool = False) -> tuple[Any, Any, str, str]:
+    """(model, avatar or False, description, name) of ``default``, ``none``, a patient or a fitted .npz
+    (:func:`holo_viewer.avatar.patients.load_choice`), for the callers above the pipeline."""
+    from ..avatar.patients import load_choice
+
+    return load_choice(spec, need_gaussians=need_gaussians)
+
+
+def is_patient(name: str) -> bool:
+    """Whether ``name`` is a shipped patient's name."""
+    from ..avatar.patients import patient_names
+
+    return str(name) in patient_names()
+
+
+def patient_files(name: str) -> tuple[bool, list[Path]]:
+    """(fitted, every file of the patient's folder): what a job on the patient reads."""
+    from ..avatar.patients import patient_info
+
+    info = patient_info(name)
+    return info.fitted, sorted(p for p in info.folder.iterdir() if p.is_file())
 
 
 @dataclass
@@ -47,6 +72,13 @@ def load_scene(avatar: str | os.PathLike | None = "default", flame_model: str | 
 
     cal = DisplayCalibration.load(calibration)
     spec = "default" if avatar is None else str(avatar)
+    from ..avatar.patients import load_choice, patient_names
+
+    if spec.lower() in patient_names() or spec.lower().endswith(".npz"):  # a patient, a fitted avatar file
+        if flame_model is not None:
+            raise InputError(f"--avatar {spec}: bound to its own head; --flame-model goes with --avatar none or a PLY")
+        model, av, desc, _ = load_choice(spec)
+        return _scene(model, av, cal, backend, face, flame_params, None, desc)
     is_ply = spec.lower() not in ("default", "none")
     rigged_ply = False
     if is_ply:
@@ -102,6 +134,11 @@ def load_scene(avatar: str | os.PathLike | None = "default", flame_model: str | 
                 model = load_default_model()
             desc = f"static 3DGS {ply.name} ({len(av)} Gaussians; not rigged: sliders move the mesh only)"
 
+    return _scene(model, av, cal, backend, face, flame_params, params, desc)
+
+
+def _scene(model: Any, av: Any, cal: Any, backend: str, face: FaceControls | None, flame_params: Any, params: Any,
+           desc: str) -> Scene:
     frames = None
     if flame_params is not None:
         if params is None:

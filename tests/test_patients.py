@@ -1,0 +1,234 @@
+"""The ward (issue 35, docs/patients.md): the shipped patients, the --avatar resolver and option,
+the batch manifest's avatar field, ``holo-viewer patients``; the heads' builder (slow tests)."""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from holo_viewer.avatar import patients as P
+from holo_viewer.errors import AvatarError, InputError
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = P.list_patients()
+COMMANDS = ("demo", "view", "snapshot", "live", "export-mesh")
+
+
+def band(age: int) -> str:
+    return "young" if 25 <= age <= 35 else "middle" if 45 <= age <= 55 else "old" if 65 <= age <= 75 else "none"
+
+
+def skin_group(t: str) -> str:
+    return {"I": "I-II", "II": "I-II", "III": "III-IV", "IV": "III-IV", "V": "V-VI", "VI": "V-VI"}[t]
+
+
+def fake_patient(root: Path, name: str = "zed", fitted: bool = True, over: dict | None = None) -> Path:
+    folder = root / name
+    folder.mkdir(parents=True)
+    (folder / "head.npz").write_bytes(b"head")
+    info = {"format": 1, "name": name, "sex": "female", "age": 30, "fitzpatrick": "V", "seed": 1,
+            "licence": {"geometry": "test"}, "files": {"head.npz": hashlib.sha256(b"head").hexdigest()}}
+    info.update(over or {})
+    (folder / "patient.json").write_text(json.dumps(info))
+    if fitted:
+        (folder / "avatar.npz").write_bytes(b"gaussians v1")
+    return folder
+
+
+# ------------------------------------------------------------------------------ the shipped ward
+
+
+def test_the_ward_covers_sex_age_and_skin_type():
+    names = [p.name for p in SHIPPED]
+    assert names == sorted(names) and len(names) == len(set(names)) >= 6, names
+    assert "default" not in names
+    assert sorted(p.sex for p in SHIPPED).count("female") == 3 and [p.sex for p in SHIPPED].count("male") == 3
+    assert sorted(band(p.age) for p in SHIPPED) == ["middle"] * 2 + ["old"] * 2 + ["young"] * 2
+    assert sorted(skin_group(p.fitzpatrick) for p in SHIPPED) == ["I-II"] * 2 + ["III-IV"] * 2 + ["V-VI"] * 2
+    for sex in ("female", "male"):  # each sex spans the three ages
+        assert {band(p.age) for p in SHIPPED if p.sex == sex} == {"young", "middle", "old"}
+
+
+def test_every_shipped_file_matches_its_digest_and_licence_is_stated():
+    for info in SHIPPED:
+        P.check_files(info)
+        assert {"head.npz", "albedo.json", "albedo_face.png", "albedo_hair.png"} <= set(info.files)
+        assert {"geometry", "textures", "hair", "avatar"} <= set(info.raw["licence"])
+        assert "MIT" in info.raw["licence"]["geometry"]
+        assert info.size_bytes() <= 15e6, (info.name, info.size_bytes())
+
+
+def test_a_changed_file_is_reported_by_name(tmp_path):
+    folder = fake_patient(tmp_path, fitted=False)
+    (folder / "head.npz").write_bytes(b"tampered")
+    with pytest.raises(AvatarError, match=r"head\.npz: sha256 .* patient\.json expects"):
+        P.check_files(P.patient_info("zed", tmp_path))
+
+
+@pytest.mark.parametrize("field,value,msg", [
+    ("sex", "x", r"field 'sex': expected one of \('female', 'male'\), found 'x'"),
+    ("age", 7, r"field 'age': expected an integer 18\.\.100, found 7"),
+    ("fitzpatrick", "VII", r"field 'fitzpatrick'"),
+    ("name", "other", r"field 'name': expected the folder's name 'zed', found 'other'"),
+    ("files", {}, r"field 'files'"),
+])
+def test_malformed_patient_json_names_the_file_and_field(tmp_path, field, value, msg):
+    fake_patient(tmp_path, over={field: value})
+    with pytest.raises(AvatarError, match=msg) as exc:
+        P.list_patients(tmp_path)
+    assert "patient.json" in str(exc.value)
+
+
+# ------------------------------------------------------------------------------ --avatar
+
+
+def test_resolve_avatar_kinds_and_errors(tmp_path):
+    name = SHIPPED[0].name
+    assert P.resolve_avatar("default") == P.AvatarChoice("default", "default")
+    assert P.resolve_avatar("NONE").kind == "none" and P.resolve_avatar(None).kind == "default"
+    got = P.resolve_avatar(name.upper())
+    assert got.kind == "patient" and got.name == name and got.path == P.patients_dir() / name
+    (tmp_path / "a.ply").write_bytes(b"ply")
+    (tmp_path / "b.npz").write_bytes(b"npz")
+    assert P.resolve_avatar(tmp_path / "a.ply").kind == "ply" and P.resolve_avatar(str(tmp_path / "b.npz")).kind == "npz"
+    with pytest.raises(InputError, match="file not found") as exc:
+        P.resolve_avatar(tmp_path / "missing.ply")
+    assert name in str(exc.value)
+    with pytest.raises(InputError, match=r"'nobody': not a patient nor a file") as exc:
+        P.resolve_avatar("nobody")
+    assert all(p.name in str(exc.value) for p in SHIPPED)
+
+
+def _parse(command: str, *argv: str) -> argparse.Namespace:
+    from holo_viewer.cli import _build_parser
+
+    extra = ("--out", "x.obj") if command == "export-mesh" else ()
+    return _build_parser(command).parse_args([command, *argv, *extra])
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_command_checks_avatar_at_parse_time(command, capsys, monkeypatch):
+    # parsing loads no model: a patient's name is checked against patient.json files only
+    monkeypatch.setattr(P, "load_patient_model", lambda *a, **k: pytest.fail("loaded a head while parsing"))
+    name = SHIPPED[-1].name
+    assert _parse(command).avatar == "default"
+    assert _parse(command, "--avatar", name).avatar == name
+    with pytest.raises(SystemExit) as exc:
+        _parse(command, "--avatar", "nobody")
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --avatar" in err and "nobody" in err and all(p.name in err for p in SHIPPED)
+
+
+@pytest.mark.parametrize("command,refused", [("demo", "none"), ("live", "none"), ("export-mesh", "x.ply")])
+def test_commands_refuse_the_kinds_they_cannot_show(command, refused, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "x.ply").write_bytes(b"ply")
+    with pytest.raises(SystemExit):
+        _parse(command, "--avatar", refused)
+    assert "is not taken here" in capsys.readouterr().err
+
+
+def test_unfitted_patient_needs_gaussians_error(tmp_path, monkeypatch):
+    fake_patient(tmp_path, fitted=False)
+    monkeypatch.setattr(P, "patients_dir", lambda: tmp_path)
+    with pytest.raises(AvatarError, match="patient 'zed' is not fitted yet"):
+        P.load_patient_avatar("zed")
+
+
+# ------------------------------------------------------------------------------ batch manifests
+
+
+def test_manifest_avatar_field_names_a_patient_and_the_hash_covers_its_files(tmp_path, monkeypatch):
+    from holo_viewer.batch import RowError, job_hash, read_manifest
+
+    pats = tmp_path / "patients"
+    folder = fake_patient(pats, "zed")
+    fake_patient(pats, "yan", fitted=False)
+    monkeypatch.setattr(P, "patients_dir", lambda: pats)
+    (tmp_path / "m.jsonl").write_text("\n".join(json.dumps(r) for r in (
+        {"id": "a", "frames": 2}, {"id": "b", "frames": 2, "avatar": "zed"}, {"id": "c", "frames": 2, "avatar": "yan"},
+        {"id": "d", "frames": 2, "avatar": "nobody"})) + "\n")
+    a, b, c, d = read_manifest(tmp_path / "m.jsonl")
+    assert a.avatar == "default" and b.avatar == "zed"
+    assert isinstance(c, RowError) and "not fitted yet" in str(c)
+    assert isinstance(d, RowError) and "nobody" in str(d)
+    h = job_hash(b)
+    assert h != job_hash(a)
+    (folder / "avatar.npz").write_bytes(b"gaussians v2")  # a refitted patient: the job is a new job
+    assert job_hash(b) != h
+
+
+# ------------------------------------------------------------------------------ holo-viewer patients
+
+
+def test_patients_command_prints_one_patient_a_line_name_first(capsys):
+    from holo_viewer.cli import main
+
+    assert main(["patients"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert [ln.split()[0] for ln in lines] == [p.name for p in SHIPPED]
+    for ln, p in zip(lines, SHIPPED):
+        assert f" {p.sex} " in ln and f" {p.age} " in ln and f"type {p.fitzpatrick} " in ln and " MB " in ln
+        assert ("not fitted yet" in ln) != p.fitted
+    assert main(["patients", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["name"] for r in rows] == [p.name for p in SHIPPED]
+
+
+def test_patient_head_loads_with_its_textures():
+    from holo_viewer.flame.head_textures import head_appearance
+
+    info = SHIPPED[0]
+    model = P.load_patient_model(info.name)
+    assert model.metadata["appearance_dir"] == str(info.folder)
+    app = head_appearance(model)
+    assert app.seed == info.seed and app.textures["face"].shape == (1024, 1024, 3)
+    skin = np.asarray(info.raw["look"]["skin"])
+    face = app.textures["face"][300:700, 300:700].reshape(-1, 3).mean(0)  # the painted skin follows the look
+    assert np.all(np.abs(face - skin) < 0.2), (face, skin)
+
+
+# ------------------------------------------------------------------------------ the builder (slow)
+
+
+def test_heads_differ_in_hair_and_identity():
+    hair = {}
+    for info in SHIPPED:
+        with np.load(info.head_path) as z:
+            names = [str(s) for s in z["region_names"]]
+            v = z["v_template"][z["vertex_region"] == names.index("hair")]
+            hair[info.name] = (len(v), float(v[:, 1].min()), float(v[:, 1].max()))
+    assert len({h[0] for h in hair.values()}) == len(SHIPPED)  # no two share a hair shell
+    lowest = min(hair, key=lambda n: hair[n][1])
+    assert P.patient_info(lowest).raw["hair"]["hang"]  # the longest hair is a hanging style
+
+
+def test_a_rebuild_reproduces_a_shipped_head_and_identity_reads_as_sex():
+    from holo_viewer.assets_build.head import build_patient_head, write_default_head
+    from holo_viewer.assets_build.ict import load_ict
+    from holo_viewer.assets_build.patients import N_MODES, identity_directions, recipe
+    from holo_viewer.flame.default_head import ict_facekit_path
+
+    ict = load_ict(ict_facekit_path(required=True))
+    sex_dir, age_dir = identity_directions(ict["neutral"].astype(np.float64),
+                                           ict["identity_deltas"][:N_MODES].astype(np.float64),
+                                           ict["landmarks68"].astype(np.int64))
+    assert abs(sex_dir @ age_dir) < 1e-9
+    for info in SHIPPED:
+        c = np.asarray(info.raw["identity"]["coefficients"])
+        assert (c @ sex_dir > 1.0) == (info.sex == "male") and (c @ sex_dir < -1.0) == (info.sex == "female")
+        assert (c @ age_dir > 1.0) == (band(info.age) == "old")
+    info = SHIPPED[0]
+    r = recipe(info.name)
+    arrays = build_patient_head(np.asarray(info.raw["identity"]["coefficients"]), r.ipd_mm / 1000.0, r.hair, ict=ict)
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        got = write_default_head(Path(d) / "head.npz", arrays).read_bytes()
+    assert hashlib.sha256(got).hexdigest() == info.files["head.npz"]
