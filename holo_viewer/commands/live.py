@@ -50,6 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--record-video", action="store_true", help="also keep the webcam video (off by default: "
                      "trainees' faces are private)")
     ctl = parser.add_argument_group("patient")
+    from .avatar_args import add_avatar_argument
+
+    add_avatar_argument(ctl, kinds=("default", "patient", "npz"), help="who the patient is (session.json records it)")
     ctl.add_argument("--pain", type=float, default=0.0, help="initial pain level in [0, 1] (keys Up/Down change it)")
     ctl.add_argument("--scenario", metavar="FILE.json", help="timeline of pain levels and named expressions")
     ctl.add_argument("--group", action="store_true", help="centre the view cone on all faces instead of the nearest")
@@ -143,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
                                behaviour=behaviour_from_args(args, seed=args.seed))
     progress("loading the avatar and compiling the render kernels (cached after the first use)")
     renderer = LiveAvatarRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview,
-                                  mode=args.render_mode, backend=args.renderer)
+                                  mode=args.render_mode, backend=args.renderer, avatar=args.avatar)
     settings["render_backend"] = renderer.backend  # what "auto" chose (session.json)
     session = LiveSession(config, audio, video, synthetic)
     session.progress = progress
