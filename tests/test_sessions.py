@@ -450,3 +450,19 @@ def test_replay_writer_thread_raises_the_writers_error_and_writes_nothing(tmp_pa
     for i, f in enumerate(_frames(3)):
         ok.write(f, t=i * 0.1)
     assert ok.close(end_s=0.4) == 3 and media.count_video_frames(tmp_path / "ok.mkv") == 3
+
+
+def test_quick_exit_flushes_runs_atexit_and_keeps_the_exit_code(tmp_path: Path) -> None:
+    """live and replay, run as a console command, end the process when they return (no interpreter
+    teardown: quit <= 2 s); what they printed, their atexit handlers and their exit code survive."""
+    import subprocess
+    import sys
+
+    code = ("import atexit, sys; from holo_viewer import cli; atexit.register(lambda: print('atexit ran')); "
+            "print('written', end=''); sys.stderr.write('err'); cli._quick_exit(3); print('not reached')")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path,
+                          env={"PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    assert proc.returncode == 3 and proc.stdout == "writtenatexit ran\n" and proc.stderr == "err"
+    from holo_viewer.cli import QUICK_EXIT
+
+    assert set(QUICK_EXIT) == {"live", "replay"}
