@@ -141,6 +141,30 @@ def test_unfitted_patient_needs_gaussians_error(tmp_path, monkeypatch):
         P.load_patient_avatar("zed")
 
 
+def test_gui_chooser_steps_through_default_and_the_patients(monkeypatch):
+    from holo_viewer.gui import patient_chooser as C
+
+    names = ("default",) + tuple(p.name for p in SHIPPED)
+    assert C.patient_cycle() == names
+    assert C.next_patient("default") == names[1] and C.next_patient(names[-1]) == "default"
+    assert C.next_patient("default", -1) == names[-1] and C.next_patient("x.ply") == "default"
+
+    class FakeViewer:
+        patient_name = "default"
+        calls: list = []
+
+        def set_avatar(self, avatar, model=None):
+            self.calls.append((avatar, model))
+
+    loaded = []
+    monkeypatch.setattr("holo_viewer.pipeline.scene.load_avatar",
+                        lambda name, need_gaussians=False: loaded.append(name) or ("M", False, f"desc {name}", name))
+    v = FakeViewer()
+    assert C.cycle_patient(v) == names[1] and v.calls == [(None, "M")]  # not fitted: the mesh alone
+    assert C.cycle_patient(v, -1) == "default" and loaded == [names[1], "default"]
+    assert v.patient_description == "desc default"
+
+
 # ------------------------------------------------------------------------------ batch manifests
 
 

@@ -101,6 +101,11 @@ def run(args: argparse.Namespace) -> int:
     size = None if args.window_size is None else tuple(args.window_size)
     cfg = ViewerConfig(window_size=size, out_dir=args.out_dir, **glyph_config(args))
     viewer = HoloViewer(scene.pipeline, cfg, frames=scene.frames)  # retries a refused X window itself
+    if hasattr(viewer, "set_avatar"):  # the patient chooser: keys P / O step through default and the patients
+        from ..gui.patient_chooser import bind_patient_keys
+
+        viewer.patient_name = args.avatar
+        bind_patient_keys(viewer)
     print("press h in the window for the keys (q quits)")
     viewer.show()
     for path in viewer.exports:
