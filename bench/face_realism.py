@@ -457,6 +457,164 @@ def run_quick(levels: Sequence[float] = QUICK_PAIN_LEVELS) -> dict[str, Any]:
             "raw": {str(k): v for k, v in per.items()}, "seconds": time.perf_counter() - t0}
 
 
+# =============================================================================== per patient (issue 35)
+
+#: what an eye receives through the panel (display.simulate.VirtualDisplay): eye angles (deg), stride
+EYE_ANGLES = (0.0, -15.0, 15.0)
+EYE_DOWNSAMPLE = 2
+PATIENT_FOUND_EXPRESSIONS = ("neutral", "smile", "pain_1", "mouth_open")
+
+
+def load_patient_avatar(name: str) -> Any:
+    """The fitted avatar of ``default`` or a patient (``holo_viewer.avatar.patients``)."""
+    if name == "default":
+        from holo_viewer.avatar.default_gaussians import default_avatar
+
+        return default_avatar()
+    from holo_viewer.avatar.patients import load_patient_avatar as load
+
+    return load(name)
+
+
+def run_patient(name: str, images_dir: Path | None = None) -> dict[str, Any]:
+    """The issue's detector targets for one avatar, on its Gaussians: faces found in the 48 quilt views
+    (neutral, smile, pain 1, mouth open), the landmark ratios and monotonicity over pain 0 / 0.25 / 0.5 / 1
+    in the three view windows, and the same on what an eye receives through the panel (the native image
+    seen by :class:`~holo_viewer.display.simulate.VirtualDisplay` from ``EYE_ANGLES``, at infinity)."""
+    from holo_viewer.display.simulate import VirtualDisplay
+    from holo_viewer.fileio import save_image
+    from holo_viewer.pipeline import Pipeline
+
+    det = Detector()
+    t0, c0, load0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
+    pipe = Pipeline(avatar=load_patient_avatar(name))
+    cams = pipe.cameras()
+    (framing,), _ = pipe.compute("framing")
+    angles = camera_angles(cams, np.asarray(framing[0]))
+    windows = {f"{t:+g} deg": view_window(angles, t) for t in LANDMARK_ANGLES}
+    eye = VirtualDisplay(pipe.calibration, downsample=EYE_DOWNSAMPLE)
+    per: dict[str, Any] = {}
+    for ename, face in expressions().items():
+        pipe.set_face(face)
+        views = pipe.views()
+        found, meas = 0, {}
+        for i in range(len(cams)):
+            r = det(views[i])
+            found += r is not None
+            meas[i] = None if r is None else face_measures(r[0])
+        entry: dict[str, Any] = {"found": int(found), "quilt": {
+            label: median_measures([meas[i] for i in w]) for label, w in windows.items()}}
+        if ename in ("neutral", "pain_025", "pain_05", "pain_1"):
+            native = pipe.native()
+            entry["eye"] = {}
+            for a in EYE_ANGLES:
+                img = eye.see(native, a)
+                r = det(img)
+                entry["eye"][f"{a:+g} deg"] = None if r is None else face_measures(r[0])
+                if images_dir is not None and ename in ("neutral", "pain_1"):
+                    images_dir.mkdir(parents=True, exist_ok=True)
+                    save_image(images_dir / f"{name}_{ename}_eye{a:+g}.png", _draw(img, None if r is None else r[0]))
+        if ename in ("neutral", "pain_05", "pain_1"):
+            entry["centre_view"] = views[len(cams) // 2]  # the contact sheet's picture (not in the JSON)
+            if images_dir is not None:
+                images_dir.mkdir(parents=True, exist_ok=True)
+                save_image(images_dir / f"{name}_{ename}_view{len(cams) // 2}.png", views[len(cams) // 2])
+        per[ename] = entry
+        print(f"  {name} {ename}: found {found}/48", flush=True)
+    return {"name": name, "per_expression": per, "windows": windows, "seconds": time.perf_counter() - t0,
+            "cpu_seconds": time.process_time() - c0, "load_1min": [load0, os.getloadavg()[0]]}
+
+
+def evaluate_patient(res: dict[str, Any]) -> list[dict[str, Any]]:
+    """Rows (measure, where, value, target, pass) of :func:`run_patient`: faces found, the three pain
+    ratios and monotonicity (eye aperture, brow gap, nose-lip gap) on quilt windows and eye views."""
+    per = res["per_expression"]
+    rows: list[dict[str, Any]] = []
+    for e in PATIENT_FOUND_EXPRESSIONS:
+        rows.append({"measure": "faces found", "where": f"quilt, {e}", "value": per[e]["found"],
+                     "target": f">= {FOUND_TARGET}", "pass": per[e]["found"] >= FOUND_TARGET})
+    pain = ("neutral", "pain_025", "pain_05", "pain_1")
+    for kind in ("quilt", "eye"):
+        for label in per["neutral"][kind]:
+            seq = [per[e][kind][label] for e in pain]
+            for measure, expr, op, thr in TARGETS[:3]:
+                v = _ratio(seq[-1], seq[0], measure)
+                rows.append({"measure": f"{measure} pain 1 / neutral", "where": f"{kind} {label}", "value": v,
+                             "target": f"{op} {thr}", "pass": v is not None and v <= thr})
+                vals = [None if s is None else s[measure] for s in seq]
+                ok = all(x is not None for x in vals) and monotone(vals, -1)
+                rows.append({"measure": f"{measure} monotone over pain", "where": f"{kind} {label}", "value": vals,
+                             "target": "non-increasing", "pass": bool(ok)})
+    return rows
+
+
+def patient_sheet(results: dict[str, dict[str, Any]], width: int = 300) -> np.ndarray:
+    """Rows = avatars, columns = neutral / pain 0.5 / pain 1.0 (centre quilt view, Gaussians), cropped to
+    the union of the heads' pixels, each tile ``width`` px wide, labelled."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    cols = (("neutral", "neutral"), ("pain_05", "pain 0.5"), ("pain_1", "pain 1.0"))
+    imgs = {n: [np.asarray(r["per_expression"][k]["centre_view"]) for k, _ in cols] for n, r in results.items()}
+    top, bottom, left, right = head_box([im.max(-1) > 0.02 for v in imgs.values() for im in v], margin=6)
+    tile_w = int(width)
+    tile_h = int(round((bottom - top) * tile_w / (right - left)))
+    size = max(12, tile_w // 18)
+    try:
+        font = ImageFont.load_default(size=size)
+    except TypeError:
+        font = ImageFont.load_default()
+    label_w, head_h, pad = 7 * size, 2 * size, 4
+    sheet = Image.new("RGB", (label_w + len(cols) * (tile_w + pad), head_h + len(imgs) * (tile_h + pad)),
+                      (255, 255, 255))
+    draw = ImageDraw.Draw(sheet)
+    for c, (_, label) in enumerate(cols):
+        draw.text((label_w + c * (tile_w + pad) + tile_w // 3, 4), label, fill=(0, 0, 0), font=font)
+    for r, (name, row) in enumerate(imgs.items()):
+        y = head_h + r * (tile_h + pad)
+        draw.text((4, y + tile_h // 2), name, fill=(0, 0, 0), font=font)
+        for c, im in enumerate(row):
+            tile = Image.fromarray((np.clip(im[top:bottom, left:right], 0, 1) * 255 + 0.5).astype(np.uint8))
+            sheet.paste(tile.resize((tile_w, tile_h), Image.LANCZOS), (label_w + c * (tile_w + pad), y))
+    return np.asarray(sheet)
+
+
+def main_patients(names: Sequence[str], json_path: str, images: str | None, sheet: str | None = None) -> int:
+    from holo_viewer.fileio import atomic_write
+
+    if list(names) == ["all"]:
+        from holo_viewer.avatar.patients import list_patients
+
+        names = [p.name for p in list_patients() if p.fitted]
+    out: dict[str, Any] = {}
+    results: dict[str, Any] = {}
+    for name in names:
+        res = run_patient(name, Path(images) if images else None)
+        rows = evaluate_patient(res)
+        n_pass = sum(r["pass"] for r in rows)
+        print(f"\n{name}: {n_pass}/{len(rows)} pass ({res['seconds']:.0f} s, {res['cpu_seconds']:.0f} s CPU, load "
+              f"{res['load_1min'][0]:.1f} -> {res['load_1min'][1]:.1f})")
+        for r in rows:
+            if not r["pass"] or r["measure"].startswith("faces"):
+                print(f"  {r['measure']:<34} {r['where']:<18} {_fmt(r['value']):<34} {r['target']:<15} "
+                      f"{'PASS' if r['pass'] else 'fail'}")
+        results[name] = res
+        raw = {**res, "per_expression": {e: {k: v for k, v in d.items() if k != "centre_view"}
+                                         for e, d in res["per_expression"].items()}}
+        out[name] = {"rows": rows, "passed": n_pass, "total": len(rows), "raw": raw}
+        record = {"config": {"eye_angles_deg": list(EYE_ANGLES), "eye_downsample": EYE_DOWNSAMPLE,
+                             "eye_distance": "infinity", "pain": list(PAIN_LEVELS), "window_half_width_deg": WINDOW_DEG,
+                             "detector": "dlib HOG (upsample 1) + shape_predictor_68_face_landmarks",
+                             "host": platform.node()}, "patients": out}
+        with atomic_write(json_path, "w") as fh:
+            json.dump(record, fh, indent=1)
+    print(f"wrote {json_path}")
+    if sheet:
+        from holo_viewer.fileio import save_image
+
+        print(f"wrote {save_image(sheet, patient_sheet(results))}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "face_realism.json"))
@@ -465,7 +623,15 @@ def main(argv: list[str] | None = None) -> int:
                     "expression and fidelity view, PSNR under each pair) to this image file (.png/.jpg)")
     ap.add_argument("--quick", action="store_true", help="pain legibility only: centre views, pain 0, 0.2 ... 1.0 "
                     "(writes bench/results/face_realism_quick.json unless --json is given)")
+    ap.add_argument("--patients", nargs="+", default=None, metavar="NAME",
+                    help="per avatar (default, patient names or all): faces found, pain ratios and monotonicity "
+                         "on the quilt and through the panel (writes bench/results/face_realism_patients.json "
+                         "unless --json is given)")
     args = ap.parse_args(argv)
+    if args.patients:
+        path = args.json if "--json" in (argv or sys.argv) else str(Path(__file__).parent / "results" /
+                                                                    "face_realism_patients.json")
+        return main_patients(args.patients, path, args.images, args.sheet)
     if args.quick:
         from holo_viewer.fileio import atomic_write
 

@@ -52,7 +52,7 @@ from ..pipeline.settings import FaceControls
 
 __all__ = ["AvatarFitConfig", "AvatarFit", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "surface_colors",
            "orbit_cameras", "sheared_cameras", "camera_yaws", "training_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity",
-           "transfer_avatar", "add_gaussians_on_faces", "prune_faintest"]
+           "transfer_avatar", "add_gaussians_on_faces", "prune_faintest", "slider_limit_deg", "quilt_fidelity"]
 
 #: (mesh vertices, faces, cameras, indices) -> ((n, H, W, 3) float images in [0, 1], (n, H, W) bool masks)
 TargetRenderer = Callable[[np.ndarray, np.ndarray, Cameras, Sequence[int]], "tuple[np.ndarray, np.ndarray]"]
@@ -687,3 +687,44 @@ def prune_faintest(local: Gaussians, binding: np.ndarray, n_keep: int, protect: 
         return local, np.asarray(binding)
     keep = np.sort(np.argsort(o, kind="stable")[drop:])
     return local.subset(keep), np.asarray(binding)[keep]
+
+
+def slider_limit_deg(angle_range_deg: Sequence[float] | None, cone_deg: float, default: float = 10.0) -> float:
+    """The viewer-angle slider's limit (deg) for an avatar fitted over ``angle_range_deg`` (its outermost
+    quilt view stays inside the fitted range: ``min(-lo, hi) - cone / 2``, within [1, 30]); ``default``
+    for an avatar without the field."""
+    if angle_range_deg is None:
+        return float(default)
+    lo, hi = float(angle_range_deg[0]), float(angle_range_deg[1])
+    return float(np.clip(min(-lo, hi) - cone_deg / 2, 1.0, 30.0))
+
+
+def quilt_fidelity(avatar: Any, target_renderer: TargetRenderer, face: FaceControls,
+                   angle_range_deg: Sequence[float] | None = None,
+                   images: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
+    """PSNR (:func:`fidelity`) of every quilt view with the cone centred and of the outermost views with
+    the cone at the viewer slider's limits (:func:`slider_limit_deg`): per-view list, worst (and which
+    view), median, the two limit views and their minimum over all (``min_db``). ``images`` receives
+    ``"views"`` (48 Gaussians | mesh pairs), ``"slider_lo"`` and ``"slider_hi"``."""
+    from ..pipeline.core import Pipeline
+    from ..pipeline.settings import ViewSettings
+
+    pipe = Pipeline(avatar=avatar)
+    cone = float(pipe.view.view_cone or pipe.calibration.view_cone)
+    lim = slider_limit_deg(angle_range_deg, cone)
+    n = len(pipe.cameras())
+    per: dict[str, dict[str, np.ndarray]] = {"views": {}, "slider_lo": {}, "slider_hi": {}}
+    want = images is not None
+    centre = fidelity(avatar, {"f": face}, list(range(n)), target_renderer, per["views"] if want else None)["f"]
+    lo = fidelity(avatar, {"f": face}, [0], target_renderer, per["slider_lo"] if want else None,
+                  view=ViewSettings(viewer_angle=-lim))["f"][0]
+    hi = fidelity(avatar, {"f": face}, [n - 1], target_renderer, per["slider_hi"] if want else None,
+                  view=ViewSettings(viewer_angle=lim))["f"][n - 1]
+    if want:
+        for k, d in per.items():
+            images[k] = d["f"]
+    vals = np.array([centre[i] for i in range(n)], np.float64)
+    worst = int(np.nanargmin(vals))
+    return {"per_view_db": [float(x) for x in vals], "worst_db": float(vals[worst]), "worst_view": worst,
+            "median_db": float(np.nanmedian(vals)), "slider_limit_deg": lim, "slider_min_db": float(lo),
+            "slider_max_db": float(hi), "min_db": float(min(np.nanmin(vals), lo, hi))}
