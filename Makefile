@@ -4,9 +4,10 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 OUT ?= out
 PYTEST_ARGS ?=
-# the suite runs on JOBS pytest-xdist workers, whole files per worker (module fixtures are built once)
+# the suite runs on JOBS pytest-xdist workers, whole files per worker (module fixtures are built once),
+# the costliest files first (tests/conftest.py orders them; the default reorder by test count is off)
 JOBS ?= 2
-XDIST := -n $(JOBS) --dist loadfile
+XDIST := -n $(JOBS) --dist loadfile --no-loadscope-reorder
 
 .PHONY: demo test test-fast setup bench bench-quick clean help
 

@@ -26,6 +26,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+#: make test's pytest-xdist workers (JOBS): each file runs with the torch threads one of them has
+WORKERS = 2
 
 
 def _children_cpu() -> float:
@@ -37,7 +39,10 @@ def time_file(path: Path, markers: str | None) -> dict:
     """Run one test file; its wall and CPU seconds, pytest's exit code and summary line, per-test times."""
     with tempfile.TemporaryDirectory() as tmp:
         per_test = Path(tmp) / "times.json"
-        env = dict(os.environ, HOLO_TEST_TIMES=str(per_test))
+        # torch's threads as a make test worker has them (tests/conftest.py: the cores shared by JOBS=2 workers)
+        threads = str(max(1, (os.cpu_count() or 1) // WORKERS))
+        env = {"OMP_NUM_THREADS": threads, "MKL_NUM_THREADS": threads, **os.environ,
+               "HOLO_TEST_TIMES": str(per_test)}
         cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist", str(path)]
         if markers:
             cmd += ["-m", markers]
@@ -75,11 +80,25 @@ def slow_tests(rows: list[dict], cpu_limit: float) -> list[str]:
 
 
 def write_slow_list(path: Path, rows: list[dict], cpu_limit: float) -> list[str]:
+    """Write the slow list, each line ``node id  # CPU seconds`` (conftest orders the files by them).
+
+    Merges rather than overwrites: a line already in ``path`` whose test was not measured here (a file not
+    run, or a test added since) is kept as it was; measured tests are listed by this run alone."""
     names = slow_tests(rows, cpu_limit)
-    head = (f"# tests over {cpu_limit} s of CPU when their file runs alone (bench/test_times.py --write-slow); "
-            "conftest marks them slow\n")
-    path.write_text(head + "".join(f"{n}\n" for n in names))
-    return names
+    cpu = {k: v[1] for r in rows for k, v in r["tests"].items()}
+    kept: dict[str, str] = {}
+    if path.is_file():
+        for ln in path.read_text().splitlines():
+            node = ln.split("#", 1)[0].strip()
+            if node and node not in cpu:
+                kept.setdefault(node, ln.strip())
+    head = (f"# tests over {cpu_limit} s of CPU when their file runs alone (bench/test_times.py --write-slow), "
+            "with those CPU seconds; conftest marks them slow and runs the costliest files first\n")
+    lines = [f"{n}  # {cpu[n]:.1f}" for n in names] + list(kept.values())
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(head + "".join(f"{ln}\n" for ln in sorted(lines)))
+    tmp.replace(path)
+    return names + list(kept)
 
 
 def main() -> int:

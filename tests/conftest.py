@@ -22,6 +22,30 @@ if str(ROOT) not in sys.path:  # bench/ is a folder of scripts, not an installed
     sys.path.insert(0, str(ROOT))
 
 
+def worker_threads(cpus: int | None, workers: int) -> int:
+    """torch's (OpenMP's, MKL's) threads per pytest-xdist worker: the cores shared out, at least one."""
+    return max(1, (cpus or 1) // max(1, workers))
+
+
+def _share_the_cores() -> None:
+    """Under pytest-xdist, give each worker's torch its share of the cores (``OMP_NUM_THREADS``), unless set.
+
+    Two workers on 2 cores with torch's default (a thread per core each) spin-wait for each other's cores:
+    torch-heavy files took 2.3x the CPU (test_render_torch.py 14.8 vs 6.4 CPU s, two files side by side).
+    Runs when conftest is imported, before any test module imports torch; numba's threads are left as they
+    are (its parallel kernels' tests run them on more than one thread, and they did not spin measurably).
+    """
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0") or 0)
+    if workers < 1 or "torch" in sys.modules:
+        return
+    n = str(worker_threads(os.cpu_count(), workers))
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, n)
+
+
+_share_the_cores()
+
+
 @pytest.fixture(scope="module")
 def small_model():
     """A random 300-vertex FLAME-format model (8 shape, 6 expression components)."""
@@ -85,21 +109,59 @@ def xvfb_server():
 
 
 # ------------------------------------------------------------------ the slow marker from tests/slow_tests.txt
-def _slow_list() -> set[str]:
+#: CPU seconds counted for a listed test whose line gives none (a line added by hand without a measurement)
+UNMEASURED_S = 1.0
+
+
+def parse_slow_list(text: str) -> dict[str, float]:
+    """``{node id: CPU seconds}`` from tests/slow_tests.txt: one node id a line, optionally ``# 12.3`` after it
+    (its CPU seconds with its file run alone; :data:`UNMEASURED_S` without); ``#`` lines are comments."""
+    out: dict[str, float] = {}
+    for ln in text.splitlines():
+        node, _, comment = ln.partition("#")
+        node = node.strip()
+        if not node:
+            continue
+        word = comment.strip().split(" ", 1)[0]
+        try:
+            out[node] = float(word)
+        except ValueError:
+            out[node] = UNMEASURED_S
+    return out
+
+
+def _slow_list() -> dict[str, float]:
     path = Path(__file__).with_name("slow_tests.txt")
-    if not path.is_file():
-        return set()
-    return {ln.split("#", 1)[0].strip() for ln in path.read_text().splitlines()} - {""}
+    return parse_slow_list(path.read_text()) if path.is_file() else {}
+
+
+def longest_files_first(nodeids: list[str], cost: dict[str, float]) -> list[int]:
+    """The order (indices into ``nodeids``) that runs whole files by their listed tests' CPU, the costliest
+    first; a file keeps its own order, files of equal cost keep theirs. Under ``--dist loadfile`` a worker
+    takes the next file when it is free, so the long files start first and the short ones fill in at the
+    end: the two workers finish within a short file of each other (make test passes --no-loadscope-reorder,
+    whose default orders files by their number of tests instead)."""
+    per_file: dict[str, float] = {}
+    first: dict[str, int] = {}
+    for i, n in enumerate(nodeids):
+        f = n.split("::", 1)[0]
+        first.setdefault(f, i)
+        per_file[f] = per_file.get(f, 0.0) + cost.get(n, 0.0)
+    return sorted(range(len(nodeids)), key=lambda i: (-per_file[nodeids[i].split("::", 1)[0]],
+                                                        first[nodeids[i].split("::", 1)[0]], i))
 
 
 def pytest_collection_modifyitems(config, items):
     """Tests listed in tests/slow_tests.txt (written by ``bench/test_times.py --write-slow``: the tests that took
     more than 0.5 s of CPU) get the ``slow`` marker, like those marked in their files: ``make test-fast``
-    (``-m "not slow"``) leaves them out, ``make test`` runs them."""
+    (``-m "not slow"``) leaves them out, ``make test`` runs them. Then the files are ordered by
+    :func:`longest_files_first` (every worker collects the same order, as pytest-xdist requires)."""
     slow = _slow_list()
     for item in items:
         if item.nodeid in slow:
             item.add_marker(pytest.mark.slow)
+    order = longest_files_first([item.nodeid for item in items], slow)
+    items[:] = [items[i] for i in order]
 
 
 # ------------------------------------------------------------------ per-test CPU times (bench/test_times.py)

@@ -1,0 +1,88 @@
+"""The test suite's own machinery: torch threads per xdist worker, the slow list, the longest-files-first order."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from conftest import ROOT, UNMEASURED_S, longest_files_first, parse_slow_list, worker_threads
+
+
+def test_worker_threads_share_the_cores():
+    assert worker_threads(2, 2) == 1
+    assert worker_threads(16, 2) == 8
+    assert worker_threads(2, 4) == 1
+    assert worker_threads(None, 2) == 1
+
+
+def test_conftest_sets_torch_threads_only_under_xdist():
+    code = ("import os, sys; sys.path.insert(0, 'tests'); import conftest; "
+            "print(os.environ.get('OMP_NUM_THREADS'), os.environ.get('MKL_NUM_THREADS'))")
+    base = {k: v for k, v in os.environ.items()
+            if k not in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "PYTEST_XDIST_WORKER_COUNT")}
+    want = worker_threads(os.cpu_count(), 2)
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True,
+                         env=dict(base, PYTEST_XDIST_WORKER_COUNT="2"))
+    assert out.stdout.split() == [str(want), str(want)]
+    alone = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True,
+                           env=base)
+    assert alone.stdout.split() == ["None", "None"]
+    kept = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True,
+                          env=dict(base, PYTEST_XDIST_WORKER_COUNT="2", OMP_NUM_THREADS="3"))
+    assert kept.stdout.split()[0] == "3"  # a user's own setting wins
+
+
+def test_slow_list_lines_with_and_without_seconds():
+    text = ("# header\n"
+            "tests/test_a.py::test_x  # 12.5\n"
+            "tests/test_a.py::test_y[1-2]\n"
+            "\n"
+            "tests/test_b.py::test_z # 0.7 and a remark\n"
+            "tests/test_b.py::test_w  # added by hand\n")
+    assert parse_slow_list(text) == {"tests/test_a.py::test_x": 12.5, "tests/test_a.py::test_y[1-2]": UNMEASURED_S,
+                                     "tests/test_b.py::test_z": 0.7, "tests/test_b.py::test_w": UNMEASURED_S}
+
+
+def test_longest_files_first_keeps_each_file_together_and_in_order():
+    ids = ["t/a.py::1", "t/a.py::2", "t/b.py::1", "t/c.py::1", "t/c.py::2", "t/d.py::1"]
+    cost = {"t/a.py::2": 1.0, "t/c.py::1": 3.0, "t/c.py::2": 0.5, "t/d.py::1": 1.0}
+    order = [ids[i] for i in longest_files_first(ids, cost)]
+    # c (3.5) first; a and d tie at 1.0 and keep their order; b (no listed test) last
+    assert order == ["t/c.py::1", "t/c.py::2", "t/a.py::1", "t/a.py::2", "t/d.py::1", "t/b.py::1"]
+    assert sorted(longest_files_first(ids, {})) == list(range(len(ids)))
+    assert [ids[i] for i in longest_files_first(ids, {})] == ids
+
+
+def test_write_slow_list_merges_lines_it_did_not_measure(tmp_path):
+    from bench.test_times import write_slow_list
+
+    path = tmp_path / "slow_tests.txt"
+    path.write_text("# old header\n"
+                    "tests/test_a.py::test_old_now_fast\n"
+                    "tests/test_b.py::test_added_by_hand  # 2.0\n"
+                    "tests/test_c.py::test_file_not_run\n")
+    rows = [{"file": "tests/test_a.py", "tests": {"tests/test_a.py::test_cheap": [0.1, 0.1],
+                                                  "tests/test_a.py::test_old_now_fast": [0.2, 0.2],
+                                                  "tests/test_a.py::test_costly": [3.0, 2.5]}}]
+    names = write_slow_list(path, rows, 0.5)
+    listed = parse_slow_list(path.read_text())
+    assert listed == {"tests/test_a.py::test_costly": 2.5, "tests/test_b.py::test_added_by_hand": 2.0,
+                      "tests/test_c.py::test_file_not_run": UNMEASURED_S}
+    assert sorted(names) == sorted(listed)
+    assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_make_test_keeps_the_file_order_of_conftest():
+    """--dist loadfile's default reorder (by number of tests) would undo longest_files_first."""
+    make = (ROOT / "Makefile").read_text()
+    xdist = next(ln for ln in make.splitlines() if ln.startswith("XDIST"))
+    assert "--dist loadfile" in xdist and "--no-loadscope-reorder" in xdist
+
+
+def test_the_shipped_slow_list_parses_and_names_existing_files():
+    listed = parse_slow_list((ROOT / "tests" / "slow_tests.txt").read_text())
+    assert listed
+    missing = sorted({n.split("::", 1)[0] for n in listed if not (ROOT / n.split("::", 1)[0]).is_file()})
+    assert not missing, f"tests/slow_tests.txt names files that do not exist: {missing}"
+    json.dumps(listed)  # plain str -> float
