@@ -29,7 +29,7 @@ from holo_viewer.display.eyes import ConeSweep, TrackedViewer, eye_psnr
 from holo_viewer.display.simulate import VirtualDisplay
 from holo_viewer.errors import InputError
 from holo_viewer.pipeline import FaceControls, Pipeline, ViewSettings
-from holo_viewer.pipeline.live import NativeFrameRenderer
+from holo_viewer.pipeline.live import NativeFrameConfig, NativeFrameRenderer
 
 BYSTANDERS = [(-15.0, 0.6), (0.0, 0.6), (15.0, 0.6)]
 
@@ -102,6 +102,10 @@ def test_group_frames_take_up_to_six_viewers_and_name_a_bad_one(rig):
     viewers = [TrackedViewer(a, 0.6) for a in (-20, -12, -4, 4, 12, 20, 25)]
     f = live.frame(rig["neutral"], viewers)
     assert f.mode == "group"
-    assert f.rendered_fraction == pytest.approx((11 + 12) / 48)  # 11 source views + 6 viewers' 12 slices
+    # the cone fill at group_view_step (8 with faces: 7 source views) + 6 viewers' 12 slices
+    assert live.group_view_step == 8 and f.rendered_fraction == pytest.approx((7 + 12) / 48)
+    assert live.frame(rig["neutral"]).rendered_fraction == pytest.approx(11 / 48)  # no face: view_step 5
     with pytest.raises(InputError, match=r"viewers\[1\]: expected a holo_viewer.display.eyes.TrackedViewer"):
         live.frame(rig["neutral"], [viewers[0], (5.0, 0.6)])
+    with pytest.raises(InputError, match="group_view_step: expected an integer >= 2, found 1"):
+        NativeFrameConfig(group_view_step=1)

@@ -300,6 +300,10 @@ def test_device_path_glue_on_cpu_torch(cams, monkeypatch):
     assert f.rendered_fraction == cpu.rendered_fraction < 1.0
     diff = np.abs(f.native.astype(int) - cpu.native.astype(int))
     assert diff.max() <= 1 and (diff > 0).mean() < 1e-3
+    # a group frame on the device is its all_views (no eye slices there), tracked faces or not
+    grp = dev.frame(g, eyes.TrackedViewer(5.0, 0.6), mode="group")
+    assert grp.mode == "group" and dev.group_view_step == dev.view_step == 5
+    np.testing.assert_array_equal(grp.native, f.native)
 
 
 def test_live_loop_all_views_uses_synthesis_and_replay_renders_every_view():

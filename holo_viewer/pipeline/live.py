@@ -43,7 +43,9 @@ needs, where its work is done), and every quilt goes through
 ``group``
     Every position of the cone sees the present frame (issue 37): ``all_views``, then the eye slices
     of every tracked viewer given (0-6; a TrackedViewer or a sequence of them) warped into the
-    subpixels their eyes receive, over that fill. Nothing is kept from earlier frames.
+    subpixels their eyes receive, over that fill; with tracked viewers the fill renders every
+    ``NativeFrameConfig.group_view_step``-th view (8: the cone's target is lower where faces are
+    served exactly). Nothing is kept from earlier frames.
 ``auto``
     ``group``.
 
@@ -69,6 +71,9 @@ __all__ = ["NativeFrameConfig", "LiveFrame", "NativeFrameRenderer", "render_nati
            "LIVE_T_MIN", "MAX_VIEWERS", "group_viewers"]
 
 AUTO_VIEW_STEP = 5  # NativeFrameConfig.view_step=None on a horizontal rig
+#: NativeFrameConfig.group_view_step=None: the cone fill's step of a group frame serving tracked faces
+#: (the issue's cone target is 35 dB with a face, 38 without; measured in docs/live_frame.md)
+AUTO_GROUP_VIEW_STEP = 8
 #: group frames serve at most this many tracked viewers (the faces a webcam finds around a Portrait)
 MAX_VIEWERS = 6
 #: fixed-point steps of the slices' warp after the first guess: 0 (the default avatar at 0.6 m: per
@@ -130,6 +135,10 @@ class NativeFrameConfig:
         Method of tracked frames (see the module docstring): per-eye slices warped into the
         received subpixels (approximate, fast), or the exact bands of the views. None (default):
         slices on the calibration's quilt cameras, else bands.
+    group_view_step : int or None
+        ``group`` frames that serve tracked faces: the ``view_step`` of their cone fill (the frames
+        without a face use ``view_step``); at least 2. None (default): :data:`AUTO_GROUP_VIEW_STEP`
+        where ``view_step`` is synthesized on the CPU (else ``view_step`` is used).
     """
 
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -143,6 +152,7 @@ class NativeFrameConfig:
     view_step: int | None = None
     backend: str = "fast"
     tracked: str | None = None
+    group_view_step: int | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.render, RenderConfig):
@@ -156,8 +166,10 @@ class NativeFrameConfig:
                 raise InputError(f"{name}: expected metres >= 0 or None, found {v!r}")
         if not 0.0 < float(self.lod_fraction) <= 1.0:
             raise InputError(f"lod_fraction: expected in (0, 1], found {self.lod_fraction}")
-        if self.view_step is not None and (int(self.view_step) != self.view_step or self.view_step < 1):
-            raise InputError(f"view_step: expected an integer >= 1, found {self.view_step!r}")
+        for name, least in (("view_step", 1), ("group_view_step", 2)):
+            v = getattr(self, name)
+            if v is not None and (int(v) != v or v < least):
+                raise InputError(f"{name}: expected an integer >= {least}, found {v!r}")
         if self.backend not in ("fast", "gsplat"):
             raise InputError(f"backend: expected 'fast' or 'gsplat', found {self.backend!r}")
         if self.tracked not in (None, "slices", "bands"):
@@ -278,6 +290,11 @@ class NativeFrameRenderer:
             self._tiles = np.array([[tile_slices(Hq, Wq, cols, rows, k)[i].start for i in (0, 1)] for k in range(V)],
                                    dtype=np.int64)
             self._sampled: tuple[np.ndarray, np.ndarray] | None = None  # the pixels the interleave reads
+        gs = self.config.group_view_step
+        #: the cone fill's view step of group frames with tracked faces (= view_step without synthesis)
+        self.group_view_step = self.view_step if self.view_step <= 1 or self.config.backend != "fast" else (
+            AUTO_GROUP_VIEW_STEP if gs is None else int(gs))
+        self._synth: dict[int, tuple] = {}  # other steps' (sources, cameras, images, depth maps)
 
     # ------------------------------------------------------------------ public
     def frame(self, gaussians: Any, viewer: Any = None, mode: Mode = "auto") -> LiveFrame:
@@ -328,14 +345,7 @@ class NativeFrameRenderer:
         from ..display.native import views_to_native
         from ..render import fast
 
-        g = gaussians
-        if lod and self.config.lod_fraction < 1.0:
-            if self._lod is None:
-                from ..render.lod import lod_keep
-
-                rest = self._rest if self._rest is not None and len(self._rest) == len(gaussians) else gaussians
-                self._lod = lod_keep(rest, self.config.lod_fraction)
-            g = gaussians.subset(self._lod)
+        g = self._lod_subset(gaussians) if lod else gaussians
         t = time.perf_counter()
         if self.config.backend == "gsplat":
             return self._everything_device(g, timings)
@@ -347,29 +357,53 @@ class NativeFrameRenderer:
         timings.update(render=t1 - t, **done.seconds)
         return 1.0
 
-    def _synthesized(self, g: Any, timings: dict[str, float], slits: Any = None) -> float:
+    def _lod_subset(self, gaussians: Any) -> Any:
+        """The Gaussians kept by ``lod_fraction`` (chosen once per avatar, from the rest pose), or all."""
+        if self.config.lod_fraction >= 1.0:
+            return gaussians
+        if self._lod is None:
+            from ..render.lod import lod_keep
+
+            rest = self._rest if self._rest is not None and len(self._rest) == len(gaussians) else gaussians
+            self._lod = lod_keep(rest, self.config.lod_fraction)
+        return gaussians.subset(self._lod)
+
+    def _synth_buffers(self, step: int) -> tuple:
+        """(sources, their cameras, their images, their depth maps) of view step ``step``."""
+        if step == self.view_step:
+            return self._sources, self._source_cams, self._source_images, self._wmaps
+        if step not in self._synth:
+            from ..render import view_synthesis
+
+            V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
+            src = view_synthesis.source_views(V, step)
+            self._synth[step] = (src, self.cameras[src.tolist()], np.zeros((src.size, H, W, 3), dtype=np.float32),
+                                 np.empty((src.size, H, W), dtype=np.float32))
+        return self._synth[step]
+
+    def _synthesized(self, g: Any, timings: dict[str, float], slits: Any = None, step: int | None = None) -> float:
         """all_views with view synthesis: the source views rendered, the others warped from them
         straight into the quilt (their float views are not kept). ``slits``: eye slices drawn in the
-        same depth sort and projection pass (``group`` frames)."""
+        same depth sort and projection pass (``group`` frames); ``step``: the view step (default
+        ``view_step``)."""
         from ..display.native import views_to_native
         from ..render import fast, view_synthesis
 
         t = time.perf_counter()
-        src = self._sources
+        src, src_cams, images, wmaps = self._synth_buffers(self.view_step if step is None else int(step))
         cfg = self.config.render
-        fast.render(g, self._source_cams, dataclasses.replace(cfg, t_min=max(cfg.t_min, LIVE_T_MIN)),
-                    out=self._source_images, slits=slits)
+        fast.render(g, src_cams, dataclasses.replace(cfg, t_min=max(cfg.t_min, LIVE_T_MIN)), out=images, slits=slits)
         t1 = time.perf_counter()
         gn = g.numpy()
         opacity = 1.0 / (1.0 + np.exp(-np.asarray(gn.opacity_logits, dtype=np.float64)))
-        view_synthesis.inverse_depth(gn.means, opacity, self.cameras, src, rig=self._rig, out=self._wmaps)
+        view_synthesis.inverse_depth(gn.means, opacity, self.cameras, src, rig=self._rig, out=wmaps)
         t2 = time.perf_counter()
         layout = (self.calibration.cols, self.calibration.rows)
-        views_to_native(self._source_images, layout, quilt=self.quilt, tiles=src)  # the rendered views' tiles
+        views_to_native(images, layout, quilt=self.quilt, tiles=src)  # the rendered views' tiles
         if self._sampled is None:  # once: only the quilt pixels the interleave reads are synthesized
             self.prepare_all_views()
         t3 = time.perf_counter()
-        view_synthesis.warp_views(self._source_images, self._wmaps, src, self._rig, quilt=self.quilt, tiles=self._tiles,
+        view_synthesis.warp_views(images, wmaps, src, self._rig, quilt=self.quilt, tiles=self._tiles,
                                   pixels=self._sampled, background=self.config.render.background)
         t4 = time.perf_counter()
         views_to_native(None, self.interleaver, quilt=self.quilt, native=self.native)
@@ -378,8 +412,8 @@ class NativeFrameRenderer:
         return src.size / len(self.cameras)
 
     def _group(self, gaussians: Any, viewers: Any, timings: dict[str, float]) -> float:
-        """Every position of the cone sees this frame: all views (every ``view_step``-th rendered, the
-        others synthesized by depth, as ``all_views``), and the exact eye slices of every tracked
+        """Every position of the cone sees this frame: all views (every ``group_view_step``-th rendered,
+        the others synthesized by depth, as ``all_views``), and the exact eye slices of every tracked
         viewer (up to :data:`MAX_VIEWERS`; drawn in the same depth sort and projection pass as the
         rendered views) warped into the native subpixels those eyes receive, over the cone fill.
         Nothing is kept from earlier frames. Without viewers, or without slices (non-rig cameras, the
@@ -403,9 +437,10 @@ class NativeFrameRenderer:
             self._slices = np.zeros((E, H, W, 3), dtype=np.float32)
             self._slice_w = np.zeros((E, H, W), dtype=np.float32)
         slits = crossed_slit.slit_views(rig, eyes_, self._slices[:E], t_min=max(c.render.t_min, LIVE_T_MIN))
-        fraction = self._synthesized(gaussians, timings, slits=slits)
+        g = self._lod_subset(gaussians)  # the level of detail of all_views, slices included
+        fraction = self._synthesized(g, timings, slits=slits, step=self.group_view_step)
         t1 = time.perf_counter()
-        gn = gaussians.numpy()
+        gn = g.numpy()
         opacity = 1.0 / (1.0 + np.exp(-np.asarray(gn.opacity_logits, dtype=np.float64)))
         crossed_slit.slice_depth(gn.means, opacity, rig, eyes_, out=self._slice_w[:E])
         t2 = time.perf_counter()
@@ -653,8 +688,7 @@ class NativeFrameRenderer:
         c = self.config
         reach = c.sigma_views * math.sqrt(2.0 * math.log(1.0 / c.threshold))
         t_eyes = eyes.eye_view_coordinates(self.calibration, viewer, len(self.cameras))
-        n = eyes.scatter_eye_images(self.native, self._zeta, t_eyes, self._texel, to_uint8(imgs),
-                                    len(self.cameras), reach)
+        eyes.scatter_eye_images(self.native, self._zeta, t_eyes, self._texel, to_uint8(imgs), len(self.cameras), reach)
         t3 = time.perf_counter()
         timings.update(select=t1 - t, render=t2 - t1, interleave=t3 - t2)
         return len(cams) / len(self.cameras)
