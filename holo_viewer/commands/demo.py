@@ -10,6 +10,9 @@ Writes, atomically, into ``--out DIR``:
 * ``default_reaction_qs8x6a0.75.mp4``: a quilt video of the avatar reacting, through the shipped
   listener-reaction model, to a synthesized speaker clip,
 * ``timings.json``: the per-stage timings printed at the end.
+
+``--avatar NAME`` (a fitted patient, docs/patients.md) or a fitted ``.npz`` runs the same job on that
+avatar; its files are named after it (``NAME_qs8x6a0.75.png``, ``NAME_native.png``, ...).
 """
 
 from __future__ import annotations
