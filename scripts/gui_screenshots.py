@@ -55,6 +55,8 @@ def main(argv: list[str] | None = None) -> int:
         subprocess.run(["xdotool", *map(str, a)], check=True)
 
     viewer.run(timeout=1.0)
+    viewer.wait_for_thumbnail()
+    viewer.run(timeout=0.3)
     print("viewer_default.png", save_small(out / "viewer_default.png", viewer.screenshot(), args.max_kb), "KB")
     xdo("mousemove", "--window", wid, *viewer.slider_point("expr2"))  # a real key press needs the pointer in
     xdo("key", "h")
@@ -73,9 +75,11 @@ def main(argv: list[str] | None = None) -> int:
     print("viewer_scrub.png", save_small(out / "viewer_scrub.png", viewer.screenshot(), args.max_kb), "KB")
     xdo("mouseup", 1)
     viewer.run(timeout=0.5)
-    viewer.poll_thumbnail(wait=True)
+    viewer.wait_for_thumbnail()
     xdo("key", "p")  # the native image, zoomed 4x (the lenticular stripes)
     viewer.run(until=lambda: viewer.panel_mode == "native", timeout=5)
+    viewer.wait_for_native()  # the full-resolution one
+    viewer.run(until=lambda: viewer.native_source == "full", timeout=5)
     xdo("key", "bracketright", "bracketright")
     viewer.run(until=lambda: viewer.native_zoom == 4, timeout=5)
     viewer.run(timeout=0.3)
@@ -101,7 +105,7 @@ def screen_fit(out: Path, max_kb: int) -> int:
     viewer = HoloViewer(load_scene("default").pipeline, ViewerConfig(out_dir="/tmp", show_status=False))
     viewer.open()
     viewer.run(timeout=1.0)
-    viewer.poll_thumbnail(wait=True)
+    viewer.wait_for_thumbnail()
     viewer.run(timeout=0.3)
     name = f"viewer_screen_{sw}x{sh}.png"
     w, h = viewer.plotter.ren_win.GetSize()

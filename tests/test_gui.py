@@ -28,14 +28,14 @@ GOLDEN = Path(__file__).parent / "golden" / "viewer_snapshot.png"
 GOLDEN_SIZE = (640, 360)
 
 
-def _small_scene(tile_scale: float = 0.25):
+def _small_scene(tile_scale: float = 0.25, seed: int = 0):
     from holo_viewer.avatar import Gaussians, RiggedAvatar
     from holo_viewer.flame.model import FlameModel
     from holo_viewer.flame.synthetic import random_flame_arrays
     from holo_viewer.pipeline import Pipeline, ViewSettings
 
     model = FlameModel.from_arrays(random_flame_arrays(n_vertices=300, n_shape=8, n_expr=6, seed=1))
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     n, F = 500, int(model.faces.shape[0])
     local = Gaussians(
         means=rng.normal(scale=0.2, size=(n, 3)).astype(np.float32),
@@ -77,6 +77,7 @@ def window(xvfb, tmp_path):
                        sweep_scale=0.1, thumbnail_scale=0.1, preview_scale=0.5, splat_view=False)
     viewer = HoloViewer(_small_scene(), cfg)
     viewer.open()  # map the window without entering the event loop
+    viewer.wait_for_thumbnail()  # the window shows it after its first frame; the tests want it there
     yield viewer
     viewer.close()
 
@@ -468,6 +469,7 @@ def test_layout_readable_at_800x450(xvfb, tmp_path):
 
 def _assert_layout_readable(viewer) -> None:
     """Every slider title above its own slider, none overlapping; the quilt title above the thumbnail."""
+    viewer.wait_for_thumbnail()  # the quilt panel's image (shown after the first frame)
     ren = viewer.slider_renderer
     boxes = []
     for spec in viewer._specs.values():
@@ -506,18 +508,102 @@ def test_entry_hints_and_errors_use_the_au_names():
     assert "au9, pain" in str(err.value) and "expr2" not in str(err.value)
 
 
-def test_viewer_angle_slider_stays_where_the_avatar_was_fitted():
+def test_viewer_angle_slider_stays_where_the_avatar_was_fitted(tmp_path):
+    """The range comes from the avatar file's fit_angle_range_deg (every quilt view within the fit's
+    cameras); a file without it: +-30 deg fit cameras assumed (+-10 at the 40 deg cone) and the note says so."""
     from types import SimpleNamespace as NS
 
-    from holo_viewer.gui.sliders import FITTED_YAW_DEG, viewer_angle_range
+    from holo_viewer.errors import AvatarError
+    from holo_viewer.gui.sliders import viewer_angle_limits, viewer_angle_range
 
+    with_range, without, bad = tmp_path / "fit.npz", tmp_path / "old.npz", tmp_path / "bad.npz"
+    np.savez(with_range, fit_angle_range_deg=np.array([-25.0, 35.0]), binding=np.zeros(3))
+    np.savez(without, binding=np.zeros(3))
+    np.savez(bad, fit_angle_range_deg=np.array([5.0, -5.0]))
     cal = NS(view_cone=40.0)
-    fitted = NS(avatar=object(), model=NS(is_default_head=True), view=NS(view_cone=None), calibration=cal)
-    lo, hi = viewer_angle_range(fitted)
-    assert (lo, hi) == (-10.0, 10.0) and hi + 40.0 / 2 <= FITTED_YAW_DEG  # the outermost view stays fitted
-    assert viewer_angle_range(NS(**{**vars(fitted), "view": NS(view_cone=60.0)})) == (-1.0, 1.0)
+    fitted = NS(avatar=NS(fit_file=with_range), model=NS(is_default_head=True), view=NS(view_cone=None),
+                calibration=cal)
+    lo, hi, note = viewer_angle_limits(fitted)
+    assert (lo, hi) == (-5.0, 15.0) and "fit.npz" in note and "assumed" not in note
+    old = NS(**{**vars(fitted), "avatar": NS(fit_file=without)})
+    lo, hi, note = viewer_angle_limits(old)
+    assert (lo, hi) == (-10.0, 10.0) and "no fit_angle_range_deg stored" in note and "old.npz" in note
+    assert viewer_angle_range(NS(**{**vars(old), "view": NS(view_cone=60.0)})) == (-1.0, 1.0)
+    with pytest.raises(AvatarError, match="bad.npz.*fit_angle_range_deg.*found \\[5.0, -5.0\\]"):
+        viewer_angle_limits(NS(**{**vars(fitted), "avatar": NS(fit_file=bad)}))
     assert viewer_angle_range(NS(**{**vars(fitted), "avatar": None})) == (-30.0, 30.0)  # mesh only
-    assert viewer_angle_range(NS(**{**vars(fitted), "model": NS()})) == (-30.0, 30.0)  # another model
+    assert viewer_angle_range(NS(**{**vars(fitted), "avatar": NS(), "model": NS()})) == (-30.0, 30.0)  # not fitted
+
+
+def test_set_avatar_swaps_the_avatar_and_refreshes_scene_and_panels(window, tmp_path):
+    """The avatar chooser's hook: another avatar's Gaussians reach the ellipsoids, the preview and the
+    thumbnail; its fit file sets the viewer-angle range; None leaves the mesh only."""
+    swapped = _small_scene(seed=3).avatar
+    fit = tmp_path / "fit.npz"
+    np.savez(fit, fit_angle_range_deg=np.array([-20.0, 30.0]))
+    swapped.fit_file = fit
+    glyphs0 = np.array(window.glyphs.points)
+    preview0 = window.preview_panel.image.copy()
+    window.set_avatar(swapped)
+    window.wait_for_thumbnail()
+    assert window.pipeline.avatar is swapped
+    assert np.abs(np.array(window.glyphs.points) - glyphs0).max() > 1e-3
+    assert np.abs(window.preview_panel.image.astype(int) - preview0).max() > 30
+    assert window._specs["angle"].rng == (0.0, 10.0) and window.pipeline.view.viewer_angle == 0.0
+    window.set_avatar(None)
+    assert not window.preview_panel.actor.GetVisibility() and window.mesh_actor.GetVisibility()
+    assert "no Gaussian avatar" in window.preview_panel.message.GetInput()
+
+
+def test_look_through_overlay_lines_up_with_the_sheared_camera(window):
+    """Looking through the outermost (most sheared) quilt cameras, VTK draws the overlays where the quilt
+    camera (the splat image) puts them: mesh vertices projected both ways agree within half a pixel."""
+    from holo_viewer.gui.splat_view import look_through_camera
+
+    ren = window.scene_renderer
+    verts = window.pipeline.mesh()[::7]
+    W, H = window._scene_pixels()
+    x0, y0 = ren.GetOrigin()
+    for view in (0, len(window.pipeline.cameras()) - 1):
+        window.select_view(view)
+        if window.look_through is None:
+            window.toggle_look_through()
+        cams = look_through_camera(window.pipeline.cameras(), view, W, H)
+        assert abs(cams.cx[0] - W / 2) > 20  # off-axis: the principal point is far from the centre
+        uv, _ = cams.project(verts)
+        drawn = []
+        for p in verts:
+            ren.SetWorldPoint(*p, 1.0)
+            ren.WorldToDisplay()
+            x, y, _ = ren.GetDisplayPoint()
+            drawn.append((x - x0, H - (y - y0)))  # pixels from the scene's top left, as the splat image
+        assert np.abs(np.array(drawn) - uv[0]).max() < 0.5, view
+    window.toggle_look_through()
+    assert window.scene_renderer.GetActiveCamera().GetWindowCenter() == (0.0, 0.0)
+
+
+def test_braces_resize_the_image_panels_and_the_scene_gives_way(splat_window, xdotool):
+    """Real ``}`` / ``{`` presses: the image column grows / shrinks in steps within its limits, the scene
+    takes the rest, and the splat image is rendered again at the scene's new size."""
+    viewer = splat_window
+    xin = XInput(xdotool, viewer)
+    xin.move(*xin.centre("scene"))
+    widths = lambda: {k: viewer.panel_box(k)[2] - viewer.panel_box(k)[0] for k in ("scene", "preview", "quilt")}
+    w0 = widths()
+    assert xin.key("braceright", until=lambda: widths()["preview"] > w0["preview"] + 20, timeout=5)
+    w1 = widths()
+    assert w1["scene"] < w0["scene"] - 20 and w1["quilt"] == w1["preview"]
+    xin.settle(until=lambda: viewer._splat_full, timeout=5)
+    assert viewer.splat_image.shape[1] == w1["scene"] + 1  # pixel for pixel at the new size
+    for _ in range(12):
+        xin.xdo("key", "braceright")
+    xin.settle(timeout=0.5)
+    assert viewer.panel_width == pytest.approx(0.55) and "widest" in viewer._message
+    for _ in range(20):
+        xin.xdo("key", "braceleft")
+    xin.settle(timeout=0.5)
+    assert viewer.panel_width == pytest.approx(0.15) and widths()["preview"] < w0["preview"]
+    assert viewer.panel_box("preview")[2] == viewer.panel_box("quilt")[2]
 
 
 @pytest.fixture()
@@ -600,8 +686,9 @@ def test_splat_view_follows_the_camera_reduced_while_dragging(splat_window, xdot
 
 
 def test_panel_shows_the_native_image_zoomed_and_what_a_placed_eye_sees(xvfb, xdotool, tmp_path):
-    """``p`` (real key) cycles the upper panel: selected view -> native image (interleaved from the
-    quilt thumbnail; ``]`` zooms) -> the simulated eye's picture, which follows the eye sliders."""
+    """``p`` (real key) cycles the upper panel: selected view -> native image (interleaved from the quilt
+    thumbnail at first, then the full-resolution one from its worker: ``Pipeline.native()``; ``]`` zooms)
+    -> the simulated eye's picture of that native image, which follows the eye sliders."""
     from holo_viewer.display.lenticular import Interleaver
     from holo_viewer.display.simulate import VirtualDisplay
     from holo_viewer.gui.previews import zoom_centre
@@ -611,26 +698,35 @@ def test_panel_shows_the_native_image_zoomed_and_what_a_placed_eye_sees(xvfb, xd
                                                      thumbnail_scale=0.1, splat_view=False))
     try:
         viewer.open()
+        viewer.wait_for_thumbnail()
         xin = XInput(xdotool, viewer)
         xin.move(*xin.centre("scene"))
         cal = viewer.pipeline.calibration
-        assert xin.key("p", until=lambda: viewer.panel_mode == "native", timeout=5)
         quilt = viewer.thumb_panel.image
-        native = Interleaver(cal, quilt.shape, cols=cal.cols, rows=cal.rows)(quilt)
+        soft = Interleaver(cal, quilt.shape, cols=cal.cols, rows=cal.rows)(quilt)
+        assert xin.key("p", until=lambda: viewer.panel_mode == "native", timeout=5)
+        if viewer.native_source == "thumbnail":  # the full-resolution one not there yet
+            assert np.array_equal(viewer.preview_panel.image, soft)
+            assert "from the thumbnail" in viewer.preview_panel.title.GetInput()
+        assert xin.settle(until=lambda: viewer.native_source == "full", timeout=60)
+        native = viewer.pipeline.native()  # full resolution, rendered here in this process
         assert native.shape == (cal.screen_h, cal.screen_w, 3)
-        assert np.array_equal(viewer.preview_panel.image, native) and "native" in viewer.preview_panel.title.GetInput()
+        assert np.abs(viewer.preview_panel.image.astype(int) - native).max() <= 1
+        assert np.abs(soft.astype(int) - native).mean() > 2  # the thumbnail's is another picture: can fail
+        assert "native" in viewer.preview_panel.title.GetInput()
+        assert "thumbnail" not in viewer.preview_panel.title.GetInput()
         assert xin.key("bracketright", until=lambda: viewer.native_zoom == 2, timeout=5)
-        assert np.array_equal(viewer.preview_panel.image, zoom_centre(native, 2))
+        assert np.abs(viewer.preview_panel.image.astype(int) - zoom_centre(native, 2)).max() <= 1
         assert viewer.preview_panel.image.shape[:2] == (cal.screen_h // 2, cal.screen_w // 2)
         assert xin.key("p", until=lambda: viewer.panel_mode == "eye", timeout=5)
         eye = VirtualDisplay(cal, n_views=len(viewer.pipeline.cameras()), downsample=4)
         seen0 = eye.see(native, viewer.eye_angle, viewer.eye_distance)
-        np.testing.assert_allclose(viewer.preview_panel.image / 255.0, seen0, atol=1 / 255 + 1e-6)
+        np.testing.assert_allclose(viewer.preview_panel.image / 255.0, seen0, atol=2 / 255 + 1e-6)
         xin.key("Return")
         xin.type("eye 12")
         assert xin.key("Return", until=lambda: viewer.eye_angle == 12.0, timeout=5)
         seen = eye.see(native, 12.0, viewer.eye_distance)
-        np.testing.assert_allclose(viewer.preview_panel.image / 255.0, seen, atol=1 / 255 + 1e-6)
+        np.testing.assert_allclose(viewer.preview_panel.image / 255.0, seen, atol=2 / 255 + 1e-6)
         assert np.abs(seen - seen0).mean() > 1e-3  # another eye position, another picture
         assert "eye at +12.0 deg" in viewer.preview_panel.title.GetInput()
         assert xin.key("p", until=lambda: viewer.panel_mode == "view", timeout=5)

@@ -21,7 +21,8 @@ class KeysMixin:
                 "bracketleft": lambda: self.zoom_native(-1), "s": self.toggle_splats, "v": self.toggle_look_through, "r": self.reset_camera, "z": self.head_closeup, "0": self.reset_face, "Left": lambda: self.step_view(-1),
                 "Right": lambda: self.step_view(1), "Return": self.start_entry, "KP_Enter": self.start_entry,
                 "k": self.export_quilt, "n": self.export_native, "x": self.export_sweep_video, "X": lambda: self.export_sweep_video("pain"),
-                "i": self.save_screenshot}
+                "i": self.save_screenshot, "braceright": lambda: self.resize_panels(1),
+                "braceleft": lambda: self.resize_panels(-1)}
 
     def press_key(self, keysym: str, char: str = "") -> None:
         """Handle one key press (what the window does for a real key; tests may call it directly)."""

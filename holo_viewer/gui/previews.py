@@ -2,8 +2,10 @@
 (lenticular) image, or what an eye placed at the panel sees (``display/simulate.py``); the lower one the
 quilt thumbnail (worker process).
 
-The native image and the eye's picture are made from the quilt thumbnail (``thumbnail_scale`` x the
-tiles), so they follow the sliders when the thumbnail does (on release)."""
+The native image and the eye's picture are made from the full-resolution native image (the quilt at the
+pipeline's tile size, interleaved), rendered in a second worker process when one of them is shown and the
+sliders have settled (on release), and cached per Gaussians, cameras and blend mode. Until it arrives they
+show the native image interleaved from the quilt thumbnail (the panel title says so)."""
 
 from __future__ import annotations
 
@@ -36,11 +38,12 @@ class PreviewsMixin:
         if not hasattr(self, "preview_panel"):
             return
         mode = getattr(self, "panel_mode", "view")
+        soft = " (from the thumbnail)" if getattr(self, "native_source", "full") == "thumbnail" else ""
         if mode == "native":
             cal = self.pipeline.calibration
-            self.preview_panel.set_title(f"native {cal.screen_w}x{cal.screen_h}, zoom {self.native_zoom}x")
+            self.preview_panel.set_title(f"native {cal.screen_w}x{cal.screen_h}, zoom {self.native_zoom}x{soft}")
         elif mode == "eye":
-            self.preview_panel.set_title(f"eye at {self.eye_angle:+.1f} deg, {self.eye_distance:.2f} m")
+            self.preview_panel.set_title(f"eye at {self.eye_angle:+.1f} deg, {self.eye_distance:.2f} m{soft}")
         else:
             n = len(self.pipeline.cameras())
             self.preview_panel.set_title(f"view {self.selected_view}/{n - 1} "
@@ -60,9 +63,21 @@ class PreviewsMixin:
         self.preview_panel.update(img)
         self._update_preview_title()
 
+    def _native_full_key(self) -> tuple:
+        pipe = self.pipeline
+        return (pipe.stage_version("gaussians"), pipe.stage_version("cameras"), bool(pipe.view.blend),
+                getattr(self, "_avatar_epoch", 0))
+
     def native_preview(self) -> np.ndarray | None:
-        """(screen_h, screen_w, 3) uint8 native image interleaved from the current quilt thumbnail (None
-        until one is shown); cached per thumbnail."""
+        """(screen_h, screen_w, 3) uint8 native image: the full-resolution one when it is up to date (see
+        :meth:`_request_native`), else the one interleaved from the current quilt thumbnail (None until one
+        is shown; cached per thumbnail)."""
+        full = getattr(self, "_native_full", None)
+        if full is not None and full[0] == self._native_full_key():
+            self.native_source = "full"
+            return full[1]
+        self._request_native()
+        self.native_source = "thumbnail"
         quilt = self.thumb_panel.image
         if quilt is None:
             return None
@@ -75,6 +90,48 @@ class PreviewsMixin:
                                 mode="blend" if self.pipeline.view.blend else "nearest")
             self._native, self._native_key = inter(quilt), key
         return self._native
+
+    def _request_native(self) -> None:
+        """Start the full-resolution native image in its worker process if it is not up to date (one job in
+        flight; a newer request replaces a queued one). :meth:`poll_native` shows it."""
+        if self.pipeline.avatar is None:
+            return
+        key = self._native_full_key()
+        if key == getattr(self, "_native_pending", None):
+            return
+        pipe = self.pipeline
+        if getattr(self, "_native_worker", None) is None:
+            from .thumbnail_worker import ThumbnailWorker
+
+            self._native_worker = ThumbnailWorker.acquire()
+        self._native_worker.submit(key, ("native", pipe.gaussians().numpy(), pipe.cameras(), pipe.backend,
+                                         pipe.render_config, pipe.calibration.cols, pipe.calibration.rows,
+                                         pipe.calibration, bool(pipe.view.blend)))
+        self._native_pending = key
+
+    def poll_native(self, wait: bool = False) -> bool:
+        """Take a finished full-resolution native image (``wait``: block for the running job) and show it
+        if the panel shows the native image or the eye's view. True if one arrived."""
+        worker = getattr(self, "_native_worker", None)
+        if worker is None:
+            return False
+        done = worker.poll(wait=wait)
+        if done is None:
+            return False
+        key, native = done
+        if key == getattr(self, "_native_pending", None):
+            self._native_pending = None
+        self._native_full = (key, native)
+        if getattr(self, "panel_mode", "view") != "view" and key == self._native_full_key():
+            self._update_preview()
+            self._render(("preview",))
+        return True
+
+    def wait_for_native(self) -> None:
+        """Block until the full-resolution native image of the current state is shown (tests, scripts)."""
+        self._request_native()
+        while getattr(self, "_native_pending", None) is not None and self.poll_native(wait=True):
+            pass
 
     def eye_preview(self, native: np.ndarray) -> np.ndarray:
         """What an eye at (``eye_angle``, ``eye_distance``) sees of ``native`` (simulated, 1/4 resolution)."""
@@ -141,13 +198,19 @@ class PreviewsMixin:
             if self._worker is None:
                 from .thumbnail_worker import ThumbnailWorker
 
-                self._worker = ThumbnailWorker()
+                self._worker = ThumbnailWorker.acquire()
             self._worker.submit(key, args)
             self._thumb_pending_key = key
             self._thumb_started = time.perf_counter()
         if wait:
             while self.poll_thumbnail(wait=True) and self._worker is not None and self._worker.busy:
                 pass
+
+    def wait_for_thumbnail(self) -> None:
+        """Block until the quilt thumbnail of the current Gaussians is shown (tests, scripts; the window
+        itself never waits: the loop shows it when the worker is done)."""
+        self._thumb_wanted = False
+        self._update_thumbnail(wait=True)
 
     def poll_thumbnail(self, wait: bool = False) -> bool:
         """Show the newest finished thumbnail quilt (``wait``: block for the running job). True if shown."""

@@ -46,6 +46,7 @@ class SceneMixin:
         cam.SetPosition(*(focal + direction))
         cam.SetViewUp(0.0, 1.0, 0.0)
         cam.SetViewAngle(30.0)
+        cam.SetWindowCenter(0.0, 0.0)  # a look-through camera's off-axis shift ends here
         ren.ResetCamera(*b)  # keeps the direction, fits the bounding sphere
         cam.Zoom(zoom)  # the bounding sphere is loose around a flat box
         ren.ResetCameraClippingRange()

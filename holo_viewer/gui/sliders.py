@@ -4,6 +4,7 @@ face, the view settings and the selected view."""
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -14,22 +15,78 @@ from .scene import au_label
 from .widgets import _Slider, _text_actor
 
 
-#: the most off-axis camera the shipped avatar was fitted through (orbit yaw; the quilt views span +-20 deg;
-#: docs/avatar_fit.md). Views beyond it show unfitted Gaussians (pale mottled patches on cheek and jaw).
+#: the fit's camera range assumed for the default head's avatar when its file does not say
+#: (``fit_angle_range_deg`` absent: avatars fitted before it was stored, through orbit cameras at +-30 deg)
 FITTED_YAW_DEG = 30.0
+#: what a live slider step redraws: the slider's panel and the 3D scene (the image panels follow on release)
+LIVE_PARTS = ("scene", "sliders")
 #: the viewer-angle slider's range for other avatars (Algorithm 1's cone centre)
 VIEWER_ANGLE_MAX = 30.0
 
 
-def viewer_angle_range(pipe: Pipeline) -> tuple[float, float]:
-    """The viewer-angle slider's range (degrees): +-30, or for the default head's fitted avatar the angles
-    at which every quilt view stays within the fitted cameras, +-(``FITTED_YAW_DEG`` - cone / 2) (at least
-    +-1: the slider needs a range)."""
-    if pipe.avatar is None or not getattr(pipe.model, "is_default_head", False):
-        return -VIEWER_ANGLE_MAX, VIEWER_ANGLE_MAX
+def fit_angle_range(path: str | Path) -> tuple[float, float] | None:
+    """``fit_angle_range_deg`` = [min, max] horizontal angle (degrees) of the cameras an avatar file was
+    fitted through, or None when the file does not store it. Only that field is read."""
+    from ..errors import AvatarError
+
+    with np.load(path, allow_pickle=False) as z:
+        if "fit_angle_range_deg" not in z.files:
+            return None
+        rng = np.asarray(z["fit_angle_range_deg"], dtype=np.float64)
+    if rng.shape != (2,) or not np.all(np.isfinite(rng)) or rng[0] > rng[1]:
+        raise AvatarError(f"{path}: field 'fit_angle_range_deg': expected [min, max] finite degrees, "
+                          f"found {rng.tolist()}")
+    return float(rng[0]), float(rng[1])
+
+
+def _avatar_fit_file(pipe: Pipeline) -> Path | None:
+    """The file the pipeline's avatar was fitted in: ``avatar.fit_file`` when set (an avatar loaded by a
+    chooser), else the shipped fitted avatar for the default head."""
+    path = getattr(pipe.avatar, "fit_file", None)
+    if path is not None:
+        return Path(path)
+    if getattr(pipe.model, "is_default_head", False):
+        from ..avatar.default_gaussians import fitted_asset_path
+
+        return fitted_asset_path()
+    return None
+
+
+def viewer_angle_limits(pipe: Pipeline) -> tuple[float, float, str]:
+    """(lo, hi, note): the viewer-angle slider's range in degrees and how it was found.
+
+    Every quilt view (viewer angle +- cone / 2) stays within the cameras the avatar was fitted through:
+    [min + cone / 2, max - cone / 2] of the avatar file's ``fit_angle_range_deg`` (an avatar's own
+    ``fit_angle_range_deg`` attribute first). A default-head avatar whose file does not store it: +-
+    ``FITTED_YAW_DEG`` is assumed (+-10 deg at the Portrait's 40 deg cone) and the note says so. No
+    avatar, or an avatar not fitted here: +-30. The range is at least 2 degrees wide (about its centre)."""
+    if pipe.avatar is None:
+        return -VIEWER_ANGLE_MAX, VIEWER_ANGLE_MAX, "no avatar: the full +-30 deg"
+    fit = getattr(pipe.avatar, "fit_angle_range_deg", None)
+    where = "the avatar"
+    if fit is None:
+        path = _avatar_fit_file(pipe)
+        if path is None:
+            return -VIEWER_ANGLE_MAX, VIEWER_ANGLE_MAX, "avatar not fitted here: the full +-30 deg"
+        fit = fit_angle_range(path) if path.exists() else None
+        where = path.name
+        if fit is None:
+            fit = (-FITTED_YAW_DEG, FITTED_YAW_DEG)
+            where = f"{path.name} (no fit_angle_range_deg stored: +-{FITTED_YAW_DEG:g} deg assumed)"
     cone = float(pipe.view.view_cone or pipe.calibration.view_cone)
-    lim = float(np.clip(FITTED_YAW_DEG - cone / 2, 1.0, VIEWER_ANGLE_MAX))
-    return -lim, lim
+    lo, hi = float(fit[0]) + cone / 2, float(fit[1]) - cone / 2
+    lo, hi = max(lo, -VIEWER_ANGLE_MAX), min(hi, VIEWER_ANGLE_MAX)
+    if hi - lo < 2.0:
+        mid = float(np.clip((lo + hi) / 2, -VIEWER_ANGLE_MAX + 1, VIEWER_ANGLE_MAX - 1))
+        lo, hi = mid - 1.0, mid + 1.0
+    note = (f"viewer angle {lo:+.1f}..{hi:+.1f} deg: the views stay within the avatar's fit cameras "
+            f"{float(fit[0]):+.0f}..{float(fit[1]):+.0f} deg ({where})")
+    return lo, hi, note
+
+
+def viewer_angle_range(pipe: Pipeline) -> tuple[float, float]:
+    """The viewer-angle slider's range in degrees (:func:`viewer_angle_limits` without the note)."""
+    return viewer_angle_limits(pipe)[:2]
 
 
 class SlidersMixin:
@@ -60,8 +117,9 @@ class SlidersMixin:
         specs.append(_Slider("jaw", "jaw opening (rad)", (0.0, 0.5), "%.2f", self._live_face, face, "face"))
         if "smile" in [s.key for s in specs]:
             specs.append(_Slider("pain", "pain (PSPI face)", (0.0, 1.0), "%.2f", self._live_face, face, "face"))
+        lo, hi, self.angle_range_note = viewer_angle_limits(pipe)
         specs += [
-            _Slider("angle", "viewer angle (deg)", viewer_angle_range(pipe), "%+.1f", self._live_view, self._view_release,
+            _Slider("angle", "viewer angle (deg)", (lo, hi), "%+.1f", self._live_view, self._view_release,
                     "cameras", aliases=("alpha",)),
             _Slider("distance", "viewer distance (m)", (0.3, 1.5), "%.2f", self._live_view, self._view_release,
                     "cameras"),
@@ -187,7 +245,7 @@ class SlidersMixin:
             return
         if spec.live is not None and self.config.live_sliders:
             self._live[spec.key] = (spec.value, time.perf_counter())
-        self._dirty = True
+        self._dirty_parts.update(("sliders", "scene"))
 
     def _on_slider_release(self, spec: _Slider) -> None:
         if self._building:
@@ -234,7 +292,7 @@ class SlidersMixin:
         self.mesh_actor.SetVisibility(True)  # stands in for the splats / ellipsoids until release
         if self.glyph_actor is not None:
             self.glyph_actor.SetVisibility(False)  # stale until release
-        self._render_now()
+        self._render_now(LIVE_PARTS)
         self.timings.live_ms = (time.perf_counter() - t0) * 1e3
 
     def _face_release(self, value: float, key: str | None = None) -> None:
@@ -248,7 +306,7 @@ class SlidersMixin:
     def _live_view(self, key: str, value: float, t0: float) -> None:
         self.pipeline.set_view(**self._view_changes(key, value))
         self._refresh_cameras()
-        self._render_now()
+        self._render_now(LIVE_PARTS + ("preview",))  # its title names the selected view's angle
         self.timings.live_ms = (time.perf_counter() - t0) * 1e3
 
     def _view_release(self, value: float, key: str | None = None) -> None:
@@ -257,7 +315,7 @@ class SlidersMixin:
 
     def _live_select(self, key: str, value: float, t0: float) -> None:
         self._move_selection(int(round(value)))
-        self._render_now()
+        self._render_now(LIVE_PARTS + ("preview",))
         self.timings.live_ms = (time.perf_counter() - t0) * 1e3
 
     def _apply_live(self) -> None:

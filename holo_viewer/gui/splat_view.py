@@ -1,8 +1,11 @@
 """Splats in the 3D scene: the Gaussians rendered by the pipeline's splat renderer from the interactive
 camera, drawn as the scene's background under the overlays (mesh, ellipsoids, frusta, labels).
 
-While the camera is being dragged the image is rendered at ``splat_drag_scale`` of the scene's pixels
-(and stretched); when the camera stands still, at full resolution, pixel for pixel. ``v`` looks through
+While the camera is being dragged the image is rendered at ``splat_drag_scale`` of the scene's pixels, in
+a worker thread (the compiled renderer releases the GIL, so the window keeps drawing the overlays), the
+newest camera replacing a request not yet started (stale poses are never rendered); the reduced image is
+stretched over the scene by the texture (nearest), not resized on the CPU. When the camera stands still
+the image is rendered at full resolution, pixel for pixel, on the UI thread. ``v`` looks through
 the selected quilt camera: the splat image is then that camera's own view (its sheared projection, its
 pixels), centred in the scene, so the scene shows exactly the quilt's tile.
 """
@@ -10,13 +13,18 @@ pixels), centred in the scene, so the scene shows exactly the quilt's tile.
 from __future__ import annotations
 
 import math
-from typing import Any
+import threading
+import time
+from typing import Any, Callable
 
 import numpy as np
 
 from ..camera import Cameras, intrinsics, look_at
 
-__all__ = ["scene_camera", "look_through_camera", "SplatViewMixin"]
+__all__ = ["scene_camera", "look_through_camera", "window_centre", "SplatViewMixin", "SplatWorker"]
+
+#: the longest a camera-drag frame waits for the splat image being rendered (seconds)
+SPLAT_HOLD_S = 0.15
 
 
 def scene_camera(position: Any, focal_point: Any, view_up: Any, view_angle: float, width: int, height: int,
@@ -30,6 +38,13 @@ def scene_camera(position: Any, focal_point: Any, view_up: Any, view_angle: floa
                    near=near, far=far)
 
 
+def window_centre(K: np.ndarray, width: int, height: int) -> tuple[float, float]:
+    """VTK's ``vtkCamera.SetWindowCenter`` arguments that put the optical axis at principal point
+    (``K[0, 2]``, ``K[1, 2]``) (pixels, x right, y down, edges at 0) of a ``width`` x ``height`` viewport:
+    VTK's frustum spans ((wc - 1), (wc + 1)) x the half-size, so the axis sits at NDC -wc."""
+    return 1.0 - 2.0 * float(K[0, 2]) / width, 2.0 * float(K[1, 2]) / height - 1.0
+
+
 def look_through_camera(cameras: Cameras, index: int, width: int, height: int) -> Cameras:
     """Quilt camera ``index`` with its image grown to ``width`` x ``height`` around the same pixels: its
     tile sits centred (offset ((width - w) // 2, (height - h) // 2)); same pose, focal lengths and shear."""
@@ -40,12 +55,74 @@ def look_through_camera(cameras: Cameras, index: int, width: int, height: int) -
                    far=cameras.far)
 
 
-def _upscale(img: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Nearest-neighbour resize of an (h, w, 3) image to (height, width, 3)."""
-    h, w = img.shape[:2]
-    rows = np.minimum((np.arange(height) * h) // height, h - 1)
-    cols = np.minimum((np.arange(width) * w) // width, w - 1)
-    return img[rows][:, cols]
+class SplatWorker:
+    """One thread rendering splat images; at most one job queued, a newer one replaces it (stale poses
+    are dropped before they start). :meth:`take` returns the newest finished (key, image, ms)."""
+
+    def __init__(self) -> None:
+        self._cv = threading.Condition()
+        self._job: tuple[Any, Callable[[], np.ndarray]] | None = None
+        self._result: tuple[Any, Any, float] | None = None
+        self._busy = False
+        self._closed = False
+        self._thread: threading.Thread | None = None
+        self.dropped = 0  # queued jobs replaced before they started
+
+    def submit(self, key: Any, fn: Callable[[], np.ndarray]) -> None:
+        with self._cv:
+            if self._job is not None:
+                self.dropped += 1
+            self._job = (key, fn)
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._loop, name="splat-render", daemon=True)
+                self._thread.start()
+            self._cv.notify_all()
+
+    def _loop(self) -> None:
+        while True:
+            with self._cv:
+                while self._job is None and not self._closed:
+                    self._cv.wait()
+                if self._closed:
+                    return
+                (key, fn), self._job = self._job, None
+                self._busy = True
+            t0 = time.perf_counter()
+            try:
+                out: Any = fn()
+            except Exception as exc:  # noqa: BLE001 - handed to the UI thread, which shows it
+                out = exc
+            with self._cv:
+                self._result = (key, out, (time.perf_counter() - t0) * 1e3)
+                self._busy = False
+                self._cv.notify_all()
+
+    def take(self) -> tuple[Any, Any, float] | None:
+        with self._cv:
+            r, self._result = self._result, None
+            return r
+
+    @property
+    def idle(self) -> bool:
+        with self._cv:
+            return self._job is None and not self._busy
+
+    def cancel(self, wait: bool = True) -> None:
+        """Drop the queued job and (``wait``) wait for a running one; its result is discarded."""
+        with self._cv:
+            self._job = None
+            while wait and self._busy:
+                self._cv.wait()
+            self._result = None
+
+    def close(self) -> None:
+        with self._cv:
+            self._closed = True
+            self._job = None
+            self._cv.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+            self._thread = None
 
 
 class SplatViewMixin:
@@ -58,7 +135,10 @@ class SplatViewMixin:
         self.look_through: int | None = None
         self._splat_key: tuple | None = None  # what the shown image was rendered for
         self._splat_full = False  # the shown image is at full resolution
-        self.splat_image: np.ndarray | None = None  # (H, W, 3) uint8 as drawn in the scene
+        self.splat_image: np.ndarray | None = None  # (h, w, 3) uint8 stretched over the scene (full: pixel for pixel)
+        self._splat_worker = SplatWorker()
+        self._splat_requested: tuple | None = None  # the pose of the drag render in flight
+        self._splat_requested_at = 0.0
         self._splat_texture = vtk.vtkTexture()
         self._splat_texture.InterpolateOff()
 
@@ -87,39 +167,75 @@ class SplatViewMixin:
         style = getattr(self, "_style", None)
         return style is not None and style.GetState() != 0  # VTKIS_NONE: no button held
 
+    def _splat_render_fn(self, scale: float) -> Callable[[], np.ndarray]:
+        """A function rendering the splat image of the current camera at ``scale`` (uint8), safe to run in
+        the worker thread (it holds the cameras and the Gaussians of now)."""
+        from ..display.quilt import to_uint8
+        from ..pipeline import render_images
+
+        cams = self.splat_cameras(scale)
+        g = self.pipeline.gaussians()
+        backend, config = self.pipeline.backend, self.pipeline.render_config
+        return lambda: to_uint8(render_images(g, cams, backend=backend, config=config)[0])
+
     def update_splats(self, force_full: bool = False) -> bool:
-        """Render the splat image if the camera or the Gaussians changed (reduced while the camera is dragged,
-        full resolution once it stands still). True if a new image was drawn."""
+        """Bring the splat image up to date with the camera and the Gaussians: while the camera is dragged,
+        ask the worker thread for a reduced image (shown by :meth:`poll_splats`); when it stands still,
+        render the full-resolution image now. True if a new image was put in the scene."""
         if not self.show_splats:
             return False
         key = self._splat_state()
         moving = self._camera_moving() and not force_full and self.look_through is None
-        if key == self._splat_key and (self._splat_full or moving):
-            return False
-        import time
-
-        t0 = time.perf_counter()
-        scale = float(self.config.splat_drag_scale) if moving else 1.0
-        cams = self.splat_cameras(scale)
-        g = self.pipeline.gaussians()
-        from ..pipeline import render_images
-
-        img = render_images(g, cams, backend=self.pipeline.backend, config=self.pipeline.render_config)[0]
-        W, H = self._scene_pixels()
-        from ..display.quilt import to_uint8
-
-        img = to_uint8(img)
-        if img.shape[:2] != (H, W):
-            img = _upscale(img, W, H)
-        self._show_splat_image(img)
-        self._splat_key, self._splat_full = key, not moving
-        ms = (time.perf_counter() - t0) * 1e3
         if moving:
-            self.timings.splat_drag_ms = ms
-        else:
-            self.timings.splat_ms = ms
-        self._dirty = True
+            if key != self._splat_key and key != self._splat_requested:
+                self._splat_worker.submit(key, self._splat_render_fn(float(self.config.splat_drag_scale)))
+                self._splat_requested = key
+                self._splat_requested_at = time.perf_counter()
+            return False
+        if key == self._splat_key and self._splat_full:
+            return False
+        self._splat_worker.cancel()  # a drag image would now be stale
+        self._splat_requested = None
+        t0 = time.perf_counter()
+        img = self._splat_render_fn(1.0)()
+        self._show_splat_image(img)
+        self._splat_key, self._splat_full = key, True
+        self.timings.splat_ms = (time.perf_counter() - t0) * 1e3
+        self._dirty_parts.add("scene")
         return True
+
+    def poll_splats(self) -> bool:
+        """Show the worker's newest reduced image if the camera is still being dragged (a finished drag
+        gets its full-resolution image instead). True if one was put in the scene."""
+        done = self._splat_worker.take()
+        if done is None:
+            return False
+        key, img, ms = done
+        if key == self._splat_requested:
+            self._splat_requested = None
+        if isinstance(img, Exception):
+            raise img
+        if not (self.show_splats and self._camera_moving() and self.look_through is None):
+            return False
+        self._show_splat_image(img)
+        self._splat_key, self._splat_full = key, False
+        self.timings.splat_drag_ms = ms
+        self._dirty_parts.add("scene")
+        return True
+
+    def _holding_for_splat(self) -> bool:
+        """During a camera drag, a scene-only frame waits (at most ``SPLAT_HOLD_S``) for the splat image
+        being rendered: drawn now it would show the old image under moved overlays, and on 2 cores it
+        would slow the render down by as much as it costs."""
+        return (self._dirty_parts == {"scene"} and self._splat_requested is not None and self._camera_moving()
+                and time.perf_counter() - self._splat_requested_at < SPLAT_HOLD_S)
+
+    def splat_on_screen(self) -> bool:
+        """Whether the last frame drawn shows the splat image of the scene camera as it is now (benchmarks)."""
+        return self._splat_key is not None and self._splat_drawn_key == self._splat_key == self._splat_state()
+
+    def _close_splats(self) -> None:
+        self._splat_worker.close()
 
     def _show_splat_image(self, img: np.ndarray) -> None:
         from vtk.util.numpy_support import numpy_to_vtk
@@ -139,6 +255,8 @@ class SplatViewMixin:
         ren.TexturedBackgroundOn()
 
     def _hide_splats(self) -> None:
+        self._splat_worker.cancel()
+        self._splat_requested = None
         self.scene_renderer.TexturedBackgroundOff()
         self._splat_key = None
 
@@ -165,6 +283,7 @@ class SplatViewMixin:
                 self.show_splats = True
         else:
             self.look_through = None
+            self.scene_renderer.GetActiveCamera().SetWindowCenter(0.0, 0.0)
         self.update_splats(force_full=True)
         self._render()
 
@@ -180,7 +299,11 @@ class SplatViewMixin:
         cam.SetPosition(*eye)
         cam.SetFocalPoint(*(eye + forward * max(dist, 1e-3)))
         cam.SetViewUp(*(-down))
-        fy = cams.K[index][1, 1]
-        H = self._scene_pixels()[1]
-        cam.SetViewAngle(math.degrees(2.0 * math.atan((H / 2.0) / fy)))
+        W, H = self._scene_pixels()
+        K = look_through_camera(cams, index, W, H).K[0]
+        cam.SetViewAngle(math.degrees(2.0 * math.atan((H / 2.0) / K[1, 1])))
+        # the quilt camera is sheared (off-axis): its principal point is not the image centre. VTK's
+        # window centre shifts the frustum so that the optical axis lands at pixel (cx, cy) too, and the
+        # overlays (frusta, labels, mesh) fall on the splat image's pixels
+        cam.SetWindowCenter(*window_centre(K, W, H))
         self.scene_renderer.ResetCameraClippingRange()

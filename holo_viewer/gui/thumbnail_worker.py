@@ -9,10 +9,16 @@ processes of the same program only. At most one job is in flight; a newer reques
 queued one, so a burst of slider releases renders only the latest state. A job (~25 MB for the
 100k-Gaussian default avatar) is written to the pipe by a short-lived writer thread, so the
 event loop does not wait while the child reads it.
+
+Starting the child costs seconds of CPU (it imports the renderer); a viewer that closes hands an idle
+worker back (:meth:`ThumbnailWorker.release`) and the next viewer of the same process takes it
+(:meth:`ThumbnailWorker.acquire`): tests and scripts that open several windows start one or two children,
+not one per window. Pooled workers end at exit (or when their stdin closes with the parent).
 """
 
 from __future__ import annotations
 
+import atexit
 import pickle
 import select
 import subprocess
@@ -20,7 +26,7 @@ import sys
 import threading
 from typing import Any
 
-__all__ = ["ThumbnailWorker", "render_thumbnail"]
+__all__ = ["ThumbnailWorker", "render_thumbnail", "render_native"]
 
 
 def render_thumbnail(gaussians: Any, cameras: Any, backend: str, config: Any, cols: int, rows: int) -> Any:
@@ -30,8 +36,54 @@ def render_thumbnail(gaussians: Any, cameras: Any, backend: str, config: Any, co
     return render_quilt(gaussians, cameras, cols, rows, backend=backend, config=config)
 
 
+def render_native(gaussians: Any, cameras: Any, backend: str, config: Any, cols: int, rows: int, calibration: Any,
+                  blend: bool) -> Any:
+    """(screen_h, screen_w, 3) uint8 native image of the full-resolution quilt of ``cameras`` (runs in the
+    worker): the quilt as :func:`render_thumbnail`, interleaved as ``Pipeline.native()`` does."""
+    from ..display.lenticular import Interleaver
+    from ..display.native import views_to_native
+
+    quilt = render_thumbnail(gaussians, cameras, backend, config, cols, rows)
+    inter = Interleaver(calibration, quilt.shape, cols=cols, rows=rows, mode="blend" if blend else "nearest")
+    return views_to_native(None, inter, quilt=quilt).native
+
+
+#: what a job's first element names (a job without a name renders the thumbnail quilt)
+JOBS = {"native": render_native}
+
+
+_POOL: list["ThumbnailWorker"] = []  # idle workers handed back by closed viewers
+POOL_SIZE = 2
+
+
+def _close_pool() -> None:
+    while _POOL:
+        _POOL.pop().close()
+
+
+atexit.register(_close_pool)
+
+
 class ThumbnailWorker:
     """The parent's handle on the worker process."""
+
+    @classmethod
+    def acquire(cls) -> "ThumbnailWorker":
+        """An idle pooled worker whose child is alive, else a new one (started on its first job)."""
+        while _POOL:
+            worker = _POOL.pop()
+            if worker._proc is not None and worker._proc.poll() is None:
+                return worker
+            worker.close()
+        return cls()
+
+    def release(self) -> None:
+        """Hand this worker back to the pool when it is idle and alive (else close it)."""
+        if (not self.busy and self._proc is not None and self._proc.poll() is None and len(_POOL) < POOL_SIZE
+                and self not in _POOL):
+            _POOL.append(self)
+        else:
+            self.close()
 
     def __init__(self) -> None:
         self._proc: subprocess.Popen | None = None
@@ -118,7 +170,8 @@ def main() -> int:
         except EOFError:
             return 0
         try:
-            result: tuple[str, Any] = ("ok", render_thumbnail(*args))
+            fn = JOBS[args[0]] if args and isinstance(args[0], str) else render_thumbnail
+            result: tuple[str, Any] = ("ok", fn(*(args[1:] if fn is not render_thumbnail else args)))
         except Exception as exc:  # noqa: BLE001 - reported to the parent, which shows it
             result = ("error", f"{type(exc).__name__}: {exc}")
         pickle.dump((key, result), out, protocol=pickle.HIGHEST_PROTOCOL)

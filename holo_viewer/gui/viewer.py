@@ -53,13 +53,25 @@ from .previews import PreviewsMixin
 from .scene import mesh_polydata
 from .scene_view import SceneMixin
 from .screen import DEFAULT_WINDOW, open_window, require_x_window, window_size_for_screen, x_screen_size
-from .sliders import SlidersMixin
+from .sliders import SlidersMixin, viewer_angle_limits
 from .splat_view import SplatViewMixin
 from .viewer_config import HELP_TEXT, KEYS, ViewerConfig
 from .widgets import (UpdateTimings, _font_px, _ImagePanel, _ms, _scene_only_style, _Slider, _text_actor, _theme,
                       scale_cameras)
 
-__all__ = ["ViewerConfig", "HoloViewer", "HELP_TEXT", "KEYS", "scale_cameras", "UpdateTimings"]
+__all__ = ["ViewerConfig", "HoloViewer", "HELP_TEXT", "KEYS", "scale_cameras", "UpdateTimings", "PARTS"]
+
+#: the window's panels, each drawn by its own renderer; a frame draws only those that changed
+PARTS = ("scene", "sliders", "preview", "quilt")
+#: the image column's width (fraction of the window): the step of ``}`` / ``{`` and its limits
+PANEL_STEP = 0.05
+PANEL_WIDTHS = (0.15, 0.55)
+
+
+def _renderers(ren_win: Any) -> list[Any]:
+    rens = ren_win.GetRenderers()
+    rens.InitTraversal()
+    return [rens.GetNextItem() for _ in range(rens.GetNumberOfItems())]
 
 
 class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMixin, ExportsMixin):
@@ -107,7 +119,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         self._opened = False
         self._looping = False
         self._quit = False
-        self._dirty = False
+        self._dirty_parts: set[str] = set()  # panels to draw at the end of this loop turn (PARTS)
         self._worker: Any = None
         self._jobs = BackgroundJobs()
         self._thumb_pending_key: tuple | None = None
@@ -121,6 +133,9 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         self._message = ""
         self._releasing = ""  # key of the slider whose release is being handled
         self._size: tuple[int, int] = _window_size(self.config.window_size, off_screen)
+        self.frames_drawn = 0
+        self.last_frame_parts: tuple[str, ...] = ()
+        self._splat_drawn_key: tuple | None = None
         self._init_splats()
         self.panel_mode = "view"  # the upper image panel: view / native / eye (key p)
         self.native_zoom = 1
@@ -145,7 +160,17 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
 
         self.plotter = open_window(make_plotter)  # a refused X window: tried again, then one clear line
         self._build()
+        self.panel_width = 1.0 - self.preview_panel.renderer.GetViewport()[0]  # the image column (keys } {)
         self._building = False
+
+    @property
+    def _dirty(self) -> bool:
+        """Whether a frame is wanted; setting True asks for every panel (see :meth:`_render`)."""
+        return bool(self._dirty_parts)
+
+    @_dirty.setter
+    def _dirty(self, value: bool) -> None:
+        self._dirty_parts = set(PARTS) if value else set()
 
     @property
     def faces(self) -> np.ndarray:
@@ -200,11 +225,84 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         self.slider_renderer = p.renderer
         p.set_background("#15171b", all_renderers=False)
         self._add_sliders()
+        if "assumed" in self.angle_range_note:  # the avatar file does not say where it was fitted
+            self._message = f"note: {self.angle_range_note}"
         p.subplot(0, 1)
         self._update_preview()
         if self.config.auto_thumbnail:
-            self._update_thumbnail(wait=True)
+            # the first frame does not need the quilt thumbnail: the loop starts it after the first pixels
+            # (offscreen, a snapshot draws it, so it waits)
+            if self.off_screen:
+                self._update_thumbnail(wait=True)
+            else:
+                self._thumb_wanted = True
         self._update_status()
+
+    def set_avatar(self, avatar: Any, model: Any = None) -> None:
+        """Show another avatar: the hook for an avatar chooser (call it from the chooser's callback).
+
+        ``avatar`` is what a :class:`~holo_viewer.pipeline.Pipeline` takes (a ``RiggedAvatar``, or None for
+        the mesh only), on ``model`` (default: the pipeline's FLAME model). An ``avatar.fit_file`` (the
+        .npz it was fitted in) or ``avatar.fit_angle_range_deg`` sets the viewer-angle range. The mesh,
+        the ellipsoids, the splats, the cameras and frusta, the viewer-angle slider, the preview, the
+        native and eye panels and the quilt thumbnail all follow; the face sliders keep their values."""
+        from ..geometry import vertex_normals
+
+        old = self.pipeline
+        try:
+            au_map = old.au_map if model is None or model is old.model else None
+        except HoloViewerError:
+            au_map = None
+        if model is None and avatar is None:
+            model = old.model
+        pipe = Pipeline(model=model, avatar=avatar if avatar is not None else False, calibration=old.calibration,
+                        face=old.face, view=old.view, backend=old.backend, render_config=old.render_config,
+                        au_map=au_map)
+        self.pipeline = pipe
+        self._splat_key = self._thumb_key = self._thumb_pending_key = None
+        self._native_key = self._native_full = self._native_pending = None
+        self._avatar_epoch = getattr(self, "_avatar_epoch", 0) + 1  # stage versions restart with a new pipeline
+        verts = pipe.mesh()
+        if verts.shape[0] != self.mesh.n_points or self.mesh.n_cells != self.faces.shape[0]:
+            self.mesh.copy_from(mesh_polydata(verts, self.faces))
+            self.mesh.point_data["Normals"] = vertex_normals(verts, self.faces)
+        self._set_mesh_points(verts)
+        self._glyph_index = None
+        for panel in (self.preview_panel, self.thumb_panel):
+            if panel.actor is not None:
+                panel.actor.SetVisibility(avatar is not None)
+        if avatar is None:
+            for panel in (self.preview_panel, self.thumb_panel):
+                panel.set_message("no Gaussian avatar\n(--avatar none: mesh only)\nnothing to render here")
+            if self.glyph_actor is not None:
+                self.glyph_actor.SetVisibility(False)
+            if self.show_splats:
+                self.show_splats = False
+                self._hide_splats()
+            self.show_mesh = True
+            self.mesh_actor.SetVisibility(True)
+        else:
+            for panel in (self.preview_panel, self.thumb_panel):
+                panel.set_message("")
+            self._update_glyphs()
+        self._refresh_cameras()
+        spec = self._specs.get("angle")
+        if spec is not None:
+            lo, hi, self.angle_range_note = viewer_angle_limits(pipe)
+            spec.rng = (lo, hi)
+            rep = spec.widget.GetRepresentation()
+            rep.SetMinimumValue(lo)
+            rep.SetMaximumValue(hi)
+            angle = float(np.clip(pipe.view.viewer_angle, lo, hi))
+            spec.set_value(angle)
+            if angle != pipe.view.viewer_angle:
+                pipe.set_view(viewer_angle=angle)
+                self._refresh_cameras()
+            self._set_status(f"note: {self.angle_range_note}" if "assumed" in self.angle_range_note else "")
+        self._update_preview()
+        if avatar is not None and self.config.auto_thumbnail:
+            self._update_thumbnail(wait=self.off_screen)
+        self._render()
 
     def _guarded(self, fn: Callable, *args: Any) -> Any:
         """Run a callback; our errors go to the status line instead of killing the event loop.
@@ -219,6 +317,15 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
             self._set_status("")
             self._render()
         return result
+
+    def _unprompted(self, fn: Callable, *args: Any) -> Any:
+        """Run work the loop does by itself (no user action): errors go to the status line, but a success
+        does not clear an earlier error (unlike :meth:`_guarded`)."""
+        try:
+            return fn(*args)
+        except HoloViewerError as exc:
+            self._show_error(str(exc))
+            return None
 
     def _show_error(self, text: str) -> None:
         self.errors.append(text)
@@ -252,23 +359,77 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         self._message = text
         self._update_status()
 
-    def _render(self) -> None:
-        """Ask for a frame: drawn at the end of this loop turn (at once outside the loop)."""
+    def _render(self, parts: tuple[str, ...] | None = None) -> None:
+        """Ask for a frame of ``parts`` (of :data:`PARTS`; None: all): drawn at the end of this loop turn
+        (at once outside the loop)."""
         if self._looping:
-            self._dirty = True
+            self._dirty_parts.update(PARTS if parts is None else parts)
         elif self._opened or self.off_screen:
-            self._render_now()
+            self._render_now(parts)
 
-    def _render_now(self) -> None:
+    def _part_renderers(self) -> dict[str, Any]:
+        return {"scene": self.scene_renderer, "sliders": self.slider_renderer,
+                "preview": self.preview_panel.renderer, "quilt": self.thumb_panel.renderer}
+
+    def _render_now(self, parts: tuple[str, ...] | None = None) -> None:
+        """Draw a frame now. Only the panels in ``parts`` (None: all) and those asked for earlier in this
+        turn are drawn again; the others keep their pixels (VTK renders into its own framebuffer and copies
+        it to the window, so a renderer that does not draw keeps what it drew last)."""
         if self._building and not self._opened:
             return
-        if self.show_splats and not self._in_events:
-            self._guarded(self.update_splats)
+        draw = self._dirty_parts | set(PARTS if parts is None else parts)
+        if self.show_splats and not self._in_events and "scene" in draw:
+            self._unprompted(self.update_splats)
+            draw |= self._dirty_parts  # a new splat image asks for the scene
         self._update_status()  # shows the previous frame's time
+        rw = self.plotter.ren_win
+        skipped = []
+        if not draw >= set(PARTS):
+            named = self._part_renderers()
+            scene_drawn = "scene" in draw
+            for ren in _renderers(rw):
+                if not ren.GetDraw():
+                    continue
+                part = next((k for k, r in named.items() if r is ren), None)
+                # unnamed renderers (the orientation axes' layer) are drawn with the scene they sit on
+                if not (part in draw if part is not None else scene_drawn):
+                    ren.DrawOff()
+                    skipped.append(ren)
         t0 = time.perf_counter()
-        self.plotter.ren_win.Render()
+        try:
+            rw.Render()
+        finally:
+            for ren in skipped:
+                ren.DrawOn()
         self.timings.frame_ms = (time.perf_counter() - t0) * 1e3
-        self._dirty = False
+        self.frames_drawn += 1
+        self.last_frame_parts = tuple(sorted(draw))
+        if "scene" in draw:
+            self._splat_drawn_key = self._splat_key
+        self._dirty_parts = set()
+
+    def resize_panels(self, step: int) -> None:
+        """Make the image column (preview above, quilt below) wider (``step`` > 0, key ``}``) or narrower
+        (``{``) by ``PANEL_STEP`` of the window, within ``PANEL_WIDTHS``; the 3D scene takes the rest."""
+        x0 = self.scene_renderer.GetViewport()[0]  # the slider column keeps its width
+        width = float(np.clip(round(self.panel_width / PANEL_STEP + step) * PANEL_STEP, *PANEL_WIDTHS))
+        if abs(width - self.panel_width) < 1e-9:
+            self._set_status(f"image panels: {width:.0%} of the window is the "
+                             f"{'widest' if step > 0 else 'narrowest'} they go")
+            self._render()
+            return
+        self.panel_width = width
+        split = 1.0 - width
+        sx0, sy0, _, sy1 = self.scene_renderer.GetViewport()
+        self.scene_renderer.SetViewport(x0, sy0, split, sy1)
+        for panel in (self.preview_panel, self.thumb_panel):
+            _, y0, _, y1 = panel.renderer.GetViewport()
+            panel.renderer.SetViewport(split, y0, 1.0, y1)
+            panel.fit()
+        if self.look_through is not None:  # keep the quilt camera's pixels under its own projection
+            self._place_scene_camera_at_view(self.look_through)
+        self._set_status(f"image panels: {width:.0%} of the window")
+        self._render()
 
     def _check_resize(self) -> None:
         size = tuple(self.plotter.ren_win.GetSize())
@@ -315,7 +476,13 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
             axes.InteractiveOff()
 
     def _on_render_request(self, *_: Any) -> None:
-        self._dirty = True
+        # VTK asks for a frame: a camera drag moves the scene only; widgets, expose events: everything
+        if self._camera_moving():
+            self._dirty_parts.add("scene")
+        elif self._live:  # a slider being dragged: its panel and the scene (the mesh follows)
+            self._dirty_parts.update(("sliders", "scene"))
+        else:
+            self._dirty_parts.update(PARTS)
 
     def step(self) -> bool:
         """One turn of the event loop: X events, live sliders, background results, one frame if needed.
@@ -345,10 +512,19 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         except Exception as exc:  # noqa: BLE001 - a worker failure must not kill the event loop
             self._show_error(f"thumbnail failed: {exc}")
             self._thumb_pending_key = None
+        try:
+            self.poll_native()
+        except Exception as exc:  # noqa: BLE001 - a worker failure must not kill the event loop
+            self._show_error(f"native image failed: {exc}")
+            self._native_pending = None
         self._collect_jobs()
+        self._unprompted(self.poll_splats)
         self._check_resize()
         if self._dirty:
-            self._render_now()
+            if self.show_splats and "scene" in self._dirty_parts:
+                self._unprompted(self.update_splats)  # a camera drag: the worker starts on the new pose
+            if not self._holding_for_splat():
+                self._render_now()
         return not self._quit
 
     def run(self, until: Callable[[], bool] | None = None, timeout: float | None = None,
@@ -383,11 +559,14 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         self.close()
 
     def close(self) -> None:
+        self._close_splats()
         self._jobs.close()
         self._collect_jobs()
-        if self._worker is not None:
-            self._worker.close()
-            self._worker = None
+        for name in ("_worker", "_native_worker"):
+            worker = getattr(self, name, None)
+            if worker is not None:
+                worker.release()  # an idle worker serves the next viewer of this process
+                setattr(self, name, None)
         # observers hold Python callables that hold this viewer: remove them, or the cycle keeps the
         # interactor (and its X display connection) alive after the window is gone
         for obj, tag in getattr(self, "_observers", []):

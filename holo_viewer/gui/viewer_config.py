@@ -34,6 +34,8 @@ KEYS: tuple[tuple[str, str, str], ...] = (
     ("x", "x", "export smile-sweep mp4s (quilt + native)"),
     ("X", "X", "export pain-sweep mp4s (quilt + native)"),
     ("i", "i", "save a screenshot PNG"),
+    ("braceright", "} {", "image panels wider / narrower (the scene gives way)"),
+    ("braceleft", "", ""),
 )
 
 
