@@ -466,3 +466,33 @@ def test_quick_exit_flushes_runs_atexit_and_keeps_the_exit_code(tmp_path: Path) 
     from holo_viewer.cli import QUICK_EXIT
 
     assert set(QUICK_EXIT) == {"live", "replay"}
+
+
+def test_scenario_step_keys_jump_to_the_next_and_previous_step(tmp_path: Path) -> None:
+    """Right then Left through the key path: the scenario jumps to its next step (pain 0.8 and the
+    smile of t = 5 s at once, 1 s into the session) and back; tracks record the scenario time, and
+    replay takes the named expressions at that time; the key map on h lists the keys."""
+    import json
+
+    from holo_viewer.live.controls import KEY_HELP, Scenario
+    from holo_viewer.live.replay import _frame_inputs
+
+    sc = Scenario.from_json({"events": [{"t": 0, "pain": 0.1}, {"t": 5, "pain": 0.8, "expression": "smile",
+                                                                "intensity": 0.5, "duration": 30}, {"t": 9, "pain": 0.3}]})
+    assert sc.steps() == (0.0, 5.0, 9.0)
+    assert [sc.step_from(2.0, 1), sc.step_from(6.0, -1), sc.step_from(9.5, 1), sc.step_from(9.5, -1)] == [5.0, 0.0, 9.5, 5.0]
+    window = _KeyWindow([(2, "Right", 0.15), (2, "Left", 0.0)])
+    session = _session(tmp_path, 1.0, scenario=sc)
+    session.run(_NoiseRenderer(), preview=window)
+    assert session.controls.log == ["scenario_next", "scenario_previous"]
+    tr = _tracks(tmp_path / "s")
+    runs = [float(p) for i, p in enumerate(tr["pain"]) if i == 0 or p != tr["pain"][i - 1]]
+    assert runs == [0.1, 0.8, 0.1], runs
+    jumps = np.diff(tr["scenario_time_s"]) - 1 / 25
+    assert np.isclose(jumps.max() + 1 / 25, 5.0 - tr["time_s"][np.argmax(jumps)], atol=1e-9)  # to t = 5 s
+    assert (np.abs(jumps) > 1e-9).sum() == 2  # elsewhere the scenario runs with the session
+    at5 = int(np.argmax(tr["scenario_time_s"] >= 5.0))
+    assert _frame_inputs(tr, at5, sc)[2] == (("smile", 0.5),) and _frame_inputs(tr, 0, sc)[2] == ()
+    meta = json.loads((tmp_path / "s" / "session.json").read_text())
+    assert [k["action"] for k in meta["keys"]] == ["scenario_next", "scenario_previous"]
+    assert ("Right / ], Left / [", "scenario: next / previous step") in KEY_HELP

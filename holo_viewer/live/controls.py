@@ -18,7 +18,8 @@ KEYS = {"Up": "pain_up", "plus": "pain_up", "equal": "pain_up", "Down": "pain_do
         "space": "pause", "p": "pause", "m": "mute", "r": "recentre", "c": "recentre", "h": "help",
         "question": "help", "t": "trainee", "x": "rate", "q": "quit", "Escape": "quit",
         "g": "toggle_gaze", "b": "toggle_blinks", "a": "toggle_breathing", "s": "toggle_sway",
-        **{str(d): "rate" for d in range(10)}}
+        "Right": "scenario_next", "bracketright": "scenario_next", "Left": "scenario_previous",
+        "bracketleft": "scenario_previous", **{str(d): "rate" for d in range(10)}}
 #: the behaviour layers (holo_viewer.behaviour.BehaviourConfig switches) the toggle_* keys turn on and off
 LAYER_KEYS = ("gaze", "blinks", "breathing", "sway")
 #: the key map as the preview shows it on ``h`` (keys, what they do)
@@ -26,6 +27,7 @@ KEY_HELP = (("Up / + , Down / -", "pain up / down by 0.1"), ("space / p", "pause
             "scenario, recording)"), ("m", "mute: the patient hears nothing"), ("r / c", "recentre the viewer"),
             ("t", "next trainee (A..H)"), ("0-9, x", "the trainee's pain rating 0-9, x = 10"),
             ("g / b / a / s", "gaze / blinks / breathing / sway on or off"),
+            ("Right / ], Left / [", "scenario: next / previous step"),
             ("h / ?", "show / hide this key map"), ("q / Esc", "quit"))
 #: trainee labels the ``t`` key cycles through
 TRAINEES = "ABCDEFGH"
@@ -46,6 +48,8 @@ class Controls:
         self.last_rating: int | None = None
         #: behaviour layers to switch, oldest first (the reaction thread takes them)
         self._layer_toggles: list[str] = []
+        #: scenario steps to jump, oldest first (+1 next, -1 previous; the reaction thread takes them)
+        self._scenario_steps: list[int] = []
         self.quit = False
         self._recentre = False
         #: key actions applied, oldest first (for the session record and tests)
@@ -71,6 +75,8 @@ class Controls:
                 self.trainee = TRAINEES[(TRAINEES.index(self.trainee) + 1) % len(TRAINEES)]
             elif action == "rate":
                 self.last_rating = 10 if keysym == "x" else int(keysym)
+            elif action in ("scenario_next", "scenario_previous"):
+                self._scenario_steps.append(1 if action == "scenario_next" else -1)
             elif action.startswith("toggle_"):
                 self._layer_toggles.append(action[len("toggle_"):])
             elif action == "recentre":
@@ -89,6 +95,12 @@ class Controls:
         with self._lock:
             t, self._layer_toggles = self._layer_toggles, []
             return t
+
+    def take_scenario_steps(self) -> list[int]:
+        """The scenario step keys pressed since the last call (+1 next, -1 previous)."""
+        with self._lock:
+            s, self._scenario_steps = self._scenario_steps, []
+            return s
 
     def take_recentre(self) -> bool:
         """True once after a recentre key."""
@@ -190,6 +202,20 @@ class Scenario:
             if t0 < e.t <= t1 and e.pain is not None:
                 val = e.pain
         return val
+
+    def steps(self) -> tuple[float, ...]:
+        """The scenario's steps: the distinct event times, in order."""
+        return tuple(sorted({e.t for e in self.events}))
+
+    def step_from(self, t: float, direction: int) -> float:
+        """The scenario time after a step key at scenario time ``t``: the next step's time
+        (``direction`` > 0; ``t`` itself after the last step) or the previous one's (< 0: the step
+        before the one ``t`` is in; ``t`` itself before the first step)."""
+        steps = self.steps()
+        current = sum(1 for s in steps if s <= t + 1e-9) - 1  # the step t is in (-1: before the first)
+        if direction > 0:
+            return steps[current + 1] if current + 1 < len(steps) else float(t)
+        return steps[max(current - 1, 0)] if current >= 0 else float(t)
 
     def named_at(self, t: float) -> tuple[tuple[str, float], ...]:
         """Named expressions active at ``t`` (later events win for the same name)."""

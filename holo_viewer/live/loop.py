@@ -218,6 +218,7 @@ class LiveSession:
                 cap = int(self.config.max_seconds * FPS)
                 end_frames = cap if end_frames is None else min(end_frames, cap)
             t = 0
+            scenario_shift = 0.0  # scenario time - session time (the step keys jump between steps)
             last_state = np.zeros(S)
             gate = self._speech_gate
             beh = self._behaviour
@@ -249,15 +250,20 @@ class LiveSession:
                         state = last_state * math.exp(-1.0 / (FPS * STALE_S))
                         self.status["video"] = "no new video frames"
                 last_state = np.asarray(state, dtype=np.float64)
-                # pain: scenario events, then keys on top
+                # pain: scenario events, then keys on top; the step keys move the scenario time
+                ts = t / FPS + scenario_shift
                 if self.scenario is not None:
-                    p = self.scenario.pain_changes((t - 1) / FPS, t / FPS) if t else self.scenario.pain_at(0.0)
+                    steps = self.controls.take_scenario_steps()
+                    for d in steps:
+                        ts = self.scenario.step_from(ts, d)
+                    scenario_shift = ts - t / FPS
+                    p = self.scenario.pain_changes(ts - 1 / FPS, ts) if t and not steps else self.scenario.pain_at(ts)
                     if p is not None:
                         self.controls.set_pain(p)
                         self._pain_source = "scenario"
                 pain = self.controls.pain
                 self._log_pain(t / FPS, pain)
-                named = self.scenario.named_at(t / FPS) if self.scenario is not None else ()
+                named = self.scenario.named_at(ts) if self.scenario is not None else ()
                 t0 = time.perf_counter()
                 n_windows = len(stream.windows)
                 # with the behaviour layers the pain face is theirs (exact, at once); the model hears pain 0
@@ -284,7 +290,7 @@ class LiveSession:
                                   speaking, pause_onset)
                     shown = beh.last["pain"]
                 self.recorder.add_frame(
-                    time_s=t / FPS, viewer_angle_deg=ang, viewer_distance_m=dist, pain=pain, pain_shown=shown,
+                    time_s=t / FPS, scenario_time_s=ts, viewer_angle_deg=ang, viewer_distance_m=dist, pain=pain, pain_shown=shown,
                     speaker_found=found,
                     window=window, **{f"speaker_{k_}": v for k_, v in sf.items()},
                     **{f"listener_{k_}": v for k_, v in lf.items()})

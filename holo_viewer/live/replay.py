@@ -82,7 +82,9 @@ def _renderer(session: Path, meta: dict, quality: str, tile_scale: float | None)
 def _frame_inputs(tr: dict, t: int, scenario) -> tuple[dict, float, tuple]:
     """(listener FLAME arrays, pain to add, named expressions) of 25 fps frame ``t``, as the live loop had them."""
     lf = {k: tr[f"listener_{k}"][t] for k in LISTENER_KEYS}
-    named = scenario.named_at(t / 25) if scenario is not None else ()
+    # the scenario time the live loop had (the step keys move it; sessions before them: the session time)
+    ts = float(tr["scenario_time_s"][t]) if "scenario_time_s" in tr else t / 25
+    named = scenario.named_at(ts) if scenario is not None else ()
     # pain_shown >= 0: the behaviour layers drew the pain into listener_expr, add none on top
     pain = 0.0 if "pain_shown" in tr and tr["pain_shown"][t] >= 0 else float(tr["pain"][t])
     return lf, pain, named

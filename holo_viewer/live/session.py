@@ -61,7 +61,10 @@ LISTENER_KEYS = ("expr", "jaw_pose", "rotation", "neck_pose", "eyes_pose", "tran
 SPEAKER_KEYS = ("expr", "jaw_pose", "rotation")
 _CHUNK = 250
 TRACK_KEYS = ("time_s", "viewer_angle_deg", "viewer_distance_m", "pain", "pain_shown", "speaker_found", "window") + tuple(
-    f"speaker_{k}" for k in SPEAKER_KEYS) + tuple(f"listener_{k}" for k in LISTENER_KEYS)
+    f"speaker_{k}" for k in SPEAKER_KEYS) + tuple(f"listener_{k}" for k in LISTENER_KEYS) + ("scenario_time_s",)
+#: tracks recorded since a version-2 session first shipped (older sessions replay without them):
+#: ``scenario_time_s``, the scenario time of each frame (the step keys move it off the session time)
+OPTIONAL_TRACK_KEYS = ("scenario_time_s",)
 
 
 class SessionRecorder:
@@ -265,7 +268,7 @@ def load_session(folder: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]
     meta = read_json(p / "session.json", InputError, "session metadata")
     _check_meta(meta, p / "session.json")
     tracks = read_npz(p / "tracks.npz", InputError, "session tracks")
-    missing = [k for k in TRACK_KEYS if k not in tracks]
+    missing = [k for k in TRACK_KEYS if k not in tracks and k not in OPTIONAL_TRACK_KEYS]
     if missing:
         raise InputError(f"{p / 'tracks.npz'}: missing keys {missing}")
     _check_tracks(tracks, p / "tracks.npz")
@@ -305,7 +308,7 @@ def _check_tracks(tracks: dict[str, np.ndarray], path: Path) -> None:
     if time_s.ndim != 1:
         raise InputError(f"{path}: time_s: expected a 1-D array (one time per frame), found shape {time_s.shape}")
     n = time_s.shape[0]
-    for key in TRACK_KEYS:
+    for key in (k for k in TRACK_KEYS if k in tracks):
         arr = tracks[key]
         if not (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_):
             raise InputError(f"{path}: {key}: expected numbers, found dtype {arr.dtype}")
