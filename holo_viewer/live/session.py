@@ -19,8 +19,8 @@
 
 session.json (schema ``holo_viewer.session``, :data:`SCHEMA_VERSION`) holds everything replay needs, so
 a session folder can be moved and replayed anywhere: ``settings`` (the command's options),
-``scenario`` (the script itself, not its path), ``mount`` (the webcam mount), ``avatar`` (name and
-digest of the Gaussians replay must find again), ``render`` (mode, tile scale, backend), ``keys``
+``scenario`` (the script itself, not its path), ``mount`` (the webcam mount), ``avatar`` (name:
+``default`` or the patient's, docs/patients.md; digest of the Gaussians replay must find again), ``render`` (mode, tile scale, backend), ``keys``
 (every key press: session time, key, action) and ``ratings`` (trainees' pain ratings: session
 time, trainee, rating 0-10), plus ``pain_timeline`` (the instructor's levels, the schema of
 :mod:`holo_viewer.behaviour.timeline`) and the timing summary. Per-frame numbers are float64, so
