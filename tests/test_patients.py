@@ -256,3 +256,12 @@ def test_a_rebuild_reproduces_a_shipped_head_and_identity_reads_as_sex():
     with tempfile.TemporaryDirectory() as d:
         got = write_default_head(Path(d) / "head.npz", arrays).read_bytes()
     assert hashlib.sha256(got).hexdigest() == info.files["head.npz"]
+
+
+def test_live_renderer_refuses_an_unfitted_patient(tmp_path, monkeypatch):
+    from holo_viewer.live.render import LiveAvatarRenderer
+
+    fake_patient(tmp_path, fitted=False)
+    monkeypatch.setattr(P, "patients_dir", lambda: tmp_path)
+    with pytest.raises(AvatarError, match="patient 'zed' is not fitted yet"):
+        LiveAvatarRenderer(tile_scale=0.1, native=False, backend="fast", mode="cone", avatar="zed")
