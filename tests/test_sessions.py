@@ -496,3 +496,43 @@ def test_scenario_step_keys_jump_to_the_next_and_previous_step(tmp_path: Path) -
     meta = json.loads((tmp_path / "s" / "session.json").read_text())
     assert [k["action"] for k in meta["keys"]] == ["scenario_next", "scenario_previous"]
     assert ("Right / ], Left / [", "scenario: next / previous step") in KEY_HELP
+
+
+class _CallRecorder(_NoiseRenderer):
+    """A noise renderer that keeps the arguments of every render call."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.calls: list[tuple] = []
+
+    def render(self, listener, pain, named, angle, distance, tracked=True, others=()):
+        self.calls.append(({k: np.asarray(v, np.float64) for k, v in listener.items()}, float(pain), tuple(named),
+                           float(angle), float(distance), bool(tracked), tuple(others)))
+        return super().render()
+
+
+def test_replay_repeats_the_group_frames_render_calls_with_the_other_faces(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """A group-mode session whose webcam sees two more faces (ViewerPose.others): tracks record them
+    and replay --quality live makes the live loop's render calls again, the other faces included
+    (the renderer is deterministic, so the same calls give the same frames: the bit-exact test above)."""
+    from holo_viewer.live import loop, replay
+    from holo_viewer.tracking.viewer import ViewerPose
+
+    def pose(angle, distance, tracked, **kw):
+        others = ((angle + 12.0, distance + 0.2), (angle - 15.0, 0.8)) if tracked else ()
+        return ViewerPose(angle, distance, tracked, others=others, **kw)
+
+    monkeypatch.setattr(loop, "ViewerPose", pose)
+    live = _CallRecorder()
+    _session(tmp_path, 1.0).run(live)
+    tr = _tracks(tmp_path / "s")
+    assert np.isfinite(tr["render_others"][:, :2]).all() and np.isnan(tr["render_others"][:, 2:]).all()
+    again = _CallRecorder()
+    monkeypatch.setattr(replay, "_renderer", lambda *a, **k: again)
+    n = sum(1 for _ in replay.replay_timed_frames(tmp_path / "s"))
+    assert n == len(live.calls) - 1 == len(again.calls) - 1 >= 5
+    for a, b in zip(live.calls[1:], again.calls[1:]):  # after the warm-up call
+        assert all(np.array_equal(a[0][k], b[0][k]) for k in ("expr", "jaw_pose", "rotation", "eyes_pose"))
+        assert a[1:] == b[1:] and len(b[6]) == 2
+    assert live.calls[0][1:] == again.calls[0][1:]  # the warm-up call too
