@@ -110,10 +110,10 @@ _RECEDING = HairStyle(
               (80.0, -20.0), (86.0, -22.0), (90.0, -14.0), (112.0, -13.0), (122.0, -18.0), (135.0, -24.0),
               (155.0, -32.0), (180.0, -35.0)),
     profile=((-40.0, 0.003), (-10.0, 0.005), (15.0, 0.009), (45.0, 0.013), (90.0, 0.014)))
-_SET = HairStyle(  # an older woman's short, full set
-    hairline=_F_LINE + ((96.0, -9.0), (115.0, -14.0), (135.0, -24.0), (180.0, -30.0)),
-    profile=((-35.0, 0.006), (-15.0, 0.016), (10.0, 0.026), (40.0, 0.032), (90.0, 0.034)),
-    azimuth_gain=((0.0, 0.85), (70.0, 1.1), (180.0, 1.0)))
+_SET = HairStyle(  # an older woman's short, full set: volume on top, close at the sides and nape
+    hairline=_F_LINE + ((96.0, -9.0), (115.0, -18.0), (135.0, -30.0), (180.0, -40.0)),
+    profile=((-40.0, 0.004), (-20.0, 0.009), (0.0, 0.015), (30.0, 0.023), (60.0, 0.029), (90.0, 0.030)),
+    azimuth_gain=((0.0, 0.9), (90.0, 0.8), (180.0, 1.0)), ramp_deg=18.0)
 _HORSESHOE = HairStyle(  # male-pattern baldness: a fringe of short hair round the sides and back
     hairline=HAIRLINE,
     top=((0.0, -90.0), (50.0, -90.0), (62.0, 2.0), (80.0, 14.0), (120.0, 20.0), (180.0, 24.0)),

@@ -387,11 +387,11 @@ class _Painter:
         for sgn, ala, corner in ((-1, 31, 48), (1, 35, 54)):
             p0 = lm[ala, :2] + [sgn * 3.0, 2.0]
             p1 = lm[corner, :2] + [sgn * 4.0, -6.0]
-            col *= (1.0 - a * fold(p0, p1, 1.3, 0.22) * (1 + 0.3 * _fbm(q / 3.0, s + 90, 2)))[:, None]
-            col *= (1.0 + a * fold(p0 + [sgn * 3.0, 0], p1 + [sgn * 3.0, 0], 2.5, 0.05))[:, None]
+            col *= (1.0 - a * fold(p0, p1, 1.8, 0.32) * (1 + 0.3 * _fbm(q / 3.0, s + 90, 2)))[:, None]
+            col *= (1.0 + a * fold(p0 + [sgn * 3.5, 0], p1 + [sgn * 3.5, 0], 2.5, 0.06))[:, None]
             m0 = lm[corner, :2] + [sgn * 1.0, -2.0]
             m1 = m0 + [sgn * 3.0, -15.0]
-            col *= (1.0 - a * fold(m0, m1, 1.0, 0.16))[:, None]
+            col *= (1.0 - a * fold(m0, m1, 1.3, 0.24))[:, None]
         for eye in (range(36, 42), range(42, 48)):
             c = lm[list(eye)].mean(0)
             d = q - c
@@ -543,10 +543,10 @@ class _Painter:
         col = np.asarray(self.look.hair, np.float64)[None, :] * lum[:, None]
         warm = _noise1(strand * 0.5 + 3.0, s + 44)
         col *= (1.0 + 0.15 * (warm - 0.5))[:, None] * np.array([1.04, 1.0, 0.94])
-        if self.look.grey > 0:  # white strands: a per-strand choice, slightly yellowed
-            g = self.look.grey
-            white = _smoothstep(1.0 - g - 0.04, 1.0 - g + 0.04, _noise1(strand * 1.7 + 9.0, s + 47))[:, None]
-            col = col * (1 - white) + np.array([0.80, 0.78, 0.74])[None, :] * lum[:, None] * white
+        if self.look.grey > 0:  # white strands: each strand white or not (fine streaks), slightly yellowed
+            k = np.floor(strand).astype(np.int64)
+            white = (_hash(k, np.zeros_like(k), np.full_like(k, 7), s + 47) < self.look.grey).astype(np.float64)
+            col = col * (1 - white[:, None]) + np.array([0.74, 0.72, 0.68])[None, :] * lum[:, None] * white[:, None]
         # darker roots near the crown whorl
         col *= (0.6 + 0.4 * _smoothstep(0.0, 30.0, polar))[:, None]
         return col
