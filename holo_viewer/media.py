@@ -25,6 +25,13 @@ Codec policy (:data:`CODECS`, one ``content`` per writer):
 * ``"preview"``: what a person watches and nothing reads back (webcam, speaker clips): libx264 yuv420p
   at imageio-ffmpeg's quality 7 (``crf = int((1 - quality / 10) * 51)``), sides scaled up to a
   multiple of ``macro_block_size`` 8.
+* ``"watchable"``: quilt videos of batch renders (what players and Looking Glass tools expect):
+  libx264 yuv420p, crf 18, veryfast; odd sides padded by an edge row / column.
+
+The lossless preset is ``ultrafast``: on 2048x1536 session frames slower presets save 16 % of the
+size for 3x the encoder's CPU and FFV1 3 % for 1.7x (``bench/session_codecs.py``, docs/live.md),
+and on a 2-core machine the live render needs that CPU. :func:`encoder_flags` gives the policy's
+flags to the one writer that drives ffmpeg itself (``batch/video.py``'s in-memory segments).
 
 **Timed** writers (``timed=True``; live session videos, ``.mkv``) record each frame once with its
 presentation time, ``write(frame, t=seconds)``: frames go to ffmpeg in a Matroska stream of raw RGB
@@ -53,7 +60,7 @@ from .errors import ExportError
 from .fileio import atomic_path
 
 __all__ = ["VideoWriter", "write_video", "count_video_frames", "read_frames", "mux_audio", "ffmpeg_exe", "pad_even",
-           "CODECS"]
+           "CODECS", "encoder_flags"]
 
 #: ffmpeg flags that make an MP4 playable while it is written (fragments, index up front)
 STREAMING_MOVFLAGS = "+frag_keyframe+empty_moov+default_base_moof"
@@ -64,7 +71,31 @@ CODECS: dict[str, dict[str, Any]] = {
                  "output_params": ("-preset", "ultrafast", "-crf", "0")},
     "preview": {"codec": "libx264", "pixelformat": "yuv420p", "quality": 7, "macro_block_size": 8,
                 "output_params": ()},
+    "watchable": {"codec": "libx264", "pixelformat": "yuv420p", "quality": None, "macro_block_size": 1,
+                  "output_params": ("-preset", "veryfast", "-crf", "18")},
 }
+
+
+def encoder_flags(content: str, *, crf: int | None = None, preset: str | None = None) -> list[str]:
+    """ffmpeg's video encoder flags (codec, preset, crf, pixel format) of the codec policy for
+    ``content`` (:data:`CODECS`), ``crf`` / ``preset`` replacing the policy's: for writers that
+    drive ffmpeg themselves (``batch/video.py``'s in-memory segments).
+
+    Raises
+    ------
+    ExportError
+        An unknown ``content``, or one without a crf (``preview`` sets a quality).
+    """
+    if content not in CODECS or "-crf" not in CODECS[content]["output_params"]:
+        raise ExportError(f"content: expected one of {sorted(k for k, v in CODECS.items() if '-crf' in v['output_params'])}"
+                          f", found {content!r}")
+    policy = CODECS[content]
+    params = dict(zip(policy["output_params"][::2], policy["output_params"][1::2]))
+    if crf is not None:
+        params["-crf"] = str(int(crf))
+    if preset is not None:
+        params["-preset"] = str(preset)
+    return ["-c:v", policy["codec"], *[x for kv in params.items() for x in kv], "-pix_fmt", policy["pixelformat"]]
 
 
 def _ebml(element_id: bytes, payload: bytes) -> bytes:

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..errors import ExportError
 from ..fileio import atomic_path
-from ..media import ffmpeg_exe, pad_even  # re-exported: one ffmpeg and one padding rule
+from ..media import encoder_flags, ffmpeg_exe, pad_even  # re-exported: one ffmpeg and one padding rule
 
 __all__ = ["SegmentEncoder", "encode_segment", "join_segments", "read_video_frames", "ffmpeg_exe", "pad_even"]
 
@@ -76,9 +76,8 @@ class SegmentEncoder:
         self._threads: list[threading.Thread] = []
 
     def _start(self, h: int, w: int) -> None:
-        codec = (["-c:v", "libx264rgb", "-crf", str(self.crf), "-preset", self.preset, "-pix_fmt", "rgb24"]
-                 if self.rgb else
-                 ["-c:v", "libx264", "-crf", str(self.crf), "-preset", self.preset, "-pix_fmt", "yuv420p"])
+        # the one codec policy (media.CODECS): lossless RGB for native images, watchable yuv420p for quilts
+        codec = encoder_flags("lossless" if self.rgb else "watchable", crf=self.crf, preset=self.preset)
         cmd = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
                "-s", f"{w}x{h}", "-r", f"{self.fps:.6g}", "-i", "pipe:0", *codec, "-f", "mpegts", "pipe:1"]
         self._proc = proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
