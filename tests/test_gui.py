@@ -508,6 +508,20 @@ def test_entry_hints_and_errors_use_the_au_names():
     assert "au9, pain" in str(err.value) and "expr2" not in str(err.value)
 
 
+def test_fast_vertex_normals_equal_the_reference():
+    from holo_viewer.geometry import vertex_normals
+    from holo_viewer.gui.scene import vertex_normals_fast
+
+    model = _small_scene().model
+    rng = np.random.default_rng(2)
+    verts = np.asarray(model.v_template, dtype=np.float64) + rng.normal(scale=0.01, size=(model.n_vertices, 3))
+    faces = model.faces.numpy()
+    ref = vertex_normals(verts, faces)
+    np.testing.assert_allclose(vertex_normals_fast(verts, faces), ref, atol=1e-12)
+    verts[faces[0, 0]] += 0.05  # a moved vertex changes its normals: the comparison can fail
+    assert np.abs(vertex_normals_fast(verts, faces) - ref).max() > 1e-3
+
+
 def test_viewer_angle_slider_stays_where_the_avatar_was_fitted(tmp_path):
     """The range comes from the avatar file's fit_angle_range_deg (every quilt view within the fit's
     cameras); a file without it: +-30 deg fit cameras assumed (+-10 at the 40 deg cone) and the note says so."""

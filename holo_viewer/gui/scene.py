@@ -235,6 +235,19 @@ def _faces_to_vtk(tri: np.ndarray) -> np.ndarray:
     return np.hstack([np.full((tri.shape[0], 1), 3, dtype=np.int64), tri]).ravel()
 
 
+def vertex_normals_fast(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """:func:`holo_viewer.geometry.vertex_normals` (the area-weighted sum of the incident triangles'
+    normals, unit length, float64) with ``np.bincount`` instead of ``np.add.at``: ~10x faster for the
+    live mesh of a slider drag; equal to it within 1e-12 (``tests/test_gui.py``)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 x area
+    idx = f.T.ravel()  # corner k of every face, k = 0, 1, 2
+    n = np.stack([np.bincount(idx, weights=np.tile(fn[:, c], 3), minlength=len(v)) for c in range(3)], axis=1)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+
 def mesh_polydata(vertices: np.ndarray, faces: np.ndarray) -> Any:
     """``pyvista.PolyData`` of a triangle mesh ((V, 3) vertices, (F, 3) faces)."""
     import pyvista as pv
