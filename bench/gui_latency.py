@@ -13,10 +13,19 @@ VTK events from code instead. Rows:
 * release -> ellipsoids on screen (the Gaussians of the new face drawn in the 3D scene);
 * release -> preview on screen (the selected view rendered by the fast renderer);
 * release -> quilt thumbnail on screen (rendered in the worker process, shown by the loop);
-* camera drag step -> splat image on screen (reduced resolution), release -> full-resolution splats on
-  screen (a real left drag in the 3D scene, the splat view on: the ``view`` default);
-* idle redraw: frames per second of ``Render()`` with nothing changed; launch: avatar load + window
-  to first pixels.
+* camera drag step -> the scene moved (first frame of the new pose), -> the splat image of that pose on
+  screen (reduced resolution: ``viewer.splat_on_screen()`` after a drawn frame), release -> full-resolution
+  splats on screen (a real left drag in the 3D scene, the splat view on: the ``view`` default);
+* idle: frames the loop draws in 1 s with nothing changed (0: no redraw), and the cost of one frame of
+  the whole window (every panel drawn: "idle redraw" fps) and of a scene-only frame (what a camera drag
+  draws), wall and CPU;
+* launch: ``--launch-runs`` fresh processes doing what ``holo-viewer view`` does up to its first frame
+  (the last one warm: its files in the page cache), from before the process starts to first pixels.
+
+One command writes everything (the quiet run): ``xvfb-run -a -s "-screen 0 1920x1080x24" python
+bench/gui_latency.py --repeats 2 --json bench/results/gui_latency.json`` (about 2 minutes on a quiet
+2-core machine). The baseline of each on-screen time is the viewer's own timer for the same update
+measured in the same run (the ratio column).
 
 Beside each on-screen time it prints the viewer's own timer for the same update (what the
 status line shows, measured inside the callback) and the ratio on-screen / own timer. The
@@ -41,6 +50,38 @@ import numpy as np
 PANELS = ("scene", "preview", "quilt")
 
 
+def launch_child(t0: float) -> int:
+    """``--launch-child T0``: what ``holo-viewer view`` does up to its first frame, then print the seconds
+    since ``T0`` (the parent's clock before it started this process) and each step's, and exit."""
+    marks = {"start": time.time() - t0}
+    from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
+    from holo_viewer.pipeline.scene import load_scene
+
+    marks["imports"] = time.time() - t0
+    scene = load_scene("default")
+    marks["avatar"] = time.time() - t0
+    viewer = HoloViewer(scene.pipeline, ViewerConfig())
+    viewer.open()  # the first frame is drawn (and copied to the X window) when this returns
+    marks["first_pixels"] = time.time() - t0
+    marks["cpu_s"] = time.process_time()
+    viewer.close()
+    print(json.dumps(marks))
+    return 0
+
+
+def measure_launch(runs: int) -> list[dict[str, float]]:
+    """Start the viewer ``runs`` times in a fresh process (the first warms the file cache)."""
+    out = []
+    for _ in range(runs):
+        t0 = time.time()
+        res = subprocess.run([sys.executable, __file__, "--launch-child", repr(t0)], capture_output=True,
+                             text=True, timeout=300)
+        if res.returncode != 0:
+            raise RuntimeError(f"launch child failed: {res.stderr[-2000:]}")
+        out.append(json.loads(res.stdout.strip().splitlines()[-1]))
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=3, help="drags per slider")
@@ -50,7 +91,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=15.0, help="seconds to wait for a panel to change")
     ap.add_argument("--json", default=None)
     ap.add_argument("--screenshot", default=None)
+    ap.add_argument("--launch-runs", type=int, default=2, help="fresh-process launches timed (the last is warm)")
+    ap.add_argument("--launch-child", type=float, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.launch_child is not None:
+        return launch_child(args.launch_child)
 
     if not os.environ.get("DISPLAY"):
         print("no DISPLAY: run under xvfb-run (the benchmark measures pixels on an X window)", file=sys.stderr)
@@ -60,10 +105,11 @@ def main(argv: list[str] | None = None) -> int:
         print("xdotool is not installed (apt-get install xdotool); pass --input events", file=sys.stderr)
         return 2
 
+    load0 = os.getloadavg()[0]
+    launches = measure_launch(args.launch_runs) if args.launch_runs > 0 else []
     from holo_viewer.pipeline.scene import load_scene
     from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
 
-    load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     scene = load_scene("default")
     load_s = time.perf_counter() - t0
@@ -169,7 +215,12 @@ def main(argv: list[str] | None = None) -> int:
         before = grab()
         t = time.perf_counter()
         xdo("mousemove", "--window", wid, cx + (30 if rep % 2 == 0 else -30), cy)
-        drag = wait_changes(before, t, ("scene",))["scene"]
+        mesh_drag = wait_changes(before, t, ("scene",))["scene"]  # the first frame of the moved camera
+        end = time.perf_counter() + args.timeout  # then the splat image of that camera on screen
+        while not viewer.splat_on_screen() and time.perf_counter() < end:
+            viewer.step()
+            time.sleep(0.001)
+        drag = (time.perf_counter() - t) * 1e3 if viewer.splat_on_screen() else float("nan")
         own_drag = viewer.timings.splat_drag_ms
         settle(0.2)
         before = grab()
@@ -180,15 +231,32 @@ def main(argv: list[str] | None = None) -> int:
             viewer.step()
             time.sleep(0.001)
         full = (time.perf_counter() - t) * 1e3 if viewer._splat_full else float("nan")
-        cam_records.append({"drag_splat_ms": drag, "release_full_splat_ms": full, "own_drag_ms": own_drag,
+        cam_records.append({"drag_splat_ms": drag, "drag_scene_ms": mesh_drag, "release_full_splat_ms": full,
+                            "own_drag_ms": own_drag,
                             "own_full_ms": viewer.timings.splat_ms})
         settle(0.2)
-    renders = []
-    for _ in range(20):
-        t = time.perf_counter()
-        viewer.plotter.ren_win.Render()
-        renders.append(time.perf_counter() - t)
-    idle_fps = 1.0 / statistics.median(renders)
+    # idle: how many frames the loop draws with nothing changed; then the cost of one frame of the whole
+    # window (every panel drawn again) and of a scene-only frame (what a camera drag draws), wall and CPU
+    settle(0.5)
+    n0 = viewer.frames_drawn
+    idle_end = time.perf_counter() + 1.0
+    while time.perf_counter() < idle_end:
+        viewer.step()
+        time.sleep(0.004)
+    idle_frames = viewer.frames_drawn - n0
+
+    def frame_cost(parts):
+        wall, cpu = [], []
+        for _ in range(20):
+            t, c = time.perf_counter(), time.process_time()
+            viewer._render_now(parts)
+            wall.append(time.perf_counter() - t)
+            cpu.append(time.process_time() - c)
+        return statistics.median(wall), statistics.median(cpu)
+
+    full_wall, full_cpu = frame_cost(None)
+    scene_wall, scene_cpu = frame_cost(("scene",))
+    idle_fps = 1.0 / full_wall
     records += cam_records
     if args.screenshot:
         viewer.save_screenshot(args.screenshot)
@@ -203,7 +271,14 @@ def main(argv: list[str] | None = None) -> int:
     n_g = len(scene.pipeline.avatar)
     print(f"default avatar: {n_g} Gaussians, {cfg.max_glyphs} drawn as ellipsoids (the view command's default); "
           f"load {load_s:.1f} s, window {build_s:.1f} s (launch to first pixels {load_s + build_s:.1f} s); "
-          f"idle redraw {idle_fps:.1f} fps; splat view {'on' if viewer.show_splats else 'off'}")
+          f"splat view {'on' if viewer.show_splats else 'off'}")
+    print(f"idle: {idle_frames} frames drawn in 1 s with nothing changed; a redraw of the whole window "
+          f"{1e3 * full_wall:.1f} ms ({1.0 / full_wall:.1f} fps, CPU {1e3 * full_cpu:.1f} ms), of the scene only "
+          f"(a camera-drag frame) {1e3 * scene_wall:.1f} ms ({1.0 / scene_wall:.1f} fps, CPU {1e3 * scene_cpu:.1f} ms)")
+    for i, m in enumerate(launches):
+        print(f"launch {i + 1} (fresh process{', warm' if i else ''}): first pixels {m['first_pixels']:.1f} s "
+              f"(python start {m['start']:.1f}, imports {m['imports']:.1f}, avatar {m['avatar']:.1f} s; "
+              f"CPU {m['cpu_s']:.1f} s)")
     print(f"X display {os.environ.get('DISPLAY')}, window {size[0]}x{size[1]}, input {method}"
           + (f" (input overhead: xdotool run {statistics.median(overhead):.0f} ms median, included)" if overhead
              else "") + f", cpu count {os.cpu_count()}, load average {load0:.1f} -> {load1:.1f}")
@@ -212,6 +287,7 @@ def main(argv: list[str] | None = None) -> int:
             ("release_glyphs_ms", "release -> 3D scene on screen", None),
             ("release_preview_ms", "release -> preview on screen", "own_preview_ms"),
             ("release_thumbnail_ms", "release -> quilt thumbnail on screen", "own_thumbnail_ms"),
+            ("drag_scene_ms", "camera drag -> scene moved (overlays)", None),
             ("drag_splat_ms", "camera drag -> reduced splats", "own_drag_ms"),
             ("release_full_splat_ms", "camera release -> full splats", "own_full_ms"))
     summary = {}
@@ -235,7 +311,12 @@ def main(argv: list[str] | None = None) -> int:
                                   "max_glyphs": cfg.max_glyphs, "glyph_min_opacity": cfg.glyph_min_opacity,
                                   "preview_scale": cfg.preview_scale, "thumbnail_scale": cfg.thumbnail_scale,
                                   "repeats": args.repeats, "cpu_count": os.cpu_count()},
-                       "load_average": [load0, load1], "idle_fps": idle_fps, "launch_s": load_s + build_s, "input_overhead_ms": overhead, "summary": summary,
+                       "load_average": [load0, load1], "idle_fps": idle_fps, "idle_frames_per_s": idle_frames,
+                       "frame_ms": {"whole_window": 1e3 * full_wall, "whole_window_cpu": 1e3 * full_cpu,
+                                    "scene_only": 1e3 * scene_wall, "scene_only_cpu": 1e3 * scene_cpu},
+                       "launch_s": load_s + build_s, "launch_load_s": load_s, "launch_window_s": build_s,
+                       "launches": launches,
+                       "launch_warm_first_pixels_s": launches[-1]["first_pixels"] if launches else None, "input_overhead_ms": overhead, "summary": summary,
                        "records": records}, fh, indent=2)
     return 0
 
