@@ -157,3 +157,63 @@ def test_added_lash_gaussians_lie_on_their_faces_and_are_seeded():
     assert len(kept) == 50 and np.all(kb[-30:] == b2[50:])
     o = g2.opacity_logits[:50]
     assert set(np.round(kept.opacity_logits[:20], 5)) == set(np.round(np.sort(o)[30:], 5))
+
+
+def test_a_short_fine_tune_of_a_transferred_avatar_lowers_its_loss():
+    """The patient recipe in miniature: a 'default' teacher's Gaussians transferred to a second identity
+    with its albedo only ("albedo" mode: the fitted shading lost), then fine-tuned on renders of the
+    teacher's own Gaussians on that identity through sheared cameras; 20 steps lower the L1 loss and
+    the dataset records the cameras' angle range."""
+    from holo_viewer.avatar import RiggedAvatar
+    from holo_viewer.pipeline import FaceControls
+    from holo_viewer.render.differentiable import render_view
+
+    src, dst = _two_identities(n_vertices=120, seed=3)
+    vs, f = src.v_template.double().numpy(), src.faces.numpy()
+    n = 300
+    binding = np.random.default_rng(0).integers(0, len(f), size=n)
+    teacher = random_gaussians(n, sh_degree=1, seed=1, scale=0.2)
+    teacher = teacher.replace(means=teacher.means * 0.05, log_scales=teacher.log_scales * 0 + np.log(0.4))
+    t_av = RiggedAvatar(dst, teacher.replace(extra={}), binding=binding)
+    student = fa.transfer_avatar(teacher, binding, vs, f, _albedo(1), _albedo(2), mode="albedo")
+
+    def render(vertices, faces, cameras, indices):
+        g = t_av.deform(torch.as_tensor(vertices, dtype=torch.float32))
+        with torch.no_grad():
+            ims = [render_view(g.means, g.quats, g.log_scales, g.opacity_logits, g.sh, cameras.world_to_cam[i],
+                               cameras.K[i], cameras.width, cameras.height, cameras.near).numpy() for i in indices]
+        ims = np.clip(np.stack(ims), 0, 1)
+        return ims, ims.sum(-1) > 0
+
+    pipe = Pipeline(model=dst, avatar=False, view=ViewSettings(tile_scale=0.06))
+    poses = [fa.TrainingPose("neutral", FaceControls()),
+             fa.TrainingPose("a", FaceControls(expr=np.array([1.0, -0.5, 0.0, 0.3])))]
+    cfg = fa.AvatarFitConfig(iterations=20, views_per_step=1, train_scale=1.0, quilt_views=(0, 47),
+                             orbit=((-30.0, 0.0), (30.0, 0.0)), orbit_mode="sheared", lr_sh_dc=0.05,
+                             lr_opacity=0.05, w_opacity=0.01, render_timeout_s=None)
+    data = fa.build_dataset(pipe, poses, render, cfg, progress=False)
+    assert data.angle_range_deg[0] < -29 and data.angle_range_deg[1] > 29
+    res = fa.fit_gaussians(student, binding, data, cfg, progress=False)
+    first, last = np.mean(res.losses[:5]), np.mean(res.losses[-5:])
+    assert last < 0.8 * first, (first, last)
+
+
+def _shipped_patients():
+    from holo_viewer.avatar.patients import list_patients
+
+    return [p for p in list_patients() if p.fitted]
+
+
+@pytest.mark.parametrize("info", _shipped_patients(), ids=lambda p: p.name)
+def test_a_shipped_patient_avatar_fits_the_budget_and_records_its_range(info):
+    """Each fitted patient: everything in its folder <= 15 MB, its avatar keyed to its head, with the fit's
+    angle range covering the quilt cone at the slider's limits (+-30 deg) and its worst-view PSNR."""
+    from holo_viewer.avatar.default_gaussians import _head_digest
+
+    assert info.size_bytes() <= 15e6, info.size_bytes()
+    local, binding, keys = load_fitted_avatar(info.avatar_path)
+    assert keys["head_sha256"] == _head_digest(info.head_path)
+    lo, hi = keys["fit_angle_range_deg"]
+    assert lo <= -29.0 and hi >= 29.0
+    assert keys["info"].get("psnr_min_db") is not None
+    assert np.all(np.isfinite(local.means)) and binding.max() < keys["n_faces"]
