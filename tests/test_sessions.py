@@ -536,3 +536,22 @@ def test_replay_repeats_the_group_frames_render_calls_with_the_other_faces(tmp_p
         assert all(np.array_equal(a[0][k], b[0][k]) for k in ("expr", "jaw_pose", "rotation", "eyes_pose"))
         assert a[1:] == b[1:] and len(b[6]) == 2
     assert live.calls[0][1:] == again.calls[0][1:]  # the warm-up call too
+
+
+@pytest.mark.slow
+def test_replay_on_the_numba_kernels_and_one_thread_agrees_to_60_db(recorded: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """The nearest proxy for another machine we have: replay --quality live with the numba kernels
+    instead of the C++ extension and one render thread instead of all cores; every displayed frame
+    agrees with native.mkv to >= 60 dB (issue 33's across-machines target; another CPU or compiler
+    is not tested)."""
+    from holo_viewer.live.replay import replay_timed_frames
+    from holo_viewer.render import fast
+
+    monkeypatch.setattr(fast, "_cpp", lambda: None)  # every splat step in numba
+    live = list(media.read_frames(recorded / "native.mkv"))
+    again = [img for _, img in replay_timed_frames(recorded, render_threads=1)]
+    assert len(again) == len(live) >= 2
+    mse = [np.mean((a.astype(np.float64) - b) ** 2) for a, b in zip(live, again)]
+    psnr = [np.inf if m == 0 else 10 * np.log10(255.0 ** 2 / m) for m in mse]
+    assert min(psnr) >= 60.0, psnr

@@ -48,7 +48,7 @@ def _scenario(session: Path, meta: dict):
     return None
 
 
-def _renderer(session: Path, meta: dict, quality: str, tile_scale: float | None):
+def _renderer(session: Path, meta: dict, quality: str, tile_scale: float | None, render_threads: int | None = None):
     """The renderer for ``quality``, after checking the session's avatar is this build's."""
     from ..errors import InputError
     from .render import LiveAvatarRenderer
@@ -64,7 +64,7 @@ def _renderer(session: Path, meta: dict, quality: str, tile_scale: float | None)
     avatar = str(recorded.get("name", "default")) if isinstance(recorded, dict) else "default"  # a patient's name
     if quality == "live":
         renderer = LiveAvatarRenderer(tile_scale=scale, native=True, preview=False, backend="fast", mode=mode,
-                                      avatar=avatar)
+                                      avatar=avatar, render_threads=render_threads)
     else:
         renderer = LiveAvatarRenderer(tile_scale=scale, native=True, preview=False, backend="fast",  # exact, any machine
                                       mode="all_views" if mode in ("tracked", "auto") else mode,
@@ -101,8 +101,11 @@ def replay_frames(session: str | os.PathLike, tile_scale: float | None = None, e
                               float(tr["viewer_distance_m"][t])).native
 
 
-def replay_timed_frames(session: str | os.PathLike, tile_scale: float | None = None) -> Iterator[tuple[float, np.ndarray]]:
-    """(display time s, native image) of every displayed frame, rendered as the live loop rendered it."""
+def replay_timed_frames(session: str | os.PathLike, tile_scale: float | None = None,
+                        render_threads: int | None = None) -> Iterator[tuple[float, np.ndarray]]:
+    """(display time s, native image) of every displayed frame, rendered as the live loop rendered it
+    (``render_threads``: the renderer's threads, default all cores; another count, like another
+    machine, may round differently: tests/test_sessions.py measures it)."""
     from ..errors import InputError
 
     meta, tr = load_session(session)
@@ -110,7 +113,7 @@ def replay_timed_frames(session: str | os.PathLike, tile_scale: float | None = N
         raise InputError(f"{Path(session) / 'tracks.npz'}: render_angle_deg: expected the render calls' viewer poses "
                          f"(sessions of version 2), found none; use --quality full")
     scenario = _scenario(Path(session), meta)
-    renderer = _renderer(Path(session), meta, "live", tile_scale)
+    renderer = _renderer(Path(session), meta, "live", tile_scale, render_threads)
     renderer.render({"expr": np.zeros(1)}, float((meta.get("render") or {}).get("warmup_pain", 0.0)), (), 0.0, 0.6)
     for i, t in enumerate(tr["display_frame"]):
         lf, pain, named = _frame_inputs(tr, int(t), scenario)
