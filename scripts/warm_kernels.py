@@ -7,7 +7,10 @@ has none, so its first ``make test`` compiled ~50 kernel specialisations (about 
 render path alone, and twice when two test workers reach a kernel at the same time). ``scripts/setup.sh`` runs
 this script after an install: each step below calls one code path on a small input (the kernels' argument
 types, not sizes, select what is compiled). A step that fails is reported and skipped (the kernel then
-compiles on first use, as before); the script always exits 0.
+compiles on first use, as before); the script always exits 0 (tests/test_suite_tools.py runs the cheap steps).
+The differentiable-renderer, reaction-metrics, cached-binding and float/partial interleave steps cost about 30 s
+more of set-up CPU and save a fresh clone's make test their compilation (26 s of CPU for
+test_render_differentiable.py + test_reaction_metrics.py with an empty numba cache vs a full one, load 12).
 """
 
 from __future__ import annotations
@@ -36,17 +39,19 @@ def _pipeline() -> None:
 
 
 def _interleave() -> None:
-    """Both interleave modes of the lenticular interleaver (live frames below reach its partial updates)."""
+    """Both interleave modes of the lenticular interleaver, on uint8 and float32 quilts, whole and partial."""
     import numpy as np
 
     from holo_viewer.display.calibration import DisplayCalibration
     from holo_viewer.display.lenticular import Interleaver
 
     cal = DisplayCalibration.load(None)
-    quilt = np.zeros((cal.quilt_height, cal.quilt_width, 3), np.uint8)
-    for mode in ("nearest", "blend"):
-        lin = Interleaver(cal, quilt.shape, mode=mode)
-        lin(quilt)
+    for dtype in (np.uint8, np.float32):
+        quilt = np.zeros((cal.quilt_height, cal.quilt_width, 3), dtype)
+        for mode in ("nearest", "blend"):
+            lin = Interleaver(cal, quilt.shape, mode=mode)
+            out = lin(quilt)
+            lin.update(quilt, out, np.arange(0, out.size, 97, dtype=np.int32))
 
 
 def _live_frames() -> None:
@@ -65,10 +70,19 @@ def _live_frames() -> None:
         live.frame(g, eyes.TrackedViewer(0.0, 0.6))
         live.frame(g, eyes.TrackedViewer(3.0, 0.6))
         live.frame(g, mode="all_views")
+    # the eye slices' numba scatter (the C++ one is used when built; tests compare the two)
+    from holo_viewer.display import slices
+
+    cpp = slices._cpp
+    slices._cpp = lambda: None  # noqa: E731 - for this step only
+    try:
+        NativeFrameRenderer(cal, cams, NativeFrameConfig()).frame(g, eyes.TrackedViewer(0.0, 0.6))
+    finally:
+        slices._cpp = cpp
 
 
 def _avatars() -> None:
-    """The rigged avatar's numba binding and the blend-shape avatar's kernel."""
+    """The rigged avatar's numba binding (with and without its cache) and the blend-shape avatar's kernel."""
     import torch
 
     from holo_viewer.avatar import BlendshapeAvatar
@@ -78,11 +92,47 @@ def _avatars() -> None:
     rigged = random_rigged_avatar(model, n=400)
     verts = model(expr=torch.zeros(1, 6)).vertices
     rigged.deform(verts[0])
+    rigged.deform(verts[0], cache=True, cache_tol=1e-4)
+    rigged.deform(verts[0] + 0.01, cache=True, cache_tol=1e-4)
     BlendshapeAvatar.from_rigged(rigged).pose(torch.zeros(6))
 
 
+def _differentiable() -> None:
+    """The differentiable renderer's forward and backward kernels, float64 and float32 (the avatar fit)."""
+    import numpy as np
+    import torch
+
+    from holo_viewer.avatar.gaussians import Gaussians
+    from holo_viewer.camera import Cameras, intrinsics, look_at
+    from holo_viewer.render import differentiable as dr
+
+    rng = np.random.default_rng(0)
+    n = 50
+    arrays = (rng.normal(0.0, 0.1, (n, 3)), rng.normal(size=(n, 4)), np.log(rng.uniform(0.1, 1.0, (n, 3)) * 0.04),
+              rng.normal(1.0, 1.5, n), rng.normal(0.0, 0.4, (n, 4, 3)))
+    cams = Cameras(look_at([0.0, 0.02, 0.9], [0.0, 0.0, 0.0])[None], intrinsics(55.0, 57.0, 20.0, 16.0)[None], 40, 32)
+    for dtype in (torch.float64, torch.float32):
+        params = [torch.tensor(a, dtype=dtype, requires_grad=True) for a in arrays]
+        dr.render_gaussians(Gaussians(*params), cams).sum().backward()
+
+
+def _metrics() -> None:
+    """The reaction metrics' DTW (FRDist) and lagged-correlation (FRSyn) kernels."""
+    import numpy as np
+
+    from holo_viewer.reaction import metrics as M
+
+    rng = np.random.default_rng(0)
+    for dtype in (np.float32, np.float64):
+        p, g, s = (rng.random(shape).astype(dtype) for shape in ((2, 2, 56, 25), (2, 56, 25), (2, 56, 25)))
+        nb = np.ones((2, 2), np.int64)
+        M.frdist(p, g, nb)
+        M.frsyn(p, s)
+        M.frsyn_robust(p, s)
+
+
 STEPS = (("default pipeline", _pipeline), ("interleaver", _interleave), ("live frames", _live_frames),
-         ("avatars", _avatars))
+         ("avatars", _avatars), ("differentiable renderer", _differentiable), ("reaction metrics", _metrics))
 
 
 def main() -> int:

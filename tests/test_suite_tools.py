@@ -86,3 +86,19 @@ def test_the_shipped_slow_list_parses_and_names_existing_files():
     missing = sorted({n.split("::", 1)[0] for n in listed if not (ROOT / n.split("::", 1)[0]).is_file()})
     assert not missing, f"tests/slow_tests.txt names files that do not exist: {missing}"
     json.dumps(listed)  # plain str -> float
+
+
+def test_warm_kernels_steps_run(monkeypatch):
+    """scripts/warm_kernels.py reports and skips a failing step (set-up must not fail on it), so a step broken by
+    an API change would silently stop warming its kernels: the cheap steps must run here (their kernels are
+    cached by then). The default-pipeline and live-frame steps run the paths most tests run anyway."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("warm_kernels", ROOT / "scripts" / "warm_kernels.py")
+    warm = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(warm)
+    steps = dict(warm.STEPS)
+    assert {"default pipeline", "interleaver", "live frames", "avatars", "differentiable renderer",
+            "reaction metrics"} <= set(steps)
+    for name in ("avatars", "differentiable renderer", "reaction metrics"):
+        steps[name]()
