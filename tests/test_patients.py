@@ -265,3 +265,16 @@ def test_live_renderer_refuses_an_unfitted_patient(tmp_path, monkeypatch):
     monkeypatch.setattr(P, "patients_dir", lambda: tmp_path)
     with pytest.raises(AvatarError, match="patient 'zed' is not fitted yet"):
         LiveAvatarRenderer(tile_scale=0.1, native=False, backend="fast", mode="cone", avatar="zed")
+
+
+def test_sheet_has_a_column_per_patient_neutral_over_pain(tmp_path):
+    from holo_viewer.commands.patients import write_sheet
+    from holo_viewer.fileio import load_image
+
+    names = [SHIPPED[0].name, SHIPPED[1].name]
+    img = load_image(write_sheet(tmp_path / "sheet.png", names, 96)).astype(float)  # [0, 1]
+    assert img.shape == (2 * 115 + 22, 2 * 96, 3)
+    neutral, pain, other = img[:115, :96], img[115:230, :96], img[:115, 96:]
+    assert (neutral.max(-1) < 0.98).mean() > 0.2  # a head, not a blank tile
+    assert (np.abs(neutral - pain).max(-1) > 0.12).sum() > 20  # the pain face differs
+    assert np.abs(neutral - other).mean() > 0.02  # two different people
