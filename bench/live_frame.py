@@ -185,6 +185,32 @@ FLARE_PAIN = (0.0, 0.9, 0.9, 0.6, 0.3, 0.0)
 FLARE_NOD = (0.0, 0.12, 0.05, -0.08, 0.0, 0.0)
 #: the tracked viewers of the group sweep (angle deg, distance m): 1 = the first, 4 = all
 GROUP_VIEWERS = ((6.0, 0.6), (-15.0, 0.5), (-4.0, 0.75), (16.0, 0.9))
+#: the group sweep's runs: (mode, tracked viewers, NativeFrameConfig knobs); the defaults first, then
+#: the time-error trade-off of the cone fill's view step (view_step without a face, group_view_step with)
+GROUP_RUNS = (("group", 0, {}), ("group", 1, {}), ("group", 4, {}), ("tracked", 1, {}), ("tracked", 4, {}),
+              ("all_views", 0, {}), ("group", 0, {"view_step": 6}), ("group", 0, {"view_step": 8}),
+              ("group", 1, {"group_view_step": 5}), ("group", 1, {"group_view_step": 12}),
+              ("group", 4, {"group_view_step": 5}), ("group", 4, {"group_view_step": 12}))
+#: comfort: a tracked viewer walks past fixed single-eye positions (deg, m), 1.5 deg a frame, face still
+COMFORT_POSITIONS = ((0.0, 0.6), (-3.0, 0.6))
+COMFORT_WALK_DEG = tuple(float(a) for a in np.arange(-6.0, 4.6, 1.5))
+
+
+def comfort(live: NativeFrameRenderer, still, cone) -> dict:
+    """Issue 37's visual comfort, with the face still (``still``: one frame's Gaussians): the worst
+    PSNR between consecutive group frames seen at the fixed positions of ``cone``, with no viewer
+    (``comfort_still_db``, None when the frames are identical) and while a tracked viewer walks past
+    (``comfort_walk_db``)."""
+    from holo_viewer.display.eyes import TrackedViewer
+
+    def worst(natives: list) -> float | None:
+        dbs = [float(cone.psnr(a, b).min()) for a, b in zip(natives, natives[1:]) if not np.array_equal(a, b)]
+        return min(dbs) if dbs else None
+
+    still_frames = [live.frame(still, None, "group").native.copy() for _ in range(2)]
+    walk = [live.frame(still, TrackedViewer(a, 0.6), "group").native.copy() for a in COMFORT_WALK_DEG]
+    return {"comfort_still_db": worst(still_frames), "comfort_walk_db": worst(walk),
+            "comfort_positions": [list(p) for p in COMFORT_POSITIONS], "comfort_walk_deg": list(COMFORT_WALK_DEG)}
 
 
 def flare_frames(pipe: Pipeline, pain=FLARE_PAIN, nod=FLARE_NOD) -> list:
@@ -206,7 +232,11 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
     ``tracked_eye_db`` (worst tracked eye, frames evaluated), ``cone_worst_db``, ``cone_median_db``.
     ``tracked`` serves the first viewer only (the old default collapsed the faces to the nearest).
     ``sheet``: a picture (PNG, or JPEG by its suffix) of what the tracked viewer's left eye and bystanders at 0, -15, +15 deg (0.6 m)
-    see at three moments of the flare, for ``tracked`` (rows 1-3) and ``group`` (rows 4-6)."""
+    see at three moments of the flare, for ``tracked`` (rows 1-3) and ``group`` (rows 4-6).
+    :data:`GROUP_RUNS` also holds the time-error trade-off of the cone fill (``view_step`` /
+    ``group_view_step``; records with ``default`` false, ``knobs`` naming the change), every record
+    has ``cpu_seconds_per_frame`` (process CPU, both cores) beside the wall time, and the ``group``
+    records with 0 or 1 viewer add :func:`comfort`'s ``comfort_still_db`` / ``comfort_walk_db``."""
     from holo_viewer.display.eyes import ConeSweep, TrackedViewer
 
     cams = pipe.cameras()
@@ -221,19 +251,21 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
           f"frames {evaluated} of {len(frames) - 1}, load {load():.2f}", flush=True)
     ref_seen = {k: [cone.see(refs[k], i) for i in range(len(cone.positions))] for k in evaluated}
     all_viewers = [TrackedViewer(a, d) for a, d in GROUP_VIEWERS]
-    runs = [("group", 0), ("group", 1), ("group", 4), ("tracked", 1), ("tracked", 4), ("all_views", 0)]
+    fixed = ConeSweep(display, COMFORT_POSITIONS)
     records, shown = [], {}
     moments = (1, 2, 4)  # before, onset, easing
-    for mode, n in runs:
+    for mode, n, knobs in GROUP_RUNS:
         viewers = all_viewers[:n]
-        live = NativeFrameRenderer(cal, cams)
+        live = NativeFrameRenderer(cal, cams, NativeFrameConfig(**knobs))
         arg = (viewers[0] if viewers else None) if mode == "tracked" else (viewers or None)
         live.frame(frames[0], arg, mode)  # everything once (the kept state of incremental modes)
         live.prepare_tracked()
         live.prepare_all_views()
-        secs, natives, loads = [], {}, []
+        secs, cpus, natives, loads = [], [], {}, []
         for k in range(1, len(frames)):
+            c0 = time.process_time()
             f = live.frame(frames[k], arg, mode)
+            cpus.append(time.process_time() - c0)
             secs.append(f.seconds)
             loads.append(load())
             if k in evaluated or k in moments:
@@ -244,21 +276,32 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
                      default=None)
         worst = cone_db.min(axis=0)
         s = float(np.median(secs))
-        records.append({"mode": mode, "viewers": n, "served": 1 if mode == "tracked" else n,
-                        "seconds_per_frame": s, "best_seconds": float(min(secs)),
-                        "tracked_eye_db": eye_db, "cone_worst_db": float(worst.min()),
-                        "cone_median_db": float(np.median(cone_db)),
-                        "cone_worst_position": cone.positions[int(np.argmin(worst))],
-                        "cone_worst_by_position_db": {f"{a:+.0f} deg {d:.1f} m": float(w)
-                                                      for (a, d), w in zip(cone.positions, worst)},
-                        "load_1min": float(np.mean(loads)), "frames_evaluated": evaluated,
-                        "face": "pain flare " + "/".join(f"{p:g}" for p in FLARE_PAIN) + " with a nod",
-                        "viewer_positions": [list(v) for v in GROUP_VIEWERS[:n]]})
-        print(f"{mode:9s} viewers {n}  {s:.3f} s/frame (best {min(secs):.3f})  tracked eyes "
+        rec = {"mode": mode, "viewers": n, "served": 1 if mode == "tracked" else n,
+               "view_step": live.view_step, "group_view_step": live.group_view_step,
+               "default": not knobs, "knobs": knobs,
+               "seconds_per_frame": s, "best_seconds": float(min(secs)),
+               "cpu_seconds_per_frame": float(np.median(cpus)),
+               "tracked_eye_db": eye_db, "cone_worst_db": float(worst.min()),
+               "cone_median_db": float(np.median(cone_db)),
+               "cone_worst_position": cone.positions[int(np.argmin(worst))],
+               "cone_worst_by_position_db": {f"{a:+.0f} deg {d:.1f} m": float(w)
+                                             for (a, d), w in zip(cone.positions, worst)},
+               "load_1min": float(np.mean(loads)), "frames_evaluated": evaluated,
+               "face": "pain flare " + "/".join(f"{p:g}" for p in FLARE_PAIN) + " with a nod",
+               "viewer_positions": [list(v) for v in GROUP_VIEWERS[:n]]}
+        if mode == "group" and n <= 1:
+            rec.update(comfort(live, frames[0], fixed))
+        records.append(rec)
+        step = live.group_view_step if (mode == "group" and n) else live.view_step
+        print(f"{mode:9s} viewers {n} step {step:2d}{'' if knobs else ' (default)'}  {s:.3f} s/frame "
+              f"(best {min(secs):.3f}, CPU {np.median(cpus):.3f} s)  tracked eyes "
               f"{'-' if eye_db is None else f'{eye_db:.1f}'} dB  cone worst {worst.min():.1f} dB "
               f"(at {cone.positions[int(np.argmin(worst))]}), median {np.median(cone_db):.1f} dB, "
               f"load {np.mean(loads):.2f}", flush=True)
-        if n == 1 and mode in ("tracked", "group"):
+        if "comfort_walk_db" in rec:
+            print(f"          comfort (face still): no viewer {rec['comfort_still_db']} dB, a viewer walking past "
+                  f"{rec['comfort_walk_db']:.1f} dB", flush=True)
+        if n == 1 and mode in ("tracked", "group") and not knobs:
             shown[mode] = {k: natives[k] for k in moments}
     if sheet and len(shown) == 2:
         write_sheet(sheet, display, shown, all_viewers[0], moments, refs)
