@@ -13,8 +13,9 @@ frame's full quilt. Tolerances (stated once):
   measured 17 dB);
 * comfort: with the face still, consecutive frames at fixed positions are identical without a tracked
   viewer, and agree to >= 40 dB while a tracked viewer walks past. The issue's target is 48 dB; measured
-  41.6 dB here, 43.7-45.6 dB with full-size views, at 0 and -3 deg (the eyes' slices and the synthesized fill differ by that much where
-  they meet): **not met**.
+  41.2 dB here (41.6 with every 5th view in the fill), 42.7 dB with full-size views (44.2), at 0 and -3 deg:
+  **not met** (half of it the slices replacing the fill where the walker's reach arrives or leaves,
+  half the slices' own warp from an eye at another position; docs/live_frame.md).
 
 Views at tile_scale 0.25 (105x140) keep the renders cheap; the optics are the Portrait's.
 """
