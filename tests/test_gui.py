@@ -508,6 +508,50 @@ def test_entry_hints_and_errors_use_the_au_names():
     assert "au9, pain" in str(err.value) and "expr2" not in str(err.value)
 
 
+def test_splat_worker_renders_the_newest_pose_and_drops_stale_ones():
+    """The camera-drag render thread: while a render runs, a newer request replaces the queued one (a stale
+    pose never renders); results come back with their key; cancel() discards a running one's result."""
+    import threading
+
+    from holo_viewer.gui.splat_view import SplatWorker
+
+    gate, ran = threading.Event(), []
+
+    def job(name):
+        def fn():
+            ran.append(name)
+            if name == "a":
+                gate.wait(5)
+            return np.full((2, 2, 3), ord(name), np.uint8)
+        return fn
+
+    w = SplatWorker()
+    try:
+        w.submit("a", job("a"))
+        deadline = time.time() + 5
+        while not ran and time.time() < deadline:
+            time.sleep(0.005)
+        w.submit("b", job("b"))
+        w.submit("c", job("c"))  # replaces b, which never starts
+        gate.set()
+        got = []
+        while (not got or got[-1] != "c") and time.time() < deadline:  # take() gives the newest
+            r = w.take()
+            if r is not None:
+                got.append(r[0])
+            time.sleep(0.005)
+        assert ran == ["a", "c"] and w.dropped == 1 and got[-1] == "c"
+        gate.clear()
+        w.submit("a", job("a"))
+        while ran.count("a") < 2 and time.time() < deadline:
+            time.sleep(0.005)
+        gate.set()
+        w.cancel()  # waits for the running one, discards its result
+        assert w.take() is None and w.idle
+    finally:
+        w.close()
+
+
 def test_fast_vertex_normals_equal_the_reference():
     from holo_viewer.geometry import vertex_normals
     from holo_viewer.gui.scene import vertex_normals_fast

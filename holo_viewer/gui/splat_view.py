@@ -139,6 +139,7 @@ class SplatViewMixin:
         self._splat_worker = SplatWorker()
         self._splat_requested: tuple | None = None  # the pose of the drag render in flight
         self._splat_requested_at = 0.0
+        self._splat_fresh = False  # a drag image arrived that no frame has drawn yet
         self._splat_texture = vtk.vtkTexture()
         self._splat_texture.InterpolateOff()
 
@@ -221,14 +222,15 @@ class SplatViewMixin:
         self._splat_key, self._splat_full = key, False
         self.timings.splat_drag_ms = ms
         self._dirty_parts.add("scene")
+        self._splat_fresh = True  # drawn by the next frame even while the next pose renders
         return True
 
     def _holding_for_splat(self) -> bool:
         """During a camera drag, a scene-only frame waits (at most ``SPLAT_HOLD_S``) for the splat image
         being rendered: drawn now it would show the old image under moved overlays, and on 2 cores it
         would slow the render down by as much as it costs."""
-        return (self._dirty_parts == {"scene"} and self._splat_requested is not None and self._camera_moving()
-                and time.perf_counter() - self._splat_requested_at < SPLAT_HOLD_S)
+        return (self._dirty_parts == {"scene"} and not self._splat_fresh and self._splat_requested is not None
+                and self._camera_moving() and time.perf_counter() - self._splat_requested_at < SPLAT_HOLD_S)
 
     def splat_on_screen(self) -> bool:
         """Whether the last frame drawn shows the splat image of the scene camera as it is now (benchmarks)."""

@@ -406,6 +406,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         self.last_frame_parts = tuple(sorted(draw))
         if "scene" in draw:
             self._splat_drawn_key = self._splat_key
+            self._splat_fresh = False
         self._dirty_parts = set()
 
     def resize_panels(self, step: int) -> None:
