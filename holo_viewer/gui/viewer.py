@@ -226,7 +226,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         p.set_background("#15171b", all_renderers=False)
         self._add_sliders()
         if "assumed" in self.angle_range_note:  # the avatar file does not say where it was fitted
-            self._message = f"note: {self.angle_range_note}"
+            self._message = self._angle_note()
         p.subplot(0, 1)
         self._update_preview()
         if self.config.auto_thumbnail:
@@ -298,7 +298,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
             if angle != pipe.view.viewer_angle:
                 pipe.set_view(viewer_angle=angle)
                 self._refresh_cameras()
-            self._set_status(f"note: {self.angle_range_note}" if "assumed" in self.angle_range_note else "")
+            self._set_status(self._angle_note() if "assumed" in self.angle_range_note else "")
         self._update_preview()
         if avatar is not None and self.config.auto_thumbnail:
             self._update_thumbnail(wait=self.off_screen)
@@ -313,10 +313,16 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         except HoloViewerError as exc:
             self._show_error(str(exc))
             return None
-        if len(self.errors) == n_errors and self._message.startswith("error: "):
+        if len(self.errors) == n_errors and self._message.startswith(("error: ", "note: ")):
             self._set_status("")
             self._render()
         return result
+
+    def _angle_note(self) -> str:
+        """The status line's note when the avatar file does not say where it was fitted (cleared by the
+        next action, as errors are; the whole note: ``angle_range_note``)."""
+        lo, hi = self._specs["angle"].rng
+        return f"note: viewer angle {lo:+.0f}..{hi:+.0f} deg: the avatar file stores no fit_angle_range_deg"
 
     def _unprompted(self, fn: Callable, *args: Any) -> Any:
         """Run work the loop does by itself (no user action): errors go to the status line, but a success
