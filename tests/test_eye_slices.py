@@ -39,7 +39,7 @@ from holo_viewer.display.calibration import DisplayCalibration  # noqa: E402
 from holo_viewer.display.cameras import make_quilt_cameras  # noqa: E402
 from holo_viewer.display.lenticular import Interleaver  # noqa: E402
 from holo_viewer.display.simulate import VirtualDisplay  # noqa: E402
-from holo_viewer.display.slices import SubpixelBuckets, scatter_slices  # noqa: E402
+from holo_viewer.display.slices import SubpixelBuckets, scatter_slices, subpixel_buckets  # noqa: E402
 from holo_viewer.display.slices import cpp_available as slices_cpp_available  # noqa: E402
 from holo_viewer.errors import InputError, RenderError  # noqa: E402
 from holo_viewer.pipeline.live import NativeFrameConfig, NativeFrameRenderer  # noqa: E402
@@ -297,7 +297,7 @@ def _buckets(mode: str):
     """The interleaver and subpixel buckets of SMALL in ``mode``, built once per module."""
     if mode not in _BUCKETS:
         il = Interleaver(SMALL, (840, 840, 3), mode=mode)
-        _BUCKETS[mode] = il, SubpixelBuckets(il, 48, 140, 105)
+        _BUCKETS[mode] = il, subpixel_buckets(il, 48, 140, 105)  # (the live renderers of SMALL share them)
     return _BUCKETS[mode]
 
 
@@ -497,6 +497,13 @@ def test_prepare_tracked_builds_the_first_frames_tables(cams, tracked):
     else:
         assert il._keys is not None
     tables = (live._buckets, getattr(il, "_readers", None), getattr(il, "_keys", None))
+    if tracked == "slices":  # the subpixel buckets are shared by every renderer of the panel, quilt and mode
+        other = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(tracked=tracked, refresh_columns=0))
+        other.prepare_tracked()
+        assert other._buckets is live._buckets
+        blend = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(tracked=tracked, blend=True))
+        blend.prepare_tracked()
+        assert blend._buckets is not live._buckets and blend._buckets.mode == "blend"
     g = _scene(3, 500)
     live.frame(g, eyes.TrackedViewer(0.0, 0.6), mode="tracked")  # the first frame: everything
     live.frame(g, eyes.TrackedViewer(2.0, 0.6), mode="tracked")

@@ -22,7 +22,10 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["SubpixelBuckets", "scatter_slices", "cpp_available"]
+__all__ = ["SubpixelBuckets", "subpixel_buckets", "scatter_slices", "cpp_available", "BUCKET_CACHE_SIZE"]
+
+#: :func:`subpixel_buckets` keeps the tables of this many (panel, quilt, mode) combinations
+BUCKET_CACHE_SIZE = 2
 
 
 class SubpixelBuckets:
@@ -94,6 +97,26 @@ class SubpixelBuckets:
     def nbytes(self) -> int:
         return int(self.positions.nbytes + self.zeta.nbytes + self.offsets.nbytes + self.view1.nbytes
                    + self.w8.nbytes)
+
+
+_BUCKETS: dict = {}
+
+
+def subpixel_buckets(interleaver: Any, n_views: int, height: int, width: int) -> SubpixelBuckets:
+    """:class:`SubpixelBuckets` of ``interleaver``'s panel, quilt layout and mode, built once and
+    shared (nothing writes them; ~2 s and ~60 MB for the Portrait): a live session's renderer, one
+    rebuilt for a new avatar size and the tests reuse them. The last :data:`BUCKET_CACHE_SIZE`
+    combinations are kept."""
+    il = interleaver
+    key = (il.calibration, il.quilt_shape, il.cols, il.rows, il.n_views, il.mode, int(n_views), int(height),
+           int(width))
+    b = _BUCKETS.pop(key, None)
+    if b is None:
+        b = SubpixelBuckets(il, n_views, height, width)
+    _BUCKETS[key] = b  # (re)inserted last: the most recent
+    while len(_BUCKETS) > BUCKET_CACHE_SIZE:
+        del _BUCKETS[next(iter(_BUCKETS))]
+    return b
 
 
 _F0, _F05, _F1, _F255 = np.float32(0.0), np.float32(0.5), np.float32(1.0), np.float32(255.0)

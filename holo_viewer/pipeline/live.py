@@ -587,7 +587,7 @@ class NativeFrameRenderer:
             return
         from ..display.native import ColumnUpdate, views_to_native
         from ..display.eyes import TrackedViewer, eye_positions
-        from ..display.slices import SubpixelBuckets
+        from ..display.slices import subpixel_buckets
         from ..render import crossed_slit
 
         if self.refresh_columns > 0:  # slices
@@ -600,7 +600,7 @@ class NativeFrameRenderer:
                             columns=ColumnUpdate(one, self.tile))
             self.interleaver.update(self.quilt, self.native, np.zeros(0, dtype=np.int32))
         V, H, W = len(self.cameras), self.cameras.height, self.cameras.width
-        self._buckets = SubpixelBuckets(self.interleaver, V, H, W)
+        self._buckets = subpixel_buckets(self.interleaver, V, H, W)  # shared by the renderers of this panel
         self._slices = np.zeros((2, H, W, 3), dtype=np.float32)
         self._slice_w = np.zeros((2, H, W), dtype=np.float32)
         eyes_ = crossed_slit.eye_slices(self._slice_rig, eye_positions(TrackedViewer(0.0, 0.6)))
