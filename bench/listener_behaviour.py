@@ -19,15 +19,21 @@ voices (3 min each) use seed 0. Measures
 minute and their contingency on the VAD pause onsets (share of nod onsets 0.2-1.0 s after a pause
 onset against 1000 circular shifts: ratio and p), blinks per minute and durations (eyelid >= 0.8
 for 100-400 ms), the share of frames with the gaze within 5 deg of the default viewer target
-(``gaze_on_trainee``; the live webcam measure ``gaze_yaw_r`` is not taken here: null), smiles and
-brow raises per minute.
+(``gaze_on_trainee``), smiles and brow raises per minute.
+
+Live (unless ``--quick`` / ``--no-live``; ``--live-only`` merges it into an existing JSON): a
+``LiveSession`` with the hologram renderer on a webcam replay of a trainee (the default head) who
+walks across the cone (15 sin(2 pi t / 12.5 s) deg at 0.6 m) speaking 25 s of the two recordings:
+``gaze_on_trainee`` (gaze within 5 deg of the trainee's true eye midpoint), aversions per minute,
+``gaze_yaw_r`` (gaze yaw against the trainee's direction), and the speech pause -> backchannel
+latency, in the recorded listener and as the first visible change (``live_latency.backchannel_latency``).
 
 Writes ``bench/results/listener_behaviour.json`` (``--out``), a PNG of the behaviour under the
 waveform and (unless ``--no-video``) a 15-s listening clip with the speech as its sound track: the
 two real recordings back to back (librispeech, 0.5 s of silence, JFK), cut at 15 s, seed 0,
 default settings. Prints the table.
 
-    .venv/bin/python bench/listener_behaviour.py [--quick] [--no-video] [--seeds 20]
+    .venv/bin/python bench/listener_behaviour.py [--quick] [--no-video] [--no-live | --live-only] [--seeds 20]
 """
 
 from __future__ import annotations
