@@ -112,14 +112,14 @@ def test_acceptance_on_synthetic_test_split():
     bundle = load_default_bundle()
     cfg = bundle.train_config.data
     test = make_synthetic_split("test", cfg)
-    # the val split's mean frame stands in for the training mean (MeanFr): the 120-context text-to-speech
-    # training split takes minutes to synthesize; the val split is never trained on either
-    train = make_synthetic_split("val", cfg)
+    # MeanFr's mean frame is the test split's own (an oracle): the 120-context text-to-speech training split
+    # takes minutes to synthesize, and the val split's mean (never trained on either) cost 6 s of CPU to give
+    # the same baseline (FRDist 62.5 with it, 63.0 with the test mean, Ours 30.2; FRCorr 0.0 both)
     states = generate_reactions(bundle, test, k_samples=10, temperature=1.0, top_k=20, seed=0)
     rho, _ = pain_following(states, test.pain, default_au_map())
     assert rho >= 0.9
     ours = attributes_from_state(states, bundle.au_names)
-    base = all_baselines(test.listener_attr, test.speaker_attr, train.listener_attr, 10)
+    base = all_baselines(test.listener_attr, test.speaker_attr, test.listener_attr, 10)
     gt, nb = test.listener_attr, test.neighbour
     fc = {n: M.frcorr(p, gt, nb) for n, p in [("Ours", ours)] + [(b, base[b]) for b in ("Random", "Mime", "MeanFr")]}
     fd = {n: M.frdist(p, gt, nb) for n, p in [("Ours", ours)] + [(b, base[b]) for b in ("Random", "Mime", "MeanFr")]}
