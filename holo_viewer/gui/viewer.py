@@ -497,7 +497,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         Returns False once the window should close (``q``, the window's close button)."""
         if self._thumb_wanted:
             self._thumb_wanted = False
-            self._guarded(self._update_thumbnail)
+            self._unprompted(self._update_thumbnail)
         iren = self.plotter.iren
         if iren is not None and not self.off_screen:
             inter = iren.interactor
