@@ -52,16 +52,19 @@ def time_file(path: Path, markers: str | None) -> dict:
         tests = json.loads(per_test.read_text()) if per_test.is_file() else {}
     lines = [ln for ln in run.stdout.strip().splitlines() if ln.strip()]
     return {"file": str(path.relative_to(ROOT)), "wall_s": round(wall, 2), "cpu_s": round(cpu, 2),
+            "torch_threads": env["OMP_NUM_THREADS"], "load_average": [round(x, 1) for x in os.getloadavg()],
             "exit_code": run.returncode, "summary": lines[-1] if lines else "",
             "tests": {k: [round(v[0], 3), round(v[1], 3)] for k, v in tests.items()}}
 
 
 def _write_json(path: Path, markers: str | None, rows: list[dict]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"markers": markers, "cpus": os.cpu_count(), "python": platform.python_version(),
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps({"markers": markers, "cpus": os.cpu_count(), "python": platform.python_version(),
                                 "load_average_end": os.getloadavg(),
                                 "total_wall_s": round(sum(r["wall_s"] for r in rows), 1),
                                 "total_cpu_s": round(sum(r["cpu_s"] for r in rows), 1), "files": rows}, indent=1))
+    tmp.replace(path)
 
 
 #: a file's cheapest test stays in the fast run unless it takes more CPU seconds than this (a Ray cluster)
@@ -113,9 +116,12 @@ def main() -> int:
     ap.add_argument("--markdown", action="store_true", help="print the per-file table as markdown (docs/development.md)")
     args = ap.parse_args()
     rows = []
-    if args.from_json:
+    if args.from_json:  # a file measured in several results: the last one given wins
+        by_file: dict[str, dict] = {}
         for p in args.from_json:
-            rows += json.loads(p.read_text())["files"]
+            for r in json.loads(p.read_text())["files"]:
+                by_file[r["file"]] = r
+        rows = list(by_file.values())
     else:
         files = [p.resolve() for p in args.files] or sorted((ROOT / "tests").glob("test_*.py"))
         for path in files:
@@ -141,7 +147,8 @@ def main() -> int:
             top = max(r["tests"].items(), key=lambda kv: kv[1][1], default=("::-", [0, 0]))
             n_slow = sum(k in slow for k in r["tests"])
             fast = sum(v[1] for k, v in r["tests"].items() if k not in slow)
-            print(f"| `{Path(r['file']).name}` | {len(r['tests'])} | {r['cpu_s']:.1f} | {n_slow} | {fast:.1f} | "
+            old = "" if "torch_threads" in r else " *"  # measured before torch had a worker's threads
+            print(f"| `{Path(r['file']).name}`{old} | {len(r['tests'])} | {r['cpu_s']:.1f} | {n_slow} | {fast:.1f} | "
                   f"`{top[0].split('::', 1)[1][:50]}` {top[1][1]:.1f} |")
         print(f"| total | {sum(len(r['tests']) for r in rows)} | {sum(r['cpu_s'] for r in rows):.1f} | "
               f"{sum(k in slow for r in rows for k in r['tests'])} | "
@@ -150,7 +157,7 @@ def main() -> int:
         names = write_slow_list(args.write_slow, rows, args.slow_cpu)
         fast = sum(v[1] for r in rows for k, v in r["tests"].items() if k not in set(names))
         print(f"wrote {args.write_slow}: {len(names)} slow tests; the others took {fast:.1f} s of CPU")
-    if args.json and not args.from_json:
+    if args.json:  # with --from-json: the merged results
         _write_json(args.json, args.markers, rows)
     return 0 if all(r["exit_code"] in (0, 5) for r in rows) else 1
 
