@@ -337,7 +337,8 @@ class SlidersMixin:
         # which halves its cost with software OpenGL
         if self.glyph_actor is not None:
             self.glyph_actor.SetVisibility(False)
-        self._render_now()
+        if not self.show_splats:  # with the splats the new face's picture is their frame, drawn next:
+            self._render_now()  # a frame now would only bring the old splats back for ~100 ms
         self.timings.mesh_ms = (time.perf_counter() - t0) * 1e3
         self._after_change(t0)
 
