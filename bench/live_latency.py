@@ -244,9 +244,10 @@ def rss_run(seconds: float, out: Path) -> dict:
             "late_reaction_windows": session.late_windows, "reaction_windows": len(session.window_ms)}
 
 
-def startup_run(cold: bool, out: Path, frames: int = 3) -> dict:
-    """``holo-viewer live --synthetic --headless --frames N`` in a child process (the command as a user
-    starts it, full-size tiles): seconds from the process start to its "first frame shown" line, and
+def startup_run(cold: bool, out: Path, files: dict, frames: int = 3) -> dict:
+    """``holo-viewer live --audio WAV --video MP4 --headless --frames N`` in a child process (the command
+    as a user starts it on recorded inputs, full-size tiles, the face tracker warmed too): seconds from
+    the process start to its "first frame shown" line, and
     quit = the last frame -> the session closed (printed by the command) + that line -> the process
     exited. ``cold``: an empty ``NUMBA_CACHE_DIR`` (every kernel compiles, as on first use)."""
     import subprocess
@@ -254,8 +255,8 @@ def startup_run(cold: bool, out: Path, frames: int = 3) -> dict:
     env = dict(os.environ)
     if cold:
         env["NUMBA_CACHE_DIR"] = str(out / "numba_cache")
-    cmd = [sys.executable, "-m", "holo_viewer", "live", "--synthetic", "--seconds", "6", "--headless",
-           "--frames", str(frames), "--out", str(out / "session")]
+    cmd = [sys.executable, "-m", "holo_viewer", "live", "--audio", str(files["wav"]), "--video", str(files["video"]),
+           "--headless", "--frames", str(frames), "--out", str(out / "session")]
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
@@ -285,9 +286,17 @@ def main() -> int:
     ap.add_argument("--startup-only", action="store_true", help="only the start-up runs: the live command's first "
                     "frame cold (empty kernel cache) and warm, and its quit time")
     args = ap.parse_args()
+
+    from holo_viewer.pipeline.live_support import write_talking_head_clip
+
+    cache = Path(args.cache) / f"clip_{args.seconds:g}s"
+    files = {"wav": cache / "speaker.wav", "video": cache / "speaker.mp4"}
+    if not all(p.exists() for p in files.values()):
+        print(f"rendering a {args.seconds:g} s clip of the default head speaking into {cache} ...")
+        write_talking_head_clip(cache, seconds=args.seconds, n_gaussians=30_000)
     with tempfile.TemporaryDirectory() as tmp:  # the live command as a user starts it (issue 33)
-        startup = [startup_run(cold, Path(tmp) / f"start{i}") for i, cold in enumerate((True, False))]
-    print("start-up (holo-viewer live --synthetic --headless --frames 3, full-size tiles): first frame "
+        startup = [startup_run(cold, Path(tmp) / f"start{i}", files) for i, cold in enumerate((True, False))]
+    print("start-up (holo-viewer live --audio --video --headless --frames 3, full-size tiles): first frame "
           f"cold {startup[0]['first_frame_s']} s (load {startup[0]['load_1min_start']}), warm "
           f"{startup[1]['first_frame_s']} s (load {startup[1]['load_1min_start']}); quit {startup[1]['quit_s']} s")
     if args.startup_only:
@@ -299,14 +308,6 @@ def main() -> int:
                 json.dump({"config": vars(args), "cores": os.cpu_count(), "startup": startup}, fh, indent=2)
             print(f"wrote {args.json}")
         return 0
-
-    from holo_viewer.pipeline.live_support import write_talking_head_clip
-
-    cache = Path(args.cache) / f"clip_{args.seconds:g}s"
-    files = {"wav": cache / "speaker.wav", "video": cache / "speaker.mp4"}
-    if not all(p.exists() for p in files.values()):
-        print(f"rendering a {args.seconds:g} s clip of the default head speaking into {cache} ...")
-        write_talking_head_clip(cache, seconds=args.seconds, n_gaussians=30_000)
     load = os.getloadavg()
     fit = fit_speed()
     rows = []
