@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--skip-head-renders", action="store_true", help="do not write head/ (faster)")
     from .avatar_args import add_avatar_argument
 
-    add_avatar_argument(parser, kinds=("default", "patient", "npz"), help="whose quilt and video; files are named "
+    add_avatar_argument(parser, kinds=("default", "patient", "npz"), fitted=True, help="whose quilt and video; files are named "
                         "after it (default_*.png for the default)")
     from .behaviour_args import add_behaviour_arguments
 

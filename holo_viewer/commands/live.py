@@ -52,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ctl = parser.add_argument_group("patient")
     from .avatar_args import add_avatar_argument
 
-    add_avatar_argument(ctl, kinds=("default", "patient", "npz"), help="who the patient is (session.json records it)")
+    add_avatar_argument(ctl, kinds=("default", "patient", "npz"), fitted=True, help="who the patient is (session.json records it)")
     ctl.add_argument("--pain", type=float, default=0.0, help="initial pain level in [0, 1] (keys Up/Down change it)")
     ctl.add_argument("--scenario", metavar="FILE.json", help="timeline of pain levels and named expressions")
     ctl.add_argument("--group", action="store_true", help="centre the view cone on all faces instead of the nearest")
@@ -145,9 +145,12 @@ def run(args: argparse.Namespace) -> int:
                                max_seconds=args.seconds, settings=settings,
                                behaviour=behaviour_from_args(args, seed=args.seed))
     progress("loading the avatar and compiling the render kernels (cached after the first use)")
+    # the reaction model loads on the other core meanwhile (the renderer's tables are mostly one thread)
+    reaction = _ReactionPreload()
     renderer = LiveAvatarRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview,
                                   mode=args.render_mode, backend=args.renderer, avatar=args.avatar)
     settings["render_backend"] = renderer.backend  # what "auto" chose (session.json)
+    reaction.join()  # loaded and cached: the session's "warming the reaction model" finds it
     session = LiveSession(config, audio, video, synthetic)
     session.progress = progress
     panel = None
@@ -173,6 +176,29 @@ def run(args: argparse.Namespace) -> int:
           f"{summary['displayed_frames']} displayed; reaction windows {summary['reaction_windows']} "
           f"({summary['late_reaction_windows']} late); render {summary['render_ms']}")
     return 130 if interrupted else 0
+
+
+class _ReactionPreload:
+    """Load the shipped reaction model into its cache (``reaction.api.load_default_bundle``) in a
+    thread while the renderer is built. An error is left for the session's own load to report."""
+
+    def __init__(self) -> None:
+        import threading
+
+        self._thread = threading.Thread(target=self._load, name="reaction-preload", daemon=True)
+        self._thread.start()
+
+    @staticmethod
+    def _load() -> None:
+        try:
+            from ..reaction.api import load_default_bundle
+
+            load_default_bundle()
+        except Exception:  # noqa: BLE001 - the session loads it again and reports the error
+            pass
+
+    def join(self) -> None:
+        self._thread.join()
 
 
 class _Progress:
