@@ -95,7 +95,8 @@ def test_resolve_avatar_kinds_and_errors(tmp_path):
     assert got.kind == "patient" and got.name == name and got.path == P.patients_dir() / name
     (tmp_path / "a.ply").write_bytes(b"ply")
     (tmp_path / "b.npz").write_bytes(b"npz")
-    assert P.resolve_avatar(tmp_path / "a.ply").kind == "ply" and P.resolve_avatar(str(tmp_path / "b.npz")).kind == "npz"
+    assert P.resolve_avatar(tmp_path / "a.ply").kind == "ply"
+    assert P.resolve_avatar(str(tmp_path / "b.npz")).kind == "npz"
     with pytest.raises(InputError, match="file not found") as exc:
         P.resolve_avatar(tmp_path / "missing.ply")
     assert name in str(exc.value)

@@ -412,7 +412,8 @@ class _Painter:
         inside = _smoothstep(0.35, -0.35, d_outer) * near
         self.lip_weight = inside
         n = len(q)
-        lipc = np.tile(np.asarray(self.look.lip, np.float64), (n, 1)) * (1.0 + 0.06 * _fbm(q / 3.0, self.seed + 20, 2))[:, None]
+        lipc = np.tile(np.asarray(self.look.lip, np.float64), (n, 1))
+        lipc = lipc * (1.0 + 0.06 * _fbm(q / 3.0, self.seed + 20, 2))[:, None]
         # darker, wetter toward the inner contour
         d_inner = _signed_dist_polygon(q[:, :2], lm[60:68, :2])
         lipc *= (1.0 - 0.18 * _smoothstep(3.0, 0.0, d_inner))[:, None]

@@ -47,8 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--skip-head-renders", action="store_true", help="do not write head/ (faster)")
     from .avatar_args import add_avatar_argument
 
-    add_avatar_argument(parser, kinds=("default", "patient", "npz"), fitted=True, help="whose quilt and video; files are named "
-                        "after it (default_*.png for the default)")
+    add_avatar_argument(parser, kinds=("default", "patient", "npz"), fitted=True,
+                        help="whose quilt and video; files are named after it (default_*.png for the default)")
     from .behaviour_args import add_behaviour_arguments
 
     add_behaviour_arguments(parser, pain_timeline=False)

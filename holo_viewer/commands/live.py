@@ -52,7 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ctl = parser.add_argument_group("patient")
     from .avatar_args import add_avatar_argument
 
-    add_avatar_argument(ctl, kinds=("default", "patient", "npz"), fitted=True, help="who the patient is (session.json records it)")
+    add_avatar_argument(ctl, kinds=("default", "patient", "npz"), fitted=True,
+                        help="who the patient is (session.json records it)")
     ctl.add_argument("--pain", type=float, default=0.0, help="initial pain level in [0, 1] (keys Up/Down change it)")
     ctl.add_argument("--scenario", metavar="FILE.json", help="timeline of pain levels and named expressions")
     ctl.add_argument("--group", action="store_true", help="centre the view cone on all faces instead of the nearest")

@@ -3,8 +3,8 @@ and ``apps/stream_sequence.py``); headless, below the GUI.
 
 ``--avatar``: ``default`` (the embedded default head and its Gaussian avatar), ``none``
 (mesh only), a patient's name (docs/patients.md: its head and fitted avatar, or its head alone
-until it is fitted), a fitted avatar ``.npz`` (on the head it was fitted to), or a PLY: a GaussianAvatars ``point_cloud.ply`` (local Gaussians + ``binding_0``,
-rigged to the FLAME model) or a plain 3DGS PLY (world Gaussians, shown as they are: they do
+until it is fitted), a fitted avatar ``.npz`` (on the head it was fitted to), or a PLY: a
+GaussianAvatars ``point_cloud.ply`` (local Gaussians + ``binding_0``, rigged to the FLAME model) or a plain 3DGS PLY (world Gaussians, shown as they are: they do
 not follow the sliders). ``--flame-model``: a FLAME ``.pkl`` / ``.npz`` (default: the embedded
 head). ``--flame-params``: a ``flame_param.npz`` sequence (frame 0 is shown first).
 """
