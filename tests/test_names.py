@@ -23,6 +23,7 @@ SAME_ROLE = {
     "viewer.py": "an interactive window: gui/ the hologram viewer, tracking/ the tracker's webcam viewer",
     "video.py": "video frames of the package: tracking/ reads webcam/video input, batch/ writes render-batch videos",
     "speech.py": "speech features from the microphone: reaction/ the model's prosody, behaviour/ its pause gate",
+    "patients.py": "the ward (docs/patients.md): avatar/ its registry, assets_build/ its recipes, commands/ the listing",
 }
 
 
