@@ -216,6 +216,7 @@ def _rigged_from_file(path: Path, model: Any, head_path: Path) -> Any:
     av.region = np.asarray(region).astype(np.int64)[order]
     names = tuple(str(s) for s in model.metadata["region_names"])
     av.region_names = names if "teeth" in names else names + ("teeth",)
+    av.fit_file = Path(path)  # the viewer's angle range reads fit_angle_range_deg from it (gui/sliders.py)
     return av
 
 
