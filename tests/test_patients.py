@@ -280,10 +280,41 @@ def test_sheet_has_a_column_per_patient_neutral_over_pain(tmp_path):
     from holo_viewer.commands.patients import write_sheet
     from holo_viewer.fileio import load_image
 
-    names = [SHIPPED[0].name, SHIPPED[1].name]
-    img = load_image(write_sheet(tmp_path / "sheet.png", names, 96)).astype(float)  # [0, 1]
-    assert img.shape == (2 * 115 + 22, 2 * 96, 3)
-    neutral, pain, other = img[:115, :96], img[115:230, :96], img[:115, 96:]
+    img = load_image(write_sheet(tmp_path / "sheet.png", [SHIPPED[0].name], 96)).astype(float)  # [0, 1]
+    assert img.shape == (2 * 115 + 22, 96, 3)
+    neutral, pain = img[:115], img[115:230]
     assert (neutral.max(-1) < 0.98).mean() > 0.2  # a head, not a blank tile
     assert (np.abs(neutral - pain).max(-1) > 0.12).sum() > 20  # the pain face differs
-    assert np.abs(neutral - other).mean() > 0.02  # two different people
+    assert (img[230:].min(-1) < 0.5).any()  # the name under it
+
+
+def test_a_fitted_patient_loads_as_name_and_as_npz(tmp_path, monkeypatch):
+    """A patient with an avatar.npz (save_fitted_avatar's format) loads by name and by file; a file
+    fitted to another head is refused, naming both."""
+    import shutil
+
+    from holo_viewer.avatar.default_gaussians import save_fitted_avatar
+    from holo_viewer.testing import random_gaussians
+
+    src = SHIPPED[0]
+    folder = tmp_path / src.name
+    shutil.copytree(src.folder, folder)
+    monkeypatch.setattr(P, "patients_dir", lambda: tmp_path)
+    P._model.cache_clear()
+    model = P.load_patient_model(src.name)
+    g = random_gaussians(60, seed=1, scale=0.002)
+    binding = np.arange(60) * 7 % model.faces.shape[0]
+    save_fitted_avatar(folder / "avatar.npz", g, binding, model, "test", head_path=folder / "head.npz",
+                       info={"psnr_min_db": 36.25})
+    pat = P.load_patient(src.name)
+    assert pat.avatar is not None and len(pat.avatar) == 60 and pat.avatar.flame_model is pat.model
+    assert pat.avatar.fit_file == folder / "avatar.npz"
+    assert P.patient_summary(pat.info)["psnr_min_db"] == 36.25
+    copy = shutil.copy(folder / "avatar.npz", tmp_path / "mine.npz")
+    model2, av, desc, name = P.load_choice(str(copy))
+    assert model2 is pat.model and len(av) == 60 and name == str(copy)
+    (folder / "head.npz").write_bytes((folder / "head.npz").read_bytes() + b"\0")  # another head now
+    P._model.cache_clear()
+    with pytest.raises(AvatarError, match="fitted to another head"):
+        P.load_patient_avatar(src.name)
+    P._model.cache_clear()

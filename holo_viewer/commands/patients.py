@@ -59,7 +59,10 @@ def write_sheet(path: Path, names: list[str], width: int = 200) -> Path:
         ims = [render_mesh(v, f, views=("front",), size=(width, height), appearance=app)[0] for v in poses]
         label = Image.new("RGB", (width, 22), (255, 255, 255))
         ImageDraw.Draw(label).text((6, 5), name, fill=(0, 0, 0))
-        cols.append(np.concatenate(ims + [np.asarray(label)], axis=0))
+        lab = np.asarray(label)
+        if ims[0].dtype.kind == "f":  # renders in [0, 1]: the label too (uint8 would clip to white)
+            lab = lab.astype(ims[0].dtype) / 255.0
+        cols.append(np.concatenate(ims + [lab], axis=0))
     if not cols:
         raise InputError("--sheet: no patients are shipped (assets/patients/ is empty)")
     return save_image(path, np.concatenate(cols, axis=1))
