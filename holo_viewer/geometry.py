@@ -259,8 +259,9 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 x area
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, f[:, k], fn)
+    # each face's normal added at its three corners: np.bincount sums per vertex (np.add.at did the same
+    # in 2x the time: 13.5 -> 6 ms on the default head, the viewer's live slider step)
+    corners = f.T.ravel()
+    n = np.stack([np.bincount(corners, weights=np.tile(fn[:, c], 3), minlength=len(v)) for c in range(3)], axis=1)
     norm = np.linalg.norm(n, axis=1, keepdims=True)
     return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)

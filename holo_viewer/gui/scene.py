@@ -235,33 +235,6 @@ def _faces_to_vtk(tri: np.ndarray) -> np.ndarray:
     return np.hstack([np.full((tri.shape[0], 1), 3, dtype=np.int64), tri]).ravel()
 
 
-_INCIDENCE: dict[tuple, Any] = {}  # faces fingerprint -> (V, F) sparse vertex-face incidence
-
-
-def vertex_normals_fast(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """:func:`holo_viewer.geometry.vertex_normals` (the area-weighted sum of the incident triangles'
-    normals, unit length, float64) as one sparse product with the mesh's vertex-face incidence matrix
-    (cached per faces array) instead of ``np.add.at``: for the live mesh of a slider drag; equal to it
-    within 1e-12 (``tests/test_gui.py``)."""
-    import scipy.sparse as sp
-
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    key = (len(v), f.shape, np.asarray(faces).__array_interface__["data"][0], int(f.sum()), int(f[:, 0] @ np.arange(len(f))))
-    A = _INCIDENCE.get(key)
-    if A is None:
-        rows = f.T.ravel()
-        cols = np.tile(np.arange(len(f)), 3)
-        A = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(len(v), len(f)))
-        if len(_INCIDENCE) > 4:
-            _INCIDENCE.clear()
-        _INCIDENCE[key] = A
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 x area
-    n = A @ fn
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
-
-
 def mesh_polydata(vertices: np.ndarray, faces: np.ndarray) -> Any:
     """``pyvista.PolyData`` of a triangle mesh ((V, 3) vertices, (F, 3) faces)."""
     import pyvista as pv

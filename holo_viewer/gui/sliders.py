@@ -345,9 +345,9 @@ class SlidersMixin:
     def _set_mesh_points(self, verts: np.ndarray) -> None:
         self.mesh.points[:] = verts
         if "Normals" in self.mesh.point_data:
-            from .scene import vertex_normals_fast
+            from ..geometry import vertex_normals
 
-            self.mesh.point_data["Normals"][:] = vertex_normals_fast(verts, self.faces)
+            self.mesh.point_data["Normals"][:] = vertex_normals(verts, self.faces)
         self.mesh.Modified()
 
     def set_view(self, **changes: Any) -> None:
