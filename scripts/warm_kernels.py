@@ -70,6 +70,8 @@ def _live_frames() -> None:
         live.frame(g, eyes.TrackedViewer(0.0, 0.6))
         live.frame(g, eyes.TrackedViewer(3.0, 0.6))
         live.frame(g, mode="all_views")
+        for mode in ("tracked", "eye_centred"):
+            live.frame(g, eyes.TrackedViewer(2.0, 0.6), mode=mode)
     # the eye slices' numba scatter (the C++ one is used when built; tests compare the two)
     from holo_viewer.display import slices
 
