@@ -290,7 +290,8 @@ def test_tracked_frame_matches_full_path_where_eyes_see(display, small_cameras, 
         ref = reference.frame(g, mode="full_quilt").native
         differs = f.native != ref
         assert differs.any()  # the views the eyes cannot see still hold the previous frame
-        for dx in (0.0, 0.009, -0.009):  # eyes anywhere inside the sideways margin
+        # eyes anywhere inside the sideways margin (its edges on the second incremental frame)
+        for dx in (0.0, 0.009, -0.009) if step == 1 else (0.0,):
             x = viewer.centre_x_m + dx
             moved = eyes.TrackedViewer(math.degrees(math.atan2(x, viewer.distance_m)), viewer.distance_m)
             seen = eyes.received_subpixels(display, moved, cfg.threshold)
