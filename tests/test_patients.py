@@ -172,6 +172,12 @@ def test_gui_chooser_steps_through_default_and_the_patients(monkeypatch):
     assert C.cycle_patient(v) == names[1] and v.calls == [(None, "M")]  # not fitted: the mesh alone
     assert C.cycle_patient(v, -1) == "default" and loaded == [names[1], "default"]
     assert v.patient_description == "desc default"
+    v._key_actions = lambda: {"p": "panel"}
+    C.bind_patient_keys(v)  # through the viewer's own key map
+    keys = v._key_actions()
+    assert keys["p"] == "panel" and set(C.PATIENT_KEYS) <= set(keys)
+    keys["P"]()
+    assert v.patient_name == names[1]
 
 
 # ------------------------------------------------------------------------------ batch manifests

@@ -3,8 +3,8 @@
 :func:`cycle_patient` loads the next (or previous) patient through the pipeline's avatar loader and
 hands it to the viewer's avatar hook, ``HoloViewer.set_avatar(avatar, model)`` (which rebuilds the
 mesh, splats, cameras, previews and thumbnail and keeps the face sliders). A patient that is not
-fitted yet is shown as its textured mesh alone. Key binding: ``P`` (shift-p) forward and ``O``
-backward, bound by :func:`bind_patient_keys` (the viewer calls it once its window exists; ``p`` itself
+fitted yet is shown as its textured mesh alone. Keys: ``P`` (shift-p) forward and ``O`` backward,
+added to the viewer's key map by :func:`bind_patient_keys` (``holo-viewer view`` does; ``p`` itself
 cycles the image panel).
 """
 
@@ -50,6 +50,13 @@ def cycle_patient(viewer: Any, step: int = 1) -> str:
 
 
 def bind_patient_keys(viewer: Any) -> None:
-    """Bind :data:`PATIENT_KEYS` on the viewer's plotter (PyVista ``add_key_event``)."""
-    for key, step in PATIENT_KEYS.items():
-        viewer.plotter.add_key_event(key, lambda s=step: cycle_patient(viewer, s))
+    """Add :data:`PATIENT_KEYS` to the viewer's key map (``KeysMixin._key_actions``), so they go through
+    its own key handling: ignored while a value is typed, errors shown in the window."""
+    own = viewer._key_actions
+
+    def actions() -> dict:
+        out = dict(own())
+        out.update({key: (lambda s=step: cycle_patient(viewer, s)) for key, step in PATIENT_KEYS.items()})
+        return out
+
+    viewer._key_actions = actions
