@@ -716,14 +716,18 @@ def test_splat_view_looking_through_a_quilt_camera_shows_its_quilt_tile(splat_wi
 
 def test_splats_follow_a_face_slider_release_in_one_frame(splat_window):
     """A face slider released with the splat view on: the next frame shows the new face's splats (the
-    image of a fresh render at the scene camera), the stand-in mesh hidden, in one frame (no frame of the
-    old splats in between)."""
+    image of a fresh render at the scene camera), the stand-in mesh hidden and the scene's lights back, in
+    one frame (no frame of the old splats in between)."""
     from holo_viewer.display.quilt import to_uint8
     from holo_viewer.pipeline import render_images
 
     viewer = splat_window
+    lights = viewer.scene_renderer.GetLights().GetNumberOfItems()
+    viewer._live_face("expr1", 0.7, time.perf_counter())  # a drag step: the mesh stands in, one headlight
+    assert viewer.mesh_actor.GetVisibility() and viewer.scene_renderer.GetLights().GetNumberOfItems() == 1 < lights
     before, frames0 = viewer.splat_image.copy(), viewer.frames_drawn
     _fire_slider(viewer.sliders["expr1"], 1.5)
+    assert viewer.scene_renderer.GetLights().GetNumberOfItems() == lights  # the light kit is back
     assert viewer.frames_drawn == frames0 + 1 and viewer._splat_full and not viewer.mesh_actor.GetVisibility()
     fresh = to_uint8(render_images(viewer.pipeline.gaussians(), viewer.splat_cameras())[0])
     assert np.array_equal(viewer.splat_image, fresh) and np.abs(fresh.astype(int) - before).max() > 30

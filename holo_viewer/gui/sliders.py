@@ -289,6 +289,8 @@ class SlidersMixin:
 
     def _live_face(self, key: str, value: float, t0: float) -> None:
         self._set_mesh_points(self._mesh_for(self._face_from_sliders(key, value)))
+        if not self.show_mesh:  # a stand-in: one headlight instead of pyvista's five (~13 ms a frame)
+            self._stand_in_lights(True)
         self.mesh_actor.SetVisibility(True)  # stands in for the splats / ellipsoids until release
         if self.glyph_actor is not None:
             self.glyph_actor.SetVisibility(False)  # stale until release
@@ -332,6 +334,7 @@ class SlidersMixin:
         """Apply new face controls: mesh now, then Gaussians and preview, then thumbnail."""
         t0 = time.perf_counter()
         self._set_mesh_points(self._mesh_for(face))
+        self._stand_in_lights(False)
         self.mesh_actor.SetVisibility(self.show_mesh)
         # the glyphs are stale until the Gaussians are recomputed: leave them out of this frame,
         # which halves its cost with software OpenGL
@@ -341,6 +344,28 @@ class SlidersMixin:
             self._render_now()  # a frame now would only bring the old splats back for ~100 ms
         self.timings.mesh_ms = (time.perf_counter() - t0) * 1e3
         self._after_change(t0)
+
+    def _stand_in_lights(self, on: bool) -> None:
+        """Light the scene with one headlight while the mesh stands in for the splats during a face-slider
+        drag (per-pixel lighting of the face-filling mesh is most of that frame with software OpenGL:
+        pyvista's light kit has five lights); back to the light kit on release."""
+        import vtk
+
+        ren = self.scene_renderer
+        saved = getattr(self, "_saved_lights", None)
+        if on and saved is None:
+            lights = ren.GetLights()
+            lights.InitTraversal()
+            self._saved_lights = [lights.GetNextItem() for _ in range(lights.GetNumberOfItems())]
+            ren.RemoveAllLights()
+            head = vtk.vtkLight()
+            head.SetLightTypeToHeadlight()
+            ren.AddLight(head)
+        elif not on and saved is not None:
+            ren.RemoveAllLights()
+            for light in saved:
+                ren.AddLight(light)
+            self._saved_lights = None
 
     def _set_mesh_points(self, verts: np.ndarray) -> None:
         self.mesh.points[:] = verts
