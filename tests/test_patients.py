@@ -324,3 +324,29 @@ def test_a_fitted_patient_loads_as_name_and_as_npz(tmp_path, monkeypatch):
     with pytest.raises(AvatarError, match="fitted to another head"):
         P.load_patient_avatar(src.name)
     P._model.cache_clear()
+
+
+def test_hair_style_edges_and_the_hanging_curtain():
+    from holo_viewer.assets_build.ict import HAIR_CENTRE, HairStyle, _hang, hair_coverage, hair_thickness
+
+    def at(az_deg, el_deg, r=0.09):
+        a, e = np.radians(az_deg), np.radians(el_deg)
+        return HAIR_CENTRE + r * np.array([np.sin(a) * np.cos(e), np.sin(e), np.cos(a) * np.cos(e)])
+
+    bald = HairStyle(top=((0.0, -90.0), (60.0, 10.0), (180.0, 20.0)))
+    p = np.stack([at(0, 60), at(170, 60), at(170, 0), at(170, -60)])
+    cov = hair_coverage(p, bald)
+    assert cov[0] < 0 and cov[1] < 0 and cov[2] > 0 and cov[3] < 0  # bald crown and front, fringe at the back
+    assert hair_thickness(p[:1], bald)[0] < 0 < hair_thickness(p[2:3], bald)[0]  # tucked under vs standing off
+    # a head narrowing downward: behind the ears the curtain falls straight; the face side keeps its radius
+    ring = [(az, el, 0.09 * np.cos(np.radians(min(el, 0.0))) ** 2)
+            for az in range(-180, 180, 3) for el in range(-70, 60, 4)]
+    pts = np.stack([at(az, el, r) for az, el, r in ring])
+    out = _hang(pts, np.full(len(pts), 30.0))
+    horiz = lambda q: np.hypot(q[:, 0] - HAIR_CENTRE[0], q[:, 2] - HAIR_CENTRE[2])  # noqa: E731
+    az = np.array([a for a, _, _ in ring])
+    low = np.array([e for _, e, _ in ring]) < -40
+    back, front = low & (np.abs(az) > 150), low & (np.abs(az) < 60)
+    assert np.all(horiz(out)[back] > 1.5 * horiz(pts)[back])  # pushed out to the widest radius above
+    np.testing.assert_array_equal(out[front], pts[front])
+    np.testing.assert_array_equal(out[:, 1], pts[:, 1])  # straight down: heights unchanged
