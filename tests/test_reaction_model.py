@@ -8,7 +8,7 @@ import torch
 
 from holo_viewer.errors import InputError, ReactionError
 from holo_viewer.reaction.data import SyntheticConfig, make_synthetic_split
-from holo_viewer.reaction.model import ModelConfig, ReactionModel, generate, sample_tokens
+from holo_viewer.reaction.model import ModelConfig, ReactionModel, generate, sample_tokens, state_shapes
 from holo_viewer.reaction.tokens import fit_codebook
 from holo_viewer.reaction.train import load_checkpoint, train, train_config_from_dict
 
@@ -89,6 +89,19 @@ def test_model_shapes_and_streaming_is_causal():
     # a window of streaming: the next k frames from a listener past
     nxt = generate(m, cent, audio, sp, torch.tensor([0.2, 0.9]), listener_past=out[:, :20], start=20, n_frames=4)
     assert nxt.shape == (B, 4, S)
+
+
+@pytest.mark.parametrize("overrides", [{}, TINY_MODEL, {"d_model": 24, "n_heads": 3, "enc_layers": 3, "dec_layers": 1,
+                                                  "ff_dim": 40, "n_mels": 6, "state_dim": 7, "n_codes": 9, "k": 3}])
+def test_state_shapes_match_a_built_model(overrides):
+    """The arithmetic shapes the checkpoint check uses equal a real model's state dict, key for key."""
+    cfg = ModelConfig(**overrides)
+    real = {k: tuple(v.shape) for k, v in ReactionModel(cfg).state_dict().items()}
+    assert state_shapes(cfg) == real
+    with pytest.raises(ReactionError, match="n_heads"):
+        state_shapes(ModelConfig(**{**overrides, "n_heads": cfg.d_model + 1}))
+    with pytest.raises(ReactionError, match="speaker_window"):
+        state_shapes(ModelConfig(**{**overrides, "speaker_window": 7}))
 
 
 def test_generate_rejects_bad_inputs():

@@ -33,7 +33,7 @@ from torch import Tensor, nn
 from ..errors import InputError, ReactionError
 from ..validation import check_array, check_finite_scalar
 
-__all__ = ["ModelConfig", "ReactionModel", "generate", "sample_tokens"]
+__all__ = ["ModelConfig", "ReactionModel", "generate", "sample_tokens", "state_shapes"]
 
 
 @dataclass(frozen=True)
@@ -58,6 +58,59 @@ class ModelConfig:
     def to_dict(self) -> dict:
         """Plain dict (JSON / checkpoint)."""
         return asdict(self)
+
+
+def state_shapes(config: ModelConfig) -> dict[str, tuple[int, ...]]:
+    """The shape of every entry of ``ReactionModel(config).state_dict()``, without building it.
+
+    Pure arithmetic on the config (no tensors, no meta device: building on the meta device pulls in
+    ``torch._dynamo`` and sympy, seconds of start-up). Kept next to :class:`ReactionModel`; a test
+    checks it against real models' state dicts.
+
+    Raises
+    ------
+    ReactionError
+        A config no model can be built from (odd ``speaker_window``, ``n_heads`` not dividing the
+        attention widths).
+    """
+    c = config
+    d, f, h = c.d_model, c.ff_dim, c.n_heads
+    if c.speaker_window % 2:
+        raise ReactionError(f"speaker_window: expected an even number of frames, found {c.speaker_window}")
+    if h < 1 or d % h:
+        raise ReactionError(f"n_heads: {h} does not divide d_model {d}")
+    shapes: dict[str, tuple[int, ...]] = {
+        "pos_s": (c.speaker_window // 2, d), "mod": (2, d), "pos_l": (c.listener_window, d), "queries": (c.k, d),
+        "audio_mean": (c.n_mels,), "audio_std": (c.n_mels,), "state_scale": (c.state_dim,)}
+    for name, in_dim in (("f_a", c.n_mels), ("f_v", c.state_dim), ("f_l", c.state_dim)):
+        shapes.update({f"{name}.c1.weight": (d, in_dim, 5), f"{name}.c1.bias": (d,),
+                       f"{name}.c2.weight": (d, d, 3), f"{name}.c2.bias": (d,)})
+
+    def attn(prefix: str, e: int) -> dict:
+        return {f"{prefix}.in_proj_weight": (3 * e, e), f"{prefix}.in_proj_bias": (3 * e,),
+                f"{prefix}.out_proj.weight": (e, e), f"{prefix}.out_proj.bias": (e,)}
+
+    def norms(prefix: str, names, e: int) -> dict:
+        return {f"{prefix}.{n}.{w}": (e,) for n in names for w in ("weight", "bias")}
+
+    ff = {"linear1.weight": (f, d), "linear1.bias": (f,), "linear2.weight": (d, f), "linear2.bias": (d,)}
+    shapes.update(attn("fusion", 2 * d))
+    shapes.update({"fusion_norm.weight": (2 * d,), "fusion_norm.bias": (2 * d,)})
+    shapes.update({"pain.weight": (d, 1), "pain.bias": (d,)})
+    for i in range(c.enc_layers):
+        p = f"encoder.layers.{i}"
+        shapes.update(attn(f"{p}.self_attn", d))
+        shapes.update({f"{p}.{k}": v for k, v in ff.items()})
+        shapes.update(norms(p, ["norm1", "norm2"], d))
+    for i in range(c.dec_layers):
+        p = f"decoder.layers.{i}"
+        shapes.update(attn(f"{p}.self_attn", d))
+        shapes.update(attn(f"{p}.multihead_attn", d))
+        shapes.update({f"{p}.{k}": v for k, v in ff.items()})
+        shapes.update(norms(p, ["norm1", "norm2", "norm3"], d))
+    shapes.update({"out_norm.weight": (d,), "out_norm.bias": (d,), "w_out.weight": (c.n_codes, d),
+                   "w_out.bias": (c.n_codes,)})
+    return shapes
 
 
 class CausalConv(nn.Module):

@@ -28,7 +28,7 @@ from ..errors import ReactionError
 from ..fileio import atomic_path, check_writable, read_json
 from .audio import AudioConfig
 from .data import ReactionSplit, SyntheticConfig, make_synthetic_split
-from .model import ModelConfig, ReactionModel
+from .model import ModelConfig, ReactionModel, state_shapes
 from .tokens import Codebook, fit_codebook, state_weights
 
 __all__ = ["TrainConfig", "ReactionBundle", "train", "load_checkpoint", "save_checkpoint", "load_train_config",
@@ -259,7 +259,10 @@ def _bundle_payload(model: ReactionModel, codebook: Codebook, au_names, cfg: Tra
 
 
 def _check_state_shapes(state: Any, model_cfg: ModelConfig, source: str) -> None:
-    """Bound the parameter count and match every weight's shape, on a meta-device model (no memory).
+    """Bound the parameter count and match every weight's shape, from the config alone (no memory).
+
+    The expected shapes come from :func:`.model.state_shapes` (arithmetic; no meta-device build,
+    which would import ``torch._dynamo`` and sympy at every ``live`` start).
 
     Raises
     ------
@@ -268,18 +271,16 @@ def _check_state_shapes(state: Any, model_cfg: ModelConfig, source: str) -> None
         differently shaped weight (named).
     """
     try:
-        with torch.device("meta"):
-            meta = ReactionModel(model_cfg)
-    except (ValueError, RuntimeError, TypeError) as exc:
+        expected = state_shapes(model_cfg)
+    except ReactionError as exc:
         raise ReactionError(f"{source}: train_config.model cannot build a model ({exc})") from exc
-    n_params = sum(t.numel() for t in meta.state_dict().values())
+    n_params = sum(math.prod(shape) for shape in expected.values())
     if n_params > MAX_REACTION_PARAMETERS:
         raise ReactionError(f"{source}: train_config.model asks for {n_params:,} parameters, more than the "
                             f"{MAX_REACTION_PARAMETERS:,} accepted (reaction.train.MAX_REACTION_PARAMETERS); "
                             f"refusing to build it")
     if not isinstance(state, dict):
         raise ReactionError(f"{source}: model_state: expected a dict of tensors, found {type(state).__name__}")
-    expected = {k: tuple(v.shape) for k, v in meta.state_dict().items()}
     missing, extra = sorted(set(expected) - set(state)), sorted(set(state) - set(expected))
     if missing or extra:
         raise ReactionError(f"{source}: model_state: weights do not match the stored model config "
