@@ -43,9 +43,9 @@ needs, where its work is done), and every quilt goes through
 ``group``
     Every position of the cone sees the present frame (issue 37): ``all_views``, then the eye slices
     of every tracked viewer given (0-6; a TrackedViewer or a sequence of them) warped into the
-    subpixels their eyes receive, over that fill; with tracked viewers the fill renders every
-    ``NativeFrameConfig.group_view_step``-th view (8: the cone's target is lower where faces are
-    served exactly). Nothing is kept from earlier frames.
+    subpixels their eyes receive, over that fill; the fill renders every
+    ``NativeFrameConfig.group_view_step``-th view (6; ``all_views`` keeps ``view_step``). Nothing is
+    kept from earlier frames.
 ``auto``
     ``group``.
 
@@ -71,9 +71,11 @@ __all__ = ["NativeFrameConfig", "LiveFrame", "NativeFrameRenderer", "render_nati
            "LIVE_T_MIN", "MAX_VIEWERS", "group_viewers"]
 
 AUTO_VIEW_STEP = 5  # NativeFrameConfig.view_step=None on a horizontal rig
-#: NativeFrameConfig.group_view_step=None: the cone fill's step of a group frame serving tracked faces
-#: (the issue's cone target is 35 dB with a face, 38 without; measured in docs/live_frame.md)
-AUTO_GROUP_VIEW_STEP = 8
+#: NativeFrameConfig.group_view_step=None: the cone fill's step of group frames, with tracked faces or
+#: without (one step: a fill that changed with them made every bystander see a face found or lost,
+#: 41-46 dB between consecutive frames). 6 against 5: 0.72x / 0.88x the CPU without / with a face, cone
+#: worst 41.6 / 38.9 dB (targets 38 / 35); measured in docs/live_frame.md
+AUTO_GROUP_VIEW_STEP = 6
 #: group frames serve at most this many tracked viewers (the faces a webcam finds around a Portrait)
 MAX_VIEWERS = 6
 #: fixed-point steps of the slices' warp after the first guess: 0 (the default avatar at 0.6 m: per
@@ -136,9 +138,10 @@ class NativeFrameConfig:
         received subpixels (approximate, fast), or the exact bands of the views. None (default):
         slices on the calibration's quilt cameras, else bands.
     group_view_step : int or None
-        ``group`` frames that serve tracked faces: the ``view_step`` of their cone fill (the frames
-        without a face use ``view_step``); at least 2. None (default): :data:`AUTO_GROUP_VIEW_STEP`
-        where ``view_step`` is synthesized on the CPU (else ``view_step`` is used).
+        ``group`` frames: the ``view_step`` of their cone fill, with tracked faces or without (one
+        step, so that a face found or lost changes nothing away from it); at least 2. None
+        (default): :data:`AUTO_GROUP_VIEW_STEP` where ``view_step`` is synthesized on the CPU (else
+        ``view_step`` is used).
     """
 
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -416,15 +419,17 @@ class NativeFrameRenderer:
         the others synthesized by depth, as ``all_views``), and the exact eye slices of every tracked
         viewer (up to :data:`MAX_VIEWERS`; drawn in the same depth sort and projection pass as the
         rendered views) warped into the native subpixels those eyes receive, over the cone fill.
-        Nothing is kept from earlier frames. Without viewers, or without slices (non-rig cameras, the
-        gsplat backend), it is ``all_views``."""
+        Nothing is kept from earlier frames. Without viewers it is that fill alone; without view
+        synthesis on the CPU (``view_step`` 1, the gsplat backend) it is ``all_views``."""
         from ..display.eyes import eye_positions, eye_view_bounds, reach_views
         from ..display.slices import scatter_slices
         from ..render import crossed_slit
 
         viewers = group_viewers(viewers)
-        if not viewers or self._slice_rig is None or self.view_step <= 1 or self.config.backend != "fast":
+        if self.view_step <= 1 or self.config.backend != "fast":
             return self._all_views(gaussians, None, timings)
+        if not viewers or self._slice_rig is None:  # the same fill as with faces
+            return self._synthesized(self._lod_subset(gaussians), timings, step=self.group_view_step)
         t = time.perf_counter()
         self.prepare_tracked()
         if self._sampled is None:
