@@ -51,7 +51,7 @@ from ..render.differentiable import render_view
 from ..pipeline.settings import FaceControls
 
 __all__ = ["AvatarFitConfig", "AvatarFit", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "surface_colors",
-           "orbit_cameras", "sheared_cameras", "camera_yaws", "training_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity",
+           "orbit_cameras", "sheared_cameras", "camera_yaws", "camera_yaws_range", "training_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity",
            "transfer_avatar", "add_gaussians_on_faces", "prune_faintest", "slider_limit_deg", "quilt_fidelity"]
 
 #: (mesh vertices, faces, cameras, indices) -> ((n, H, W, 3) float images in [0, 1], (n, H, W) bool masks)
@@ -303,6 +303,12 @@ def training_cameras(pipe: Any, config: AvatarFitConfig) -> tuple[Cameras, np.nd
                    np.concatenate([cams.K[quilt_idx]] + ([orbit.K] if orbit else [])), cams.width, cams.height,
                    near=cams.near, far=cams.far)
     return full, camera_yaws(full, centre)
+
+
+def camera_yaws_range(pipe: Any, config: AvatarFitConfig) -> tuple[float, float]:
+    """[min, max] horizontal angle (deg) of :func:`training_cameras` (``fit_angle_range_deg``), no renders."""
+    _, yaws = training_cameras(pipe, config)
+    return float(np.min(yaws)), float(np.max(yaws))
 
 
 def scaled_cameras(cameras: Cameras, scale: float) -> Cameras:

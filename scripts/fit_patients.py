@@ -1,0 +1,264 @@
+"""Fit each patient's Gaussian avatar by transferring the default avatar's binding and fine-tuning it.
+
+Usage::
+
+    python scripts/fit_patients.py [NAME ... | --all] [--iterations N] [--source assets/default_avatar.npz]
+        [--out FILE (one patient)] [--no-eval] [--images DIR] [--json FILE]
+
+Every patient shares the default head's ICT topology, so the default's fitted Gaussians keep their
+triangles and local offsets, rotations and scales on the patient's head (``fit_avatar.transfer_avatar``:
+colours rescaled by the patient's albedo over the default's at each Gaussian's surface point, the fitted
+shading kept), the lashes get Gaussians where the source has none (``add_gaussians_on_faces``; the
+faintest others are dropped to keep the count), and a short fine-tune on renders of the patient's
+textured mesh (``PATIENT_CONFIG``: 10 poses, quilt and sheared cameras over +-30 deg, so the lights stay
+world-fixed as in the quilt) learns the rest. Writes ``assets/patients/<name>/avatar.npz`` with
+``fit_angle_range_deg`` and, in its ``info``, ``psnr_min_db`` (worst of the 48 quilt views and the two
+slider-limit views, neutral). ``default`` as NAME fine-tunes the default avatar itself the same way
+(the second stage of ``scripts/fit_default_avatar.py``). Deterministic (seeded, one thread); fits run
+under ``nice -n 10`` on the shared machine. Method and numbers: docs/avatar_fit.md "Patients".
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from holo_viewer.assets_build import fit_avatar as fa  # noqa: E402
+from holo_viewer.avatar.default_gaussians import (  # noqa: E402
+    fitted_asset_path, load_fitted_avatar, save_fitted_avatar)
+from holo_viewer.pipeline import FaceControls, Pipeline  # noqa: E402
+
+#: the fine-tune (a few hundred steps from the transferred avatar; docs/avatar_fit.md "Patients")
+PATIENT_CONFIG = fa.AvatarFitConfig(
+    iterations=400, n_random_poses=1, quilt_views=(0, 9, 19, 28, 38, 47),
+    orbit=((-30.0, 0.0), (-25.0, 0.0), (25.0, 0.0), (30.0, 0.0), (0.0, 12.0), (0.0, -12.0)),
+    orbit_mode="sheared", lr_means=5e-4, lr_means_final=1e-4, w_opacity=0.01, crop_fraction=0.5,
+    render_timeout_s=1200.0)  # wall-clock: a loaded shared machine must not skip poses
+#: training expressions: these named ones of fit_avatar.training_poses and its first random mix
+POSES = ("neutral", "smile_1", "mouth_open_1", "pain_0.5", "pain_1", "surprise_1", "random_00")
+N_LASH = 2000
+#: the cameras of the default avatar's own fit (scripts/fit_default_avatar.py): a transfer without a
+#: fine-tune (``--iterations 0``) records their range
+SOURCE_FIT_CONFIG = fa.AvatarFitConfig()  # Gaussians seeded on the lashes (the default generator gives them none)
+
+
+def _target(name: str) -> tuple[Any, Path, Path]:
+    """(head model, head file, default avatar output path) of ``name`` (``default`` or a patient)."""
+    if name == "default":
+        from holo_viewer.flame.default_head import default_head_path, load_default_model
+
+        return load_default_model(add_teeth=True), default_head_path(), fitted_asset_path()
+    from holo_viewer.avatar import patients
+
+    info = patients.patient_info(name)
+    return patients.load_patient_model(name), info.head_path, info.avatar_path
+
+
+def _face_regions(model: Any) -> np.ndarray:
+    """(F,) region index of each face (the majority of its vertices' labels; -1 beyond the labels)."""
+    vr = np.asarray(model.metadata["vertex_region"]).astype(np.int64)
+    f = model.faces.cpu().numpy()
+    out = np.full(len(f), -1, np.int64)
+    ok = f.max(1) < len(vr)
+    lab = vr[f[ok]]
+    out[ok] = np.where(lab[:, 1] == lab[:, 2], lab[:, 1], lab[:, 0])
+    return out
+
+
+def initial_avatar(source: Path, model: Any, seed: int = 0) -> tuple[Any, np.ndarray, dict[str, Any]]:
+    """The default avatar's Gaussians moved onto ``model``: kept (``fit_avatar.transfer_avatar``) on every
+    face the two heads share with the same region label; elsewhere (the patient's own hair shell, scalp
+    that became skin or hair) the generator's Gaussians for the patient's head, coloured by its albedo
+    times the default fit's median shading of that region; plus lash Gaussians."""
+    from holo_viewer.avatar.default_gaussians import generate_default_gaussians
+    from holo_viewer.avatar.gaussians import SH_C0, Gaussians
+    from holo_viewer.flame.default_head import load_default_model
+
+    local, binding, keys = load_fitted_avatar(source)
+    src_model = load_default_model(add_teeth=True)
+    fs, fd = src_model.faces.cpu().numpy(), model.faces.cpu().numpy()
+    names = [str(s) for s in src_model.metadata["region_names"]]
+    if [str(s) for s in model.metadata["region_names"]] != names or keys["n_faces"] != len(fs):
+        raise SystemExit(f"error: {source}: fitted to a head with other regions or {keys['n_faces']} faces; "
+                         f"the default head has {len(fs)}")
+    n = min(len(fs), len(fd))
+    same = np.zeros(len(fd), bool)
+    same[:n] = np.all(fs[:n] == fd[:n], axis=1)
+    rs, rd = _face_regions(src_model), _face_regions(model)
+    keep_face = same.copy()
+    keep_face[:n] &= rs[:n] == rd[:n]
+    vs = src_model.v_template.detach().cpu().double().numpy()
+    vd = model.v_template.detach().cpu().double().numpy()
+    src = fa.TargetSource.for_model(src_model)
+    dst = fa.TargetSource.for_model(model)
+    kept = keep_face[np.minimum(binding, len(fd) - 1)] & (binding < len(fd))
+    # the default fit's shading per region: fitted colour over the default albedo (median)
+    bary = fa.surface_points(local, binding, vs, fs)
+    shade = np.clip(local.sh[:, 0] * SH_C0 + 0.5, 0, 1) / (np.clip(src.albedo_at(binding, bary), 0, 1) + 0.03)
+    region = np.asarray(local.extra["region"]).astype(np.int64)
+    base = local.subset(np.nonzero(kept)[0])
+    base = fa.transfer_avatar(base, binding[kept], vs, fs, src.albedo_at, dst.albedo_at)
+    gen, gb = generate_default_gaussians(model, len(local), sh_degree=1, seed=seed)
+    new_face = ~keep_face
+    take = new_face[gb]
+    gen, gb = gen.subset(np.nonzero(take)[0]), gb[take]
+    gen = fa.transfer_avatar(gen, gb, vd, fd, dst.albedo_at, dst.albedo_at, mode="albedo")
+    greg = np.asarray(gen.extra["region"]).astype(np.int64)
+    sh = np.asarray(gen.sh).copy()
+    for r in np.unique(greg):
+        sel = region == r
+        k = np.median(shade[sel], axis=0) if sel.sum() > 20 else np.ones(3)
+        c = np.clip((sh[greg == r, 0] * SH_C0 + 0.5) * k, 0, 1)
+        sh[greg == r, 0] = (c - 0.5) / SH_C0
+    gen = gen.replace(sh=sh)
+    out = Gaussians.concatenate([base, gen])
+    b = np.concatenate([binding[kept], gb])
+    added = 0
+    lash_id = names.index("lashes") if "lashes" in names else -1
+    lash = np.nonzero(rd == lash_id)[0]
+    if lash_id >= 0 and lash.size and not np.any(np.asarray(out.extra["region"]) == lash_id):
+        out, b = fa.add_gaussians_on_faces(out, b, vd, fd, lash, N_LASH, dst.albedo_at, seed=seed, size=3e-4,
+                                           opacity=0.5, region=lash_id)
+        added = N_LASH
+        if len(out) > len(local) and model is src_model:  # the default keeps its count (and file size)
+            out, b = fa.prune_faintest(out, b, len(local), protect=np.arange(len(out)) >= len(out) - N_LASH)
+    return out, np.asarray(b), {"source": str(source), "source_colours": keys["colour_source"],
+                                "kept_from_source": int(kept.sum()), "regenerated": int(len(gen)),
+                                "lash_gaussians_added": added}
+
+
+def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
+    import torch
+
+    torch.manual_seed(0)
+    t0, c0, load0 = time.perf_counter(), time.process_time(), os.getloadavg()
+    model, head_path, out_default = _target(name)
+    out = Path(args.out) if args.out else out_default
+    cfg = fa.replace_config(PATIENT_CONFIG, iterations=args.iterations)
+    init, binding, how = initial_avatar(Path(args.source), model)
+    source = fa.TargetSource.for_model(model)
+    pipe = Pipeline(model=model, avatar=False)
+    poses = [p for p in fa.training_poses(pipe.au_map, n_random=cfg.n_random_poses, seed=cfg.seed)
+             if p.name in POSES]
+    t1, c1 = time.perf_counter(), time.process_time()
+    if cfg.iterations == 0:  # the transfer alone: no renders, no fit; the range is the source fit's cameras'
+        fitted, angle_range, n_poses = init, fa.camera_yaws_range(pipe, SOURCE_FIT_CONFIG), 0
+        t2 = t3 = time.perf_counter()
+        c2 = c3 = time.process_time()
+        record: dict[str, Any] = {"name": name, "iterations": 0, "fit_angle_range_deg": list(angle_range), **how}
+    else:
+        data = fa.build_dataset(pipe, poses, source.render, cfg, progress=False)
+        t2, c2 = time.perf_counter(), time.process_time()
+        print(f"{name}: dataset {len(data.names)} poses (skipped {data.skipped}) x {data.images.shape[1]} cameras, "
+              f"angles {data.angle_range_deg[0]:+.1f}..{data.angle_range_deg[1]:+.1f} deg, {t2 - t1:.0f} s "
+              f"({c2 - c1:.0f} s CPU here; the renders run in children)", flush=True)
+        res = fa.fit_gaussians(init, binding, data, cfg, progress=False)
+        t3, c3 = time.perf_counter(), time.process_time()
+        print(f"{name}: fit {cfg.iterations} steps {t3 - t2:.0f} s ({c3 - c2:.0f} s CPU), L1 first/last 50 "
+              f"{np.mean(res.losses[:50]):.4f} / {np.mean(res.losses[-50:]):.4f}", flush=True)
+        fitted, angle_range, n_poses = res.local, data.angle_range_deg, len(data.names)
+        record = {
+            "name": name, "iterations": cfg.iterations, "poses": data.names, "skipped_poses": data.skipped,
+            "cameras": int(data.images.shape[1]), "fit_angle_range_deg": list(data.angle_range_deg), **how,
+            "loss_first_50": float(np.mean(res.losses[:50])), "loss_last_50": float(np.mean(res.losses[-50:]))}
+    record["seconds"] = {"setup": t1 - t0, "dataset": t2 - t1, "fit": t3 - t2}
+    record["cpu_seconds"] = {"setup": c1 - c0, "dataset_parent": c2 - c1, "fit": c3 - c2}
+    info = {"method": "transfer of the default avatar + fine-tune (scripts/fit_patients.py)" if cfg.iterations else
+            "transfer of the default avatar, not fine-tuned (scripts/fit_patients.py --iterations 0)",
+            "iterations": cfg.iterations, "poses": n_poses, "seconds": t3 - t0}
+    path = save_fitted_avatar(out, fitted, binding, model, colour_source=source.name, head_path=head_path,
+                              info=info, fit_angle_range_deg=angle_range)
+    if not args.no_eval:
+        from holo_viewer.avatar import RiggedAvatar
+
+        local, b, keys = load_fitted_avatar(path)  # what ships (float16)
+        av = RiggedAvatar(model, local.replace(extra={}), binding=b)
+        record["psnr_db"] = {}
+        faces = {"neutral": FaceControls(), "pain_1": FaceControls(pain=1.0)}
+        for fname in args.eval_faces.split(","):
+            face = faces[fname]
+            pairs: dict[str, np.ndarray] | None = {} if args.images else None
+            r = fa.quilt_fidelity(av, source.render, face, keys["fit_angle_range_deg"], pairs)
+            record["psnr_db"][fname] = r
+            print(f"{name}: {fname:<8} worst {r['worst_db']:.2f} dB (view {r['worst_view']}), median "
+                  f"{r['median_db']:.2f}, slider -{r['slider_limit_deg']:g} {r['slider_min_db']:.2f} / "
+                  f"+{r['slider_limit_deg']:g} {r['slider_max_db']:.2f}", flush=True)
+            if pairs is not None:
+                _write_pairs(Path(args.images), name, fname, pairs, r)
+        for fname, r in record["psnr_db"].items():
+            info["psnr_min_db" if fname == "neutral" else f"psnr_min_db_{fname}"] = round(r["min_db"], 2)
+        save_fitted_avatar(path, local, b, model, colour_source=source.name, head_path=head_path, info=info,
+                           fit_angle_range_deg=keys["fit_angle_range_deg"])  # the same Gaussians, with the numbers
+    record["size_mb"] = path.stat().st_size / 1e6
+    record["seconds"]["total"] = time.perf_counter() - t0
+    record["load_1min"] = [load0[0], os.getloadavg()[0]]
+    print(f"{name}: wrote {path} ({record['size_mb']:.2f} MB) in {record['seconds']['total']:.0f} s; load "
+          f"{load0[0]:.1f} -> {os.getloadavg()[0]:.1f}", flush=True)
+    return record
+
+
+def _write_pairs(folder: Path, name: str, fname: str, pairs: dict[str, np.ndarray], r: dict[str, Any]) -> None:
+    from holo_viewer.fileio import save_image
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for i in sorted({0, r["worst_view"], 24, len(pairs["views"]) - 1}):
+        save_image(folder / f"{name}_{fname}_view{i:02d}.png", pairs["views"][i])
+    save_image(folder / f"{name}_{fname}_slider_lo.png", pairs["slider_lo"][0])
+    save_image(folder / f"{name}_{fname}_slider_hi.png", pairs["slider_hi"][0])
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("names", nargs="*", help="patients to fit (or 'default')")
+    ap.add_argument("--all", action="store_true", help="every patient under assets/patients/")
+    ap.add_argument("--iterations", type=int, default=PATIENT_CONFIG.iterations)
+    ap.add_argument("--source", default=str(fitted_asset_path()), help="the fitted avatar transferred (default's)")
+    ap.add_argument("--out", default=None, help="output file (one name only; default: the patient's avatar.npz)")
+    ap.add_argument("--no-eval", action="store_true", help="skip the fidelity measurement")
+    ap.add_argument("--eval-faces", default="neutral", help="neutral and/or pain_1, comma-separated (default "
+                    "neutral: psnr_min_db; bench/patient_fidelity.py measures more)")
+    ap.add_argument("--images", default=None, help="write Gaussians | mesh pairs here")
+    ap.add_argument("--json", default=None, help="write the run's numbers here")
+    ap.add_argument("--threads", type=int, default=1, help="torch and numba threads (default 1)")
+    args = ap.parse_args(argv)
+    names = list(args.names)
+    if args.all:
+        from holo_viewer.avatar import patients
+
+        names += [n for n in patients.patient_names() if n not in names]
+    if not names:
+        ap.error("name a patient (or default), or pass --all")
+    if args.out and len(names) != 1:
+        ap.error("--out takes one name")
+    if not args.eval_faces or not set(args.eval_faces.split(",")) <= {"neutral", "pain_1"}:
+        ap.error(f"--eval-faces: expected neutral and/or pain_1, found {args.eval_faces!r}")
+    if args.iterations < 0:
+        ap.error(f"--iterations: expected >= 0 (0: the transfer alone), found {args.iterations}")
+    import numba
+    import torch
+
+    torch.set_num_threads(args.threads)
+    numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    records = {}
+    for name in names:
+        records[name] = fit_one(name, args)
+        if args.json:
+            from holo_viewer.fileio import atomic_write
+
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            with atomic_write(Path(args.json), "w") as fh:
+                json.dump(records, fh, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
