@@ -186,11 +186,12 @@ FLARE_NOD = (0.0, 0.12, 0.05, -0.08, 0.0, 0.0)
 #: the tracked viewers of the group sweep (angle deg, distance m): 1 = the first, 4 = all
 GROUP_VIEWERS = ((6.0, 0.6), (-15.0, 0.5), (-4.0, 0.75), (16.0, 0.9))
 #: the group sweep's runs: (mode, tracked viewers, NativeFrameConfig knobs); the defaults first, then
-#: the time-error trade-off of the cone fill's view step (view_step without a face, group_view_step with)
+#: the time-error trade-off of the group frames' cone fill (group_view_step; the default is 6)
 GROUP_RUNS = (("group", 0, {}), ("group", 1, {}), ("group", 4, {}), ("tracked", 1, {}), ("tracked", 4, {}),
-              ("all_views", 0, {}), ("group", 0, {"view_step": 6}), ("group", 0, {"view_step": 8}),
-              ("group", 1, {"group_view_step": 5}), ("group", 1, {"group_view_step": 12}),
-              ("group", 4, {"group_view_step": 5}), ("group", 4, {"group_view_step": 12}))
+              ("all_views", 0, {}), ("group", 0, {"group_view_step": 5}), ("group", 0, {"group_view_step": 8}),
+              ("group", 1, {"group_view_step": 5}), ("group", 1, {"group_view_step": 8}),
+              ("group", 1, {"group_view_step": 12}), ("group", 4, {"group_view_step": 5}),
+              ("group", 4, {"group_view_step": 8}))
 #: comfort: a tracked viewer walks past fixed single-eye positions (deg, m), 1.5 deg a frame, face still
 COMFORT_POSITIONS = ((0.0, 0.6), (-3.0, 0.6))
 COMFORT_WALK_DEG = tuple(float(a) for a in np.arange(-6.0, 4.6, 1.5))
@@ -233,8 +234,8 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
     ``tracked`` serves the first viewer only (the old default collapsed the faces to the nearest).
     ``sheet``: a picture (PNG, or JPEG by its suffix) of what the tracked viewer's left eye and bystanders at 0, -15, +15 deg (0.6 m)
     see at three moments of the flare, for ``tracked`` (rows 1-3) and ``group`` (rows 4-6).
-    :data:`GROUP_RUNS` also holds the time-error trade-off of the cone fill (``view_step`` /
-    ``group_view_step``; records with ``default`` false, ``knobs`` naming the change), every record
+    :data:`GROUP_RUNS` also holds the time-error trade-off of the cone fill (``group_view_step``;
+    records with ``default`` false, ``knobs`` naming the change), every record
     has ``cpu_seconds_per_frame`` (process CPU, both cores) beside the wall time, and the ``group``
     records with 0 or 1 viewer add :func:`comfort`'s ``comfort_still_db`` / ``comfort_walk_db``."""
     from holo_viewer.display.eyes import ConeSweep, TrackedViewer
@@ -292,7 +293,7 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
         if mode == "group" and n <= 1:
             rec.update(comfort(live, frames[0], fixed))
         records.append(rec)
-        step = live.group_view_step if (mode == "group" and n) else live.view_step
+        step = live.group_view_step if mode == "group" else live.view_step
         print(f"{mode:9s} viewers {n} step {step:2d}{'' if knobs else ' (default)'}  {s:.3f} s/frame "
               f"(best {min(secs):.3f}, CPU {np.median(cpus):.3f} s)  tracked eyes "
               f"{'-' if eye_db is None else f'{eye_db:.1f}'} dB  cone worst {worst.min():.1f} dB "
