@@ -86,22 +86,23 @@ def write_slow_list(path: Path, rows: list[dict], cpu_limit: float) -> list[str]
     """Write the slow list, each line ``node id  # CPU seconds`` (conftest orders the files by them).
 
     Merges rather than overwrites: a line already in ``path`` whose test was not measured here (a file not
-    run, or a test added since) is kept as it was; measured tests are listed by this run alone."""
+    run, or a test added since), or whose comment says ``by hand``, is kept as it was; other measured tests are
+    listed by this run alone."""
     names = slow_tests(rows, cpu_limit)
     cpu = {k: v[1] for r in rows for k, v in r["tests"].items()}
     kept: dict[str, str] = {}
     if path.is_file():
         for ln in path.read_text().splitlines():
             node = ln.split("#", 1)[0].strip()
-            if node and node not in cpu:
+            if node and (node not in cpu or "by hand" in ln.split("#", 1)[-1]):
                 kept.setdefault(node, ln.strip())
     head = (f"# tests over {cpu_limit} s of CPU when their file runs alone (bench/test_times.py --write-slow), "
             "with those CPU seconds; conftest marks them slow and runs the costliest files first\n")
-    lines = [f"{n}  # {cpu[n]:.1f}" for n in names] + list(kept.values())
+    lines = [f"{n}  # {cpu[n]:.1f}" for n in names if n not in kept] + list(kept.values())
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(head + "".join(f"{ln}\n" for ln in sorted(lines)))
     tmp.replace(path)
-    return names + list(kept)
+    return [n for n in names if n not in kept] + list(kept)
 
 
 def main() -> int:

@@ -61,14 +61,15 @@ def test_write_slow_list_merges_lines_it_did_not_measure(tmp_path):
     path.write_text("# old header\n"
                     "tests/test_a.py::test_old_now_fast\n"
                     "tests/test_b.py::test_added_by_hand  # 2.0\n"
-                    "tests/test_c.py::test_file_not_run\n")
+                    "tests/test_c.py::test_file_not_run\n"
+                    "tests/test_a.py::test_cheap  # 4.0 by hand: alone it starts the cluster\n")
     rows = [{"file": "tests/test_a.py", "tests": {"tests/test_a.py::test_cheap": [0.1, 0.1],
                                                   "tests/test_a.py::test_old_now_fast": [0.2, 0.2],
                                                   "tests/test_a.py::test_costly": [3.0, 2.5]}}]
     names = write_slow_list(path, rows, 0.5)
     listed = parse_slow_list(path.read_text())
     assert listed == {"tests/test_a.py::test_costly": 2.5, "tests/test_b.py::test_added_by_hand": 2.0,
-                      "tests/test_c.py::test_file_not_run": UNMEASURED_S}
+                      "tests/test_c.py::test_file_not_run": UNMEASURED_S, "tests/test_a.py::test_cheap": 4.0}
     assert sorted(names) == sorted(listed)
     assert not list(tmp_path.glob("*.tmp"))
 
