@@ -15,8 +15,9 @@ Modes (the rows of :data:`holo_viewer.pipeline.live_modes.SESSION_MODES`):
     synthesized by a depth-compensated warp (``view_step``; 43 dB on the native image, 2.6x
     faster than rendering all 48).
 ``auto`` (the live command's default)
-    ``group`` frames: every view each frame (as ``all_views``) and, over them, exact eye images
-    (slices) for the tracked face, so no position of the cone sees an old face (issue 37).
+    ``group`` frames: every view each frame (every 6th rendered, ``NativeFrameConfig.group_view_step``,
+    the others synthesized as in ``all_views``) and, over them, exact eye images (slices) for every
+    tracked face, so no position of the cone sees an old face (issue 37).
 
 Backends: ``fast`` (the CPU paths above) or ``gsplat`` (CUDA): all 48 views in one batched gsplat
 call, tiled and interleaved on the GPU, 12-16 ms a frame on an H100/H200 (docs/live_frame.md), so
