@@ -49,7 +49,7 @@ def test_native_and_quilt_screenshots(xvfb, tmp_path):
     assert np.array_equal(np.rint(load_image(tmp_path / "shot_n.png") * 255).astype(np.uint8), noise)
 
 
-def test_sequence_plays_and_wrong_size_is_refused(xvfb, tmp_path):
+def test_sequence_plays_and_wrong_size_is_refused(xvfb, tmp_path, monkeypatch, capsys):
     seq = tmp_path / "seq"
     seq.mkdir()
     for i in range(3):
@@ -57,8 +57,15 @@ def test_sequence_plays_and_wrong_size_is_refused(xvfb, tmp_path):
     r = _show(xvfb, str(seq), "--frames", "3", "--fps", "30")
     assert r.returncode == 0, r.stderr
     assert "shown 3 frame(s)" in r.stderr
+    # the refusals come before any window opens: in process (the real process is the runs above)
+    from holo_viewer.cli import main
+
+    monkeypatch.setenv("DISPLAY", xvfb)
     save_native_png(tmp_path / "small.png", np.zeros((10, 10, 3), np.uint8))
-    r = _show(xvfb, str(tmp_path / "small.png"), "--screenshot", str(tmp_path / "s.png"))
-    assert r.returncode == 1 and "not the panel's native" in r.stderr
-    r = _show(xvfb, str(tmp_path / "small.png"), "--monitor", "5")
-    assert r.returncode == 1
+    assert main(["show", str(tmp_path / "small.png"), "--screenshot", str(tmp_path / "s.png"),
+                 "--calibration", FIXTURE]) == 1
+    assert "not the panel's native" in capsys.readouterr().err
+    assert not (tmp_path / "s.png").exists()
+    save_native_png(tmp_path / "native.png", np.zeros((2048, 1536, 3), np.uint8))
+    assert main(["show", str(tmp_path / "native.png"), "--monitor", "5", "--calibration", FIXTURE]) == 1
+    assert "monitor" in capsys.readouterr().err
