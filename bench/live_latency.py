@@ -249,12 +249,15 @@ def startup_run(cold: bool, out: Path, files: dict, frames: int = 3) -> dict:
     as a user starts it on recorded inputs, full-size tiles, the face tracker warmed too): seconds from
     the process start to its "first frame shown" line, and
     quit = the last frame -> the session closed (printed by the command) + that line -> the process
-    exited. ``cold``: an empty ``NUMBA_CACHE_DIR`` (every kernel compiles, as on first use)."""
+    exited. ``cold``: an empty ``NUMBA_CACHE_DIR`` (every kernel compiles, as on first use). The
+    panel tables (:mod:`holo_viewer.display.table_cache`) go to ``out``'s parent folder: empty for
+    the first (cold) run, filled by it for the warm one."""
     import subprocess
 
     env = dict(os.environ)
     if cold:
         env["NUMBA_CACHE_DIR"] = str(out / "numba_cache")
+    env["HOLO_VIEWER_TABLE_CACHE"] = str(out.parent / "table_cache")
     cmd = [sys.executable, "-m", "holo_viewer", "live", "--audio", str(files["wav"]), "--video", str(files["video"]),
            "--headless", "--frames", str(frames), "--out", str(out / "session")]
     load = os.getloadavg()[0]

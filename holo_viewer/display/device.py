@@ -47,10 +47,27 @@ def view_gather_indices(interleaver: Interleaver, n_views: int, height: int, wid
             raise InputError(f"views: the interleave reads view {int(k.max())}, only {n_views} given")
         return ((k * height + y) * width + x) * 3 + ch
 
-    i0, i1, _ = interleaver.gather_indices()
-    if i1 is None:
-        return remap(i0), None, None
-    return remap(i0), remap(i1), interleaver._w8.astype(np.int32)
+    def build() -> dict[str, np.ndarray]:
+        i0, i1, _ = interleaver.gather_indices()
+        out = {"idx0": remap(i0).astype(store)}
+        if i1 is not None:
+            out["idx1"] = remap(i1).astype(store)
+        return out
+
+    # the tables depend on the calibration and the layout alone: cached on disk (display.table_cache)
+    from .table_cache import cached_tables, table_key
+
+    n = int(np.prod(interleaver.shape))
+    store = np.int32 if n_views * height * width * 3 <= np.iinfo(np.int32).max else np.int64
+    blend = interleaver.mode == "blend"
+    spec = {name: ((n,), np.dtype(store).name) for name in (("idx0", "idx1") if blend else ("idx0",))}
+    key = table_key("gather", interleaver.calibration, quilt_shape=interleaver.quilt_shape, cols=cols,
+                    rows=interleaver.rows, il_views=interleaver.n_views, mode=interleaver.mode, n_views=int(n_views),
+                    height=int(height), width=int(width))
+    t = cached_tables("gather", key, spec, build)
+    if not blend:
+        return t["idx0"].astype(np.int64), None, None
+    return t["idx0"].astype(np.int64), t["idx1"].astype(np.int64), interleaver._w8.astype(np.int32)
 
 
 class DeviceInterleaver:

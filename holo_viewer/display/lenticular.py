@@ -507,10 +507,24 @@ class Interleaver:
             view = qc // tw + self.cols * ((Hq - 1 - qr) // th)
             return (view * nb + (qc % tw) // block).astype(dtype)
 
-        k0 = key(self._idx0)
-        k1 = key(self._idx1) if self.mode == "blend" else k0
+        def build() -> dict[str, np.ndarray]:
+            return {"k0": key(self._idx0), **({"k1": key(self._idx1)} if self.mode == "blend" else {})}
+
+        names = ("k0", "k1") if self.mode == "blend" else ("k0",)
+        t = self._cached("block_keys", {n: ((self._idx0.size,), np.dtype(dtype).name) for n in names}, build,
+                         block=block)
+        k0 = t["k0"]
+        k1 = t["k1"] if self.mode == "blend" else k0
         self._keys = (block, k0, k1)
         return k0, k1
+
+    def _cached(self, kind: str, spec: dict, build: Any, **params: Any) -> dict[str, np.ndarray]:
+        """A table of this calibration and layout through the disk cache (:mod:`.table_cache`)."""
+        from .table_cache import cached_tables, table_key
+
+        key = table_key(kind, self.calibration, quilt_shape=self.quilt_shape, cols=self.cols, rows=self.rows,
+                        n_views=self.n_views, mode=self.mode, **params)
+        return cached_tables(kind, key, spec, build)
 
     def update_columns(self, quilt: np.ndarray, out: np.ndarray, columns: np.ndarray, block: int = 16) -> np.ndarray:
         """Recompute the subpixels of ``out`` that read the given texel-column blocks of ``quilt``:
@@ -543,17 +557,24 @@ class Interleaver:
         if cached is not None and cached[0] == block:
             return cached[1], cached[2]
         nb = -(-(self.quilt_shape[1] // self.cols) // block)
-        k0, k1 = self._block_keys(block)
         n = self._idx0.size
-        if self.mode == "nearest":
-            keys = k0
-            subs = np.arange(n, dtype=np.int32)
-        else:  # a blended subpixel reads two views: listed under both
-            keys = np.concatenate([k0, k1])
-            subs = np.concatenate([np.arange(n, dtype=np.int32)] * 2)
-        order = np.argsort(keys, kind="stable")
-        subs = subs[order]
-        offsets = np.searchsorted(keys[order], np.arange(self.n_views * nb + 1)).astype(np.int64)
+
+        def build() -> dict[str, np.ndarray]:
+            k0, k1 = self._block_keys(block)
+            if self.mode == "nearest":
+                keys = k0
+                subs = np.arange(n, dtype=np.int32)
+            else:  # a blended subpixel reads two views: listed under both
+                keys = np.concatenate([k0, k1])
+                subs = np.concatenate([np.arange(n, dtype=np.int32)] * 2)
+            order = np.argsort(keys, kind="stable")
+            return {"subs": subs[order],
+                    "offsets": np.searchsorted(keys[order], np.arange(self.n_views * nb + 1)).astype(np.int64)}
+
+        m = n if self.mode == "nearest" else 2 * n
+        t = self._cached("readers", {"subs": ((m,), "int32"), "offsets": ((self.n_views * nb + 1,), "int64")},
+                         build, block=block)
+        subs, offsets = t["subs"], t["offsets"]
         self._readers = (block, subs, offsets)
         return subs, offsets
 

@@ -93,6 +93,33 @@ class SubpixelBuckets:
             self.view1 = view0[:1].copy()
             self.w8 = np.zeros(1, dtype=np.uint16)
 
+    #: the arrays :func:`subpixel_buckets` caches on disk (:mod:`.table_cache`)
+    _TABLES = ("positions", "zeta", "offsets", "tex_row", "tex_col", "view1", "w8")
+
+    @classmethod
+    def _cached(cls, interleaver: Any, n_views: int, height: int, width: int) -> "SubpixelBuckets":
+        """The buckets through the disk cache: built (and stored) once per calibration and layout."""
+        from .table_cache import cached_tables, table_key
+
+        il = interleaver
+        H, W, _ = il.shape
+        n, one = H * W * 3, H * W * 3 if il.mode == "blend" else 1
+        spec = {"positions": ((n,), "int16"), "zeta": ((n,), "float32"), "offsets": ((H, int(n_views) + 1), "int32"),
+                "tex_row": ((H,), "int32"), "tex_col": ((W,), "int32"), "view1": ((one,), "int16"),
+                "w8": ((one,), "uint16")}
+        key = table_key("buckets", il.calibration, quilt_shape=il.quilt_shape, cols=il.cols, rows=il.rows,
+                        il_views=il.n_views, mode=il.mode, n_views=int(n_views), height=int(height), width=int(width))
+
+        def build() -> dict:
+            b = cls(il, n_views, height, width)
+            return {name: getattr(b, name) for name in cls._TABLES}
+
+        b = cls.__new__(cls)
+        for name, a in cached_tables("buckets", key, spec, build).items():
+            setattr(b, name, a)
+        b.shape, b.n_views, b.mode = (H, W, 3), int(n_views), il.mode
+        return b
+
     @property
     def nbytes(self) -> int:
         return int(self.positions.nbytes + self.zeta.nbytes + self.offsets.nbytes + self.view1.nbytes
@@ -112,7 +139,7 @@ def subpixel_buckets(interleaver: Any, n_views: int, height: int, width: int) ->
            int(width))
     b = _BUCKETS.pop(key, None)
     if b is None:
-        b = SubpixelBuckets(il, n_views, height, width)
+        b = SubpixelBuckets._cached(il, n_views, height, width)
     _BUCKETS[key] = b  # (re)inserted last: the most recent
     while len(_BUCKETS) > BUCKET_CACHE_SIZE:
         del _BUCKETS[next(iter(_BUCKETS))]

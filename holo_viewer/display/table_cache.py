@@ -1,0 +1,129 @@
+"""On-disk cache of the panel's per-subpixel tables (interleaver gathers, eye-slice buckets).
+
+The tables depend only on the calibration, the quilt layout and the code that builds them, yet took
+~5 s of CPU at every ``live`` and ``replay`` start. :func:`cached_tables` keeps them in
+:func:`holo_viewer.cache.cache_dir` ``/display_tables/`` (``$HOLO_VIEWER_CACHE``, else
+``$XDG_CACHE_HOME/holo_viewer``, else ``~/.cache/holo_viewer``; never inside the clone), one
+uncompressed ``.npz`` per table, named by a digest of
+
+* the calibration's values (``repr`` of the frozen dataclass: exact floats),
+* the table's parameters (quilt shape, views, mode, block, ...),
+* :data:`VERSION` and the source of the modules that compute the tables (an edit rebuilds).
+
+Files are written atomically (:func:`holo_viewer.fileio.save_npz`) and checked on load: the stored
+key, every expected array's dtype and shape (from the caller's spec), and a CRC-32 of each array's
+bytes. Anything else (truncated, corrupt, foreign) is rebuilt with a warning and rewritten, never
+trusted. ``HOLO_VIEWER_TABLE_CACHE=0`` turns the cache off (tables built every time); set to a
+folder, it holds the tables instead (``bench/live_latency.py`` points a cold start at an empty one).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import warnings
+import zlib
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["VERSION", "DISABLE_VAR", "table_key", "table_path", "cached_tables"]
+
+#: bump when a table's meaning changes in a way the source digest would not show
+VERSION = 1
+#: ``0``: build the tables every time (no reads, no writes); a folder: keep the tables there
+DISABLE_VAR = "HOLO_VIEWER_TABLE_CACHE"
+#: modules whose code computes the cached tables: their source is part of every key
+_SOURCES = ("calibration.py", "lenticular.py", "device.py", "slices.py", "simulate.py", "table_cache.py")
+_source_digest: str | None = None
+
+#: name -> (shape with -1 for any length, dtype)
+Spec = dict[str, tuple[tuple[int, ...], str]]
+
+
+def _sources() -> str:
+    global _source_digest
+    if _source_digest is None:
+        h = hashlib.sha256()
+        here = Path(__file__).resolve().parent
+        for name in _SOURCES:
+            h.update(name.encode() + b"\0" + (here / name).read_bytes() + b"\0")
+        _source_digest = h.hexdigest()
+    return _source_digest
+
+
+def table_key(kind: str, calibration: object, **params: object) -> str:
+    """The digest naming one table: ``kind``, the calibration's values, ``params``, the version and
+    the tables' source code."""
+    text = repr((kind, VERSION, _sources(), repr(calibration), sorted((k, repr(v)) for k, v in params.items())))
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def table_path(kind: str, key: str) -> Path:
+    """Where the table ``kind`` with digest ``key`` is cached."""
+    from ..cache import cache_dir
+
+    folder = os.environ.get(DISABLE_VAR) or cache_dir() / "display_tables"
+    return Path(folder) / f"{kind}_{key}.npz"
+
+
+def _crc(a: np.ndarray) -> int:
+    return zlib.crc32(np.ascontiguousarray(a).view(np.uint8).reshape(-1))
+
+
+def _check(arrays: dict[str, np.ndarray], spec: Spec, source: str) -> None:
+    """Raise ValueError naming the first array that does not match ``spec``."""
+    for name, (shape, dtype) in spec.items():
+        if name not in arrays:
+            raise ValueError(f"{source}: {name}: missing")
+        a = arrays[name]
+        if a.dtype != np.dtype(dtype) or a.ndim != len(shape) or any(
+                s not in (-1, n) for s, n in zip(shape, a.shape)):
+            raise ValueError(f"{source}: {name}: expected {dtype} of shape {shape}, found {a.dtype} {a.shape}")
+
+
+def _load(path: Path, key: str, spec: Spec) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as z:
+        stored_key = str(z["__key__"])
+        if stored_key != key:
+            raise ValueError(f"{path}: key {stored_key!r}, expected {key!r}")
+        crcs = z["__crc__"]
+        arrays = {name: z[name] for name in spec}
+    _check(arrays, spec, str(path))
+    if crcs.shape != (len(spec),) or [int(c) for c in crcs] != [_crc(arrays[n]) for n in spec]:
+        raise ValueError(f"{path}: checksum mismatch (a damaged file)")
+    return arrays
+
+
+def cached_tables(kind: str, key: str, spec: Spec, build: Callable[[], dict[str, np.ndarray]]
+                  ) -> dict[str, np.ndarray]:
+    """The arrays of table ``kind`` keyed ``key`` (:func:`table_key`): loaded from the cache when a
+    valid file is there, else ``build()`` (checked against ``spec``) and cached.
+
+    A file that fails any check is rebuilt with a ``RuntimeWarning`` naming it; a cache folder that
+    cannot be written only warns (the built tables are returned all the same).
+    """
+    if os.environ.get(DISABLE_VAR, "1") == "0":
+        arrays = build()
+        _check(arrays, spec, f"{kind} (built)")
+        return arrays
+    path = table_path(kind, key)
+    if path.is_file():
+        try:
+            return _load(path, key, spec)
+        except Exception as exc:  # noqa: BLE001 - numpy/zipfile raise many types for damaged files
+            warnings.warn(f"{path}: cached {kind} table unreadable ({type(exc).__name__}: {exc}); rebuilding it",
+                          RuntimeWarning, stacklevel=2)
+    arrays = build()
+    _check(arrays, spec, f"{kind} (built)")
+    from ..errors import HoloViewerError
+    from ..fileio import save_npz
+
+    crcs = np.array([_crc(arrays[n]) for n in spec], dtype=np.int64)
+    try:
+        save_npz(path, __key__=np.array(key), __crc__=crcs, **{n: arrays[n] for n in spec})
+    except (HoloViewerError, OSError) as exc:
+        warnings.warn(f"{path}: cannot cache the {kind} table ({exc}); it is rebuilt at every start",
+                      RuntimeWarning, stacklevel=2)
+    return arrays
