@@ -102,3 +102,10 @@ def test_the_table_folder_can_be_chosen(cache, tmp_path, monkeypatch):
     monkeypatch.setenv(table_cache.DISABLE_VAR, str(tmp_path / "cold"))
     _tables(TINY, "nearest")
     assert len(list((tmp_path / "cold").glob("*.npz"))) == 4 and not cache.exists()
+
+
+def test_old_tables_are_pruned(cache, monkeypatch):
+    monkeypatch.setattr(table_cache, "KEEP", 2)
+    for shift in (0.1, 0.2, 0.3):
+        _tables(dataclasses.replace(TINY, center=TINY.center + shift), "nearest")
+    assert len(list(cache.glob("gather_*.npz"))) == 2 and len(list(cache.glob("*.npz"))) == 8

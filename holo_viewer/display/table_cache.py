@@ -13,7 +13,8 @@ uncompressed ``.npz`` per table, named by a digest of
 Files are written atomically (:func:`holo_viewer.fileio.save_npz`) and checked on load: the stored
 key, every expected array's dtype and shape (from the caller's spec), and a CRC-32 of each array's
 bytes. Anything else (truncated, corrupt, foreign) is rebuilt with a warning and rewritten, never
-trusted. ``HOLO_VIEWER_TABLE_CACHE=0`` turns the cache off (tables built every time); set to a
+trusted. The :data:`KEEP` most recently used files of each kind stay (an edit of a table module
+would otherwise leave its old tables behind). ``HOLO_VIEWER_TABLE_CACHE=0`` turns the cache off (tables built every time); set to a
 folder, it holds the tables instead (``bench/live_latency.py`` points a cold start at an empty one).
 """
 
@@ -28,10 +29,12 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["VERSION", "DISABLE_VAR", "table_key", "table_path", "cached_tables"]
+__all__ = ["VERSION", "KEEP", "DISABLE_VAR", "table_key", "table_path", "cached_tables"]
 
 #: bump when a table's meaning changes in a way the source digest would not show
 VERSION = 1
+#: files kept per kind of table (least recently used removed; stale sources, other panels)
+KEEP = 4
 #: ``0``: build the tables every time (no reads, no writes); a folder: keep the tables there
 DISABLE_VAR = "HOLO_VIEWER_TABLE_CACHE"
 #: modules whose code computes the cached tables: their source is part of every key
@@ -96,6 +99,22 @@ def _load(path: Path, key: str, spec: Spec) -> dict[str, np.ndarray]:
     return arrays
 
 
+def _prune(folder: Path, kind: str) -> None:
+    """Remove all but the :data:`KEEP` most recently used ``kind`` files of ``folder``."""
+    def used(p: Path) -> int:
+        try:
+            return p.stat().st_mtime_ns
+        except OSError:  # removed meanwhile by another process
+            return -1
+
+    files = sorted(folder.glob(f"{kind}_*.npz"), key=used, reverse=True)
+    for old in files[KEEP:]:
+        try:
+            old.unlink(missing_ok=True)
+        except OSError:
+            pass
+
+
 def cached_tables(kind: str, key: str, spec: Spec, build: Callable[[], dict[str, np.ndarray]]
                   ) -> dict[str, np.ndarray]:
     """The arrays of table ``kind`` keyed ``key`` (:func:`table_key`): loaded from the cache when a
@@ -111,7 +130,9 @@ def cached_tables(kind: str, key: str, spec: Spec, build: Callable[[], dict[str,
     path = table_path(kind, key)
     if path.is_file():
         try:
-            return _load(path, key, spec)
+            arrays = _load(path, key, spec)
+            os.utime(path)  # recently used (pruning)
+            return arrays
         except Exception as exc:  # noqa: BLE001 - numpy/zipfile raise many types for damaged files
             warnings.warn(f"{path}: cached {kind} table unreadable ({type(exc).__name__}: {exc}); rebuilding it",
                           RuntimeWarning, stacklevel=2)
@@ -123,6 +144,7 @@ def cached_tables(kind: str, key: str, spec: Spec, build: Callable[[], dict[str,
     crcs = np.array([_crc(arrays[n]) for n in spec], dtype=np.int64)
     try:
         save_npz(path, __key__=np.array(key), __crc__=crcs, **{n: arrays[n] for n in spec})
+        _prune(path.parent, kind)
     except (HoloViewerError, OSError) as exc:
         warnings.warn(f"{path}: cannot cache the {kind} table ({exc}); it is rebuilt at every start",
                       RuntimeWarning, stacklevel=2)
