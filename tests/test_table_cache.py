@@ -86,6 +86,12 @@ def test_a_foreign_file_under_the_key_is_not_trusted(cache):
         np.savez(readers, __key__=np.array("0" * 32), __crc__=z["__crc__"], subs=z["subs"], offsets=z["offsets"])
     with pytest.warns(RuntimeWarning, match="key"):
         _same(_tables(TINY, "nearest"), fresh)
+    with np.load(readers) as z:  # the right key, a valid zip, one changed value: the stored CRC-32 refuses it
+        subs = z["subs"].copy()
+        subs[0] += 1
+        np.savez(readers, __key__=z["__key__"], __crc__=z["__crc__"], subs=subs, offsets=z["offsets"])
+    with pytest.warns(RuntimeWarning, match="checksum"):
+        _same(_tables(TINY, "nearest"), fresh)
 
 
 def test_a_changed_calibration_misses_the_cache(cache):
