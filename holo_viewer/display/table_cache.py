@@ -133,6 +133,8 @@ def cached_tables(kind: str, key: str, spec: Spec, build: Callable[[], dict[str,
             arrays = _load(path, key, spec)
             os.utime(path)  # recently used (pruning)
             return arrays
+        except FileNotFoundError:  # pruned by another process meanwhile: simply rebuilt
+            pass
         except Exception as exc:  # noqa: BLE001 - numpy/zipfile raise many types for damaged files
             warnings.warn(f"{path}: cached {kind} table unreadable ({type(exc).__name__}: {exc}); rebuilding it",
                           RuntimeWarning, stacklevel=2)
