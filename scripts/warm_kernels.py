@@ -39,12 +39,17 @@ def _pipeline() -> None:
 
 
 def _interleave() -> None:
-    """Both interleave modes of the lenticular interleaver, on uint8 and float32 quilts, whole and partial."""
+    """float -> uint8, and both interleave modes of the lenticular interleaver on uint8 and float32 quilts,
+    whole and partial."""
     import numpy as np
 
     from holo_viewer.display.calibration import DisplayCalibration
     from holo_viewer.display.lenticular import Interleaver
 
+    from holo_viewer.images import to_uint8
+
+    for dtype in (np.float32, np.float64):  # its compiled pass, on both float types
+        to_uint8(np.zeros((4, 4, 3), dtype))
     cal = DisplayCalibration.load(None)
     for dtype in (np.uint8, np.float32):
         quilt = np.zeros((cal.quilt_height, cal.quilt_width, 3), dtype)

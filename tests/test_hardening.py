@@ -40,17 +40,21 @@ FIXTURE = ROOT / "assets" / "lkg_portrait_visual.json"
 
 
 @pytest.fixture()
-def disk_full(monkeypatch: pytest.MonkeyPatch):
-    """Call it to fill the disk: from then on every atomic write's temporary file is a symlink to
-    /dev/full, so writes fail in the kernel with ENOSPC (inputs are prepared before the call)."""
+def disk_full(monkeypatch: pytest.MonkeyPatch, tmp_path: Path):
+    """Call it to fill the disk: from then on every atomic write's temporary file under ``tmp_path`` is a
+    symlink to /dev/full, so writes fail in the kernel with ENOSPC (inputs are prepared before the call).
+    ``tempfile`` is the process's one module: writes elsewhere (numba's kernel cache, the package's disk
+    caches) are left alone, or a kernel first compiled during the test would fail instead of the output."""
     if not os.path.exists("/dev/full"):
         pytest.skip("/dev/full is not available here")
     real = tempfile.mkstemp
+    root = tmp_path.resolve()
 
     def mkstemp(*args, **kwargs):
         fd, path = real(*args, **kwargs)
-        os.unlink(path)
-        os.symlink("/dev/full", path)
+        if Path(path).resolve().is_relative_to(root):
+            os.unlink(path)
+            os.symlink("/dev/full", path)
         return fd, path
 
     return lambda: monkeypatch.setattr(fileio.tempfile, "mkstemp", mkstemp)
@@ -159,8 +163,12 @@ def test_disk_full_export_mesh_and_video(tmp_path: Path, disk_full, capsys: pyte
 
 def test_permission_denied_is_reported(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                        capsys: pytest.CaptureFixture) -> None:
-    def deny(src, dst):
-        raise PermissionError(errno.EACCES, "Permission denied", str(dst))
+    real, root = os.replace, tmp_path.resolve()
+
+    def deny(src, dst):  # os is the process's one module: only this test's outputs are denied (numba's
+        if Path(dst).resolve().is_relative_to(root):  # cache of a kernel first compiled here is not)
+            raise PermissionError(errno.EACCES, "Permission denied", str(dst))
+        return real(src, dst)
 
     monkeypatch.setattr(fileio.os, "replace", deny)
     quilt = tmp_path / "q_qs8x6a0.75.png"
