@@ -548,43 +548,67 @@ def evaluate_patient(res: dict[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
-def patient_sheet(results: dict[str, dict[str, Any]], width: int = 300) -> np.ndarray:
-    """Rows = avatars, columns = neutral / pain 0.5 / pain 1.0 (centre quilt view, Gaussians), cropped to
-    the union of the heads' pixels, each tile ``width`` px wide, labelled."""
+def patient_sheet(results: dict[str, dict[str, Any]], width: int = 220, face_fraction: float = 0.74) -> np.ndarray:
+    """Columns = avatars, rows = neutral / pain 0.5 / pain 1.0 (centre quilt view, Gaussians), cropped to
+    the union of the heads' pixels (its top ``face_fraction``: head and face, not the shoulders), each
+    tile ``width`` px wide, labelled."""
     from PIL import Image, ImageDraw, ImageFont
 
-    cols = (("neutral", "neutral"), ("pain_05", "pain 0.5"), ("pain_1", "pain 1.0"))
-    imgs = {n: [np.asarray(r["per_expression"][k]["centre_view"]) for k, _ in cols] for n, r in results.items()}
+    rows = (("neutral", "neutral"), ("pain_05", "pain 0.5"), ("pain_1", "pain 1.0"))
+    imgs = {n: [np.asarray(r["per_expression"][k]["centre_view"]) for k, _ in rows] for n, r in results.items()}
     top, bottom, left, right = head_box([im.max(-1) > 0.02 for v in imgs.values() for im in v], margin=6)
+    bottom = top + int(round((bottom - top) * face_fraction))
     tile_w = int(width)
     tile_h = int(round((bottom - top) * tile_w / (right - left)))
-    size = max(12, tile_w // 18)
+    size = max(12, tile_w // 13)
     try:
         font = ImageFont.load_default(size=size)
     except TypeError:
         font = ImageFont.load_default()
-    label_w, head_h, pad = 7 * size, 2 * size, 4
-    sheet = Image.new("RGB", (label_w + len(cols) * (tile_w + pad), head_h + len(imgs) * (tile_h + pad)),
+    label_w, head_h, pad = 6 * size, int(1.6 * size), 3
+    sheet = Image.new("RGB", (label_w + len(imgs) * (tile_w + pad), head_h + len(rows) * (tile_h + pad)),
                       (255, 255, 255))
     draw = ImageDraw.Draw(sheet)
-    for c, (_, label) in enumerate(cols):
-        draw.text((label_w + c * (tile_w + pad) + tile_w // 3, 4), label, fill=(0, 0, 0), font=font)
-    for r, (name, row) in enumerate(imgs.items()):
+    for c, name in enumerate(imgs):
+        draw.text((label_w + c * (tile_w + pad) + tile_w // 4, 2), name, fill=(0, 0, 0), font=font)
+    for r, (_, label) in enumerate(rows):
         y = head_h + r * (tile_h + pad)
-        draw.text((4, y + tile_h // 2), name, fill=(0, 0, 0), font=font)
-        for c, im in enumerate(row):
-            tile = Image.fromarray((np.clip(im[top:bottom, left:right], 0, 1) * 255 + 0.5).astype(np.uint8))
+        draw.text((4, y + tile_h // 2), label, fill=(0, 0, 0), font=font)
+        for c, row in enumerate(imgs.values()):
+            tile = Image.fromarray((np.clip(row[r][top:bottom, left:right], 0, 1) * 255 + 0.5).astype(np.uint8))
             sheet.paste(tile.resize((tile_w, tile_h), Image.LANCZOS), (label_w + c * (tile_w + pad), y))
     return np.asarray(sheet)
 
 
-def main_patients(names: Sequence[str], json_path: str, images: str | None, sheet: str | None = None) -> int:
+def sheet_views(name: str) -> dict[str, Any]:
+    """Only the contact sheet's pictures of one avatar (centre quilt view at neutral, pain 0.5 and 1)."""
+    from holo_viewer.pipeline import FaceControls, Pipeline
+
+    pipe = Pipeline(avatar=load_patient_avatar(name))
+    mid = len(pipe.cameras()) // 2
+    per = {}
+    for key, p in (("neutral", 0.0), ("pain_05", 0.5), ("pain_1", 1.0)):
+        pipe.set_face(FaceControls(pain=p))
+        per[key] = {"centre_view": pipe.render_view(mid)}
+    return {"per_expression": per}
+
+
+def main_patients(names: Sequence[str], json_path: str, images: str | None, sheet: str | None = None,
+                  sheet_only: bool = False) -> int:
     from holo_viewer.fileio import atomic_write
 
     if list(names) == ["all"]:
         from holo_viewer.avatar.patients import list_patients
 
         names = [p.name for p in list_patients() if p.fitted]
+    if sheet_only:
+        from holo_viewer.fileio import save_image
+
+        if not sheet:
+            print("error: --sheet-only needs --sheet FILE", file=sys.stderr)
+            return 2
+        print(f"wrote {save_image(sheet, patient_sheet({n: sheet_views(n) for n in names}))}")
+        return 0
     out: dict[str, Any] = {}
     results: dict[str, Any] = {}
     for name in names:
@@ -627,11 +651,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="per avatar (default, patient names or all): faces found, pain ratios and monotonicity "
                          "on the quilt and through the panel (writes bench/results/face_realism_patients.json "
                          "unless --json is given)")
+    ap.add_argument("--sheet-only", action="store_true", help="with --patients and --sheet: only the contact sheet")
     args = ap.parse_args(argv)
     if args.patients:
         path = args.json if "--json" in (argv or sys.argv) else str(Path(__file__).parent / "results" /
                                                                     "face_realism_patients.json")
-        return main_patients(args.patients, path, args.images, args.sheet)
+        return main_patients(args.patients, path, args.images, args.sheet, args.sheet_only)
     if args.quick:
         from holo_viewer.fileio import atomic_write
 
