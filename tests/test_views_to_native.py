@@ -155,7 +155,7 @@ def test_every_caller_goes_through_the_one_function(spy, monkeypatch, tmp_path):
 
     # the slices' own scatter is no views -> native chain (per-eye images into the subpixels): stubbed out
     # here (its one-off tables take seconds), the frame's exact refresh columns are what the spy looks for
-    monkeypatch.setattr(slices_mod, "SubpixelBuckets", lambda *args: None)
+    monkeypatch.setattr(slices_mod, "subpixel_buckets", lambda *args: None)
     monkeypatch.setattr(slices_mod, "scatter_slices", lambda *args, **kw: 0)
     slices = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(view_step=1, tracked="slices", refresh_columns=2))
     slices.frame(g, mode="full_quilt")
