@@ -346,11 +346,9 @@ def main() -> int:
               "render_warm": warm, "startup": startup,
               "reaction_window_ratio_render_vs_baseline": round(ratio, 2), "fit": fit, "rss": rss}
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        from holo_viewer.fileio import atomic_write
+        from holo_viewer.fileio import write_json
 
-        with atomic_write(args.json, "w") as fh:
-            json.dump(result, fh, indent=2)
+        write_json(args.json, result)
         print(f"wrote {args.json}")
     return 0
 

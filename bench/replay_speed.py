@@ -132,11 +132,9 @@ def main() -> int:
           f"{err['bit_exact']} ({err['identical']}/{err['frames_recorded']} frames, max diff {err['max_diff']})")
     result = {"config": vars(args), "cores": os.cpu_count(), "recording": rec, "replay": rep, "render_only": base,
               "ratio_replay_to_render_only": ratio, "error": err, "target_fps": 4.0}
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    from holo_viewer.fileio import atomic_write
+    from holo_viewer.fileio import write_json
 
-    with atomic_write(args.json, "w") as fh:
-        json.dump(result, fh, indent=2)
+    write_json(args.json, result)
     print(f"wrote {args.json}")
     return 0
 

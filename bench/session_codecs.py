@@ -15,7 +15,6 @@ the baseline, measured in the same run).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import resource
 import subprocess
@@ -95,11 +94,9 @@ def main() -> int:
               f"{r['size_ratio_to_today']:6.3f} {r['load_1min']:5.1f}")
     result = {"config": vars(args), "cores": os.cpu_count(), "frames": len(frames), "size": [w_, h],
               "candidates": CANDIDATES, "results": rows}
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    from holo_viewer.fileio import atomic_write
+    from holo_viewer.fileio import write_json
 
-    with atomic_write(args.json, "w") as fh:
-        json.dump(result, fh, indent=2)
+    write_json(args.json, result)
     print(f"wrote {args.json}")
     return 0
 

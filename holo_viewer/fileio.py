@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import os
 import re
 import shutil
@@ -35,7 +36,7 @@ from .errors import ExportError, HoloViewerError
 
 __all__ = ["atomic_write", "atomic_path", "save_image", "load_image", "save_npz", "read_npz", "read_npy",
            "write_error", "reporting_write_errors", "ensure_dir", "check_writable", "remove_stale_temps",
-           "read_json", "parse_json", "check_json_depth", "read_limited", "MAX_JSON_BYTES", "MAX_JSON_DEPTH", "NPZ_BUDGET_BYTES"]
+           "read_json", "write_json", "parse_json", "check_json_depth", "read_limited", "MAX_JSON_BYTES", "MAX_JSON_DEPTH", "NPZ_BUDGET_BYTES"]
 
 #: largest JSON file any reader parses (manifests, calibrations, sessions, scenarios, maps)
 MAX_JSON_BYTES = 64 << 20
@@ -288,6 +289,15 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
+
+
+def write_json(path: str | os.PathLike, obj, *, indent: int = 2, default=None) -> Path:
+    """Write ``obj`` as JSON atomically, creating the parent folder; returns the path (benches' results)."""
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(target, "w") as fh:
+        json.dump(obj, fh, indent=indent, default=default)
+    return target
 
 
 def save_image(path: str | os.PathLike, image: np.ndarray) -> Path:

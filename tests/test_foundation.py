@@ -1,5 +1,6 @@
 """Package-level guarantees: cheap import, CLI conventions, validation messages, atomic writes."""
 
+import json
 import os
 import subprocess
 import sys
@@ -9,7 +10,7 @@ import pytest
 
 from holo_viewer.cli import SUBCOMMANDS, main
 from holo_viewer.errors import ExportError, HoloViewerError, InputError
-from holo_viewer.fileio import atomic_write, load_image, save_image
+from holo_viewer.fileio import atomic_write, load_image, save_image, write_json
 from holo_viewer.validation import check_array, check_finite_scalar
 
 HEAVY = ("vtk", "vtkmodules", "pyvista", "open3d", "usb", "hid", "matplotlib")
@@ -93,6 +94,15 @@ def test_atomic_write_keeps_old_file_on_failure(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert fresh.stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's owner-only 0600
+
+
+def test_write_json_makes_the_folder_and_keeps_old_results_on_failure(tmp_path):
+    target = write_json(tmp_path / "results" / "bench.json", {"time_s": 0.5})
+    assert json.loads(target.read_text()) == {"time_s": 0.5}
+    with pytest.raises(TypeError):  # not JSON-serialisable: the earlier result stays whole
+        write_json(target, {"time_s": object()})
+    assert json.loads(target.read_text()) == {"time_s": 0.5}
+    assert sorted(os.listdir(target.parent)) == ["bench.json"]
 
 
 def test_save_image_round_trip_and_nan_refused(tmp_path):
