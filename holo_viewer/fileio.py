@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import json
 import os
 import re
@@ -36,7 +37,7 @@ from .errors import ExportError, HoloViewerError
 
 __all__ = ["atomic_write", "atomic_path", "save_image", "load_image", "save_npz", "read_npz", "read_npy",
            "write_error", "reporting_write_errors", "ensure_dir", "check_writable", "remove_stale_temps",
-           "read_json", "write_json", "parse_json", "check_json_depth", "read_limited", "MAX_JSON_BYTES", "MAX_JSON_DEPTH", "NPZ_BUDGET_BYTES"]
+           "read_json", "write_json", "file_sha256", "parse_json", "check_json_depth", "read_limited", "MAX_JSON_BYTES", "MAX_JSON_DEPTH", "NPZ_BUDGET_BYTES"]
 
 #: largest JSON file any reader parses (manifests, calibrations, sessions, scenarios, maps)
 MAX_JSON_BYTES = 64 << 20
@@ -289,6 +290,15 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """Hex SHA-256 of a file's bytes, read in 1 MiB blocks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def write_json(path: str | os.PathLike, obj, *, indent: int = 2, default=None) -> Path:

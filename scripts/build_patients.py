@@ -13,7 +13,6 @@ render per patient (front, three-quarter, side; neutral and pain 1) and ``DIR/wa
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import time
 from dataclasses import asdict
@@ -35,14 +34,10 @@ LICENCE = {
 }
 
 
-def _sha(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
 def build(recipe, ict, dirs, out: Path) -> dict:
     from holo_viewer.assets_build.head import build_patient_head, write_default_head
     from holo_viewer.assets_build.patients import N_MODES, identity_coefficients
-    from holo_viewer.fileio import atomic_write, ensure_dir
+    from holo_viewer.fileio import atomic_write, ensure_dir, file_sha256
     from holo_viewer.flame.head_textures import PATIENT_PREFIX, build_head_textures
     from holo_viewer.flame.model import FlameModel
 
@@ -53,7 +48,7 @@ def build(recipe, ict, dirs, out: Path) -> dict:
     head = write_default_head(Path(folder) / "head.npz", arrays)
     model = FlameModel.load(head, n_shape=None, n_expr=None)
     paths = build_head_textures(model, folder, seed=recipe.seed, prefix=PATIENT_PREFIX, look=recipe.look)
-    files = {p.name: _sha(p) for p in [head] + list(paths)}
+    files = {p.name: file_sha256(p) for p in [head] + list(paths)}
     info = {"format": 1, "name": recipe.name, "sex": recipe.sex, "age": recipe.age,
             "fitzpatrick": recipe.fitzpatrick, "seed": recipe.seed, "description": recipe.description,
             "identity": {"source": f"ICT Face Model Light identity PCA modes 0..{N_MODES - 1} "

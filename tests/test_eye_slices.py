@@ -39,7 +39,7 @@ from holo_viewer.display.calibration import DisplayCalibration  # noqa: E402
 from holo_viewer.display.cameras import make_quilt_cameras  # noqa: E402
 from holo_viewer.display.lenticular import Interleaver  # noqa: E402
 from holo_viewer.display.simulate import VirtualDisplay  # noqa: E402
-from holo_viewer.display.slices import SubpixelBuckets, scatter_slices, subpixel_buckets  # noqa: E402
+from holo_viewer.display.slices import scatter_slices, subpixel_buckets  # noqa: E402
 from holo_viewer.display.slices import cpp_available as slices_cpp_available  # noqa: E402
 from holo_viewer.errors import InputError, RenderError  # noqa: E402
 from holo_viewer.pipeline.live import NativeFrameConfig, NativeFrameRenderer  # noqa: E402

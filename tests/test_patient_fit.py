@@ -209,11 +209,11 @@ def test_a_shipped_patient_avatar_fits_the_budget_and_records_its_range(info):
     """Each fitted patient: everything in its folder <= 15 MB, its avatar keyed to its head, with the fit's
     angle range covering the quilt cone at the slider's limits (+-30 deg) and, when fine-tuned, its
     worst-view PSNR (``--iterations 0``, the transfer alone, records no fit)."""
-    from holo_viewer.avatar.default_gaussians import _head_digest
+    from holo_viewer.fileio import file_sha256
 
     assert info.size_bytes() <= 15e6, info.size_bytes()
     local, binding, keys = load_fitted_avatar(info.avatar_path)
-    assert keys["head_sha256"] == _head_digest(info.head_path)
+    assert keys["head_sha256"] == file_sha256(info.head_path)
     lo, hi = keys["fit_angle_range_deg"]
     assert lo <= -29.0 and hi >= 29.0
     assert keys["info"]["iterations"] == 0 or keys["info"].get("psnr_min_db") is not None  # fine-tuned: measured

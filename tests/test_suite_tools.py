@@ -4,7 +4,6 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 from conftest import ROOT, UNMEASURED_S, longest_files_first, parse_slow_list, worker_threads
 

@@ -373,7 +373,6 @@ class _Painter:
         """Folds and marks of an older face (scaled by ``look.age``): nasolabial and marionette folds,
         lines under the eyes, sparse age spots."""
         lm, s, a = self.lm, self.seed, self.look.age
-        n = len(q)
 
         def fold(p0, p1, width, depth):
             d = p1 - p0

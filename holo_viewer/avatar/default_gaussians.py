@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import AvatarError, HoloViewerError, InputError
-from ..fileio import read_npz, save_npz
+from ..fileio import file_sha256, read_npz, save_npz
 from ..geometry import vertex_normals
 from .binding import world_to_local_np
 from .gaussians import SH_C0, Gaussians
@@ -295,14 +295,6 @@ def _with_sh_degree(sh: np.ndarray, degree: int) -> np.ndarray:
     return np.concatenate([sh, np.zeros((sh.shape[0], k - sh.shape[1], 3), sh.dtype)], axis=1)
 
 
-def _head_digest(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 @functools.lru_cache(maxsize=4)
 def _cached_local(n_gaussians: int, sh_degree: int, seed: int, use_disk_cache: bool
                   ) -> tuple[Gaussians, np.ndarray, tuple[str, ...]]:
@@ -311,7 +303,7 @@ def _cached_local(n_gaussians: int, sh_degree: int, seed: int, use_disk_cache: b
     model = load_default_model(add_teeth=True)
     code = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
     key_src = (f"v{GENERATOR_VERSION}|code{code}|n{n_gaussians}|sh{sh_degree}|seed{seed}"
-               f"|head{_head_digest(default_head_path())}")
+               f"|head{file_sha256(default_head_path())}")
     key = hashlib.sha256(key_src.encode()).hexdigest()[:16]
     path = _cache_dir() / f"default_avatar_{key}.npz"
     names = tuple(str(s) for s in model.metadata["region_names"])
@@ -404,7 +396,7 @@ def save_fitted_avatar(path: str | Path, local: Gaussians, binding: np.ndarray, 
     if "region" in local.extra:
         out["region"] = np.asarray(local.extra["region"]).astype(np.int16)
     out["format"] = np.array(FITTED_FORMAT)
-    out["head_sha256"] = np.array(_head_digest(head))
+    out["head_sha256"] = np.array(file_sha256(head))
     out["colour_source"] = np.array(str(colour_source))
     out["n_faces"] = np.array(int(model.faces.shape[0]))
     out["info"] = np.array(json.dumps(info or {}))
@@ -493,7 +485,7 @@ def _check_fitted(path: Path) -> tuple[tuple[Gaussians, np.ndarray, dict[str, An
         local, binding, keys = load_fitted_avatar(path)
     except AvatarError as exc:
         return None, str(exc)
-    head = _head_digest(default_head_path())
+    head = file_sha256(default_head_path())
     if keys["head_sha256"] != head:
         return None, (f"{path} was fitted to another default head (sha256 {keys['head_sha256'][:12]}..., the "
                       f"current head is {head[:12]}...); rerun scripts/fit_default_avatar.py")

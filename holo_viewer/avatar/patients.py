@@ -16,13 +16,13 @@ albedo textures (``albedo.json`` + PNGs) and, once fitted, ``avatar.npz`` (the f
 from __future__ import annotations
 
 import functools
-import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from ..errors import AvatarError, InputError
+from ..fileio import file_sha256
 
 __all__ = ["PATIENT_FORMAT", "PatientInfo", "Patient", "AvatarChoice", "patients_dir", "list_patients",
            "patient_names", "patient_info", "load_patient", "load_patient_model", "load_patient_avatar",
@@ -42,15 +42,6 @@ KEYWORDS = ("default", "none")
 def patients_dir() -> Path:
     """``assets/patients/`` of the checkout."""
     return Path(__file__).resolve().parents[2] / "assets" / "patients"
-
-
-def file_sha256(path: str | Path) -> str:
-    """Hex SHA-256 of a file."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 @dataclass(frozen=True)
@@ -199,11 +190,11 @@ def load_patient_avatar(name: str, folder: str | Path | None = None) -> Any:
 def _rigged_from_file(path: Path, model: Any, head_path: Path) -> Any:
     import numpy as np
 
-    from .default_gaussians import _head_digest, front_to_back, load_fitted_avatar
+    from .default_gaussians import front_to_back, load_fitted_avatar
     from .rigged import RiggedAvatar
 
     local, binding, keys = load_fitted_avatar(path)
-    head = _head_digest(head_path)
+    head = file_sha256(head_path)
     if keys["head_sha256"] != head:
         raise AvatarError(f"{path}: fitted to another head (sha256 {keys['head_sha256'][:12]}...), "
                           f"{head_path} is {head[:12]}...; refit it")
@@ -288,11 +279,11 @@ def head_for_avatar_file(path: str | Path, folder: str | Path | None = None) -> 
     """(head model, head path) an avatar ``.npz`` was fitted to: the default head or a patient's head,
     found by the sha256 stored in the file."""
     from ..flame.default_head import default_head_path, load_default_model
-    from .default_gaussians import _head_digest, load_fitted_avatar
+    from .default_gaussians import load_fitted_avatar
 
     _, _, keys = load_fitted_avatar(path)
     want = keys["head_sha256"]
-    if _head_digest(default_head_path()) == want:
+    if file_sha256(default_head_path()) == want:
         return load_default_model(add_teeth=True), default_head_path()
     for info in list_patients(folder):
         if info.head_path.is_file() and file_sha256(info.head_path) == want:

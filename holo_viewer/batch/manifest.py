@@ -60,7 +60,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..errors import ManifestError
-from ..fileio import MAX_JSON_DEPTH, json_depth
+from ..fileio import MAX_JSON_DEPTH, file_sha256, json_depth
 
 __all__ = ["JobSpec", "RowError", "read_manifest", "job_hash", "FORMAT_VERSION", "OUTPUT_KINDS", "SCENARIOS",
            "EXPRESSIONS", "FileDigests", "SHIPPED_ASSETS", "assets_dir", "code_digest", "render_settings"]
@@ -498,11 +498,7 @@ class FileDigests:
         st = p.stat()
         key = (str(p), st.st_size, st.st_mtime_ns)
         if key not in self._cache:
-            h = hashlib.sha256()
-            with open(p, "rb") as fh:
-                for block in iter(lambda: fh.read(1 << 20), b""):
-                    h.update(block)
-            self._cache[key] = h.hexdigest()
+            self._cache[key] = file_sha256(p)
         return self._cache[key]
 
 
