@@ -13,7 +13,8 @@ import pytest
 from holo_viewer.behaviour import (DEFAULT_FRAMING, DEFAULT_JOINTS, PANEL_HEIGHT_M, BehaviourConfig,
                                    ListenerBehaviour, PainTimeline, apply_behaviour, default_target,
                                    eye_directions, viewer_target)
-from holo_viewer.behaviour.layers import BlinkLayer, BreathingLayer, BrowLayer, GazeLayer, PainDynamics, SwayLayer
+from holo_viewer.behaviour.layers import (BlinkLayer, BreathingLayer, BrowLayer, GazeLayer, NodLayer, PainDynamics,
+                                          SwayLayer)
 from holo_viewer.errors import InputError
 
 FPS = 25
@@ -110,6 +111,50 @@ def test_brow_raises_on_the_face_and_off_when_switched_off():
     raised = 0.5 * (on[:, i1] + on[:, i2])
     assert len(_runs(raised >= 1.0)) >= 1 and np.allclose(on[:, i1], on[:, i2], atol=1e-6)
     assert np.abs(off[:, [i1, i2]]).max() < 1e-6 and np.allclose(on[:, i12], 2.0, atol=1e-5)
+
+
+def test_backchannel_nods_answer_pauses_at_once():
+    """30 min with a pause onset every 3.75 s: 0.3 of the cues answered (binomial bounds), each nod
+    starting 0.05-0.3 s after its cue, 0.4-0.7 s long, 3-6 deg deep; none without pauses; seeded."""
+    T = FPS * 1800
+    cue = np.zeros(T, bool)
+    cue[::int(3.75 * FPS)] = True
+    lay = NodLayer(seed=3)
+    v = np.array([lay.step(bool(c)) for c in cue])
+    runs = _runs(v > 0)
+    n_cues = int(cue.sum())  # 480: 0.3 of them = 144, sd 10
+    assert 0.3 * n_cues - 35 <= len(runs) <= 0.3 * n_cues + 35
+    starts = np.array([a for a, _ in runs])
+    c = np.flatnonzero(cue)
+    lags = (starts - c[np.searchsorted(c, starts) - 1]) / FPS
+    assert lags.min() >= 0.04 and lags.max() <= 0.34
+    lengths = np.array([n for _, n in runs]) / FPS
+    assert lengths.min() >= 0.36 and lengths.max() <= 0.72
+    depth = np.array([v[a:a + n].max() for a, n in runs])
+    assert depth.min() >= 2.5 and v.max() <= 6.0
+    again = NodLayer(seed=3)
+    assert np.array_equal(v, [again.step(bool(x)) for x in cue])
+    quiet = NodLayer(seed=3)
+    assert not any(quiet.step(False) for _ in range(FPS * 120))
+
+
+def test_backchannel_nods_on_the_head_and_off_when_switched_off():
+    """The nod turns the face down (+ pitch, measured as the bench does) and only with the layer on;
+    switching it off leaves every other layer's output unchanged."""
+    from holo_viewer.reaction.listening import detect_nods, head_angles_deg
+
+    T = FPS * 40
+    po = np.zeros(T, bool)
+    po[::FPS * 2] = True
+    cfg = BehaviourConfig(seed=1).without("sway", "breathing", "gaze")
+    on = apply_behaviour(_still(T), cfg, pause_onsets=po)
+    off = apply_behaviour(_still(T), cfg.without("nods"), pause_onsets=po)
+    pitch = head_angles_deg(on["rotation"], on["neck_pose"])[:, 0]
+    nods = detect_nods(pitch)
+    assert len(nods) >= 3 and pitch.max() >= 2.5 and pitch.min() >= -1e-6
+    assert np.abs(off["neck_pose"]).max() == 0.0
+    assert len(detect_nods(head_angles_deg(off["rotation"], off["neck_pose"])[:, 0])) == 0
+    assert np.array_equal(on["expr"], off["expr"]) and np.array_equal(on["eyes_pose"], off["eyes_pose"])
 
 
 def test_breathing_rate_and_sway_amplitude():

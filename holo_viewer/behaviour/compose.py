@@ -31,13 +31,13 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import InputError
-from .layers import FPS, BlinkLayer, BreathingLayer, BrowLayer, GazeLayer, PainDynamics, SwayLayer
+from .layers import FPS, BlinkLayer, BreathingLayer, BrowLayer, GazeLayer, NodLayer, PainDynamics, SwayLayer
 
 __all__ = ["BehaviourConfig", "ListenerBehaviour", "apply_behaviour", "DEFAULT_JOINTS", "DEFAULT_FRAMING",
            "PANEL_HEIGHT_M", "viewer_target", "default_target", "eye_directions", "LAYERS"]
 
 #: the switchable layers, in the order of ``--no-LAYER`` flags
-LAYERS = ("gaze", "blinks", "brows", "breathing", "sway", "flares")
+LAYERS = ("gaze", "blinks", "brows", "nods", "breathing", "sway", "flares")
 
 #: the default head's rest joints (root, neck, jaw, eye at +x, eye at -x), metres (FLAME frame)
 DEFAULT_JOINTS = np.array([[0.0, -0.175, -0.02], [0.0, -0.07, -0.025], [0.0, -0.042075, -0.0070978],
@@ -74,13 +74,14 @@ def default_target() -> np.ndarray:
 class BehaviourConfig:
     """Switches and settings of the no-data layers (docs/behaviour.md).
 
-    ``gaze``, ``blinks``, ``brows``, ``breathing``, ``sway``, ``flares``: each layer on/off (``--no-gaze`` ...);
-    pain itself is always shown (its level is the instructor's), ``flares`` only adds episodes.
+    ``gaze``, ``blinks``, ``brows``, ``nods``, ``breathing``, ``sway``, ``flares``: each layer on/off
+    (``--no-gaze`` ...); pain itself is always shown (its level is the instructor's), ``flares`` only adds episodes.
     """
 
     gaze: bool = True
     blinks: bool = True
     brows: bool = True
+    nods: bool = True
     breathing: bool = True
     sway: bool = True
     flares: bool = True
@@ -226,6 +227,7 @@ class ListenerBehaviour:
         self.gaze = GazeLayer(c.seed, fps=fps)
         self.blinks = BlinkLayer(c.seed, rate_per_min=c.blink_rate_per_min, fps=fps)
         self.brows = BrowLayer(c.seed, fps=fps)
+        self.nods = NodLayer(c.seed, fps=fps)
         self.breathing = BreathingLayer(c.seed, fps=fps)
         self.sway = SwayLayer(c.seed, std_deg=c.sway_deg, std_mm=c.sway_mm, fps=fps)
         self.pain = PainDynamics(c.seed, flares=c.flares, flare_rate_per_min=c.flare_rate_per_min, fps=fps)
@@ -274,6 +276,9 @@ class ListenerBehaviour:
         if c.breathing:
             out["translation"] += np.array([0.0, 1e-3 * c.breath_mm * breath, 1e-3 * c.breath_mm / 3 * breath])
             out["neck_pose"][0] -= math.radians(c.breath_deg) * breath  # -x pitch lifts the chin
+        nod = self.nods.step(pause_onset)
+        if c.nods and nod > 0:  # a backchannel nod: +x pitch of the neck turns the face down
+            out["neck_pose"][0] += math.radians(nod)
         sway = self.sway.step()
         if c.sway:
             out["neck_pose"] += np.radians(sway[:3])
@@ -299,6 +304,7 @@ class ListenerBehaviour:
                 Re = _yaw_pitch_matrix(y + math.radians(g.yaw_deg), pt + math.radians(g.pitch_deg))
                 out["eyes_pose"][3 * e:3 * e + 3] = _axis_angle(Re)
         self.last = {"pain": p, "blink": blink if c.blinks else 0.0, "brows": brow if c.brows else 0.0,
+                     "nod": nod if c.nods else 0.0,
                      "breath": breath if c.breathing else 0.0,
                      "gaze_on_target": float(g.on_target) if c.gaze else float("nan")}
         out["expr"] = expr

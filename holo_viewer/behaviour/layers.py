@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GazeLayer", "GazeSample", "BlinkLayer", "BrowLayer", "BreathingLayer", "SwayLayer", "PainDynamics",
-           "blink_profile", "smoothstep"]
+__all__ = ["GazeLayer", "GazeSample", "BlinkLayer", "BrowLayer", "NodLayer", "BreathingLayer", "SwayLayer",
+           "PainDynamics", "blink_profile", "smoothstep"]
 
 FPS = 25.0
 
@@ -196,6 +196,47 @@ class BrowLayer:
         if v < rise + hold:
             return amp
         return amp * (1.0 - smoothstep((v - rise - hold) / fall))
+
+
+# ============================================================================ backchannel nods
+class NodLayer:
+    """Head nods as a listener's backchannel, started at once when the speaker pauses.
+
+    At a speaker's pause onset (the cue arrives when 200 ms of silence are complete) a nod starts
+    ``U(0.05, 0.3)`` s later (a listener's reaction time; 0.25-0.5 s after the silence began) with
+    probability ``pause_p``, at most one per ``refractory_s`` and none while one runs: the head goes
+    down by ``U(3, 6)`` deg in 0.15-0.25 s (smoothstep) and comes back up in 0.25-0.45 s. Listeners
+    answer pauses with nods (Ward & Tsukahara 2000; Gratch et al.'s Rapport Agent 2006 nods at the
+    speaker's pauses). The model's own nods come later (its k = 8-frame windows and its learned lag
+    of 0.2-1.0 s); this layer is what answers within a few frames.
+    Nothing without pauses. Returns the nod's head pitch in degrees (+ = face down).
+    """
+
+    def __init__(self, seed: int = 0, pause_p: float = 0.3, refractory_s: float = 2.0, fps: float = FPS) -> None:
+        self.rng = _rng(seed, 7)
+        self.dt = 1.0 / fps
+        self.pause_p, self.refractory = float(pause_p), float(refractory_s)
+        self.t = 0.0
+        self.nod: tuple[float, float, float, float] | None = None  # start, down, up, amplitude (deg)
+
+    def step(self, pause_onset: bool = False) -> float:
+        self.t += self.dt
+        if pause_onset:  # every draw at every cue, taken or not: determinism under switches
+            u, delay = float(self.rng.uniform()), float(self.rng.uniform(0.05, 0.3))
+            shape = (float(self.rng.uniform(0.15, 0.25)), float(self.rng.uniform(0.25, 0.45)),
+                     float(self.rng.uniform(3.0, 6.0)))
+            free = self.nod is None or self.t - self.nod[0] >= max(self.refractory, self.nod[1] + self.nod[2])
+            if free and u < self.pause_p:
+                self.nod = (self.t + delay, *shape)
+        if self.nod is None:
+            return 0.0
+        start, down, up, amp = self.nod
+        v = self.t - start
+        if v < 0 or v >= down + up:
+            return 0.0
+        if v < down:
+            return amp * smoothstep(v / down)
+        return amp * (1.0 - smoothstep((v - down) / up))
 
 
 # ============================================================================ breathing

@@ -9,8 +9,8 @@ __all__ = ["add_behaviour_arguments", "behaviour_from_args", "pain_from_args"]
 
 
 def add_behaviour_arguments(parser: argparse.ArgumentParser, pain_timeline: bool = True) -> None:
-    """``--no-behaviour``, ``--no-gaze`` ``--no-blinks`` ``--no-brows`` ``--no-breathing`` ``--no-sway``
-    ``--no-flares`` (and ``--pain-timeline F.json``)."""
+    """``--no-behaviour``, ``--no-gaze`` ``--no-blinks`` ``--no-brows`` ``--no-nods`` ``--no-breathing``
+    ``--no-sway`` ``--no-flares`` (and ``--pain-timeline F.json``)."""
     from ..behaviour import LAYERS
 
     g = parser.add_argument_group("listener behaviour (all on by default; docs/behaviour.md)")
@@ -19,6 +19,7 @@ def add_behaviour_arguments(parser: argparse.ArgumentParser, pain_timeline: bool
                         "(the model is then conditioned on the pain level)")
     what = {"gaze": "eyes (and a little head) on the viewer, aversions, saccades",
             "blinks": "spontaneous blinks (AU43)", "brows": "brow raises (AU1 + AU2) after the speaker's pauses",
+            "nods": "backchannel head nods after the speaker's pauses",
             "breathing": "breathing", "sway": "idle head sway",
             "flares": "pain flares over the level (the level itself still shows)"}
     for name in LAYERS:
