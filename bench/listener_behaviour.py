@@ -13,7 +13,10 @@ stochastic, and one 11-14 s recording holds only 3-6 pause onsets and a nod or t
 recording is reacted to by ``--seeds`` seeded listeners (decoding and layers seeded 0..N-1); their
 nods are pooled in the contingency test with ONE circular shift per recording and shift, applied to
 every realisation alike (``listening.nod_contingency(groups=...)``: the null keeps what the
-realisations share, since they hear the same audio), and the per-seed spread is reported. The TTS
+realisations share, since they hear the same audio), and the per-seed spread is reported. Beside
+it per recording: the p with each realisation shifted on its own (the null of a listener deaf to the
+audio), the p 20 ideal listeners nodding after every pause would get (``ideal_contingency_p``: the
+floor the recording's pauses allow), and both recordings pooled in one test. The TTS
 voices (3 min each) use seed 0. Measures
 (``holo_viewer.reaction.listening``): head motion peak to peak (max of pitch and yaw), nods per
 minute and their contingency on the VAD pause onsets (share of nod onsets 0.2-1.0 s after a pause
@@ -484,7 +487,22 @@ def main(argv=None) -> int:
         if group in real_names:
             row["per_seed"] = per_seed(rows, n_shifts)
             row["nod_contingency_p_independent_shifts"] = pool(rows, n_shifts)["nod_contingency_p"]  # not the test
+            # the test's floor on this recording: 20 ideal listeners nodding after every pause (lags
+            # uniform in 0.2-1.0 s, or bunched in 0.4-0.8 s), pooled as above
+            from holo_viewer.reaction.listening import ideal_contingency_p
+
+            q, d = rows[0]["pauses"], rows[0]["seconds"]
+            row["nod_contingency_p_ideal_listener"] = ideal_contingency_p(q, d, len(rows), n_shifts=n_shifts)
+            row["nod_contingency_p_ideal_listener_bunched"] = ideal_contingency_p(q, d, len(rows), lag=(0.4, 0.8),
+                                                                                  n_shifts=n_shifts)
         results.append(row)
+    # both real recordings in one test (independent recordings: each its own shift; the seeded
+    # listeners of one recording share theirs): how the two recordings' evidence pools
+    for cond in conditions:
+        rows = [r for _, g in REAL for r in groups[(cond, g)]]
+        labs = [g for _, g in REAL for _ in groups[(cond, g)]]
+        results.append({"clip": "real: both recordings pooled", "condition": cond,
+                        **pool(rows, n_shifts, labs)})
     outdir = Path(args.out).parent
     png = outdir / "listener_behaviour.png"
     plot(png, both, both_speech, both_params, both_m,

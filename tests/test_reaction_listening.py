@@ -8,7 +8,8 @@ import pytest
 from holo_viewer.errors import InputError
 from holo_viewer.reaction.listening import (aversions, count_events, detect_blinks, detect_nods, eyelid_channel,
                                             gaze_angles, gaze_on_target, gaze_yaw_correlation, head_angles_deg,
-                                            head_motion_deg, nod_contingency)
+                                            head_motion_deg, ideal_contingency_p,
+                                            nod_contingency)
 
 FPS = 25
 
@@ -78,6 +79,17 @@ def test_nod_contingency_pools_realisations_with_one_shift():
     assert c.share == 1.0 and c.p < 0.05 and c.ratio > 2
     with pytest.raises(InputError, match="share their length"):
         nod_contingency([nods] * 2, [pauses] * 2, [14.0, 12.0], groups=[0, 0])
+
+
+def test_ideal_contingency_p_is_the_floor_of_few_pauses():
+    """Many pauses: an ideal listener reaches the smallest p; three pauses with lags bunched in
+    0.4-0.8 s cannot get below ~0.05 (the shifts that keep the nods in their windows)."""
+    many = ideal_contingency_p(np.arange(1.0, 60.0, 3.0), 60.0, n_shifts=300)
+    assert many <= 2 / 301
+    few = np.array([2.16, 7.56, 10.6])
+    bunched = ideal_contingency_p(few, 11.0, lag=(0.4, 0.8), n_shifts=300)
+    assert bunched >= 0.04
+    assert ideal_contingency_p(np.zeros(0), 11.0) == 1.0
 
 
 def test_blinks_by_duration():

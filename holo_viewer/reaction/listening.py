@@ -10,6 +10,8 @@ plain function of arrays so that tests can feed it hand-built sequences:
   half-prominence crossing minus half that width (the start of a raised-sine bump).
 * :func:`nod_contingency`: the share of nod onsets 0.2-1.0 s after a pause onset, against 1000
   circular shifts of the nod times within each clip (ratio to the shifted mean, one-sided p).
+  :func:`ideal_contingency_p`: the p the same test gives a listener that nods after every pause
+  (what a recording's pauses allow at best).
 * :func:`eyelid_channel` / :func:`detect_blinks`: the AU43 projection of ``expr`` (1 = shut); a
   blink is a run at >= 0.8 lasting 100-400 ms (longer closures are counted apart).
 * :func:`gaze_angles`, :func:`gaze_on_target`, :func:`aversions`, :func:`gaze_yaw_correlation`:
@@ -34,7 +36,7 @@ from ..errors import InputError
 from ..validation import check_array
 
 __all__ = ["head_angles_deg", "head_motion_deg", "detect_nods", "NodContingency", "nod_contingency",
-           "eyelid_channel", "detect_blinks", "gaze_angles", "gaze_on_target", "aversions",
+           "ideal_contingency_p", "eyelid_channel", "detect_blinks", "gaze_angles", "gaze_on_target", "aversions",
            "gaze_yaw_correlation", "count_events", "runs"]
 
 FPS = 25.0
@@ -164,6 +166,26 @@ def nod_contingency(nod_times: Sequence[np.ndarray], pause_times: Sequence[np.nd
     mean = float(shifted.mean())
     return NodContingency(tot, n_p, share, mean, share / mean if mean > 0 else float("nan"),
                           float((1 + np.sum(shifted >= share)) / (1 + n_shifts)))
+
+
+def ideal_contingency_p(pause_times: np.ndarray, duration: float, n_listeners: int = 20,
+                        lag: tuple[float, float] = (0.2, 1.0), lo: float = 0.2, hi: float = 1.0,
+                        n_shifts: int = 1000, seed: int = 0) -> float:
+    """The contingency p of an ideal listener on one recording: ``n_listeners`` realisations, each
+    nodding once after every pause onset at a lag uniform in ``lag`` (seeded), pooled with one shift
+    per recording (``groups``) as the bench pools seeded listeners. A recording with few pauses
+    cannot give a smaller p than this to any listener whose lags spread like ``lag`` (with lags
+    bunched within the window it is larger): the test's floor on that recording, not a measurement
+    of a model. Nods past the recording's end wrap around, as the shifts do."""
+    q = np.asarray(pause_times, dtype=np.float64).reshape(-1)
+    dur = float(duration)
+    if q.size == 0:
+        return 1.0
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 36]))
+    nods = [np.sort(np.mod(q + rng.uniform(lag[0], lag[1], q.size), dur)) for _ in range(int(n_listeners))]
+    c = nod_contingency(nods, [q] * len(nods), [dur] * len(nods), lo=lo, hi=hi, n_shifts=n_shifts, seed=seed,
+                        groups=[0] * len(nods))
+    return c.p
 
 
 def eyelid_channel(expr: np.ndarray, au_map) -> np.ndarray:
