@@ -725,6 +725,15 @@ def test_splats_follow_a_face_slider_release_in_one_frame(splat_window):
     lights = viewer.scene_renderer.GetLights().GetNumberOfItems()
     viewer._live_face("expr1", 0.7, time.perf_counter())  # a drag step: the mesh stands in, one headlight
     assert viewer.mesh_actor.GetVisibility() and viewer.scene_renderer.GetLights().GetNumberOfItems() == 1 < lights
+    # the mapper draws the viewer's mesh itself (no normals filter in between), smooth-shaded by its own
+    # normals, which follow the live step
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    from holo_viewer.geometry import vertex_normals
+
+    assert viewer.mesh_actor.GetMapper().GetInputAlgorithm().IsA("vtkTrivialProducer")
+    np.testing.assert_allclose(vtk_to_numpy(viewer.mesh.GetPointData().GetNormals()),
+                               vertex_normals(np.asarray(viewer.mesh.points), viewer.faces), atol=1e-9)
     before, frames0 = viewer.splat_image.copy(), viewer.frames_drawn
     _fire_slider(viewer.sliders["expr1"], 1.5)
     assert viewer.scene_renderer.GetLights().GetNumberOfItems() == lights  # the light kit is back

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import HoloViewerError, InputError
 from ..pipeline import FaceControls, Pipeline, apply_frame
-from .scene import au_label
+from .scene import au_label, live_vertex_normals
 from .widgets import _Slider, _text_actor
 
 
@@ -369,10 +369,12 @@ class SlidersMixin:
 
     def _set_mesh_points(self, verts: np.ndarray) -> None:
         self.mesh.points[:] = verts
-        if "Normals" in self.mesh.point_data:
-            from ..geometry import vertex_normals
-
-            self.mesh.point_data["Normals"][:] = vertex_normals(verts, self.faces)
+        if "Normals" in self.mesh.point_data:  # the mesh's own smooth-shading normals (mesh_polydata)
+            normals = np.asarray(self.mesh.point_data["Normals"])
+            if normals.dtype == np.float64 and normals.flags.c_contiguous:
+                live_vertex_normals(verts, self.faces, out=normals)
+            else:
+                normals[:] = live_vertex_normals(verts, self.faces)
         self.mesh.Modified()
 
     def set_view(self, **changes: Any) -> None:
