@@ -13,7 +13,9 @@ displayed frame at or after the reflecting one whose native image changed by > 0
 from the frame before), ``first_frame_s`` (renderer built + session started -> first frame handed
 to the loop; cold in the first run, warm in the second: kernels and imports loaded, the renderer's
 tables built again) and ``quit_s`` (last frame -> the session's
-``run`` returned: flush and joins).
+``run`` returned: flush and joins), and the CPU seconds of the session's process and of its ffmpeg
+children (the session video's encoder, run nicer than the session on one thread, and its check
+at close), also per displayed frame.
 
 Reported per run: speech-onset -> display latency (median, p95; an onset is the first 25 fps frame
 whose RMS exceeds -35 dBFS after >= 0.3 s below it; a displayed frame reflects it when the reaction
@@ -151,9 +153,15 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=record, flush_s=60.0)
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
     renderer = TimedRenderer(LiveAvatarRenderer(tile_scale=tile_scale, mode=mode)) if render else None
+    import resource
+
+    cpu0, kids0 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     summary = session.run(renderer)
     t_end = time.perf_counter()
+    cpu1, kids1 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu_s = cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime
+    ffmpeg_s = kids1.ru_utime + kids1.ru_stime - kids0.ru_utime - kids0.ru_stime
     wall = t_end - t0
     with np.load(out / "tracks.npz") as z:
         tracks = {k: z[k] for k in z.files}
@@ -171,7 +179,12 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
                   "displayed_fps": round(shown / (n / 25.0), 2), "recording": record,
                   "visible_change_ms_median": pct(1000 * np.array(vis), 50),
                   "visible_change_ms_p95": pct(1000 * np.array(vis), 95), "onsets_visible": len(vis),
-                  "load_1min_start": round(load_start, 2), "load_1min_end": round(os.getloadavg()[0], 2)}
+                  "load_1min_start": round(load_start, 2), "load_1min_end": round(os.getloadavg()[0], 2),
+                  # CPU seconds (both cores) of the session's process (render, tracker, reaction, ...) and of
+                  # its ffmpeg children (the session video's encoder and its verification at close)
+                  "process_cpu_s": round(cpu_s, 2), "ffmpeg_cpu_s": round(ffmpeg_s, 2),
+                  "process_cpu_ms_per_displayed_frame": round(1000 * cpu_s / max(shown, 1), 1),
+                  "ffmpeg_cpu_ms_per_displayed_frame": round(1000 * ffmpeg_s / max(shown, 1), 1)}
     return {**timing,
         "render": render, "tile_scale": tile_scale, "render_mode": mode, "wall_s": round(wall, 2), "frames": n,
         "onsets": len(onsets), "onsets_reflected": len(lat),
@@ -344,7 +357,8 @@ def main() -> int:
         print(f"{name}: {row['displayed_fps']} displayed fps with recording (load {row['load_1min_start']} -> "
               f"{row['load_1min_end']}), render {row['render_ms_median']} ms, visible change "
               f"{row['visible_change_ms_median']} ms (p95 {row['visible_change_ms_p95']}, {row['onsets_visible']} onsets), "
-              f"first frame {row['first_frame_s']} s, quit {row['quit_s']} s")
+              f"first frame {row['first_frame_s']} s, quit {row['quit_s']} s; CPU per displayed frame: process "
+              f"{row['process_cpu_ms_per_displayed_frame']} ms, ffmpeg {row['ffmpeg_cpu_ms_per_displayed_frame']} ms")
     print(f"landmark fit ms (warm median / p95, cold median): {fit['fit_ms_warm_median']} / {fit['fit_ms_warm_p95']}, "
           f"{fit['fit_ms_cold_median']}")
     if rss:

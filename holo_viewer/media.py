@@ -59,7 +59,7 @@ import numpy as np
 from .errors import ExportError
 from .fileio import atomic_path
 
-__all__ = ["VideoWriter", "write_video", "count_video_frames", "read_frames", "mux_audio", "ffmpeg_exe", "pad_even",
+__all__ = ["VideoWriter", "ThreadedWriter", "write_video", "count_video_frames", "read_frames", "mux_audio", "ffmpeg_exe", "pad_even",
            "CODECS", "encoder_flags"]
 
 #: ffmpeg flags that make an MP4 playable while it is written (fragments, index up front)
@@ -250,6 +250,10 @@ class VideoWriter:
         Each frame written with its presentation time (``write(frame, t=...)``); variable frame rate.
     what : str
         Name used in error messages ("session video", "quilt video").
+    nice : int
+        Run ffmpeg this much nicer than the caller (set right after it starts, before it starts its
+        encoder threads, which inherit it; where the OS has priorities). The live session's video
+        uses it so the encoder runs in the render's gaps instead of taking a core from it.
 
     Use as a context manager, or call :meth:`write` and then :meth:`close` (or :meth:`abort`).
     """
@@ -257,7 +261,7 @@ class VideoWriter:
     def __init__(self, path: str | os.PathLike, fps: float, *, content: str = "lossless", codec: str | None = None,
                  quality: float | None = None, pixelformat: str | None = None, macro_block_size: int | None = None,
                  output_params: Sequence[str] | None = None, streaming: bool = False, timed: bool = False,
-                 what: str = "video") -> None:
+                 what: str = "video", nice: int = 0) -> None:
         fps = float(fps)
         if not np.isfinite(fps) or fps <= 0:
             raise ExportError(f"{path}: fps: expected a finite number > 0, found {fps}")
@@ -272,6 +276,7 @@ class VideoWriter:
         self.macro_block_size = int(macro_block_size if macro_block_size is not None else policy["macro_block_size"])
         self.output_params = list(output_params if output_params is not None else policy["output_params"])
         self.streaming, self.timed, self.what = streaming, timed, what
+        self.nice = int(nice)
         self.frames = 0
         #: a timed writer's newest frame and its time in ms, held until the next one gives its duration
         self._held: tuple[bytes, int] | None = None
@@ -308,6 +313,9 @@ class VideoWriter:
         self._log = tempfile.TemporaryFile()
         self._proc = subprocess.Popen(self._command(width, height), stdin=subprocess.PIPE,
                                       stdout=subprocess.DEVNULL, stderr=self._log)
+        if self.nice and hasattr(os, "setpriority"):
+            with contextlib.suppress(OSError):  # not permitted, or ffmpeg already gone (reported by write)
+                os.setpriority(os.PRIO_PROCESS, self._proc.pid, min(19, os.getpriority(os.PRIO_PROCESS, 0) + self.nice))
         if self.timed:
             self._proc.stdin.write(_mkv_header(width, height))  # type: ignore[union-attr]
 
@@ -463,6 +471,61 @@ class VideoWriter:
             self.close()
         else:
             self.abort()
+
+
+class ThreadedWriter:
+    """A timed :class:`VideoWriter` fed from a thread, so piping a 2048x1536 frame to ffmpeg (5-35 ms,
+    longer while ffmpeg is busy) overlaps rendering the next one: the caller only hands the frame
+    over (it must not change it afterwards); at most two frames wait. An error of the writer is
+    raised at the next call. Used by ``live`` (the session video) and ``replay --quality live``."""
+
+    def __init__(self, writer: VideoWriter) -> None:
+        import queue
+
+        self._writer = writer
+        self.timed = writer.timed
+        self._queue: queue.Queue = queue.Queue(maxsize=2)
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="video-writer", daemon=True)
+        self._thread.start()
+
+    @property
+    def frames(self) -> int:
+        """Frames piped to ffmpeg (all written ones after :meth:`close`)."""
+        return self._writer.frames
+
+    def _run(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            if self._error is None:
+                try:
+                    self._writer.write(item[0], t=item[1])
+                except BaseException as exc:  # noqa: BLE001 - raised in the caller's thread
+                    self._error = exc
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+    def write(self, frame: np.ndarray, t: float) -> None:
+        self._raise()
+        self._queue.put((frame, t))
+
+    def close(self, end_s: float) -> int:
+        """Wait for the queued frames, close (verify, rename) the video; returns its frame count."""
+        self._queue.put(None)
+        self._thread.join()
+        self._raise()
+        self._writer.close(end_s=end_s)
+        return self._writer.frames
+
+    def abort(self) -> None:
+        self._error = self._error or RuntimeError("aborted")
+        self._queue.put(None)
+        self._thread.join()
+        self._writer.abort()
 
 
 def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: float, **options: Any) -> Path:

@@ -439,10 +439,12 @@ def test_ctrl_c_inside_the_frame_write_leaves_a_playable_session_video(tmp_path:
     summary = session.run(_FakeRenderer())
     assert summary["status"]["end"] == "interrupted (Ctrl-C)"
     meta = json.loads((out / "session.json").read_text())
-    # the timed writer pipes a frame when the next one is shown: SIGINT in frame 4's write ends the
-    # session after frame 5 is shown, and close() pipes frame 5
-    assert media.count_video_frames(out / "native.mkv") == meta["displayed_frames"] == len(calls) == 5
-    assert meta["summary"]["status"]["native_video_frames"] == 5
+    # the timed writer pipes a frame when the next one is shown, from the session's writer thread:
+    # SIGINT in frame 4's write ends the session after frame 5 is shown (later if that thread was
+    # not scheduled before the next frame), and close() pipes the last one
+    n = meta["displayed_frames"]
+    assert media.count_video_frames(out / "native.mkv") == n == len(calls) and 5 <= n <= 8
+    assert meta["summary"]["status"]["native_video_frames"] == n
     assert sorted(p.name for p in out.iterdir() if p.name.startswith(".")) == []
 
 

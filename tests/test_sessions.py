@@ -451,9 +451,7 @@ def test_timed_video_keeps_times_off_the_frame_grid(tmp_path: Path) -> None:
 def test_replay_writer_thread_raises_the_writers_error_and_writes_nothing(tmp_path: Path) -> None:
     """replay --quality live pipes frames from a thread: an error there (a frame of another size) is
     raised in the caller, and nothing is renamed into place."""
-    from holo_viewer.live.replay import _ThreadedWriter
-
-    w = _ThreadedWriter(media.VideoWriter(tmp_path / "r.mkv", 25, timed=True))
+    w = media.ThreadedWriter(media.VideoWriter(tmp_path / "r.mkv", 25, timed=True))
     a, b = _frames(1)[0], _frames(1, 20, 20)[0]
     w.write(a, t=0.0)
     w.write(b, t=0.1)
@@ -461,10 +459,33 @@ def test_replay_writer_thread_raises_the_writers_error_and_writes_nothing(tmp_pa
         w.close(end_s=0.2)
     w.abort()
     assert not (tmp_path / "r.mkv").exists()
-    ok = _ThreadedWriter(media.VideoWriter(tmp_path / "ok.mkv", 25, timed=True))
+    ok = media.ThreadedWriter(media.VideoWriter(tmp_path / "ok.mkv", 25, timed=True))
     for i, f in enumerate(_frames(3)):
         ok.write(f, t=i * 0.1)
     assert ok.close(end_s=0.4) == 3 and media.count_video_frames(tmp_path / "ok.mkv") == 3
+
+
+def test_session_video_encoder_is_nicer_single_threaded_and_bit_exact(tmp_path: Path) -> None:
+    """live's session video (issue 37): ffmpeg runs nicer than the session (set before its encoder
+    threads start), x264 on one thread, fed from the writer's thread, and still decodes bit-exact."""
+    import os
+
+    from holo_viewer.live.loop import SESSION_VIDEO_NICE, SESSION_VIDEO_PARAMS
+
+    frames = _frames(3)
+    inner = media.VideoWriter(tmp_path / "s.mkv", 25, timed=True, output_params=SESSION_VIDEO_PARAMS,
+                              nice=SESSION_VIDEO_NICE)
+    w = media.ThreadedWriter(inner)
+    for i, f in enumerate(frames):
+        w.write(f, t=i * 0.1)
+    while inner._proc is None:  # started by the thread's first write
+        pass
+    if hasattr(os, "getpriority"):
+        assert os.getpriority(os.PRIO_PROCESS, inner._proc.pid) == min(19, os.getpriority(os.PRIO_PROCESS, 0)
+                                                                       + SESSION_VIDEO_NICE)
+    assert w.close(end_s=0.3) == 3
+    got = list(media.read_frames(tmp_path / "s.mkv"))
+    assert len(got) == 3 and all(np.array_equal(a, b) for a, b in zip(got, frames))
 
 
 def test_quick_exit_flushes_runs_atexit_and_keeps_the_exit_code(tmp_path: Path) -> None:

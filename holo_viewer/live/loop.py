@@ -33,6 +33,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import ExportError, HoloViewerError
+from ..media import CODECS
 from ..reaction.decoding import DEFAULT_TEMPERATURE, DEFAULT_TOP_K
 from ..tracking.viewer import ViewerPose
 from .controls import Controls, Scenario
@@ -41,6 +42,12 @@ from .session import NATIVE_VIDEO, SessionRecorder
 __all__ = ["LiveSessionConfig", "LiveSession", "starting_image"]
 
 FPS = 25
+#: the session video's encoder flags: the lossless policy's, on one encoder thread. x264's default
+#: frame threads cost 57 instead of 36 ms of CPU a 2048x1536 native frame (the same file size; issue
+#: 37, docs/live.md), CPU the live render needs on 2 cores
+SESSION_VIDEO_PARAMS = (*CODECS["lossless"]["output_params"], "-threads", "1")
+#: and it runs this much nicer than the session: in the render's gaps, its frames queued meanwhile
+SESSION_VIDEO_NICE = 5
 #: seconds without a new tracked frame after which the speaker face decays to neutral
 STALE_S = 0.5
 
@@ -353,7 +360,7 @@ class LiveSession:
         session is still recorded); ``panel``/``preview``: objects with ``show(image)`` (and an
         optional ``poll()`` returning key symbols).
         """
-        from ..media import VideoWriter
+        from ..media import ThreadedWriter, VideoWriter
 
         cfg = self.config
         out = Path(cfg.out)
@@ -449,9 +456,12 @@ class LiveSession:
                     t_shown = max(self.now(), t_shown + 0.001)
                     if res.native is not None and cfg.write_native_video:
                         if writer is None:  # lossless RGB, timed Matroska; verified and renamed on close
-                            writer = VideoWriter(out / NATIVE_VIDEO, cfg.video_fps, content="lossless", timed=True,
-                                                 what="session video")
-                        writer.write(res.native, t=t_shown)  # a Ctrl-C during the write is raised after it
+                            writer = ThreadedWriter(VideoWriter(
+                                out / NATIVE_VIDEO, cfg.video_fps, content="lossless", timed=True,
+                                output_params=SESSION_VIDEO_PARAMS, what="session video", nice=SESSION_VIDEO_NICE))
+                        # handed to the writer's thread (RenderedFrame.native is the frame's own array):
+                        # piping it to ffmpeg overlaps the next render
+                        writer.write(res.native, t=t_shown)
                     if panel is not None and res.native is not None:
                         panel.show(res.native)
                     if preview is not None and res.preview is not None:

@@ -57,7 +57,8 @@ def resolve_backend(backend: str) -> str:
 
 @dataclass
 class RenderedFrame:
-    """``native`` (H, W, 3) uint8 or None, ``preview`` (h, w, 3) float32 or None, ``seconds``."""
+    """``native`` (H, W, 3) uint8 or None (the frame's own array: the loop hands it to the video
+    writer's thread), ``preview`` (h, w, 3) float32 or None, ``seconds``."""
 
     native: np.ndarray | None
     preview: np.ndarray | None
@@ -194,7 +195,7 @@ class LiveAvatarRenderer:
                 native = self._live.frame(p.gaussians(), viewer, mode).native.copy()
         else:
             p.set_view(viewer_angle=angle, viewer_distance=distance)
-            native = p.native() if self.native_enabled else None
+            native = p.native().copy() if self.native_enabled else None
         preview = None
         if self.preview_enabled:
             # a view from the viewer's angle: the centre view of a cone centred on the viewer

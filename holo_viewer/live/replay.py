@@ -131,14 +131,14 @@ def replay_session(session: str | os.PathLike, out: str | os.PathLike, tile_scal
     displayed frame at the time it was shown); returns the frame count."""
     from tqdm import tqdm
 
-    from ..media import VideoWriter
+    from ..media import ThreadedWriter, VideoWriter
 
     # verified before the rename (ffmpeg's exit status, frame count): a full disk is an error
     if quality == "live":
         meta, tr = load_session(session)
         last = float(tr["display_time_s"][-1]) + 0.001 if len(tr["display_time_s"]) else 0.0
         end_s = max(float(meta.get("end_s", 0.0)), len(tr["time_s"]) / 25, last)  # as long as the session
-        writer = _ThreadedWriter(VideoWriter(Path(out), 25.0, timed=True, what="replay video"))
+        writer = ThreadedWriter(VideoWriter(Path(out), 25.0, timed=True, what="replay video"))
         try:
             for t, img in tqdm(replay_timed_frames(session, tile_scale), desc="replay", unit="frame",
                                total=len(tr["display_frame"])):
@@ -152,51 +152,3 @@ def replay_session(session: str | os.PathLike, out: str | os.PathLike, tile_scal
             writer.write(img)
     return writer.frames
 
-
-class _ThreadedWriter:
-    """A timed :class:`~holo_viewer.media.VideoWriter` fed from a thread, so piping a frame to
-    ffmpeg (5-35 ms for a 2048x1536 frame, longer while ffmpeg is busy) overlaps rendering the next
-    one; at most two frames wait. An error of the writer is raised at the next call."""
-
-    def __init__(self, writer) -> None:
-        import queue
-        import threading
-
-        self._writer = writer
-        self._queue: queue.Queue = queue.Queue(maxsize=2)
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, name="replay-writer", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while True:
-            item = self._queue.get()
-            if item is None:
-                return
-            if self._error is None:
-                try:
-                    self._writer.write(item[0], t=item[1])
-                except BaseException as exc:  # noqa: BLE001 - raised in the caller's thread
-                    self._error = exc
-
-    def _raise(self) -> None:
-        if self._error is not None:
-            raise self._error
-
-    def write(self, frame: np.ndarray, t: float) -> None:
-        self._raise()
-        self._queue.put((frame, t))
-
-    def close(self, end_s: float) -> int:
-        """Wait for the queued frames, close (verify, rename) the video; returns its frame count."""
-        self._queue.put(None)
-        self._thread.join()
-        self._raise()
-        self._writer.close(end_s=end_s)
-        return self._writer.frames
-
-    def abort(self) -> None:
-        self._error = self._error or RuntimeError("aborted")
-        self._queue.put(None)
-        self._thread.join()
-        self._writer.abort()
