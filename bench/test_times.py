@@ -6,7 +6,9 @@ Usage: python bench/test_times.py [--json bench/results/test_times.json] [--mark
 Prints a table (files by CPU, slowest first, with their slowest tests) and writes JSON. CPU is user + system
 time of the pytest process and the children it waited for (Xvfb, CLI subprocesses), so it stays meaningful
 on a busy machine where wall time does not; the table in docs/development.md comes from this script.
-Per-test times come from tests/conftest.py (``$HOLO_TEST_TIMES``). ``--write-slow`` lists the tests that took
+Per-test times come from tests/conftest.py (``$HOLO_TEST_TIMES``): [wall, CPU, main thread blocked] seconds;
+blocked (sleeping, polling with a timeout, waiting for a child: ``/proc/self/schedstat``) leaves a core idle in
+a ``make test`` run unless another worker takes it. ``--write-slow`` lists the tests that took
 more than ``--slow-cpu`` (0.5) seconds of CPU (set-up and tear-down included) in tests/slow_tests.txt, which conftest
 turns into the ``slow`` marker (left out of ``make test-fast``); each file keeps its cheapest test fast, so the
 fast run still covers every file, unless even that test takes over KEEP_LIMIT (5 s; the Ray cluster's file).
@@ -54,7 +56,8 @@ def time_file(path: Path, markers: str | None) -> dict:
     return {"file": str(path.relative_to(ROOT)), "wall_s": round(wall, 2), "cpu_s": round(cpu, 2),
             "torch_threads": env["OMP_NUM_THREADS"], "load_average": [round(x, 1) for x in os.getloadavg()],
             "exit_code": run.returncode, "summary": lines[-1] if lines else "",
-            "tests": {k: [round(v[0], 3), round(v[1], 3)] for k, v in tests.items()}}
+            "blocked_s": round(sum(v[2] for v in tests.values() if len(v) > 2), 2),
+            "tests": {k: [round(x, 3) for x in v] for k, v in tests.items()}}
 
 
 def _write_json(path: Path, markers: str | None, rows: list[dict]) -> None:

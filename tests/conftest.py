@@ -169,10 +169,22 @@ _TIMES_PATH = os.environ.get("HOLO_TEST_TIMES")
 _times: dict[str, list[float]] = {}
 
 
+def main_thread_sched() -> tuple[float, float]:
+    """(seconds run, seconds waited for a core while runnable) of this process's main thread, from
+    ``/proc/self/schedstat``; (nan, nan) where the kernel does not provide it."""
+    try:
+        run_ns, delay_ns = Path("/proc/self/schedstat").read_text().split()[:2]
+        return int(run_ns) / 1e9, int(delay_ns) / 1e9
+    except (OSError, ValueError):
+        return float("nan"), float("nan")
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     """With ``$HOLO_TEST_TIMES`` set, record each test's wall and CPU seconds (set-up, call and tear-down;
-    CPU = this process's threads plus the children it waited for)."""
+    CPU = this process's threads plus the children it waited for), then the main thread's seconds blocked
+    (wall minus its run time and its wait for a core: sleeping, polling with a timeout, waiting for a
+    child or another thread; on a busy machine a child's own wait for a core counts here too)."""
     if not _TIMES_PATH:
         yield
         return
@@ -182,9 +194,10 @@ def pytest_runtest_protocol(item, nextitem):
         own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
         return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
-    w0, c0 = time.perf_counter(), cpu()
+    w0, c0, (r0, d0) = time.perf_counter(), cpu(), main_thread_sched()
     yield
-    _times[item.nodeid] = [time.perf_counter() - w0, cpu() - c0]
+    wall, (r1, d1) = time.perf_counter() - w0, main_thread_sched()
+    _times[item.nodeid] = [wall, cpu() - c0, max(0.0, wall - (r1 - r0) - (d1 - d0))]
 
 
 def pytest_sessionfinish(session, exitstatus):

@@ -5,7 +5,7 @@ import os
 import subprocess
 import sys
 
-from conftest import ROOT, UNMEASURED_S, longest_files_first, parse_slow_list, worker_threads
+from conftest import ROOT, UNMEASURED_S, longest_files_first, main_thread_sched, parse_slow_list, worker_threads
 
 
 def test_worker_threads_share_the_cores():
@@ -30,6 +30,32 @@ def test_conftest_sets_torch_threads_only_under_xdist():
     kept = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True,
                           env=dict(base, PYTEST_XDIST_WORKER_COUNT="2", OMP_NUM_THREADS="3"))
     assert kept.stdout.split()[0] == "3"  # a user's own setting wins
+
+
+def test_main_thread_sched_counts_a_sleep_as_neither_run_nor_wait():
+    """bench/test_times.py's blocked seconds: wall minus the main thread's run time and its wait for a core. A
+    sleep is blocked time whatever the load (a sleeping thread neither runs nor waits for a core), a busy loop is
+    not (it runs or waits for a core)."""
+    import math
+    import time
+
+    r0, d0 = main_thread_sched()
+    if math.isnan(r0):
+        import pytest
+
+        pytest.skip("no /proc/self/schedstat on this kernel")
+    w0 = time.perf_counter()
+    time.sleep(0.2)
+    wall = time.perf_counter() - w0
+    r1, d1 = main_thread_sched()
+    assert wall - (r1 - r0) - (d1 - d0) >= 0.15
+    w0, (r0, d0) = time.perf_counter(), (r1, d1)
+    while time.perf_counter() - w0 < 0.1:
+        pass
+    wall = time.perf_counter() - w0
+    r1, d1 = main_thread_sched()
+    assert wall - (r1 - r0) - (d1 - d0) < 0.05
+    assert r1 - r0 > 0
 
 
 def test_slow_list_lines_with_and_without_seconds():
