@@ -144,3 +144,46 @@ def test_smile_on_model_lifts_mouth_corners():
     smile = model(expr=torch.as_tensor(ex.named_expression("smile", 1.0, amap))[None]).vertices[0].numpy()
     corners = np.asarray(model.metadata["landmark_vertices"])[[48, 54]]  # dlib mouth corners
     assert np.all(smile[corners, 1] - rest[corners, 1] > 0.002)
+
+
+def test_pain_action_units_rise_and_saturate_at_one():
+    """Every AU of the pain face is non-decreasing in p and largest at p = 1 (no turn back at the top)."""
+    p = np.linspace(0.0, 1.0, 101)
+    table = {au: np.array([ex.pain_aus(float(x))[au] for x in p]) for au in ex.PAIN_PEAK}
+    for au, v in table.items():
+        assert np.all(np.diff(v) >= 0), au
+        assert v[-1] == ex.PAIN_PEAK[au] and v[0] == 0.0, au
+    assert ex.pain_aus(1.0)["AU43"] <= 0.1  # narrowed by orbital tightening, not by closing the lids
+
+
+@pytest.fixture(scope="module")
+def pain_landmarks():
+    """Per head (default + the shipped patients): the 68 landmark vertices at pain p = 0, 0.05, ... 1."""
+    from holo_viewer.avatar.patients import list_patients, load_patient_model
+
+    models = {"default": load_default_model()}
+    models.update({p.name: load_patient_model(p.name) for p in list_patients()})
+    p = np.linspace(0.0, 1.0, 21)
+    out = {}
+    for name, model in models.items():
+        idx = np.asarray(model.metadata["landmark_vertices"]).reshape(-1)
+        expr = torch.as_tensor(ex.pain_expression(p, ex.au_map_for(model)), dtype=model.dtype)
+        with torch.no_grad():
+            out[name] = model(expr=expr).vertices.numpy()[:, idx].astype(np.float64)
+    return p, out
+
+
+def test_pain_landmark_measures_fall_monotonically_on_every_head(pain_landmarks):
+    """The pain mapping's geometry, before any renderer or detector: on the 68 landmark vertices seen
+    from the front (bench/face_realism.py's measures), eye aperture, brow-to-upper-lid gap and
+    nose-to-lip gap never rise with p, and at p = 1 are <= 0.6 / 0.85 / 0.85 of neutral, on every head."""
+    from bench.face_realism import face_measures
+
+    p, heads = pain_landmarks
+    assert len(heads) >= 7
+    for name, lm in heads.items():
+        m = [face_measures(frame[:, :2] * [1.0, -1.0]) for frame in lm]
+        for key, limit in (("eye_aperture", 0.6), ("brow_eye_gap", 0.85), ("nose_lip_gap", 0.85)):
+            v = np.array([x[key] for x in m])
+            assert np.all(np.diff(v) <= 1e-9), (name, key, np.round(v / v[0], 3))
+            assert v[-1] / v[0] <= limit, (name, key, v[-1] / v[0])

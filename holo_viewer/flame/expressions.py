@@ -32,14 +32,16 @@ Pain
 PSPI = AU4 + max(AU6, AU7) + max(AU9, AU10) + AU43 (0..16) [Prkachin & Solomon].
 :func:`pain_aus` maps pain p in [0, 1] to a canonical pain face dominated by the
 PSPI action units (brow lowering, orbital tightening, levator contraction, eye
-closure) with lighter AU20/AU25/AU26; PSPI(p = 1) = 13.3, PSPI(0) = 0, strictly
+closure) with lighter AU20/AU25/AU26; PSPI(p = 1) = 14.05, PSPI(0) = 0, strictly
 increasing in p. Each AU grows as ``peak x p^e`` (:data:`PAIN_EXPONENT`): the brows lead
 (e = 0.8), orbital tightening and the nose wrinkle follow (1.2, 1.5; AU9 1.2), the upper-lip raise
 comes last (AU10 2.0: no bared teeth at low levels, the lip follows the other action units), so that the
 landmark detector's eye aperture, brow-to-eye and nose-to-lip gaps fall monotonically from
-pain 0.2 to 1.0 (docs/behaviour.md). The eyes narrow to a slit (orbital tightening AU6/AU7, the most reliable pain
-sign) rather than shutting: full closure reads as sleep, and an independent landmark detector
-reads a squeezed slit as narrower than closed lids (docs/face_realism.md).
+pain 0.2 to 1.0 (docs/behaviour.md). The eyes narrow to a slit (orbital tightening AU6/AU7 at full
+intensity, the most reliable pain sign: the lower lids rise) rather than shutting: full closure reads as
+sleep, an independent landmark detector reads a squeezed slit as narrower than closed lids, and a
+lowered upper lid (AU43) widens the brow-to-lid gap that the brow lowerer narrows, so that with AU43 at
+0.3 p^3 the gap turned back up between pain 0.8 and 1 on every head (docs/face_realism.md).
 """
 
 from __future__ import annotations
@@ -78,11 +80,14 @@ _DEFAULT_COMPONENTS = {
     "AU23": ("AU23",), "AU24": ("AU24",), "AU25": ("AU25",), "AU26": ("AU26",), "AU43": ("AU43_L", "AU43_R"),
 }
 
-#: Canonical pain face at p = 1 (PSPI = 5 + 4 + 4 + 0.3 = 13.3).
-PAIN_PEAK = {"AU4": 5.0, "AU6": 3.5, "AU7": 4.0, "AU9": 3.0, "AU10": 4.0, "AU43": 0.3,
+#: Canonical pain face at p = 1 (PSPI = 5 + 5 + 4 + 0.05 = 14.05). The eyes narrow by orbital
+#: tightening (AU6 + AU7 at full intensity: the lower lids and cheeks rise), not by lowering the upper
+#: lids (AU43 only a trace): a lowered upper lid widens the brow-to-lid gap that AU4 narrows.
+PAIN_PEAK = {"AU4": 5.0, "AU6": 5.0, "AU7": 5.0, "AU9": 3.0, "AU10": 4.0, "AU43": 0.05,
              "AU20": 1.0, "AU25": 1.5, "AU26": 1.0}
-#: pain_aus(p)[au] = PAIN_PEAK[au] * p ** PAIN_EXPONENT[au] (brows lead, the upper lip follows)
-PAIN_EXPONENT = {"AU4": 0.8, "AU6": 1.2, "AU7": 1.5, "AU9": 1.2, "AU10": 2.0, "AU43": 3.0,
+#: pain_aus(p)[au] = PAIN_PEAK[au] * p ** PAIN_EXPONENT[au] (brows lead, the upper lip follows);
+#: every curve rises monotonically and saturates at p = 1
+PAIN_EXPONENT = {"AU4": 0.8, "AU6": 1.2, "AU7": 1.5, "AU9": 1.2, "AU10": 2.0, "AU43": 2.0,
                  "AU20": 1.5, "AU25": 2.0, "AU26": 2.0}
 _PSPI_CORE = ("AU4", "AU43")
 
@@ -317,9 +322,9 @@ def pain_aus(p: float) -> dict[str, float]:
 
     Each AU is ``PAIN_PEAK[au] * p ** PAIN_EXPONENT[au]``: brow lowering (AU4) leads, orbital
     tightening (AU6/AU7) and the nose wrinkle (AU9) follow, the upper-lip raise (AU10, the teeth)
-    comes last, eye closure (AU43, 0.3 p^3) only drops a little at the top. PSPI(p) = 5 p^0.8 +
-    max(3.5 p^1.2, 4 p^1.5) + max(3 p^1.2, 4 p^2) + 0.3 p^3: 0 at p = 0, 13.3 at p = 1,
-    strictly increasing.
+    comes last, eye closure (AU43) is a trace, 0.05 p^2. PSPI(p) = 5 p^0.8 + max(5 p^1.2, 5 p^1.5) +
+    max(3 p^1.2, 4 p^2) + 0.05 p^2: 0 at p = 0, 14.05 at p = 1, strictly increasing. Every AU is
+    non-decreasing in p and largest at p = 1.
     """
     return _pain_aus(float(_check_p(p)))
 
