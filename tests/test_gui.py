@@ -742,6 +742,44 @@ def test_splats_follow_a_face_slider_release_in_one_frame(splat_window):
     assert np.array_equal(viewer.splat_image, fresh) and np.abs(fresh.astype(int) - before).max() > 30
 
 
+def test_partial_present_window_matches_the_framebuffer(splat_window):
+    """A frame that draws some panels copies only those to the X window (gui/present.py): after a live
+    face step (scene + sliders), a scene-only frame and a preview-only frame, the X window itself (read
+    with XGetImage) holds exactly the frame VTK drew, and each of those frames presented one rectangle."""
+    from holo_viewer.gui.present import x_window_pixels
+
+    viewer = splat_window
+    if viewer._presenter is None:
+        pytest.skip("this GLX has no GLX_MESA_copy_sub_buffer: VTK presents every frame whole")
+    rw = viewer.plotter.ren_win
+    n0 = viewer._presenter.presented
+    viewer._live_face("expr1", 1.2, time.perf_counter())
+    viewer.scene_renderer.GetActiveCamera().Azimuth(8.0)
+    viewer._render_now(("scene",))
+    viewer.preview_panel.set_title("partial present")
+    viewer._render_now(("preview",))
+    assert viewer._presenter.presented == n0 + 3
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    W, H = rw.GetSize()
+
+    def drawn() -> np.ndarray:  # the frame VTK drew (its display framebuffer), top row first
+        arr = vtk.vtkUnsignedCharArray()
+        rw.GetPixelData(0, 0, W - 1, H - 1, 1, arr, 0)
+        return vtk_to_numpy(arr).reshape(H, W, 3)[::-1]
+
+    shown = x_window_pixels(rw)
+    assert shown is not None and shown.shape == (H, W, 3)
+    assert np.array_equal(shown, drawn())
+    presenter, viewer._presenter = viewer._presenter, None  # can fail: a frame drawn but not presented
+    try:
+        viewer._live_face("expr1", 0.1, time.perf_counter())
+        assert not np.array_equal(x_window_pixels(rw), drawn())
+    finally:
+        viewer._presenter = presenter
+
+
 def test_splat_view_follows_the_camera_reduced_while_dragging(splat_window, xdotool):
     """A real drag in the scene: while the button is down the splat image is the reduced one, after the
     release the full-resolution image of the new camera pose, which matches the float64 reference

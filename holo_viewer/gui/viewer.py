@@ -136,6 +136,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         self.frames_drawn = 0
         self.last_frame_parts: tuple[str, ...] = ()
         self._splat_drawn_key: tuple | None = None
+        self._presenter: Any = None  # copies only the panels drawn to the X window (gui/present.py)
         self._init_splats()
         self.panel_mode = "view"  # the upper image panel: view / native / eye (key p)
         self.native_zoom = 1
@@ -404,6 +405,8 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         t0 = time.perf_counter()
         try:
             rw.Render()
+            if self._presenter is not None:  # only the panels drawn go to the X window
+                self._presenter.present(None if not skipped else self._drawn_box(draw))
         finally:
             for ren in skipped:
                 ren.DrawOn()
@@ -414,6 +417,13 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
             self._splat_drawn_key = self._splat_key
             self._splat_fresh = False
         self._dirty_parts = set()
+
+    def _drawn_box(self, parts: set[str]) -> tuple[int, int, int, int]:
+        """The display-pixel rectangle (x0, y0, x1, y1) around the panels ``parts`` (the orientation axes
+        sit inside the scene)."""
+        boxes = [self.panel_box(p) for p in parts if p in PARTS]
+        return (min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes),
+                max(b[3] for b in boxes))
 
     def resize_panels(self, step: int) -> None:
         """Make the image column (preview above, quilt below) wider (``step`` > 0, key ``}``) or narrower
@@ -461,6 +471,10 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
             iren = self.plotter.iren
             if iren is not None and not self.off_screen:
                 self._install_input(iren)
+                if self.config.partial_present:
+                    from .present import region_presenter
+
+                    self._presenter = region_presenter(self.plotter.ren_win)
             self._check_resize()
             self.home_camera()  # pyvista's first show() put its own default camera in
             self.preview_panel.fit()
@@ -587,6 +601,9 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
             w.EnabledOff()
             w.RemoveAllObservers()
             w.SetInteractor(None)
+        if self._presenter is not None:
+            self._presenter.close()
+            self._presenter = None
         self.plotter.close()
 
     def window_id(self) -> int:
