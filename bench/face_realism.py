@@ -594,13 +594,15 @@ def sheet_views(name: str) -> dict[str, Any]:
 
 
 def main_patients(names: Sequence[str], json_path: str, images: str | None, sheet: str | None = None,
-                  sheet_only: bool = False) -> int:
+                  sheet_only: bool = False, merge: bool = False) -> int:
     from holo_viewer.fileio import atomic_write
 
-    if list(names) == ["all"]:
+    if "all" in names:  # every fitted patient, in place of "all" (``all default`` adds the default avatar)
         from holo_viewer.avatar.patients import list_patients
 
-        names = [p.name for p in list_patients() if p.fitted]
+        fitted = [p.name for p in list_patients() if p.fitted]
+        names = [x for n in names for x in (fitted if n == "all" else [n])]
+        names = list(dict.fromkeys(names))
     if sheet_only:
         from holo_viewer.fileio import save_image
 
@@ -610,6 +612,13 @@ def main_patients(names: Sequence[str], json_path: str, images: str | None, shee
         print(f"wrote {save_image(sheet, patient_sheet({n: sheet_views(n) for n in names}))}")
         return 0
     out: dict[str, Any] = {}
+    if merge and Path(json_path).is_file():  # keep the other avatars' rows of an earlier run
+        with open(json_path) as fh:
+            prev = json.load(fh)
+        if not isinstance(prev, dict) or not isinstance(prev.get("patients"), dict):
+            print(f"error: --merge: {json_path} has no 'patients' object to merge into", file=sys.stderr)
+            return 2
+        out.update({k: v for k, v in prev["patients"].items() if k not in names})
     results: dict[str, Any] = {}
     for name in names:
         res = run_patient(name, Path(images) if images else None)
@@ -648,15 +657,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="pain legibility only: centre views, pain 0, 0.2 ... 1.0 "
                     "(writes bench/results/face_realism_quick.json unless --json is given)")
     ap.add_argument("--patients", nargs="+", default=None, metavar="NAME",
-                    help="per avatar (default, patient names or all): faces found, pain ratios and monotonicity "
-                         "on the quilt and through the panel (writes bench/results/face_realism_patients.json "
+                    help="per avatar (default, patient names, all = every fitted patient; 'all default' adds the "
+                         "default avatar): faces found, pain ratios and monotonicity on the quilt and through the panel (writes bench/results/face_realism_patients.json "
                          "unless --json is given)")
     ap.add_argument("--sheet-only", action="store_true", help="with --patients and --sheet: only the contact sheet")
+    ap.add_argument("--merge", action="store_true", help="with --patients: keep the other avatars' entries of the "
+                    "JSON file (per-patient runs into one file)")
     args = ap.parse_args(argv)
     if args.patients:
         path = args.json if "--json" in (argv or sys.argv) else str(Path(__file__).parent / "results" /
                                                                     "face_realism_patients.json")
-        return main_patients(args.patients, path, args.images, args.sheet, args.sheet_only)
+        return main_patients(args.patients, path, args.images, args.sheet, args.sheet_only, args.merge)
     if args.quick:
         from holo_viewer.fileio import atomic_write
 

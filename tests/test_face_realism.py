@@ -210,3 +210,31 @@ def test_contact_sheet_layout_and_head_box():
     assert sheet.shape == (label_h + len(SHEET_ROWS) * (tile_h + label_h + 4), head_w + 6 * (tile_w + 4), 3)
     # the mesh tile of the first row sits right of the label column: grey 0.5 -> 128
     assert (sheet[label_h + 5, head_w + 5] == 128).all()
+
+
+def test_patients_all_expands_and_merge_keeps_other_avatars(tmp_path, monkeypatch):
+    """``--patients all default`` runs every fitted patient and the default avatar, once each;
+    ``--merge`` keeps the entries of avatars not run this time."""
+    import json
+
+    import bench.face_realism as fr
+    from holo_viewer.avatar import patients as P
+
+    ran = []
+    monkeypatch.setattr(P, "list_patients", lambda: [type("I", (), {"name": n, "fitted": f})()
+                                                     for n, f in (("ann", True), ("bob", False), ("cy", True))])
+    monkeypatch.setattr(fr, "run_patient", lambda name, images_dir=None: ran.append(name) or {
+        "name": name, "per_expression": {}, "seconds": 1.0, "cpu_seconds": 1.0, "load_1min": [0.0, 0.0]})
+    monkeypatch.setattr(fr, "evaluate_patient", lambda res: [{"measure": "m", "where": "w", "value": 1,
+                                                              "target": "t", "pass": True}])
+    path = tmp_path / "p.json"
+    assert fr.main(["--patients", "all", "default", "ann", "--json", str(path)]) == 0
+    assert ran == ["ann", "cy", "default"]
+    assert list(json.loads(path.read_text())["patients"]) == ["ann", "cy", "default"]
+    assert fr.main(["--patients", "cy", "--json", str(path)]) == 0  # without --merge: only cy
+    assert list(json.loads(path.read_text())["patients"]) == ["cy"]
+    assert fr.main(["--patients", "all", "default", "--json", str(path)]) == 0
+    assert fr.main(["--patients", "ann", "--json", str(path), "--merge"]) == 0
+    assert sorted(json.loads(path.read_text())["patients"]) == ["ann", "cy", "default"]
+    path.write_text("[1]")
+    assert fr.main(["--patients", "ann", "--json", str(path), "--merge"]) == 2
