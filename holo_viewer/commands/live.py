@@ -102,11 +102,6 @@ def run(args: argparse.Namespace) -> int:
     (through HoloViewerError) for a missing device or bad input."""
     from ..errors import InputError
     from ..live.controls import Scenario
-    from .behaviour_args import behaviour_from_args
-    from ..live.loop import LiveSessionConfig, LiveSession
-    from ..live.render import LiveAvatarRenderer
-    from ..live import sources
-    from ..pipeline.live_support import SyntheticSpeaker
     from ..tracking.viewer import WebcamMount
 
     if args.synthetic and (args.audio or args.video):
@@ -118,6 +113,27 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--pain: expected a value in [0, 1], found {args.pain}")
     mount = WebcamMount.load(args.mount) if args.mount else WebcamMount(hfov_deg=args.hfov)
     scenario = Scenario.load(args.scenario) if args.scenario else None
+    # first use (empty kernel cache): the view-synthesis kernels compile in a second process meanwhile
+    precompile = None
+    if args.render_mode != "cone" and args.renderer != "gsplat":
+        from ..live.precompile import BackgroundCompile
+
+        precompile = BackgroundCompile()
+    try:
+        return _run(args, mount, scenario, precompile)
+    finally:
+        if precompile is not None:
+            precompile.close()
+
+
+def _run(args: argparse.Namespace, mount: object, scenario: object, precompile: object) -> int:
+    """:func:`run` after the arguments are checked (``precompile``: the background compile or None)."""
+    from ..live.loop import LiveSessionConfig, LiveSession
+    from ..live.render import LiveAvatarRenderer
+    from ..live import sources
+    from ..pipeline.live_support import SyntheticSpeaker
+    from .behaviour_args import behaviour_from_args
+
     preview = None
     if not args.headless and not args.no_preview:  # at once, saying "starting..." (not black) until frame 1
         from ..live.windows import open_preview
@@ -145,7 +161,9 @@ def run(args: argparse.Namespace) -> int:
                                predict_viewer=not args.no_viewer_prediction, scenario=scenario,
                                max_seconds=args.seconds, settings=settings,
                                behaviour=behaviour_from_args(args, seed=args.seed))
-    progress("loading the avatar and compiling the render kernels (cached after the first use)")
+    progress("loading the avatar and compiling the render kernels (cached after the first use"
+             + ("; compiling the view-synthesis kernels in a second process" if getattr(precompile, "started", False)
+                else "") + ")")
     # the reaction model loads on the other core meanwhile (the renderer's tables are mostly one thread)
     reaction = _ReactionPreload()
     renderer = LiveAvatarRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview,
