@@ -163,7 +163,8 @@ def plot_report(report: SessionReport, out: str | os.PathLike) -> Path:
     for i, tr in enumerate(sorted({str(x["trainee"]) for x in r.ratings})):
         pts = [(x["t"], x["rating"] / 10) for x in r.ratings if str(x["trainee"]) == tr]
         ax.scatter(*zip(*pts), s=30, marker="o", color=f"C{i + 2}", zorder=3, label=f"trainee {tr} / 10")
-    ax.set_ylim(-0.05, 1.05)
+    ax.set_ylim(-0.05, 1.4)  # the legend's band above 1: it covered ratings near 1 (a 9 at 0.9)
+    ax.set_yticks([0.0, 0.5, 1.0])
     ax.set_ylabel("pain")
     ax.legend(loc="upper left", fontsize=7, ncol=4)
     ax.set_title("pain requested, shown, and the trainees' ratings")
@@ -175,6 +176,8 @@ def plot_report(report: SessionReport, out: str | os.PathLike) -> Path:
     ax2.fill_between(r.time_s, 0, r.blink, color="tab:orange", alpha=0.4, step="mid")
     ax2.set_ylim(0, 1.05)
     ax2.set_ylabel("eyelids (AU43)")
+    lo, hi = ax.get_ylim()
+    ax.set_ylim(lo, hi + 0.45 * (hi - lo))  # room for the legend above the curves
     ax.legend(loc="upper left", fontsize=7, ncol=2)
     ax.set_title("the patient: nods, gaze, eyelids (orange: blinks, and a little in the pain face)")
     ax = rows[3]
