@@ -185,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
                 w.GetRepresentation().SetValue(mid)
                 w.InvokeEvent("InteractionEvent")
             drag = wait_changes(before, t, ("scene",))["scene"]
-            own_live = viewer.timings.live_ms
+            own_live, own_live_cpu = viewer.timings.live_ms, viewer.timings.live_cpu_ms
             if method == "xdotool":
                 xdo("mousemove", "--window", wid, *viewer.slider_point(key, target))
             else:
@@ -202,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
             tm = viewer.timings
             records.append({"slider": key, "value": spec.value, "drag_mesh_ms": drag,
                             "release_glyphs_ms": rel["scene"], "release_preview_ms": rel["preview"],
-                            "release_thumbnail_ms": rel["quilt"], "own_live_ms": own_live,
+                            "release_thumbnail_ms": rel["quilt"], "own_live_ms": own_live, "own_live_cpu_ms": own_live_cpu,
                             "own_preview_ms": tm.preview_ms, "own_thumbnail_ms": tm.thumbnail_ms})
             settle(0.2)
     cam_records = []
@@ -303,6 +303,12 @@ def main(argv: list[str] | None = None) -> int:
                          "n": len(v), "missed": len(records) - len(v)}
         print(f"{label:<36} {med:>10.0f} {max(v):>8.0f} "
               f"{(f'{own_med:.0f}' if own_med else '-'):>13} {(f'{ratio:.2f}' if ratio else '-'):>6}  {len(v)}")
+    live_cpu = col("own_live_cpu_ms")
+    if live_cpu:  # what a live step costs whatever the load: CPU of the whole process (llvmpipe's threads too)
+        summary["drag_mesh_cpu_ms"] = {"median_ms": statistics.median(live_cpu), "max_ms": max(live_cpu),
+                                       "n": len(live_cpu)}
+        print(f"drag step CPU (mesh update + frame, all threads): median {statistics.median(live_cpu):.0f} ms, "
+              f"max {max(live_cpu):.0f} ms, n {len(live_cpu)}")
     if args.json:
         from holo_viewer.fileio import atomic_write
 

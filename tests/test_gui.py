@@ -725,6 +725,7 @@ def test_splats_follow_a_face_slider_release_in_one_frame(splat_window):
     lights = viewer.scene_renderer.GetLights().GetNumberOfItems()
     viewer._live_face("expr1", 0.7, time.perf_counter())  # a drag step: the mesh stands in, one headlight
     assert viewer.mesh_actor.GetVisibility() and viewer.scene_renderer.GetLights().GetNumberOfItems() == 1 < lights
+    assert viewer.mesh_actor.GetProperty().GetBackfaceCulling()  # the stand-in skips back faces
     # the mapper draws the viewer's mesh itself (no normals filter in between), smooth-shaded by its own
     # normals, which follow the live step
     from vtk.util.numpy_support import vtk_to_numpy
@@ -737,6 +738,7 @@ def test_splats_follow_a_face_slider_release_in_one_frame(splat_window):
     before, frames0 = viewer.splat_image.copy(), viewer.frames_drawn
     _fire_slider(viewer.sliders["expr1"], 1.5)
     assert viewer.scene_renderer.GetLights().GetNumberOfItems() == lights  # the light kit is back
+    assert not viewer.mesh_actor.GetProperty().GetBackfaceCulling()
     assert viewer.frames_drawn == frames0 + 1 and viewer._splat_full and not viewer.mesh_actor.GetVisibility()
     fresh = to_uint8(render_images(viewer.pipeline.gaussians(), viewer.splat_cameras())[0])
     assert np.array_equal(viewer.splat_image, fresh) and np.abs(fresh.astype(int) - before).max() > 30

@@ -135,6 +135,7 @@ class UpdateTimings:
     """Milliseconds from a slider event to each part of the scene being drawn; None = not measured yet."""
 
     live_ms: float | None = None
+    live_cpu_ms: float | None = None  # CPU (all the process's threads) of the last live step's update + frame
     mesh_ms: float | None = None
     preview_ms: float | None = None
     thumbnail_ms: float | None = None
