@@ -744,10 +744,11 @@ def test_splats_follow_a_face_slider_release_in_one_frame(splat_window):
     assert np.array_equal(viewer.splat_image, fresh) and np.abs(fresh.astype(int) - before).max() > 30
 
 
-def test_partial_present_window_matches_the_framebuffer(splat_window):
+def test_partial_present_window_matches_the_framebuffer(splat_window, xdotool):
     """A frame that draws some panels copies only those to the X window (gui/present.py): after a live
     face step (scene + sliders), a scene-only frame and a preview-only frame, the X window itself (read
-    with XGetImage) holds exactly the frame VTK drew, and each of those frames presented one rectangle."""
+    with XGetImage) holds exactly the frame VTK drew, and each of those frames presented one rectangle.
+    A window unmapped and mapped again (its pixels lost, an Expose event) is drawn whole again."""
     from holo_viewer.gui.present import x_window_pixels
 
     viewer = splat_window
@@ -780,6 +781,13 @@ def test_partial_present_window_matches_the_framebuffer(splat_window):
         assert not np.array_equal(x_window_pixels(rw), drawn())
     finally:
         viewer._presenter = presenter
+    xin = XInput(xdotool, viewer)
+    frames = viewer.frames_drawn
+    xin.xdo("windowunmap", "--sync", xin.wid)
+    xin.xdo("windowmap", "--sync", xin.wid)
+    xin.settle(timeout=0.5)  # VTK asks for a frame on the Expose: every panel, so the whole window
+    assert viewer.frames_drawn > frames and set(viewer.last_frame_parts) == {"scene", "sliders", "preview", "quilt"}
+    assert np.array_equal(x_window_pixels(rw), drawn())
 
 
 def test_splat_view_follows_the_camera_reduced_while_dragging(splat_window, xdotool):
