@@ -145,6 +145,27 @@ def test_training_resume_matches_uninterrupted_run(tmp_path, tiny_splits):
     np.testing.assert_array_equal(loaded.codebook.centroids, full.codebook.centroids)
 
 
+def test_time_budget_counts_cpu_not_the_wall_clock(tmp_path, tiny_splits, monkeypatch):
+    """A busy machine (the wall clock racing ahead) must not cut the run: the budget is CPU minutes."""
+    import time as _time
+
+    real = _time.time
+    calls = [0]
+
+    def racing():
+        calls[0] += 1
+        return real() + 3600.0 * calls[0]  # an hour of wall time per call
+
+    cfg = train_config_from_dict({**_tiny_cfg(4).to_dict(), "max_minutes": 1.0})
+    monkeypatch.setattr(_time, "time", racing)
+    b = train(cfg, tmp_path / "busy.pt", progress=False, splits=tiny_splits, log=lambda m: None)
+    monkeypatch.setattr(_time, "time", real)
+    assert b.meta["stopped"] == "max_steps" and b.meta["steps"] == 4 and b.meta["cpu_minutes"] < 1.0
+    cut = train(train_config_from_dict({**_tiny_cfg(4).to_dict(), "max_minutes": 1e-9}), tmp_path / "cut.pt",
+                progress=False, splits=tiny_splits, log=lambda m: None)
+    assert cut.meta["stopped"] == "time_budget" and cut.meta["steps"] == 2
+
+
 def test_checkpoint_errors(tmp_path):
     with pytest.raises(ReactionError, match="not found"):
         load_checkpoint(tmp_path / "nope.pt")
