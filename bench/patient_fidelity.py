@@ -12,7 +12,7 @@ views. Target (issue 35): >= 35 dB in every view.
 Usage::
 
     python bench/patient_fidelity.py [--avatar default|NAME|all ...] [--faces neutral,pain_1]
-        [--asset PATH] [--json bench/results/patient_fidelity.json] [--images DIR]
+        [--asset PATH] [--json bench/results/patient_fidelity.json [--merge]] [--images DIR]
 """
 
 from __future__ import annotations
@@ -92,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--asset", type=Path, default=None, help="measure this avatar file (one --avatar)")
     ap.add_argument("--json", type=Path, default=Path(__file__).parent / "results" / "patient_fidelity.json")
     ap.add_argument("--images", type=Path, default=None, help="write Gaussians | mesh pairs of some views here")
+    ap.add_argument("--merge", action="store_true", help="keep the --json file's other avatars (re-measure some)")
     args = ap.parse_args(argv)
     faces = [f for f in args.faces.split(",") if f]
     bad = [f for f in faces if f not in FACES]
@@ -112,13 +113,23 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'avatar':<12} {'face':<8} {'worst dB (view)':>16} {'median':>7} {'slider lo':>9} {'slider hi':>9}  pass"
           f" (>= {TARGET_DB:g} dB)")
     for name in names:
+        l0 = os.getloadavg()
         res[name] = measure(name, faces, args.asset, args.images)
+        res[name]["load_1_5_15"] = [list(l0), list(os.getloadavg())]
         for fname, r in res[name]["faces"].items():
             print(f"{name:<12} {fname:<8} {r['worst_db']:>10.2f} ({r['worst_view']:>2}) {r['median_db']:>7.2f} "
                   f"{r['slider_min_db']:>9.2f} {r['slider_max_db']:>9.2f}  {'yes' if r['pass'] else 'no'}", flush=True)
     record = {"config": {"faces": faces, "target_db": TARGET_DB, "renderer": "fast", "tile": "420x560",
                          "platform": platform.platform(), "cpu_count": os.cpu_count()},
               "load_1_5_15_before": list(load0), "load_1_5_15_after": list(os.getloadavg()), "avatars": res}
+    if args.json and args.merge and args.json.exists():
+        old = json.loads(args.json.read_text())
+        if not isinstance(old.get("avatars"), dict):
+            print(f"error: --merge: {args.json}: expected a JSON object with 'avatars', found none", file=sys.stderr)
+            return 2
+        kept = {k: v for k, v in old["avatars"].items() if k not in res}
+        record["avatars"] = {**kept, **res}
+        record["merged_from_earlier_runs"] = sorted(kept)
     if args.json:
         from holo_viewer.fileio import atomic_write
 

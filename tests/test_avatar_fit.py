@@ -204,3 +204,17 @@ def test_a_hanging_target_render_is_cut_off():
     assert time.perf_counter() - t0 < 20
     assert fa._render_isolated(fail, v, f, cams, 30.0) is None
     assert fa._render_isolated(ok, v, f, cams, None)[0].shape == (1, 12, 16, 3)
+
+
+def test_detail_map_weights_strands_over_smooth_skin():
+    """fit_avatar.detail_map (the second stage's crop-centre weights): a striped patch (1-px strands, as
+    the hair shell's texture) outweighs a smooth gradient by > 10x per pixel (19x), and the smooth part keeps
+    the floor (> 0) so it is still drawn."""
+    img = np.zeros((40, 80, 3), np.uint8)
+    img[:, :40] = np.linspace(60, 200, 40, dtype=np.uint8)[None, :, None]  # smooth skin-like ramp
+    img[:, 40:] = 40
+    img[:, 40::3] = 220  # bright 1-px strands every 3 px
+    w = fa.detail_map(img)
+    assert w.shape == (40, 80) and np.all(w > 0)
+    smooth, strands = w[5:-5, 5:35].mean(), w[5:-5, 45:75].mean()
+    assert strands > 10 * smooth, (smooth, strands)
