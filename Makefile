@@ -5,16 +5,21 @@ PY := $(VENV)/bin/python
 OUT ?= out
 PYTEST_ARGS ?=
 # the suite runs on JOBS pytest-xdist workers, whole files per worker (module fixtures are built once),
-# the costliest files first (tests/conftest.py orders them; the default reorder by test count is off)
-JOBS ?= 2
-XDIST := -n $(JOBS) --dist loadfile --no-loadscope-reorder
+# the costliest files first (tests/conftest.py orders them; the default reorder by test count is off).
+# make test: 3 workers on 2 cores, because many tests wait (X event loops, real-time live sessions, CLI
+# subprocesses, Xvfb): the third worker runs while another waits (docs/development.md, "Measured").
+# make test-fast: FAST_JOBS=2 (its tests hardly wait; a third worker only adds its start-up)
+JOBS ?= 3
+FAST_JOBS ?= 2
+XDIST_OPTS := --dist loadfile --no-loadscope-reorder
+XDIST := -n $(JOBS) $(XDIST_OPTS)
 
 .PHONY: demo test test-fast setup bench bench-quick clean help
 
 help:
 	@echo "make demo   - set up .venv, then run the main job on the default avatar (writes $(OUT)/)"
-	@echo "make test   - set up .venv, then run the whole test suite (as CI does; JOBS=2 workers)"
-	@echo "make test-fast - the suite without the tests marked slow (every module, about a minute)"
+	@echo "make test   - set up .venv, then run the whole test suite (as CI does; JOBS=3 workers)"
+	@echo "make test-fast - the suite without the tests marked slow (every module, about a minute; FAST_JOBS=2 workers)"
 	@echo "make bench  - run the benchmarks under bench/ (writes bench/results/*.json); bench-quick: < 3 min"
 
 setup:
@@ -29,7 +34,7 @@ test: setup
 
 # exit code 5 (nothing collected: PYTEST_ARGS picked only slow tests) is not a failure here; CI runs make test
 test-fast: setup
-	$(PY) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS) || { rc=$$?; [ $$rc -eq 5 ] && echo "test-fast: no fast tests selected"; [ $$rc -eq 5 ]; }
+	$(PY) -m pytest -q -n $(FAST_JOBS) $(XDIST_OPTS) -m "not slow" $(PYTEST_ARGS) || { rc=$$?; [ $$rc -eq 5 ] && echo "test-fast: no fast tests selected"; [ $$rc -eq 5 ]; }
 
 bench: setup
 	mkdir -p bench/results

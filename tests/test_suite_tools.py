@@ -99,11 +99,32 @@ def test_write_slow_list_merges_lines_it_did_not_measure(tmp_path):
     assert not list(tmp_path.glob("*.tmp"))
 
 
+def _make_vars_and_recipes() -> tuple[dict[str, str], dict[str, str]]:
+    """The Makefile's ``NAME ?= / := value`` lines and each target's recipe (its lines joined)."""
+    import re
+
+    values, recipes, target = {}, {}, None
+    for ln in (ROOT / "Makefile").read_text().splitlines():
+        if m := re.match(r"^([A-Z_]+)\s*[?:]?=\s*(.*)$", ln):
+            values[m.group(1)] = m.group(2)
+            target = None
+        elif m := re.match(r"^([a-z][a-z-]*):", ln):
+            target = m.group(1)
+            recipes[target] = ""
+        elif ln.startswith("\t") and target:
+            recipes[target] += ln + "\n"
+    return values, recipes
+
+
 def test_make_test_keeps_the_file_order_of_conftest():
-    """--dist loadfile's default reorder (by number of tests) would undo longest_files_first."""
-    make = (ROOT / "Makefile").read_text()
-    xdist = next(ln for ln in make.splitlines() if ln.startswith("XDIST"))
-    assert "--dist loadfile" in xdist and "--no-loadscope-reorder" in xdist
+    """--dist loadfile's default reorder (by number of tests) would undo longest_files_first; both make
+    targets run whole files on their workers: make test on JOBS (3: many tests wait, the third worker
+    runs meanwhile), make test-fast on FAST_JOBS (2)."""
+    values, recipes = _make_vars_and_recipes()
+    assert "--dist loadfile" in values["XDIST_OPTS"] and "--no-loadscope-reorder" in values["XDIST_OPTS"]
+    assert values["XDIST"] == "-n $(JOBS) $(XDIST_OPTS)" and values["JOBS"] == "3"
+    assert "$(XDIST)" in recipes["test"] and "-m \"not slow\"" not in recipes["test"]
+    assert "-n $(FAST_JOBS) $(XDIST_OPTS)" in recipes["test-fast"] and values["FAST_JOBS"] == "2"
 
 
 def test_the_shipped_slow_list_parses_and_names_existing_files():
