@@ -395,6 +395,45 @@ def test_scatter_kernels_agree_on_many_segments_and_any_texel_table(buckets, rig
     np.testing.assert_array_equal(a, bb)
 
 
+# (0.6 m: the eyes apart; 2.5 m: their reaches overlap, so both slices blend)
+@pytest.mark.parametrize("mode,distance", [("nearest", 0.6), ("blend", 2.5)])
+def test_feathered_scatter_kernels_agree_and_stay_between_fill_and_slices(rig, mode, distance):
+    """The feather (``inner``): every kernel gives numba's output bit for bit over a random fill,
+    each written subpixel lies between the fill and the eyes' own slice values (a convex blend),
+    nothing outside the unfeathered set changes, and well inside an eye's range the slice shows."""
+    il, b = _buckets(mode)
+    viewer = eyes.TrackedViewer(5.0, distance)
+    segs, bounds, imgs, wm, kv, gh = _tables(rig, viewer, 4, il.mode)
+    reach = eyes.reach_views(0.5, 0.01)
+    fill = np.random.default_rng(5).integers(0, 256, il.shape, dtype=np.uint8)
+    outs = []
+    for kernel in SCATTER_KERNELS:
+        out = fill.copy()
+        n = scatter_slices(out, b, segs, bounds, reach, imgs, wm, kv, gh, kernel=kernel, inner=-3.0)
+        outs.append((n, out))
+    for n, out in outs[1:]:
+        assert n == outs[0][0]
+        np.testing.assert_array_equal(out, outs[0][1])
+    out = outs[0][1].astype(np.int16)
+    per_eye = []  # each eye's own (unfeathered) slice values, where it reaches
+    for e in range(2):
+        own = segs[segs[:, 0] == e] - np.array([e, 0, 0, 0])
+        lo, hi = np.zeros(il.shape, np.uint8), np.full(il.shape, 255, np.uint8)
+        for nat in (lo, hi):
+            scatter_slices(nat, b, own, bounds[e:e + 1], reach, imgs[e:e + 1], wm[e:e + 1], kv[e:e + 1], gh[e:e + 1])
+        per_eye.append((lo.astype(np.int16), lo == hi))
+    reached = per_eye[0][1] | per_eye[1][1]
+    assert np.array_equal(out[~reached], fill[~reached])
+    f = fill.astype(np.int16)
+    low = np.minimum.reduce([f] + [np.where(m, v, 999) for v, m in per_eye])
+    high = np.maximum.reduce([f] + [np.where(m, v, -1) for v, m in per_eye])
+    assert (out >= low).all() and (out <= high).all()
+    changed = (out != f) & reached
+    assert changed.mean() > 0.5 * reached.mean()  # the slices show (most of the fill differs from them)
+    with pytest.raises(InputError, match="inner"):
+        scatter_slices(fill, b, segs, bounds, reach, imgs, wm, kv, gh, inner=reach)
+
+
 def test_scatter_validates_its_inputs(buckets, rig):
     il, b = buckets
     segs, bounds, imgs, wm, kv, gh = _tables(rig, eyes.TrackedViewer(0.0, 0.6), 1, il.mode)

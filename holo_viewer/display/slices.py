@@ -196,13 +196,37 @@ def _gap(zeta, lo, hi, n):  # pragma: no cover - compiled
     return best
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _eye_value(img, wrow, kve, g, hh, view1, w8, blend, k, p, x, uc, s, iters, Wv):  # pragma: no cover - compiled
+    """The value (0..255, integral, float32) a slice row gives subpixel p (native-order index s) showing
+    view k (blend: and ``view1``): the C++ kernel's ``eye_value``."""
+    ch = p - 3 * x
+    v0 = _slice_value(img, wrow, ch, uc, kve[k, 0], kve[k, 1], g, hh, iters, Wv)
+    if not blend:
+        return v0
+    k1 = view1[s]
+    v1 = v0 if k1 == k else _slice_value(img, wrow, ch, uc, kve[k1, 0], kve[k1, 1], g, hh, iters, Wv)
+    ww = np.uint32(w8[s])
+    return np.float32((np.uint32(v0) * (256 - ww) + np.uint32(v1) * ww + 128) >> 8)
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _feather_weight(gap, reach, inv):  # pragma: no cover - compiled
+    """1 up to ``inner`` (``inv = 1 / (reach - inner)``), 0 from ``reach``, linear between: float32."""
+    w = (reach - gap) * inv
+    w = w if w > _F0 else _F0
+    return w if w < _F1 else _F1
+
+
 @numba.njit(parallel=True, cache=True, error_model="numpy")
 def _scatter(native, positions, zetas, offsets, tex_row, tex_col, view1, w8, blend, segs, bounds, reach, images,
-             wmaps, kv, gh, iters, counts):  # pragma: no cover - compiled
+             wmaps, kv, gh, iters, counts, inner):  # pragma: no cover - compiled
     H = offsets.shape[0]
     W3 = native.shape[1]
     Wv = wmaps.shape[2]
     n = np.float32(offsets.shape[1] - 1)
+    feather = inner < reach
+    inv = _F1 / (reach - inner) if feather else _F0
     for y in numba.prange(H):
         ty = tex_row[y]
         base = y * W3
@@ -212,10 +236,6 @@ def _scatter(native, positions, zetas, offsets, tex_row, tex_col, view1, w8, ble
             lo, hi = offsets[y, k], offsets[y, k + 1]
             a = lo + np.searchsorted(positions[base + lo:base + hi], 3 * x0)
             b = lo + np.searchsorted(positions[base + lo:base + hi], 3 * x1)
-            img = images[e, ty]
-            wrow = wmaps[e, ty]
-            g, hh = gh[e, 0], gh[e, 1]
-            d0, d1 = kv[e, k, 0], kv[e, k, 1]
             for i in range(a, b):
                 p = np.int64(positions[base + i])
                 x = p // 3
@@ -224,32 +244,45 @@ def _scatter(native, positions, zetas, offsets, tex_row, tex_col, view1, w8, ble
                 if not gap < reach:
                     continue  # sends this eye less than the threshold, wherever it is in the margin
                 mine = True
+                ob = -1  # the nearest other eye and its gap
+                gob = np.float32(np.inf)
                 for o in range(bounds.shape[0]):  # a subpixel both eyes receive: the nearer eye's
                     if o != e:
                         go = _gap(z, bounds[o, 0, x], bounds[o, 1, x], n)
                         if go < gap or (go == gap and o < e):
                             mine = False
+                        if go < gob:
+                            gob = go
+                            ob = o
                 if not mine:
                     continue
-                ch = p - 3 * x
+                s = base + p
                 uc = np.float32(tex_col[x]) + _F05
-                v0 = _slice_value(img, wrow, ch, uc, d0, d1, g, hh, iters, Wv)
-                if blend:
-                    s = base + p
-                    k1 = view1[s]
-                    v1 = v0 if k1 == k else _slice_value(img, wrow, ch, uc, kv[e, k1, 0], kv[e, k1, 1], g, hh,
-                                                         iters, Wv)
-                    ww = np.uint32(w8[s])
-                    native[y, p] = np.uint8((np.uint32(v0) * (256 - ww) + np.uint32(v1) * ww + 128) >> 8)
-                else:
-                    native[y, p] = np.uint8(v0)
+                ve = _eye_value(images[e, ty], wmaps[e, ty], kv[e], gh[e, 0], gh[e, 1], view1, w8, blend, k, p, x, uc,
+                                s, iters, Wv)
+                if not feather:
+                    native[y, p] = np.uint8(ve)
+                else:  # the eyes' slices blended by their weights, over the fill by the larger weight
+                    we = _feather_weight(gap, reach, inv)
+                    sv = ve
+                    if ob >= 0 and gob < reach:
+                        wo = _feather_weight(gob, reach, inv)
+                        vo = _eye_value(images[ob, ty], wmaps[ob, ty], kv[ob], gh[ob, 0], gh[ob, 1], view1, w8, blend,
+                                        k, p, x, uc, s, iters, Wv)
+                        sv = (we * ve + wo * vo) / (we + wo)
+                        we = we if we > wo else wo
+                    f = np.float32(native[y, p])
+                    v = np.rint(f + we * (sv - f))
+                    v = v if v > _F0 else _F0
+                    v = v if v < _F255 else _F255
+                    native[y, p] = np.uint8(v)
                 cnt += 1
         counts[y] = cnt
 
 
 def scatter_slices(native: np.ndarray, buckets: SubpixelBuckets, segments: np.ndarray, bounds: np.ndarray,
                    reach: float, images: np.ndarray, wmaps: np.ndarray, kv: np.ndarray, gh: np.ndarray,
-                   iters: int = 1, kernel: str = "auto") -> int:
+                   iters: int = 1, kernel: str = "auto", inner: float | None = None) -> int:
     """Write the subpixels of ``segments`` that an eye can receive, from the eyes' slices.
 
     Parameters
@@ -275,9 +308,16 @@ def scatter_slices(native: np.ndarray, buckets: SubpixelBuckets, segments: np.nd
     iters : int
         Fixed-point steps for the source column after the first guess.
     kernel : {"auto", "cpp", "cpp-scalar", "numba"}
-        The C++ kernel (AVX-512 where the CPU has it, 16 subpixels at a time, in nearest mode;
-        "cpp-scalar" without) when built, else numba; all compute the same float32 expressions
-        (tested equal).
+        The C++ kernel (AVX-512 where the CPU has it, 16 subpixels at a time, in nearest mode
+        without a feather; "cpp-scalar" without) when built, else numba; all compute the same
+        float32 expressions (tested equal).
+    inner : float, optional
+        Feather the slices into what ``native`` shows (the cone fill), for comfort: a written
+        subpixel whose lens coordinate is ``gap`` views from its eye's range takes the slice with
+        the weight ``(reach - gap) / (reach - inner)`` clipped to [0, 1] (1 up to ``inner``, 0 at
+        ``reach``; ``inner`` < ``reach``, negative: inside the range), and where the other eye's
+        reach overlaps, both eyes' slices blended by their weights, over the fill by the larger
+        one: the written values change smoothly as the eyes move. None: the slice replaces.
 
     Returns
     -------
@@ -302,6 +342,8 @@ def scatter_slices(native: np.ndarray, buckets: SubpixelBuckets, segments: np.nd
         raise InputError(f"bounds: expected ({E}, 2, {W}), found {bounds.shape}")
     if kv.shape != (E, buckets.n_views, 2) or gh.shape != (E, 2):
         raise InputError(f"kv, gh: expected ({E}, {buckets.n_views}, 2) and ({E}, 2), found {kv.shape}, {gh.shape}")
+    if inner is not None and not (math.isfinite(inner) and inner < reach):
+        raise InputError(f"inner: expected a finite number of views < reach {reach:.4g}, found {inner!r}")
     if kernel not in ("auto", "cpp", "cpp-scalar", "numba"):
         raise InputError(f"kernel: expected 'auto', 'cpp', 'cpp-scalar' or 'numba', found {kernel!r}")
     if int(tex_max := buckets.tex_col.max()) >= images.shape[2] or int(buckets.tex_row.max()) >= images.shape[1]:
@@ -314,11 +356,12 @@ def scatter_slices(native: np.ndarray, buckets: SubpixelBuckets, segments: np.nd
     if kernel.startswith("cpp") and cpp is None:
         raise InputError("kernel 'cpp': the C++ extension holo_viewer.display._slices_cpp is not built")
     counts = np.zeros(H, dtype=np.int64)
+    inner32 = np.float32(np.inf if inner is None else inner)
     if cpp is not None:
         cpp.scatter_slices(*args, counts, H, W * 3, buckets.n_views, E, images.shape[1], images.shape[2], _threads(),
-                           1 if kernel == "cpp-scalar" else 0)
+                           1 if kernel == "cpp-scalar" else 0, float(inner32))
     else:
-        _scatter(*args, counts)
+        _scatter(*args, counts, inner32)
     return int(counts.sum())
 
 

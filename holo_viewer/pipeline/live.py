@@ -68,7 +68,7 @@ from ..render.config import RenderConfig
 from .live_modes import FRAME_MODE, TRACKED_METHODS, frame_mode
 
 __all__ = ["NativeFrameConfig", "LiveFrame", "NativeFrameRenderer", "render_native", "MODES", "TRACKED_DEFAULTS",
-           "LIVE_T_MIN", "MAX_VIEWERS", "group_viewers"]
+           "LIVE_T_MIN", "MAX_VIEWERS", "group_viewers", "GROUP_FEATHER"]
 
 AUTO_VIEW_STEP = 5  # NativeFrameConfig.view_step=None on a horizontal rig
 #: NativeFrameConfig.group_view_step=None: the cone fill's step of group frames, with tracked faces or
@@ -76,6 +76,14 @@ AUTO_VIEW_STEP = 5  # NativeFrameConfig.view_step=None on a horizontal rig
 #: 41-46 dB between consecutive frames). 6 against 5: 0.72x / 0.88x the CPU without / with a face, cone
 #: worst 41.6 / 38.9 dB (targets 38 / 35); measured in docs/live_frame.md
 AUTO_GROUP_VIEW_STEP = 6
+#: NativeFrameConfig.group_feather default: group frames feather the eye slices into the cone fill, a
+#: subpixel's slice weight falling linearly from 1 at this many views *inside* its eye's range
+#: (negative) to 0 at the reach (D0, 1.52 views), both eyes' slices blended where their reaches meet.
+#: Issue 37's comfort (a tracked viewer walking past fixed positions, face still, tests' 0.25-scale
+#: views): slices replacing 41.5 dB between consecutive frames; a prototype ramp from -1.5 / -2.5 views to
+#: 1 view past the reach 45.2 / 47.1 dB; to the reach from -3 50.0, -3.5 50.8 dB; the tracked eyes 47.0
+#: -> 46.0 / 44.8 / 43.3 / 42.9 dB (the eye takes part of the fill): -3 (docs/live_frame.md "Comfort")
+GROUP_FEATHER = -3.0
 #: group frames serve at most this many tracked viewers (the faces a webcam finds around a Portrait)
 MAX_VIEWERS = 6
 #: fixed-point steps of the slices' warp after the first guess: 0 (the default avatar at 0.6 m: per
@@ -90,6 +98,14 @@ SLICE_WARP_ITERS = 0
 LIVE_T_MIN = 3e-3
 #: NativeFrameConfig's None for (motion_m, motion_distance_m, refresh_columns), per tracked method
 TRACKED_DEFAULTS = {"bands": (0.01, 0.05, 8), "slices": (0.005, 0.02, 2)}
+
+
+def reach_limit(config: "NativeFrameConfig") -> float:
+    """The reach (views) of ``config``'s optics (:func:`~holo_viewer.display.eyes.reach_views`; inf
+    where its threshold or beam width is not valid: checked where it is used)."""
+    t, sig = float(config.threshold), float(config.sigma_views)
+    return sig * math.sqrt(2.0 * math.log(1.0 / t)) if 0.0 < t < 1.0 and sig > 0 else math.inf
+
 
 Mode = Literal["auto", "group", "tracked", "all_views", "full_quilt", "eye_centred"]
 #: the modes of NativeFrameRenderer.frame: "auto" and the rows of pipeline/live_modes.py's FRAME_MODES
@@ -142,6 +158,12 @@ class NativeFrameConfig:
         step, so that a face found or lost changes nothing away from it); at least 2. None
         (default): :data:`AUTO_GROUP_VIEW_STEP` where ``view_step`` is synthesized on the CPU (else
         ``view_step`` is used).
+    group_feather : float or None
+        ``group`` frames: where the eye slices' weight over the cone fill starts to fall, in views
+        of lens coordinate from the eye's range (negative: inside it; 0 at the reach; see
+        :func:`~holo_viewer.display.slices.scatter_slices`'s ``inner``), so that moving eyes change
+        what fixed positions see smoothly. Default :data:`GROUP_FEATHER`; None: the slices replace
+        the fill (sharper tracked eyes, popping where a walker's reach arrives).
     """
 
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -156,6 +178,7 @@ class NativeFrameConfig:
     backend: str = "fast"
     tracked: str | None = None
     group_view_step: int | None = None
+    group_feather: float | None = GROUP_FEATHER
 
     def __post_init__(self) -> None:
         if not isinstance(self.render, RenderConfig):
@@ -173,6 +196,9 @@ class NativeFrameConfig:
             v = getattr(self, name)
             if v is not None and (int(v) != v or v < least):
                 raise InputError(f"{name}: expected an integer >= {least}, found {v!r}")
+        f = self.group_feather
+        if f is not None and not (isinstance(f, (int, float)) and math.isfinite(f) and f < reach_limit(self)):
+            raise InputError(f"group_feather: expected views < the reach {reach_limit(self):.4g} or None, found {f!r}")
         if self.backend not in ("fast", "gsplat"):
             raise InputError(f"backend: expected 'fast' or 'gsplat', found {self.backend!r}")
         if self.tracked not in (None, "slices", "bands"):
@@ -460,7 +486,7 @@ class NativeFrameRenderer:
             segments, lobe = self.tracked_segments(v, bounds, lobes=True)
             kv, gh = crossed_slit.warp_coefficients(rig, eyes_[e:e + n])
             scatter_slices(self.native, self._buckets, segments[lobe == 0], bounds, reach, self._slices[e:e + n],
-                           self._slice_w[e:e + n], kv, gh, iters=SLICE_WARP_ITERS)
+                           self._slice_w[e:e + n], kv, gh, iters=SLICE_WARP_ITERS, inner=c.group_feather)
             e += n
         t3 = time.perf_counter()
         timings.update(slice_depth=t2 - t1, scatter=t3 - t2, prepare=t1 - t - sum(

@@ -29,6 +29,7 @@ struct SliceJob {
     int64_t* counts;                       // (H,)
     const uint8_t* contested;              // (S,) 1: another eye's reach may overlap the segment's
     float reach;
+    float inner;                           // feathered when inner < reach: the slice's weight ramps to 0 there
     int blend, n_segs, iters, H, W3, V, E, hv, wv;
 };
 
@@ -98,17 +99,42 @@ inline int lower_bound_spread(const int16_t* row, int lo, int hi, int value, int
     return lower_bound16(row, i, hi, value);
 }
 
+// the value (0..255, integral) eye e's slice gives subpixel p of row y showing view k (blend: and view1)
+inline float eye_value(const SliceJob& J, int y, int e, int k, int p) {
+    const int64_t base = int64_t(y) * J.W3;
+    const int ty = J.tex_row[y];
+    const int x = p / 3;
+    const float* img = J.images + (int64_t(e) * J.hv + ty) * J.wv * 3;
+    const float* wrow = J.wmaps + (int64_t(e) * J.hv + ty) * J.wv;
+    const float* kve = J.kv + int64_t(e) * J.V * 2;
+    const float g = J.gh[2 * e], h = J.gh[2 * e + 1];
+    const int ch = p - 3 * x;
+    const float uc = float(J.tex_col[x]) + 0.5f;
+    const float v0 = slice_value(img, wrow, ch, uc, kve[2 * k], kve[2 * k + 1], g, h, J.iters, J.wv);
+    if (!J.blend) return v0;
+    const int64_t sidx = base + p;
+    const int k1 = J.view1[sidx];
+    const float v1 = k1 == k ? v0 : slice_value(img, wrow, ch, uc, kve[2 * k1], kve[2 * k1 + 1], g, h, J.iters, J.wv);
+    const uint32_t ww = J.w8[sidx];
+    return float((uint32_t(v0) * (256 - ww) + uint32_t(v1) * ww + 128) >> 8);
+}
+
+// the feather's weight of a slice whose eye's range is gap views away: 1 up to inner, 0 from reach
+inline float feather_weight(float gap, float reach, float inv) {
+    float w = (reach - gap) * inv;
+    w = w > 0.0f ? w : 0.0f;
+    return w < 1.0f ? w : 1.0f;
+}
+
 // subpixels [a, b) of row y's bucket of view k, from eye e's slice; returns how many were written
 int64_t slice_run_scalar(const SliceJob& J, int y, int e, int k, int a, int b) {
     const int64_t base = int64_t(y) * J.W3;
-    const int ty = J.tex_row[y];
     const int W = J.W3 / 3;
-    const float* img = J.images + (int64_t(e) * J.hv + ty) * J.wv * 3;
-    const float* wrow = J.wmaps + (int64_t(e) * J.hv + ty) * J.wv;
     const float* tlo = J.bounds + int64_t(e) * 2 * W;
     const float* thi = tlo + W;
-    const float* kve = J.kv + int64_t(e) * J.V * 2;
-    const float g = J.gh[2 * e], h = J.gh[2 * e + 1], n = float(J.V);
+    const float n = float(J.V);
+    const bool feather = J.inner < J.reach;
+    const float inv = feather ? 1.0f / (J.reach - J.inner) : 0.0f;
     int64_t cnt = 0;
     for (int i = a; i < b; ++i) {
         const int p = J.pos[base + i];
@@ -117,25 +143,34 @@ int64_t slice_run_scalar(const SliceJob& J, int y, int e, int k, int a, int b) {
         const float gap = slice_gap(z, tlo[x], thi[x], n);
         if (!(gap < J.reach)) continue;
         bool mine = true;  // a subpixel both eyes receive: the nearer eye's
+        int ob = -1;       // the nearest other eye and its gap
+        float gob = INFINITY;
         for (int o = 0; o < J.E; ++o) {
             if (o == e) continue;
             const float* olo = J.bounds + int64_t(o) * 2 * W;
             const float go = slice_gap(z, olo[x], olo[W + x], n);
             if (go < gap || (go == gap && o < e)) mine = false;
+            if (go < gob) { gob = go; ob = o; }
         }
         if (!mine) continue;
-        const int ch = p - 3 * x;
-        const float uc = float(J.tex_col[x]) + 0.5f;
-        const float v0 = slice_value(img, wrow, ch, uc, kve[2 * k], kve[2 * k + 1], g, h, J.iters, J.wv);
-        if (J.blend) {
-            const int64_t sidx = base + p;
-            const int k1 = J.view1[sidx];
-            const float v1 = k1 == k ? v0 : slice_value(img, wrow, ch, uc, kve[2 * k1], kve[2 * k1 + 1], g, h,
-                                                        J.iters, J.wv);
-            const uint32_t ww = J.w8[sidx];
-            J.native[sidx] = uint8_t((uint32_t(v0) * (256 - ww) + uint32_t(v1) * ww + 128) >> 8);
+        const float ve = eye_value(J, y, e, k, p);
+        if (!feather) {
+            J.native[base + p] = uint8_t(ve);
         } else {
-            J.native[base + p] = uint8_t(v0);
+            // the eyes' slices blended by their weights, over the fill by the larger weight
+            float we = feather_weight(gap, J.reach, inv);
+            float s = ve;
+            if (ob >= 0 && gob < J.reach) {
+                const float wo = feather_weight(gob, J.reach, inv);
+                const float vo = eye_value(J, y, ob, k, p);
+                s = (we * ve + wo * vo) / (we + wo);
+                we = we > wo ? we : wo;
+            }
+            const float f = float(J.native[base + p]);
+            float v = std::nearbyint(f + we * (s - f));
+            v = v > 0.0f ? v : 0.0f;
+            v = v < 255.0f ? v : 255.0f;
+            J.native[base + p] = uint8_t(v);
         }
         ++cnt;
     }
@@ -353,9 +388,10 @@ PyObject* scatter_slices(PyObject*, PyObject* args) {
         wmaps{}, kv{}, gh{}, counts{};
     SliceJob J{};
     int blend, n_threads, mode = 0;
-    if (!PyArg_ParseTuple(args, "w*y*y*y*y*y*y*y*py*y*fy*y*y*y*iw*iiiiiiii|i", &native, &pos, &zeta, &off, &tex_row,
+    J.inner = INFINITY;
+    if (!PyArg_ParseTuple(args, "w*y*y*y*y*y*y*y*py*y*fy*y*y*y*iw*iiiiiii|if", &native, &pos, &zeta, &off, &tex_row,
                           &tex_col, &view1, &w8, &blend, &segs, &bounds, &J.reach, &images, &wmaps, &kv, &gh,
-                          &J.iters, &counts, &J.H, &J.W3, &J.V, &J.E, &J.hv, &J.wv, &n_threads, &mode))
+                          &J.iters, &counts, &J.H, &J.W3, &J.V, &J.E, &J.hv, &J.wv, &n_threads, &mode, &J.inner))
         return nullptr;
     J.blend = blend;
     const int64_t nsub = int64_t(J.H) * J.W3;
@@ -387,7 +423,7 @@ PyObject* scatter_slices(PyObject*, PyObject* args) {
         J.contested = contested.data();
     }
     if (ok) {
-        const bool wide = !blend && mode != 1 && cpu_has_avx512() && J.n_segs < 32768;
+        const bool wide = !blend && mode != 1 && !(J.inner < J.reach) && cpu_has_avx512() && J.n_segs < 32768;
         const int chunk = 16;  // rows per work item
         Py_BEGIN_ALLOW_THREADS
         parallel_for((J.H + chunk - 1) / chunk, std::max(1, n_threads), [&](int c) {
@@ -426,9 +462,10 @@ PyObject* scatter_slices(PyObject*, PyObject* args) {
 PyMethodDef methods[] = {
     {"scatter_slices", scatter_slices, METH_VARARGS,
      "scatter_slices(native, positions, zeta, offsets, tex_row, tex_col, view1, w8, blend, segments, bounds, "
-     "reach, images, wmaps, kv, gh, iters, counts, H, W3, V, E, hv, wv, n_threads[, mode]) -> None\n\n"
+     "reach, images, wmaps, kv, gh, iters, counts, H, W3, V, E, hv, wv, n_threads[, mode[, inner]]) -> None\n\n"
      "holo_viewer.display.slices' numba kernel (the same float32 expressions): the subpixels of the "
-     "segments that an eye can receive, warped out of the eyes' slices into native. mode 1: scalar only."},
+     "segments that an eye can receive, warped out of the eyes' slices into native. mode 1: scalar only. "
+     "inner < reach: feathered over the fill (the scalar loop)."},
     {"has_avx512", [](PyObject*, PyObject*) -> PyObject* { return PyBool_FromLong(cpu_has_avx512()); }, METH_NOARGS,
      "True when the CPU runs the AVX-512 path."},
     {nullptr, nullptr, 0, nullptr}};
