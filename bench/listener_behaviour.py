@@ -306,7 +306,8 @@ def write_trainee_clip(out: Path, wave: np.ndarray, n_gaussians: int = 20_000) -
     return files
 
 
-def live_listening(wave: np.ndarray, out: Path, cache: Path, render: bool = True, tile_scale: float = 0.5) -> dict:
+def live_listening(wave: np.ndarray, out: Path, cache: Path, render: bool = True, tile_scale: float = 0.5,
+                   track_fps: float | None = None) -> dict:
     """``live`` on a webcam replay of a walking trainee speaking ``wave``: gaze on the trainee's true
     eye midpoint (within 5 deg), aversions, gaze-yaw correlation with the trainee's angle, and the
     speech pause -> visible backchannel latency (bench/live_latency.py's visible-change timing)."""
@@ -325,12 +326,13 @@ def live_listening(wave: np.ndarray, out: Path, cache: Path, render: bool = True
     files = write_trainee_clip(cache, wave)
     t_clip = time.perf_counter() - t_clip
     load0 = os.getloadavg()
-    cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=False, flush_s=60.0)
+    cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=False, flush_s=60.0,
+                            track_fps=track_fps)
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
     renderer = TimedRenderer(LiveAvatarRenderer(tile_scale=tile_scale)) if render else None
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     session.run(renderer)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     with np.load(out / "tracks.npz") as z:
         tr = {k: z[k] for k in z.files}
     T = tr["time_s"].shape[0]
@@ -375,7 +377,10 @@ def live_listening(wave: np.ndarray, out: Path, cache: Path, render: bool = True
     got_r = [v for v in react_lat if v is not None]
     row.update({"pause_to_backchannel_onset_s": react_lat,
                 "pause_to_backchannel_onset_s_median": float(np.median(got_r)) if got_r else None,
-                "session_wall_s": wall, "trainee_clip_render_s": t_clip, "load_average_start": load0,
+                "session_wall_s": wall, "session_cpu_s": cpu, "track_fps": track_fps,
+                "tracked_frames": len(session.tracker_ms), "tracker_ms_median": float(np.median(session.tracker_ms))
+                if session.tracker_ms else None, "tracker_cpu_s": float(np.sum(session.tracker_cpu_ms)) / 1000.0,
+                "trainee_clip_render_s": t_clip, "load_average_start": load0,
                 "load_average_end": os.getloadavg(), "late_reaction_windows": session.late_windows,
                 "tile_scale": tile_scale if render else None})
     return row
@@ -393,7 +398,7 @@ def run_live(args, pair: np.ndarray) -> dict:
     wave = pair[:int(LIVE_SECONDS * 16000)]
     with tempfile.TemporaryDirectory() as d:
         return live_listening(wave, Path(d) / "session", Path(args.cache) / f"trainee_{LIVE_SECONDS:g}s",
-                              render=not args.no_live_render, tile_scale=args.tile_scale)
+                              render=not args.no_live_render, tile_scale=args.tile_scale, track_fps=args.track_fps)
 
 
 def print_live(row: dict) -> None:
@@ -403,6 +408,9 @@ def print_live(row: dict) -> None:
           f"{row['tracked_angle_error_deg_median']:.1f} deg; pause -> backchannel onset "
           f"{row['pause_to_backchannel_onset_s_median']} s, visible {row.get('backchannel_latency_s_median')} s "
           f"({row.get('pauses_answered_visibly')} of {row['pauses']} pauses), late windows {row['late_reaction_windows']}")
+    if "tracked_frames" in row:
+        print(f"  tracker: {row['tracked_frames']} frames tracked (track_fps {row['track_fps']}), "
+              f"{row['tracker_cpu_s']:.2f} s of its thread's CPU, session CPU {row['session_cpu_s']:.1f} s")
 
 
 def run_live_only(args) -> int:
@@ -434,6 +442,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-live-render", action="store_true",
                     help="live without the hologram renderer (gaze only, no visible backchannel latency)")
     ap.add_argument("--tile-scale", type=float, default=0.5, help="live renderer tile scale (default 0.5)")
+    ap.add_argument("--track-fps", type=float, default=None,
+                    help="live: track at most this many webcam frames a second (default: every frame)")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "holo_viewer_listener_bench"),
                     help="where the trainee webcam clip is cached")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "listener_behaviour.json"))

@@ -441,3 +441,22 @@ def test_render_pose_predicts_where_the_viewer_will_be(tmp_path):
         assert tracked
         session._viewer.put((9.96, ViewerPose(5.0, 0.6, False)))
         assert session._render_pose() == (5.0, 0.6, False)
+
+
+@pytest.mark.slow
+def test_track_fps_skips_webcam_frames_and_keeps_the_face(clip, tmp_path):
+    """``track_fps``: at most that many webcam frames a second are tracked (the others skipped, the
+    speaker face and viewer pose kept from the tracked ones); a bad rate is named."""
+    from holo_viewer.errors import InputError
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveSession, LiveSessionConfig
+
+    session = LiveSession(LiveSessionConfig(out=str(tmp_path / "s"), track_fps=8.0), sources.WavReplay(clip["wav"]),
+                          sources.VideoReplay(clip["video"]))
+    session.run(None)
+    s = _check_session(tmp_path / "s", n_frames=40)
+    assert 6 <= len(session.tracker_ms) <= 1.6 * 8 + 1  # every 3rd or 4th of the 25 fps frames, not 40
+    assert len(session.tracker_cpu_ms) == len(session.tracker_ms)
+    assert s["tracks"]["speaker_found"].mean() > 0.5
+    with pytest.raises(InputError, match="track_fps: expected frames a second > 0 or None, found 0"):
+        LiveSessionConfig(track_fps=0)

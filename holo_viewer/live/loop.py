@@ -32,7 +32,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import ExportError, HoloViewerError
+from ..errors import ExportError, HoloViewerError, InputError
 from ..media import CODECS
 from ..reaction.decoding import DEFAULT_TEMPERATURE, DEFAULT_TOP_K
 from ..tracking.viewer import ViewerPose
@@ -76,12 +76,21 @@ class LiveSessionConfig:
     #: render for where the tracked viewer will be when the frame is shown (the pose extrapolated
     #: over the smoothing's lag, the pose's age and the expected render time; ViewerPose.predicted)
     predict_viewer: bool = True
+    #: track at most this many webcam frames a second (None: every frame, 25 fps on a webcam); the
+    #: others are skipped (still recorded). The viewer pose keeps its prediction from the tracked ones
+    track_fps: float | None = None
     scenario: Any = None
     #: the no-data behaviour layers (a holo_viewer.behaviour.BehaviourConfig; "default": all on, seeded
     #: by ``seed``; None: the reaction model alone, conditioned on the pain level)
     behaviour: Any = "default"
     max_seconds: float | None = None
     settings: dict = field(default_factory=dict)
+
+
+    def __post_init__(self) -> None:
+        f = self.track_fps
+        if f is not None and not (isinstance(f, (int, float)) and math.isfinite(f) and f > 0):
+            raise InputError(f"track_fps: expected frames a second > 0 or None, found {f!r}")
 
 
 class _Slot:
@@ -129,6 +138,7 @@ class LiveSession:
         self._stop = threading.Event()
         self._media_done = threading.Event()
         self.tracker_ms: list[float] = []
+        self.tracker_cpu_ms: list[float] = []  # the tracker thread's CPU per tracked frame
         self.window_ms: list[float] = []
         self.late_windows = 0
         self.late_ms_max = 0.0
@@ -180,7 +190,8 @@ class LiveSession:
 
         tracker = self._face_tracker
         viewer = ViewerTracker(self._mount, ViewerTrackerConfig(mode=self.config.viewer_mode))
-        last_t = None
+        last_t = last_tracked = None
+        min_dt = 0.0 if self.config.track_fps is None else 1.0 / float(self.config.track_fps)
         try:
             while not self._stop.is_set():
                 if self.controls.take_recentre():
@@ -192,9 +203,15 @@ class LiveSession:
                     time.sleep(0.003)
                     continue
                 last_t, frame = item
-                t0 = time.perf_counter()
+                if last_tracked is not None and last_t - last_tracked < min_dt - 1e-6:  # track_fps
+                    if self.config.record_video:
+                        self._record_webcam(frame)
+                    continue
+                last_tracked = last_t
+                t0, c0 = time.perf_counter(), time.thread_time()
                 tf = tracker(frame, last_t)
                 self.tracker_ms.append(1000 * (time.perf_counter() - t0))
+                self.tracker_cpu_ms.append(1000 * (time.thread_time() - c0))
                 self._speaker.put((last_t, tf.state, tf.found))
                 pose = viewer.update(tf.eye_positions, last_t)
                 self._viewer.put((last_t, pose))
