@@ -3,15 +3,17 @@
 Usage::
 
     python scripts/fit_patients.py [NAME ... | --all] [--iterations N] [--source assets/default_avatar.npz]
-        [--out FILE (one patient)] [--no-eval] [--images DIR] [--json FILE]
+        [--out FILE (one patient)] [--no-eval] [--images DIR] [--json FILE] [--stage2 N] [--init FILE]
 
 Every patient shares the default head's ICT topology, so the default's fitted Gaussians keep their
 triangles and local offsets, rotations and scales on the patient's head (``fit_avatar.transfer_avatar``:
 colours rescaled by the patient's albedo over the default's at each Gaussian's surface point, the fitted
 shading kept), the lashes get Gaussians where the source has none (``add_gaussians_on_faces``; the
 faintest others are dropped to keep the count), and a short fine-tune on renders of the patient's
-textured mesh (``PATIENT_CONFIG``: 10 poses, quilt and sheared cameras over +-30 deg, so the lights stay
-world-fixed as in the quilt) learns the rest. Writes ``assets/patients/<name>/avatar.npz`` with
+textured mesh (``PATIENT_CONFIG``: 7 poses, quilt and sheared cameras over +-30 deg, so the lights stay
+world-fixed as in the quilt) learns the rest; a second stage (``STAGE2_CONFIG``, ``--stage2 N``, 0 skips
+it) adds steps on full-resolution crops centred where the target has fine detail (the hair strands hold
+most of the remaining error). Writes ``assets/patients/<name>/avatar.npz`` with
 ``fit_angle_range_deg`` and, in its ``info``, ``psnr_min_db`` (worst of the 48 quilt views and the two
 slider-limit views, neutral). ``default`` as NAME fine-tunes the default avatar itself the same way
 (the second stage of ``scripts/fit_default_avatar.py``). Deterministic (seeded, one thread); fits run
