@@ -176,6 +176,18 @@ def xin(window, xdotool):
     return x
 
 
+def _head_screen_box(viewer) -> tuple[float, float, float, float]:
+    """(x0, y0, x1, y1) display pixels around the mesh as the scene camera projects it (y from the bottom)."""
+    ren = viewer.scene_renderer
+    xy = []
+    for p in viewer.pipeline.mesh()[::5]:
+        ren.SetWorldPoint(*p, 1.0)
+        ren.WorldToDisplay()
+        xy.append(ren.GetDisplayPoint()[:2])
+    xy = np.array(xy)
+    return (*xy.min(axis=0), *xy.max(axis=0))
+
+
 def _camera_state(renderer):
     cam = renderer.GetActiveCamera()
     return (cam.GetPosition(), cam.GetFocalPoint(), cam.GetViewUp(), cam.GetParallelScale(), cam.GetViewAngle())
@@ -232,21 +244,29 @@ def test_view_sliders_move_frusta_not_mesh(window):
     assert "nan" not in window.status.GetInput()
 
 
-def test_keys_write_their_files(window, tmp_path):
+def test_keys_write_their_files(window, xin, tmp_path):
+    """Real key presses k, n, i, x, X: quilt, native image, screenshot, expression and pain sweeps (each a
+    quilt video and a panel video); X needs the model's action-unit map (the synthetic one is given one)."""
     from holo_viewer.fileio import load_image
+    from holo_viewer.flame.expressions import AU_NAMES, AUMap
 
-    for key in ("k", "n", "i", "x", "X"):
-        _press(window, key)
+    xin.key("k", "n", "i", "x", "X", timeout=0.3)
     window.wait_exports(timeout=120)
     assert "pain sweep: this FLAME model has no action-unit map" in window.errors[-1]  # X: the synthetic model
+    n_expr = window.pipeline.model.n_expr
+    window.pipeline.set_au_map(AUMap(names=tuple(AU_NAMES),
+                                     matrix=np.random.default_rng(4).normal(scale=0.8, size=(len(AU_NAMES), n_expr))))
+    xin.key("X", timeout=0.3)
+    window.wait_exports(timeout=120)
     out = sorted(p.name for p in (tmp_path / "exports").iterdir())
     quilts = [n for n in out if n.endswith("_qs8x6a0.75.png")]
     natives = [n for n in out if n.endswith("_native.png")]
     shots = [n for n in out if n.startswith("screenshot")]
-    videos = [n for n in out if n.endswith("_qs8x6a0.75.mp4")]
-    native_videos = [n for n in out if n.endswith("_native.mp4")]
+    videos = [n for n in out if n.startswith("sweep-expression-") and n.endswith("_qs8x6a0.75.mp4")]
+    native_videos = [n for n in out if n.startswith("sweep-expression-") and n.endswith("_native.mp4")]
+    pain = [n for n in out if n.startswith("sweep-pain-")]
     assert len(quilts) == 1 and len(natives) == 1 and len(shots) == 1 and len(videos) == 1, out
-    assert len(native_videos) == 1 and native_videos[0].startswith("sweep-expression-"), out
+    assert len(native_videos) == 1 and len(pain) == 2, out
     assert not [n for n in out if ".tmp" in n]  # atomic writes leave no temporaries
     q = load_image(tmp_path / "exports" / quilts[0])
     cams = window.pipeline.cameras()
@@ -263,6 +283,12 @@ def test_keys_write_their_files(window, tmp_path):
     panel = iio.imread(tmp_path / "exports" / native_videos[0])  # lossless RGB: the interleaved quilts
     assert panel.shape == (3, cal.screen_h, cal.screen_w, 3)
     assert np.array_equal(panel[1], Interleaver(cal, frames[1].shape, cols=cal.cols, rows=cal.rows)(frames[1]))
+    pain_quilts = iio.imread(tmp_path / "exports" / next(n for n in pain if n.endswith("_qs8x6a0.75.mp4")))
+    pain_panel = iio.imread(tmp_path / "exports" / next(n for n in pain if n.endswith("_native.mp4")))
+    assert pain_quilts.shape == frames.shape and pain_panel.shape == (3, cal.screen_h, cal.screen_w, 3)
+    assert np.abs(pain_quilts[1].astype(int) - pain_quilts[0]).mean() > 0.5  # pain 0 -> 1: another face
+    assert np.array_equal(pain_panel[1], Interleaver(cal, pain_quilts[1].shape, cols=cal.cols,
+                                                     rows=cal.rows)(pain_quilts[1]))
 
 
 def test_toggles_and_help(window):
@@ -334,6 +360,13 @@ def test_image_panels_ignore_the_mouse_and_the_scene_takes_it(window, xin):
     xin.wheel(c)
     xin.key("r")
     np.testing.assert_allclose(np.array(_camera_state(window.scene_renderer)[0]), np.array(home[0]), atol=1e-9)
+    # z: the head close-up; the head grows on screen, the scene's pixels change
+    far_box, far_shot = _head_screen_box(window), window.read_pixels("scene").copy()
+    assert xin.key("z", until=lambda: _camera_state(window.scene_renderer) != home, timeout=5)
+    xin.settle(timeout=0.2)
+    near_box = _head_screen_box(window)
+    assert near_box[3] - near_box[1] > 2.0 * (far_box[3] - far_box[1]), (far_box, near_box)
+    assert np.abs(window.read_pixels("scene").astype(int) - far_shot).mean() > 2
 
 
 def test_slider_drag_scrubs_the_mesh_live_and_the_preview_on_release(window, xin):
@@ -400,6 +433,13 @@ def test_value_entry_arrow_keys_and_reset_to_neutral(window, xin):
     np.testing.assert_allclose(np.array(window.selected.points), np.array(frusta.points)[5 * (v0 + 1): 5 * (v0 + 2)])
     assert f"view {v0 + 1}/" in window.preview_panel.title.GetInput()
     assert window._specs["view"].value == v0 + 1
+    xin.settle(timeout=0.2)
+    preview = window.read_pixels("preview").copy()
+    assert xin.key("Left", until=lambda: window.selected_view == v0, timeout=3)  # back along the views
+    xin.settle(timeout=0.2)
+    np.testing.assert_allclose(np.array(window.selected.points), np.array(frusta.points)[5 * v0: 5 * (v0 + 1)])
+    assert f"view {v0}/" in window.preview_panel.title.GetInput() and window._specs["view"].value == v0
+    assert np.abs(window.read_pixels("preview").astype(int) - preview).max() > 30  # that view's picture
     assert xin.key("0", until=lambda: not np.any(window.pipeline.face.expr), timeout=3)
     assert window._specs["expr0"].value == 0.0
 
@@ -438,7 +478,7 @@ def test_default_framing_shows_the_head_and_all_cameras(window):
     assert getattr(window.scene_renderer, "axes_widget", None) is not None  # orientation axes
 
 
-def test_gaussian_controls(window):
+def test_gaussian_controls(window, xin):
     n0 = window._glyph_index.size
     window.set_glyphs(count=50)
     assert window._glyph_index.size == 50 and window.glyphs.n_points == 50 * 12
@@ -450,9 +490,13 @@ def test_gaussian_controls(window):
     window.set_glyphs(sigmas=3.0)
     assert np.ptp(np.array(window.glyphs.points), axis=0).max() > np.ptp(pts, axis=0).max()
     rgb = np.array(window.glyphs.point_data["rgb"])
-    _press(window, "c")
-    assert window.glyph_color == "opacity" and not np.array_equal(np.array(window.glyphs.point_data["rgb"]), rgb)
+    xin.settle(timeout=0.2)
+    shot = window.read_pixels("scene").copy()
+    assert xin.key("c", until=lambda: window.glyph_color == "opacity", timeout=5)  # a real key press
+    xin.settle(timeout=0.2)
+    assert not np.array_equal(np.array(window.glyphs.point_data["rgb"]), rgb)
     assert "opacity" in window._headers["Gaussians"].GetInput()
+    assert np.abs(window.read_pixels("scene").astype(int) - shot).max() > 30  # recoloured on screen
 
 
 def test_layout_readable_at_800x450(xvfb, tmp_path):
@@ -668,6 +712,18 @@ def test_braces_resize_the_image_panels_and_the_scene_gives_way(splat_window, xd
     xin.settle(timeout=0.5)
     assert viewer.panel_width == pytest.approx(0.15) and widths()["preview"] < w0["preview"]
     assert viewer.panel_box("preview")[2] == viewer.panel_box("quilt")[2]
+    # s: the splat image off (the gradient behind the overlays) and on again (the same picture)
+    xin.settle(until=lambda: viewer._splat_full, timeout=5)
+    xin.settle(timeout=0.2)
+    shot = viewer.read_pixels("scene").copy()
+    assert xin.key("s", until=lambda: not viewer.show_splats, timeout=5)
+    xin.settle(timeout=0.2)
+    assert not viewer.scene_renderer.GetTexturedBackground()
+    assert np.abs(viewer.read_pixels("scene").astype(int) - shot).mean() > 2
+    assert xin.key("s", until=lambda: viewer.show_splats and viewer._splat_full, timeout=5)
+    xin.settle(timeout=0.2)
+    assert viewer.scene_renderer.GetTexturedBackground()
+    assert np.abs(viewer.read_pixels("scene").astype(int) - shot).mean() < 0.5
 
 
 @pytest.fixture()
@@ -858,6 +914,12 @@ def test_panel_shows_the_native_image_zoomed_and_what_a_placed_eye_sees(xvfb, xd
         assert xin.key("bracketright", until=lambda: viewer.native_zoom == 2, timeout=5)
         assert np.abs(viewer.preview_panel.image.astype(int) - zoom_centre(native, 2)).max() <= 1
         assert viewer.preview_panel.image.shape[:2] == (cal.screen_h // 2, cal.screen_w // 2)
+        xin.settle(timeout=0.2)
+        zoomed = viewer.read_pixels("preview").copy()
+        assert xin.key("bracketleft", until=lambda: viewer.native_zoom == 1, timeout=5)  # zoom out again
+        xin.settle(timeout=0.2)
+        assert np.abs(viewer.preview_panel.image.astype(int) - native).max() <= 1
+        assert np.abs(viewer.read_pixels("preview").astype(int) - zoomed).mean() > 2
         assert xin.key("p", until=lambda: viewer.panel_mode == "eye", timeout=5)
         eye = VirtualDisplay(cal, n_views=len(viewer.pipeline.cameras()), downsample=4)
         seen0 = eye.see(native, viewer.eye_angle, viewer.eye_distance)
@@ -869,6 +931,17 @@ def test_panel_shows_the_native_image_zoomed_and_what_a_placed_eye_sees(xvfb, xd
         np.testing.assert_allclose(viewer.preview_panel.image / 255.0, seen, atol=2 / 255 + 1e-6)
         assert np.abs(seen - seen0).mean() > 1e-3  # another eye position, another picture
         assert "eye at +12.0 deg" in viewer.preview_panel.title.GetInput()
+        for key, value in (("eye_angle", -20.0), ("eye_distance", 1.6)):  # the sliders, dragged
+            xin.settle(timeout=0.2)
+            shot, before = viewer.read_pixels("preview").copy(), (viewer.eye_angle, viewer.eye_distance)
+            xin.drag(viewer.slider_point(key), viewer.slider_point(key, value))
+            now = (viewer.eye_angle, viewer.eye_distance)
+            assert now[key == "eye_distance"] == pytest.approx(value, abs=0.1 * abs(value)), (key, now)
+            assert now[key == "eye_angle"] == before[key == "eye_angle"]
+            assert viewer._specs[key].value == pytest.approx(now[key == "eye_distance"])
+            seen = eye.see(native, *now)
+            np.testing.assert_allclose(viewer.preview_panel.image / 255.0, seen, atol=2 / 255 + 1e-6)
+            assert np.abs(viewer.read_pixels("preview").astype(int) - shot).mean() > 1, key  # on screen
         assert xin.key("p", until=lambda: viewer.panel_mode == "view", timeout=5)
     finally:
         viewer.close()
