@@ -317,3 +317,14 @@ def test_live_loop_all_views_uses_synthesis_and_replay_renders_every_view():
     b = exact.render(listener, 0.5, (), 0.0, 0.6).native
     assert a.shape == b.shape == tuple(loop._live.native.shape)
     assert 37.0 < eyes.head_psnr(b / 255.0, a / 255.0) < np.inf  # measured 40.2 dB at quarter-size tiles
+
+
+def test_warp_zbuffer_interleave_and_scatter_kernels_release_the_gil():
+    """The live loop's render thread runs these numba kernels while the tracker, reaction and
+    recording threads run Python: each is compiled nogil (the C++ kernels release it themselves)."""
+    from holo_viewer.display import lenticular
+    from holo_viewer.display import slices as sl
+
+    kernels = [vs._zbuffer, vs._zbuffer_coef, vs._cells_to_pixels, vs._row_extents, vs._warp, sl._scatter,
+               *lenticular._numba_kernels()]
+    assert [k.py_func.__name__ for k in kernels if not k.targetoptions.get("nogil")] == []

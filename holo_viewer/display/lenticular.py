@@ -205,7 +205,7 @@ def _numba_kernels():
     if _NUMBA_KERNELS is None:
         import numba
 
-        @numba.njit(parallel=True, cache=True, boundscheck=False)
+        @numba.njit(parallel=True, cache=True, boundscheck=False, nogil=True)
         def gather(src, idx, out, nrows):  # pragma: no cover - compiled
             n = idx.shape[0]
             per = (n + nrows - 1) // nrows
@@ -215,7 +215,7 @@ def _numba_kernels():
                 for k in range(lo, hi):
                     out[k] = src[idx[k]]
 
-        @numba.njit(parallel=True, cache=True, boundscheck=False)
+        @numba.njit(parallel=True, cache=True, boundscheck=False, nogil=True)
         def blend_u8(src, i0, i1, w, out, nrows):  # pragma: no cover - compiled
             n = i0.shape[0]
             per = (n + nrows - 1) // nrows
@@ -228,7 +228,7 @@ def _numba_kernels():
                     ww = np.uint32(w[k])
                     out[k] = np.uint8((a * (256 - ww) + b * ww + 128) >> 8)
 
-        @numba.njit(parallel=True, cache=True, boundscheck=False)
+        @numba.njit(parallel=True, cache=True, boundscheck=False, nogil=True)
         def blend_f(src, i0, i1, w, out, nrows):  # pragma: no cover - compiled
             n = i0.shape[0]
             per = (n + nrows - 1) // nrows
@@ -242,7 +242,7 @@ def _numba_kernels():
         global _ONE_SUBPIXEL  # a module global, not a closure: the kernels calling it stay cacheable
         _ONE_SUBPIXEL = numba.njit(inline="always", boundscheck=False)(_one_subpixel)
 
-        @numba.njit(parallel=True, cache=True, boundscheck=False)
+        @numba.njit(parallel=True, cache=True, boundscheck=False, nogil=True)
         def update(src, i0, i1, w8, wf, sel, out, mode):  # pragma: no cover - compiled
             # out[s] for the listed flat subpixels s only
             n = sel.shape[0]
@@ -252,7 +252,7 @@ def _numba_kernels():
                 for j in range(c * per, min(n, c * per + per)):
                     _ONE_SUBPIXEL(src, i0, i1, w8, wf, sel[j], out, mode)
 
-        @numba.njit(parallel=True, cache=True, boundscheck=False)
+        @numba.njit(parallel=True, cache=True, boundscheck=False, nogil=True)
         def update_keys(src, i0, i1, w8, wf, key0, key1, chosen, out, mode):  # pragma: no cover - compiled
             # out[s] for the subpixels whose texel block key0[s] (blend: or key1[s]) is chosen, in
             # native order: sequential reads of the tables and writes of out, random reads only
@@ -266,7 +266,7 @@ def _numba_kernels():
                     if chosen[key0[s]] or (mode != 0 and chosen[key1[s]]):
                         _ONE_SUBPIXEL(src, i0, i1, w8, wf, s, out, mode)
 
-        @numba.njit(parallel=True, cache=True, boundscheck=False)
+        @numba.njit(parallel=True, cache=True, boundscheck=False, nogil=True)
         def gather_rows(src, view, rowpart, colpart, out):  # pragma: no cover - compiled
             # out[y, s] = src[rowpart[y, view[y, s]] + colpart[s]]: the texel index from the row's
             # tile offsets and the column's texel (one byte of view per subpixel read, not an index)

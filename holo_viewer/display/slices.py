@@ -218,7 +218,7 @@ def _feather_weight(gap, reach, inv):  # pragma: no cover - compiled
     return w if w < _F1 else _F1
 
 
-@numba.njit(parallel=True, cache=True, error_model="numpy")
+@numba.njit(parallel=True, cache=True, error_model="numpy", nogil=True)
 def _scatter(native, positions, zetas, offsets, tex_row, tex_col, view1, w8, blend, segs, bounds, reach, images,
              wmaps, kv, gh, iters, counts, inner):  # pragma: no cover - compiled
     H = offsets.shape[0]

@@ -143,7 +143,7 @@ def _cell_taps(i: int, cell: int, n: int) -> tuple[int, int, float]:
     return c0, min(c0 + 1, n - 1), min(max(f - c0, 0.0), 1.0)
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def _zbuffer(means: np.ndarray, keep: np.ndarray, R: np.ndarray, tx: np.ndarray, ty: float, tz: float, fx: float,
              fy: float, cx: np.ndarray, cy: float, near: float, H: int, W: int, cell: int, w_zero: float,
              out: np.ndarray) -> None:
@@ -166,7 +166,7 @@ def _zbuffer(means: np.ndarray, keep: np.ndarray, R: np.ndarray, tx: np.ndarray,
         _cells_to_pixels(zb, h, w, cell, H, W, w_zero, out[s])
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def _zbuffer_coef(means: np.ndarray, keep: np.ndarray, R: np.ndarray, ty: float, tz: float, coef: np.ndarray,
                   fy: float, cy: float, near: float, H: int, W: int, cell: int, w_zero: float,
                   out: np.ndarray) -> None:
@@ -199,7 +199,7 @@ def _keep_nearest(zb: np.ndarray, u: float, v: float, z: float, cell: int, h: in
         zb[yi, xi] = z
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _cells_to_pixels(zb: np.ndarray, h: int, w: int, cell: int, H: int, W: int, w_zero: float,
                      out: np.ndarray) -> None:
     """Nearest depth per cell -> (H, W) inverse depth: holes filled, background w_zero, bilinear."""
@@ -330,7 +330,7 @@ def _columns(wrow: np.ndarray, xlist: np.ndarray, d0: float, d1: float, iters: i
             xs[i] = xlist[i] + d0 + d1 * ((1.0 - f[i]) * wrow[p] + f[i] * wrow[p + 1])
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def _row_extents(images: np.ndarray, wmaps: np.ndarray, bg: np.ndarray, spans: np.ndarray, wr: np.ndarray) -> None:
     """Per (source, row): the first and last column that is not the background colour (an empty
     span is (W, -1)), and the row's inverse-depth range."""
@@ -363,7 +363,7 @@ def _live_range(span: np.ndarray, wr: np.ndarray, d0: float, d1: float, lo: int,
     return min(lo, int(np.floor(span[0] - 2.0 - smax))), max(hi, int(np.ceil(span[1] + 2.0 - smin)))
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def _warp(images: np.ndarray, wmaps: np.ndarray, slot: np.ndarray, jobs: np.ndarray, d: np.ndarray,
           iters: int, offsets: np.ndarray, columns: np.ndarray, spans: np.ndarray, wr: np.ndarray,
           bg: np.ndarray, out: np.ndarray, out_u8: np.ndarray, row0: np.ndarray, col0: np.ndarray,
