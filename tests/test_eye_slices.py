@@ -396,7 +396,7 @@ def test_scatter_kernels_agree_on_many_segments_and_any_texel_table(buckets, rig
 
 
 # (0.6 m: the eyes apart; 2.5 m: their reaches overlap, so both slices blend)
-@pytest.mark.parametrize("mode,distance", [("nearest", 0.6), ("blend", 2.5)])
+@pytest.mark.parametrize("mode,distance", [("nearest", 0.6), ("nearest", 2.5), ("blend", 2.5)])
 def test_feathered_scatter_kernels_agree_and_stay_between_fill_and_slices(rig, mode, distance):
     """The feather (``inner``): every kernel gives numba's output bit for bit over a random fill,
     each written subpixel lies between the fill and the eyes' own slice values (a convex blend),

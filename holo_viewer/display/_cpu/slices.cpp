@@ -2,7 +2,8 @@
 // the same float32 expressions, in the same order, as its numba kernel (the build has
 // -ffp-contract=off, and every clamp is a select with the AVX-512 max/min semantics, NaN -> the
 // bound), so the two agree bit for bit (tested). Nearest mode runs 16 subpixels at a time with
-// AVX-512 where the CPU has it; blend mode and other CPUs run the scalar loop.
+// AVX-512 where the CPU has it (the feather's blend per written lane after); blend mode and other
+// CPUs run the scalar loop.
 #include "hv_common.h"
 
 #include <cmath>
@@ -306,7 +307,10 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
     const __m512i wv2 = _mm512_set1_epi32(J.wv - 2), two_w = _mm512_set1_epi32(2 * W), one = _mm512_set1_epi32(1);
     const __m512i three = _mm512_set1_epi32(3);
     const __m512 tex_scale = _mm512_set1_ps(R.tex_scale);
-    alignas(64) int32_t pv[16], vv[16];
+    alignas(64) int32_t pv[16], vv[16], jv[16];
+    alignas(64) float bv[16];
+    const bool feather = J.inner < J.reach;
+    const float inv = feather ? 1.0f / (J.reach - J.inner) : 0.0f;
     int64_t cnt = 0;
     for (int i = 0; i < n; i += 16) {
         const int len = std::min(16, n - i);
@@ -373,9 +377,47 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
         v = _mm512_min_ps(_mm512_max_ps(v, _mm512_setzero_ps()), _mm512_set1_ps(255.0f));
         _mm512_store_si512(vv, _mm512_cvttps_epi32(v));
         _mm512_store_si512(pv, p);
+        if (!feather) {
+            for (unsigned bits = m; bits; bits &= bits - 1) {
+                const int l = __builtin_ctz(bits);
+                J.native[base + pv[l]] = uint8_t(vv[l]);
+                ++cnt;
+            }
+            continue;
+        }
+        // feathered: the scalar loop's blend per written lane (its own value computed above; another
+        // eye's gap < reach only where the segment is contested, so only there the other eyes are tried)
+        _mm512_store_ps(bv, best);
+        _mm512_store_si512(jv, sj);
+        const unsigned cmask = unsigned(contested);
         for (unsigned bits = m; bits; bits &= bits - 1) {
             const int l = __builtin_ctz(bits);
-            J.native[base + pv[l]] = uint8_t(vv[l]);
+            const int64_t* sg = J.segs + 4 * jv[l];
+            const int el = int(sg[0]), kl = int(sg[1]), pl = pv[l], xl = pl / 3;
+            const float ve = float(vv[l]);
+            float we = feather_weight(bv[l], J.reach, inv);
+            float sv = ve;
+            if (cmask & (1u << l)) {
+                int ob = -1;
+                float gob = INFINITY;
+                for (int oe = 0; oe < J.E; ++oe) {
+                    if (oe == el) continue;
+                    const float* olo = J.bounds + int64_t(oe) * 2 * W;
+                    const float go = slice_gap(R.z[size_t(i + l)], olo[xl], olo[W + xl], float(J.V));
+                    if (go < gob) { gob = go; ob = oe; }
+                }
+                if (ob >= 0 && gob < J.reach) {
+                    const float wo = feather_weight(gob, J.reach, inv);
+                    const float vo = eye_value(J, y, ob, kl, pl);
+                    sv = (we * ve + wo * vo) / (we + wo);
+                    we = we > wo ? we : wo;
+                }
+            }
+            const float fl = float(J.native[base + pl]);
+            float vout = std::nearbyint(fl + we * (sv - fl));
+            vout = vout > 0.0f ? vout : 0.0f;
+            vout = vout < 255.0f ? vout : 255.0f;
+            J.native[base + pl] = uint8_t(vout);
             ++cnt;
         }
     }
@@ -423,7 +465,7 @@ PyObject* scatter_slices(PyObject*, PyObject* args) {
         J.contested = contested.data();
     }
     if (ok) {
-        const bool wide = !blend && mode != 1 && !(J.inner < J.reach) && cpu_has_avx512() && J.n_segs < 32768;
+        const bool wide = !blend && mode != 1 && cpu_has_avx512() && J.n_segs < 32768;
         const int chunk = 16;  // rows per work item
         Py_BEGIN_ALLOW_THREADS
         parallel_for((J.H + chunk - 1) / chunk, std::max(1, n_threads), [&](int c) {
@@ -465,7 +507,7 @@ PyMethodDef methods[] = {
      "reach, images, wmaps, kv, gh, iters, counts, H, W3, V, E, hv, wv, n_threads[, mode[, inner]]) -> None\n\n"
      "holo_viewer.display.slices' numba kernel (the same float32 expressions): the subpixels of the "
      "segments that an eye can receive, warped out of the eyes' slices into native. mode 1: scalar only. "
-     "inner < reach: feathered over the fill (the scalar loop)."},
+     "inner < reach: feathered over the fill."},
     {"has_avx512", [](PyObject*, PyObject*) -> PyObject* { return PyBool_FromLong(cpu_has_avx512()); }, METH_NOARGS,
      "True when the CPU runs the AVX-512 path."},
     {nullptr, nullptr, 0, nullptr}};
