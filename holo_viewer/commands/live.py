@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from ..validation import fps_arg, seed_arg
 
@@ -21,6 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--camera", type=int, default=0, help="webcam index (default 0)")
     src.add_argument("--mount", metavar="MOUNT.json", help="webcam-to-panel offset JSON (docs/live.md)")
     src.add_argument("--hfov", type=float, default=60.0, help="webcam horizontal field of view in degrees (default 60)")
+    src.add_argument("--track-fps", type=float, default=None, metavar="FPS",
+                     help="track at most FPS webcam frames a second (default: every frame; docs/live.md)")
     out = parser.add_argument_group("output")
     out.add_argument("--out", default=None, metavar="DIR", help="session folder, must not exist yet (default "
                      "./session-YYYYmmdd-HHMMSS; an existing session is never overwritten)")
@@ -111,6 +114,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--frames: expected >= 1, found {args.frames}")
     if not 0.0 <= args.pain <= 1.0:
         raise InputError(f"--pain: expected a value in [0, 1], found {args.pain}")
+    if args.track_fps is not None and not (math.isfinite(args.track_fps) and args.track_fps > 0):
+        raise InputError(f"--track-fps: expected frames a second > 0, found {args.track_fps}")
     mount = WebcamMount.load(args.mount) if args.mount else WebcamMount(hfov_deg=args.hfov)
     scenario = Scenario.load(args.scenario) if args.scenario else None
     # first use (empty kernel cache): the view-synthesis kernels compile in a second process meanwhile
@@ -158,7 +163,8 @@ def _run(args: argparse.Namespace, mount: object, scenario: object, precompile: 
                                video_fps=args.video_fps, record_video=args.record_video, pain=args.pain,
                                temperature=args.temperature, seed=args.seed, hfov_deg=mount.hfov_deg, mount=mount,
                                viewer_mode="group" if args.group else "nearest",
-                               predict_viewer=not args.no_viewer_prediction, scenario=scenario,
+                               predict_viewer=not args.no_viewer_prediction, track_fps=args.track_fps,
+                               scenario=scenario,
                                max_seconds=args.seconds, settings=settings,
                                behaviour=behaviour_from_args(args, seed=args.seed))
     progress("loading the avatar and compiling the render kernels (cached after the first use"
