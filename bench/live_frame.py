@@ -186,12 +186,13 @@ FLARE_NOD = (0.0, 0.12, 0.05, -0.08, 0.0, 0.0)
 #: the tracked viewers of the group sweep (angle deg, distance m): 1 = the first, 4 = all
 GROUP_VIEWERS = ((6.0, 0.6), (-15.0, 0.5), (-4.0, 0.75), (16.0, 0.9))
 #: the group sweep's runs: (mode, tracked viewers, NativeFrameConfig knobs); the defaults first, then
-#: the time-error trade-off of the group frames' cone fill (group_view_step; the default is 6)
+#: the time-error trade-off of the group frames' cone fill (group_view_step; the default is 6), and the
+#: eye slices replacing the fill instead of feathered into it (group_feather None: comfort)
 GROUP_RUNS = (("group", 0, {}), ("group", 1, {}), ("group", 4, {}), ("tracked", 1, {}), ("tracked", 4, {}),
               ("all_views", 0, {}), ("group", 0, {"group_view_step": 5}), ("group", 0, {"group_view_step": 8}),
               ("group", 1, {"group_view_step": 5}), ("group", 1, {"group_view_step": 8}),
               ("group", 1, {"group_view_step": 12}), ("group", 4, {"group_view_step": 5}),
-              ("group", 4, {"group_view_step": 8}))
+              ("group", 4, {"group_view_step": 8}), ("group", 1, {"group_feather": None}))
 #: comfort: a tracked viewer walks past fixed single-eye positions (deg, m), 1.5 deg a frame, face still
 COMFORT_POSITIONS = ((0.0, 0.6), (-3.0, 0.6))
 COMFORT_WALK_DEG = tuple(float(a) for a in np.arange(-6.0, 4.6, 1.5))
@@ -294,7 +295,7 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
             rec.update(comfort(live, frames[0], fixed))
         records.append(rec)
         step = live.group_view_step if mode == "group" else live.view_step
-        print(f"{mode:9s} viewers {n} step {step:2d}{'' if knobs else ' (default)'}  {s:.3f} s/frame "
+        print(f"{mode:9s} viewers {n} step {step:2d}{f' {knobs}' if knobs else ' (default)'}  {s:.3f} s/frame "
               f"(best {min(secs):.3f}, CPU {np.median(cpus):.3f} s)  tracked eyes "
               f"{'-' if eye_db is None else f'{eye_db:.1f}'} dB  cone worst {worst.min():.1f} dB "
               f"(at {cone.positions[int(np.argmin(worst))]}), median {np.median(cone_db):.1f} dB, "
