@@ -859,7 +859,23 @@ def test_splat_view_follows_the_camera_reduced_while_dragging(splat_window, xdot
     H = viewer.plotter.ren_win.GetSize()[1]
     cx, cy = (x0 + x1) // 2, H - (y0 + y1) // 2
     xin.move(cx, cy)
+    # the default framing: the face fills most of the scene; the overlay lines (frusta, selected frustum,
+    # focal-plane outline) are drawn around it, none across it (cut at the head's screen box)
+    with_overlays = _scene_readback(viewer).astype(int)
+    hx0, hy0, hx1, hy1 = _head_screen_box(viewer)
+    W, H = x1 - x0 + 1, y1 - y0 + 1
+    assert hy1 - hy0 > 0.5 * H, (hy0, hy1, H)
+    cut = [viewer._cut_actors[k].GetMapper().GetInput() for k in ("frusta", "selected", "focal")]
+    assert all(a.GetVisibility() for a in viewer._cut_actors.values()) and sum(c.GetNumberOfCells() for c in cut) > 10
+    assert not any(a.GetVisibility() for a in (viewer.frusta_actor, viewer.selected_actor, viewer.focal_actor))
     assert xin.key("o", until=lambda: not viewer.show_frusta, timeout=5)  # overlays off
+    plain = _scene_readback(viewer).astype(int)
+    changed = np.abs(with_overlays - plain).max(axis=2) > 40  # (H, W), row 0 at the top
+    rows, cols = np.arange(H)[:, None], np.arange(W)[None, :]
+    head = ((cols >= hx0 - x0 + 3) & (cols <= hx1 - x0 - 3) & (H - 1 - rows >= hy0 - y0 + 3)
+            & (H - 1 - rows <= hy1 - y0 - 3))
+    assert changed[head].mean() < 0.002, changed[head].mean()  # nothing drawn across the face
+    assert changed[~head].sum() > 200  # the rig is drawn around it
     before = viewer.splat_image.copy()
     xin.xdo("mousedown", 1)
     try:

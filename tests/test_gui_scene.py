@@ -29,3 +29,39 @@ def test_live_vertex_normals_match_the_float64_reference():
         np.add.at(unweighted, tri[:, c], fn)
     unweighted[:-1] /= np.linalg.norm(unweighted[:-1], axis=1, keepdims=True)
     assert np.abs(unweighted[:-1] - got[:-1]).max() > 1e-3
+
+
+def test_overlay_cut_keeps_every_visible_part_outside_the_head_box_and_nothing_inside():
+    """scene.cut_segments_at_box (the overlay lines over the splats) against dense float64 sampling: no
+    drawn point projects inside the rectangle, every point in front of the camera and outside it is drawn."""
+    from holo_viewer.gui.scene import cut_segments_at_box
+
+    rng = np.random.default_rng(0)
+    n, f, c = 0.1, 10.0, 1.0 / np.tan(np.radians(20.0))  # a 40 deg perspective camera looking down -z
+    P = np.array([[c, 0, 0, 0], [0, c, 0, 0], [0, 0, -(f + n) / (f - n), -2 * f * n / (f - n)], [0, 0, -1, 0]])
+    a = rng.normal(size=(60, 3)) * 2 + [0, 0, -2]  # some behind the camera (z > 0)
+    b = rng.normal(size=(60, 3)) * 2 + [0, 0, -2]
+    box = (-0.3, -0.2, 0.4, 0.3)
+    s, e, src = cut_segments_at_box(a, b, P, box)
+    T = np.linspace(0.0, 1.0, 1001)
+
+    def ndc(X):
+        h = np.c_[X, np.ones(len(X))] @ P.T
+        return h[:, :2] / h[:, 3:4], h[:, 3]
+
+    def inside(q, w, tol=0.0):
+        return (w > 1e-6) & (q[:, 0] > box[0] + tol) & (q[:, 0] < box[2] - tol) & (q[:, 1] > box[1] + tol) & \
+            (q[:, 1] < box[3] - tol)
+    crossed = 0
+    for i in range(len(a)):
+        d = b[i] - a[i]
+        q, w = ndc(a[i] + T[:, None] * d)
+        crossed += inside(q, w).any()
+        covered = np.zeros(len(T), bool)
+        for k in np.flatnonzero(src == i):
+            Y = s[k] + T[:, None] * (e[k] - s[k])
+            assert not inside(*ndc(Y), tol=1e-9).any(), i
+            t = (Y - a[i]) @ d / (d @ d)
+            covered |= (T >= t.min() - 1e-9) & (T <= t.max() + 1e-9)
+        assert not ((w > 1e-6) & ~inside(q, w) & ~covered).any(), i
+    assert crossed >= 3 and len(src) != len(a)  # the sample does cut lines: the test can fail

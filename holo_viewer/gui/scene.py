@@ -16,7 +16,7 @@ from ..geometry import quat_to_rotmat_np
 from ..validation import check_array
 
 __all__ = [
-    "frusta_arrays", "focal_plane_corners", "ellipsoid_glyph_arrays", "subsample_indices",
+    "frusta_arrays", "cut_segments_at_box", "focal_plane_corners", "ellipsoid_glyph_arrays", "subsample_indices",
     "unit_icosphere", "mesh_polydata", "frusta_polydata", "focal_plane_polydata", "glyph_polydata",
     "image_plane", "view_colors", "glyph_selection", "glyph_colors", "GLYPH_COLOR_MODES",
     "AU_DESCRIPTIONS", "au_label", "scene_bounds", "live_vertex_normals",
@@ -90,6 +90,56 @@ def frusta_arrays(cameras: Any, focal_center: np.ndarray) -> tuple[np.ndarray, n
     local = np.array([[0, 1], [0, 2], [0, 3], [0, 4], [1, 2], [2, 3], [3, 4], [4, 1]])
     lines = (base + local[None]).reshape(-1, 2)
     return pts.reshape(-1, 3), lines, np.repeat(np.arange(V), 8)
+
+
+def cut_segments_at_box(a: np.ndarray, b: np.ndarray, clip: np.ndarray, box: tuple[float, float, float, float],
+                        eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The parts of 3D segments a->b that a perspective camera draws outside a screen rectangle.
+
+    ``clip`` is the (4, 4) world -> clip-space matrix (VTK's composite projection), ``box`` (x0, y0, x1, y1)
+    in normalised device coordinates. A segment is first cut to the camera's front (clip w > ``eps``;
+    what lies behind is dropped, as the renderer drops it); its projection, a straight 2D segment, is cut by
+    the rectangle (Liang-Barsky) and the 2D parameters are mapped back to the 3D segment perspective-
+    correctly (t = s wA / ((1 - s) wB + s wA)), so a piece's projection touches the rectangle at most at its
+    border. Returns (starts, ends, source) with ``source`` the index of each piece's segment (0, 1 or 2
+    pieces a segment).
+    """
+    A = np.asarray(a, dtype=np.float64).reshape(-1, 3)
+    B = np.asarray(b, dtype=np.float64).reshape(-1, 3)
+    M = np.asarray(clip, dtype=np.float64)
+    ha = A @ M[:, :3].T + M[:, 3]
+    hb = B @ M[:, :3].T + M[:, 3]
+    wa, wb = ha[:, 3], hb[:, 3]
+    keep = (wa > eps) | (wb > eps)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tf = np.where(wa == wb, 0.0, (eps - wa) / (wb - wa))[:, None]  # where w crosses eps
+    cut_a, cut_b = (wa <= eps)[:, None], (wb <= eps)[:, None]  # cut to the front of the camera
+    A, ha, B, hb = (np.where(cut_a, A + tf * (B - A), A), np.where(cut_a, ha + tf * (hb - ha), ha),
+                    np.where(cut_b, A + tf * (B - A), B), np.where(cut_b, ha + tf * (hb - ha), hb))
+    wa, wb = ha[:, 3], hb[:, 3]
+    safe_a, safe_b = np.where(keep, wa, 1.0), np.where(keep, wb, 1.0)
+    qa, qb = ha[:, :2] / safe_a[:, None], hb[:, :2] / safe_b[:, None]
+    d = qb - qa
+    x0, y0, x1, y1 = (float(v) for v in box)
+    P = np.stack([-d[:, 0], d[:, 0], -d[:, 1], d[:, 1]], axis=1)  # Liang-Barsky
+    Q = np.stack([qa[:, 0] - x0, x1 - qa[:, 0], qa[:, 1] - y0, y1 - qa[:, 1]], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        R = Q / P
+    s_in = np.maximum(0.0, np.where(P < 0.0, R, -np.inf).max(axis=1))
+    s_out = np.minimum(1.0, np.where(P > 0.0, R, np.inf).min(axis=1))
+    miss = ((P == 0.0) & (Q < 0.0)).any(axis=1) | (s_in >= s_out)  # parallel outside an edge, or no overlap
+
+    def at(s: np.ndarray) -> np.ndarray:  # 2D parameter -> point on the 3D segment (perspective-correct)
+        t = s * safe_a / ((1.0 - s) * safe_b + s * safe_a)
+        return A + t[:, None] * (B - A)
+    whole = keep & miss
+    first = keep & ~miss & (s_in > 0.0)
+    last = keep & ~miss & (s_out < 1.0)
+    p_in, p_out = at(np.where(miss, 0.0, s_in)), at(np.where(miss, 1.0, s_out))
+    starts = np.concatenate([A[whole], A[first], p_out[last]])
+    ends = np.concatenate([B[whole], p_in[first], B[last]])
+    idx = np.arange(len(A))
+    return starts, ends, np.concatenate([idx[whole], idx[first], idx[last]]).astype(np.int64)
 
 
 _ICO_CACHE: dict[int, tuple[np.ndarray, np.ndarray]] = {}

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from .scene import GLYPH_COLOR_MODES, focal_plane_polydata, frusta_arrays, glyph_polydata, glyph_selection, scene_bounds, view_colors
+from .scene import GLYPH_COLOR_MODES, cut_segments_at_box, focal_plane_polydata, frusta_arrays, glyph_polydata, glyph_selection, scene_bounds, view_colors
 from .widgets import _text_actor
 
 
@@ -133,8 +133,113 @@ class SceneMixin:
         self._place_camera_labels()
         self._camera_actors = (self.frusta_actor, self.camera_actor, self.selected_actor, self.focal_actor,
                                self.legend, self.selected_label, *self.camera_labels)
+        self._add_cut_overlays()
+        self._show_camera_actors()
+
+    # the overlay lines over the splats: cut where they would cross the head
+    _CUT_LINES = (("frusta", 1.0), ("selected", 4.0), ("focal", 2.0))
+    _FOCAL_RGB = (95, 168, 255)  # #5fa8ff
+
+    def _add_cut_overlays(self) -> None:
+        """With the splats drawn, the frusta, the selected frustum and the focal-plane outline are drawn by
+        actors of their own holding only the parts outside the head's box on screen (recomputed before each
+        frame of the scene, ``_cut_overlays``), so no overlay line crosses the face; without the splats the
+        whole lines are drawn (the rig framing of ``r``)."""
+        import vtk
+
+        self._cut_actors = {}
+        for name, width in self._CUT_LINES:
+            mapper = vtk.vtkPolyDataMapper()
+            mapper.SetInputData(vtk.vtkPolyData())
+            mapper.SetScalarModeToUseCellData()
+            mapper.SetColorModeToDirectScalars()  # the uint8 rgb of each line, as the whole lines
+            actor = vtk.vtkActor()
+            actor.SetMapper(mapper)
+            actor.GetProperty().SetLineWidth(width)
+            actor.GetProperty().LightingOff()
+            actor.SetVisibility(False)
+            self.scene_renderer.AddActor(actor)
+            self._cut_actors[name] = actor
+        self._cut_key = None
+        self.head_screen_box: tuple[float, float, float, float] | None = None  # NDC, the last cut's
+        self.scene_renderer.AddObserver("StartEvent", lambda *_: self._unprompted(self._cut_overlays))
+
+    def _cut_sources(self) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """{name: (points, (n, 2) segment point ids, (n, 3) uint8 colours)} of the whole overlay lines."""
+        fr, sel = self.frusta, self.selected
+        focal = np.asarray(self.focal_actor.mapper.dataset.points)
+        return {"frusta": (np.asarray(fr.points), fr.lines.reshape(-1, 3)[:, 1:],
+                           np.asarray(fr.cell_data["rgb"])),
+                "selected": (np.asarray(sel.points), sel.lines.reshape(-1, 3)[:, 1:],
+                             np.full((sel.n_lines, 3), 255, np.uint8)),
+                "focal": (focal[:4], np.array([[0, 1], [1, 2], [2, 3], [3, 0]]),
+                          np.tile(np.array(self._FOCAL_RGB, np.uint8), (4, 1)))}
+
+    def _cut_overlays(self) -> None:
+        """Before a frame of the scene: the overlay lines with the splats (see :meth:`_add_cut_overlays`)."""
+        import vtk
+        from vtk.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
+
+        on = bool(getattr(self, "show_splats", False) and self.show_frusta)
+        for actor in self._cut_actors.values():
+            actor.SetVisibility(on)
+        if not on:
+            self._cut_key = None
+            return
+        ren = self.scene_renderer
+        m = ren.GetActiveCamera().GetCompositeProjectionTransformMatrix(ren.GetTiledAspectRatio(), -1.0, 1.0)
+        M = np.array([[m.GetElement(i, j) for j in range(4)] for i in range(4)])
+        head = np.asarray(self.mesh.points)[::8].astype(np.float64)  # (every 8th vertex: the box within a pixel)
+        h = head @ M[:, :3].T + M[:, 3]
+        h = h[h[:, 3] > 1e-6]
+        box = (2.0, 2.0, 2.0, 2.0)  # off the screen: nothing cut
+        if len(h):
+            q = h[:, :2] / h[:, 3:4]
+            (x0, y0), (x1, y1) = q.min(axis=0), q.max(axis=0)
+            pad = 0.03 * max(x1 - x0, y1 - y0)
+            box = (x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+        mtimes = (self.frusta.GetMTime(), self.selected.GetMTime(), self.focal_actor.mapper.dataset.GetMTime())
+        key = (M.tobytes(), box, mtimes, self.mesh.GetMTime())
+        if key == self._cut_key:
+            return
+        self._cut_key, self.head_screen_box = key, box
+        if getattr(self, "_cut_src_key", None) != mtimes:  # the whole lines' segments, once per change
+            srcs = self._cut_sources()
+            self._cut_src = (np.concatenate([p[g[:, 0]] for p, g, _ in srcs.values()]),
+                             np.concatenate([p[g[:, 1]] for p, g, _ in srcs.values()]),
+                             np.concatenate([c for _, _, c in srcs.values()]),
+                             np.repeat(np.arange(len(srcs)), [len(g) for _, g, _ in srcs.values()]))
+            self._cut_src_key = mtimes
+        a_all, b_all, cols, owner = self._cut_src
+        a, b, src = cut_segments_at_box(a_all, b_all, M, box)  # every overlay line at once
+        for k, (name, _) in enumerate(self._CUT_LINES):
+            mine = owner[src] == k
+            n = int(mine.sum())
+            actor = self._cut_actors[name]
+            if not n:
+                actor.SetVisibility(False)
+                continue
+            poly = actor.GetMapper().GetInput()
+            points = vtk.vtkPoints()
+            points.SetData(numpy_to_vtk(np.stack([a[mine], b[mine]], axis=1).reshape(-1, 3), deep=True))
+            lines = vtk.vtkCellArray()
+            lines.SetData(numpy_to_vtkIdTypeArray(np.arange(0, 2 * n + 1, 2), deep=True),
+                          numpy_to_vtkIdTypeArray(np.arange(2 * n), deep=True))
+            rgb = numpy_to_vtk(np.ascontiguousarray(cols[src[mine]]), deep=True)
+            rgb.SetName("rgb")
+            poly.SetPoints(points)
+            poly.SetLines(lines)
+            poly.GetCellData().SetScalars(rgb)
+            poly.Modified()
+
+    def _show_camera_actors(self) -> None:
+        """The rig's overlays follow ``o``; with the splats, the cut lines stand in for the whole ones."""
+        splats = bool(getattr(self, "show_splats", False))
         for a in self._camera_actors:
             a.SetVisibility(self.show_frusta)
+        for a in (self.frusta_actor, self.selected_actor, self.focal_actor):
+            a.SetVisibility(self.show_frusta and not splats)
+        self._cut_key = None
 
     @staticmethod
     def _frustum_points(points: np.ndarray, view: int) -> np.ndarray:
@@ -290,8 +395,7 @@ class SceneMixin:
 
     def toggle_frusta(self) -> None:
         self.show_frusta = not self.show_frusta
-        for a in self._camera_actors:
-            a.SetVisibility(self.show_frusta)
+        self._show_camera_actors()
         self._place_camera_labels()
         self._render()
 

@@ -273,6 +273,7 @@ class SplatViewMixin:
             self.update_splats(force_full=True)
         else:
             self._hide_splats()
+        self._show_camera_actors()  # whole overlay lines without the splats, cut at the head with them
         self._render()
 
     def toggle_look_through(self) -> None:
@@ -283,6 +284,7 @@ class SplatViewMixin:
             self._place_scene_camera_at_view(self.look_through)
             if not self.show_splats and self.pipeline.avatar is not None:
                 self.show_splats = True
+                self._show_camera_actors()
         else:
             self.look_through = None
             self.scene_renderer.GetActiveCamera().SetWindowCenter(0.0, 0.0)

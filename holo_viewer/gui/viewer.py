@@ -280,6 +280,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
             if self.show_splats:
                 self.show_splats = False
                 self._hide_splats()
+                self._show_camera_actors()
             self.show_mesh = True
             self.mesh_actor.SetVisibility(True)
         else:
