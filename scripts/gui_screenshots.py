@@ -102,7 +102,7 @@ def screen_fit(out: Path, max_kb: int) -> int:
 
     out.mkdir(parents=True, exist_ok=True)
     sw, sh = x_screen_size()
-    viewer = HoloViewer(load_scene("default").pipeline, ViewerConfig(out_dir="/tmp", show_status=False))
+    viewer = HoloViewer(load_scene("default").pipeline, ViewerConfig(out_dir="/tmp"))
     viewer.open()
     viewer.run(timeout=1.0)
     viewer.wait_for_thumbnail()

@@ -950,7 +950,7 @@ def test_panel_shows_the_native_image_zoomed_and_what_a_placed_eye_sees(xvfb, xd
         for key, value in (("eye_angle", -20.0), ("eye_distance", 1.6)):  # the sliders, dragged
             xin.settle(timeout=0.2)
             shot, before = viewer.read_pixels("preview").copy(), (viewer.eye_angle, viewer.eye_distance)
-            xin.drag(viewer.slider_point(key), viewer.slider_point(key, value))
+            xin.drag(viewer.slider_point(key), viewer.slider_point(key, value), steps=2)
             now = (viewer.eye_angle, viewer.eye_distance)
             assert now[key == "eye_distance"] == pytest.approx(value, abs=0.1 * abs(value)), (key, now)
             assert now[key == "eye_angle"] == before[key == "eye_angle"]
