@@ -537,9 +537,11 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: floa
 
 
 def mux_audio(video: str | os.PathLike, audio: str | os.PathLike, out: str | os.PathLike, fps: float = 25.0,
-              what: str = "review video") -> Path:
+              what: str = "review video", duration_s: float | None = None) -> Path:
     """``video`` at a constant ``fps`` (a timed video's frames held as they were shown, from time 0)
     with ``audio`` muxed in (AAC), lossless RGB video (:data:`CODECS` ``"lossless"``), atomically.
+    ``duration_s``: the result's length (a session's ``end_s``): ffmpeg's ``fps`` filter otherwise
+    pads a last frame held for under a frame period by up to a few frame periods.
 
     Raises
     ------
@@ -553,7 +555,13 @@ def mux_audio(video: str | os.PathLike, audio: str | os.PathLike, out: str | os.
         cmd = [ffmpeg_exe(), "-hide_banner", "-loglevel", "error", "-y", "-copyts", "-i", os.fspath(video),
                "-i", os.fspath(audio), "-map", "0:v:0", "-map", "1:a:0", "-vf", f"fps={float(fps):.6g}:start_time=0",
                "-vcodec", policy["codec"], "-pix_fmt", policy["pixelformat"], *policy["output_params"],
-               "-c:a", "aac", "-b:a", "128k", "-f", fmt, os.fspath(tmp)]
+               "-c:a", "aac", "-b:a", "128k"]
+        if duration_s is not None:
+            if not np.isfinite(duration_s) or duration_s <= 0:
+                raise ExportError(f"{out}: the {what}'s duration must be a positive number of seconds, "
+                                  f"found {duration_s!r}")
+            cmd += ["-t", f"{float(duration_s):.6f}"]
+        cmd += ["-f", fmt, os.fspath(tmp)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             last = (proc.stderr.strip().splitlines() or ["no message"])[-1][:300]

@@ -241,4 +241,6 @@ def review_video(folder: str | os.PathLike, out: str | os.PathLike) -> Path:
     from ..media import mux_audio
 
     p = Path(folder)
-    return mux_audio(p / NATIVE_VIDEO, p / "audio.wav", out, fps=FPS)
+    end_s = load_session(p)[0].get("end_s")  # the review video lasts as long as the session
+    return mux_audio(p / NATIVE_VIDEO, p / "audio.wav", out, fps=FPS,
+                     duration_s=float(end_s) if end_s else None)
