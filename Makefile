@@ -6,10 +6,9 @@ OUT ?= out
 PYTEST_ARGS ?=
 # the suite runs on JOBS pytest-xdist workers, whole files per worker (module fixtures are built once),
 # the costliest files first (tests/conftest.py orders them; the default reorder by test count is off).
-# make test: 3 workers on 2 cores, because many tests wait (X event loops, real-time live sessions, CLI
-# subprocesses, Xvfb): the third worker runs while another waits (docs/development.md, "Measured").
-# make test-fast: FAST_JOBS=2 (its tests hardly wait; a third worker only adds its start-up)
-JOBS ?= 3
+# make test: 2 workers on 2 cores (a third, to run while another waits, was slower in a quiet fresh
+# clone: 5 min 32 s against 5 min 17 s; docs/development.md, "Measured"). make test-fast: FAST_JOBS=2.
+JOBS ?= 2
 FAST_JOBS ?= 2
 XDIST_OPTS := --dist loadfile --no-loadscope-reorder
 XDIST := -n $(JOBS) $(XDIST_OPTS)
@@ -18,7 +17,7 @@ XDIST := -n $(JOBS) $(XDIST_OPTS)
 
 help:
 	@echo "make demo   - set up .venv, then run the main job on the default avatar (writes $(OUT)/)"
-	@echo "make test   - set up .venv, then run the whole test suite (as CI does; JOBS=3 workers)"
+	@echo "make test   - set up .venv, then run the whole test suite (as CI does; JOBS=2 workers)"
 	@echo "make test-fast - the suite without the tests marked slow (every module, about a minute; FAST_JOBS=2 workers)"
 	@echo "make bench  - run the benchmarks under bench/ (writes bench/results/*.json); bench-quick: < 3 min"
 

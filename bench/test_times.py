@@ -29,7 +29,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 #: make test's pytest-xdist workers (JOBS): each file runs with the torch threads one of them has
-WORKERS = 3
+WORKERS = 2
 
 
 def _children_cpu() -> float:
@@ -41,7 +41,7 @@ def time_file(path: Path, markers: str | None) -> dict:
     """Run one test file; its wall and CPU seconds, pytest's exit code and summary line, per-test times."""
     with tempfile.TemporaryDirectory() as tmp:
         per_test = Path(tmp) / "times.json"
-        # torch's threads as a make test worker has them (tests/conftest.py: the cores shared by JOBS=3 workers)
+        # torch's threads as a make test worker has them (tests/conftest.py: the cores shared by JOBS=2 workers)
         threads = str(max(1, (os.cpu_count() or 1) // WORKERS))
         env = {"OMP_NUM_THREADS": threads, "MKL_NUM_THREADS": threads, **os.environ,
                "HOLO_TEST_TIMES": str(per_test)}
