@@ -127,6 +127,25 @@ inline float feather_weight(float gap, float reach, float inv) {
     return w < 1.0f ? w : 1.0f;
 }
 
+// the feathered write of one subpixel (scalar loop and the AVX-512 path's lanes alike): the eye's value
+// ``ve`` at weight ``we``, blended with the nearest other eye ``ob`` (gap ``gob``) where it also reaches,
+// then laid over the fill already in the native image by the larger weight, rounded and clamped
+inline void feather_write(const SliceJob& J, int y, int k, int p, int64_t base, float ve, float we,
+                          int ob, float gob, float inv) {
+    float s = ve;
+    if (ob >= 0 && gob < J.reach) {
+        const float wo = feather_weight(gob, J.reach, inv);
+        const float vo = eye_value(J, y, ob, k, p);
+        s = (we * ve + wo * vo) / (we + wo);
+        we = we > wo ? we : wo;
+    }
+    const float f = float(J.native[base + p]);
+    float v = std::nearbyint(f + we * (s - f));
+    v = v > 0.0f ? v : 0.0f;
+    v = v < 255.0f ? v : 255.0f;
+    J.native[base + p] = uint8_t(v);
+}
+
 // subpixels [a, b) of row y's bucket of view k, from eye e's slice; returns how many were written
 int64_t slice_run_scalar(const SliceJob& J, int y, int e, int k, int a, int b) {
     const int64_t base = int64_t(y) * J.W3;
@@ -159,19 +178,7 @@ int64_t slice_run_scalar(const SliceJob& J, int y, int e, int k, int a, int b) {
             J.native[base + p] = uint8_t(ve);
         } else {
             // the eyes' slices blended by their weights, over the fill by the larger weight
-            float we = feather_weight(gap, J.reach, inv);
-            float s = ve;
-            if (ob >= 0 && gob < J.reach) {
-                const float wo = feather_weight(gob, J.reach, inv);
-                const float vo = eye_value(J, y, ob, k, p);
-                s = (we * ve + wo * vo) / (we + wo);
-                we = we > wo ? we : wo;
-            }
-            const float f = float(J.native[base + p]);
-            float v = std::nearbyint(f + we * (s - f));
-            v = v > 0.0f ? v : 0.0f;
-            v = v < 255.0f ? v : 255.0f;
-            J.native[base + p] = uint8_t(v);
+            feather_write(J, y, k, p, base, ve, feather_weight(gap, J.reach, inv), ob, gob, inv);
         }
         ++cnt;
     }
@@ -394,30 +401,17 @@ HV_TARGET_AVX512 int64_t slice_row_avx512(const SliceJob& J, int y, SliceRowBuf&
             const int l = __builtin_ctz(bits);
             const int64_t* sg = J.segs + 4 * jv[l];
             const int el = int(sg[0]), kl = int(sg[1]), pl = pv[l], xl = pl / 3;
-            const float ve = float(vv[l]);
-            float we = feather_weight(bv[l], J.reach, inv);
-            float sv = ve;
+            int ob = -1;
+            float gob = INFINITY;
             if (cmask & (1u << l)) {
-                int ob = -1;
-                float gob = INFINITY;
                 for (int oe = 0; oe < J.E; ++oe) {
                     if (oe == el) continue;
                     const float* olo = J.bounds + int64_t(oe) * 2 * W;
                     const float go = slice_gap(R.z[size_t(i + l)], olo[xl], olo[W + xl], float(J.V));
                     if (go < gob) { gob = go; ob = oe; }
                 }
-                if (ob >= 0 && gob < J.reach) {
-                    const float wo = feather_weight(gob, J.reach, inv);
-                    const float vo = eye_value(J, y, ob, kl, pl);
-                    sv = (we * ve + wo * vo) / (we + wo);
-                    we = we > wo ? we : wo;
-                }
             }
-            const float fl = float(J.native[base + pl]);
-            float vout = std::nearbyint(fl + we * (sv - fl));
-            vout = vout > 0.0f ? vout : 0.0f;
-            vout = vout < 255.0f ? vout : 255.0f;
-            J.native[base + pl] = uint8_t(vout);
+            feather_write(J, y, kl, pl, base, float(vv[l]), feather_weight(bv[l], J.reach, inv), ob, gob, inv);
             ++cnt;
         }
     }
