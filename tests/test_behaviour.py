@@ -76,18 +76,23 @@ def test_gaze_on_target_share_and_aversions(speaking, lo, hi):
     assert np.std(np.array([x.yaw_deg for x in s])[on]) > 0.1
 
 
+def _answers_to_pauses(layer):
+    """A pause-cued layer stepped over 30 min with a pause onset every 3.75 s (16 / min): the cues, its
+    values, its runs (start, length), their starts and each start's lag (s) after the cue before it."""
+    cue = np.zeros(FPS * 1800, bool)
+    cue[::int(3.75 * FPS)] = True
+    v = np.array([layer.step(bool(c)) for c in cue])
+    runs = _runs(v > 0)
+    starts = np.array([a for a, _ in runs])
+    c = np.flatnonzero(cue)
+    return cue, v, runs, starts, (starts - c[np.searchsorted(c, starts) - 1]) / FPS
+
+
 def test_brow_raises_answer_pauses():
     """30 min with a pause onset every 3.75 s (16 / min): 2-6 raises / min, each starting 0.05-0.3 s
     after its cue, 0.75-1.55 s long, >= 4 s apart, apex 0.4-0.65; none without pauses."""
-    T = FPS * 1800
-    cue = np.zeros(T, bool)
-    cue[::int(3.75 * FPS)] = True
-    lay = BrowLayer(seed=2)
-    v = np.array([lay.step(bool(c)) for c in cue])
-    runs = _runs(v > 0)
+    cue, v, runs, starts, lags = _answers_to_pauses(BrowLayer(seed=2))
     assert 2 * 30 <= len(runs) <= 6 * 30
-    starts = np.array([a for a, _ in runs])
-    lags = (starts - np.flatnonzero(cue)[np.searchsorted(np.flatnonzero(cue), starts) - 1]) / FPS
     assert lags.min() >= 0.04 and lags.max() <= 0.34
     lengths = np.array([n for _, n in runs]) / FPS
     assert lengths.min() >= 0.7 and lengths.max() <= 1.6 and np.diff(starts).min() >= 4 * FPS
@@ -116,17 +121,9 @@ def test_brow_raises_on_the_face_and_off_when_switched_off():
 def test_backchannel_nods_answer_pauses_at_once():
     """30 min with a pause onset every 3.75 s: 0.3 of the cues answered (binomial bounds), each nod
     starting 0.05-0.3 s after its cue, 0.4-0.7 s long, 3-6 deg deep; none without pauses; seeded."""
-    T = FPS * 1800
-    cue = np.zeros(T, bool)
-    cue[::int(3.75 * FPS)] = True
-    lay = NodLayer(seed=3)
-    v = np.array([lay.step(bool(c)) for c in cue])
-    runs = _runs(v > 0)
+    cue, v, runs, starts, lags = _answers_to_pauses(NodLayer(seed=3))
     n_cues = int(cue.sum())  # 480: 0.3 of them = 144, sd 10
     assert 0.3 * n_cues - 35 <= len(runs) <= 0.3 * n_cues + 35
-    starts = np.array([a for a, _ in runs])
-    c = np.flatnonzero(cue)
-    lags = (starts - c[np.searchsorted(c, starts) - 1]) / FPS
     assert lags.min() >= 0.04 and lags.max() <= 0.34
     lengths = np.array([n for _, n in runs]) / FPS
     assert lengths.min() >= 0.36 and lengths.max() <= 0.72
