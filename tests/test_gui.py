@@ -712,7 +712,7 @@ def test_braces_resize_the_image_panels_and_the_scene_gives_way(splat_window, xd
     xin.settle(timeout=0.5)
     assert viewer.panel_width == pytest.approx(0.15) and widths()["preview"] < w0["preview"]
     assert viewer.panel_box("preview")[2] == viewer.panel_box("quilt")[2]
-    # s: the splat image off (the gradient behind the overlays) and on again (the same picture)
+    # s: the splat image off (the mesh and the ellipsoids over the gradient) and on again (the same picture)
     xin.settle(until=lambda: viewer._splat_full, timeout=5)
     xin.settle(timeout=0.2)
     def middle():  # the scene without its text corners (the status line's timings change)
@@ -722,10 +722,12 @@ def test_braces_resize_the_image_panels_and_the_scene_gives_way(splat_window, xd
     assert xin.key("s", until=lambda: not viewer.show_splats, timeout=5)
     xin.settle(timeout=0.2)
     assert not viewer.scene_renderer.GetTexturedBackground()
+    assert viewer.mesh_actor.GetVisibility() and viewer.show_mesh  # not an empty scene
     assert np.abs(middle() - shot).mean() > 2
     assert xin.key("s", until=lambda: viewer.show_splats and viewer._splat_full, timeout=5)
     xin.settle(timeout=0.2)
     assert viewer.scene_renderer.GetTexturedBackground()
+    assert not viewer.mesh_actor.GetVisibility()  # hidden again behind the splats, as before
     assert np.abs(middle() - shot).mean() < 0.5
 
 

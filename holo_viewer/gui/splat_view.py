@@ -270,11 +270,25 @@ class SplatViewMixin:
             return
         self.show_splats = not self.show_splats
         if self.show_splats:
+            if getattr(self, "_geometry_for_no_splats", False):  # hidden again, as before s
+                self._geometry_for_no_splats = False
+                self._set_geometry_visible(False)
             self.update_splats(force_full=True)
         else:
             self._hide_splats()
+            if not self.show_mesh and not self.show_gaussians:  # the scene of before: mesh and ellipsoids
+                self._geometry_for_no_splats = True
+                self._set_geometry_visible(True)
         self._show_camera_actors()  # whole overlay lines without the splats, cut at the head with them
         self._render()
+
+    def _set_geometry_visible(self, on: bool) -> None:
+        """The mesh and (with an avatar) the ellipsoids on or off, as ``m`` and ``g`` set them."""
+        self.show_mesh = on
+        self.mesh_actor.SetVisibility(on)
+        if self.glyph_actor is not None:
+            self.show_gaussians = on
+            self.glyph_actor.SetVisibility(on)
 
     def toggle_look_through(self) -> None:
         """Look through the selected quilt camera (key ``v``): the scene shows that view's own image, the
