@@ -308,8 +308,8 @@ def scatter_slices(native: np.ndarray, buckets: SubpixelBuckets, segments: np.nd
     iters : int
         Fixed-point steps for the source column after the first guess.
     kernel : {"auto", "cpp", "cpp-scalar", "numba"}
-        The C++ kernel (AVX-512 where the CPU has it, 16 subpixels at a time, in nearest mode
-        without a feather; "cpp-scalar" without) when built, else numba; all compute the same
+        The C++ kernel (AVX-512 where the CPU has it, 16 subpixels at a time, in nearest mode,
+        feathered or not; "cpp-scalar" without) when built, else numba; all compute the same
         float32 expressions (tested equal).
     inner : float, optional
         Feather the slices into what ``native`` shows (the cone fill), for comfort: a written
