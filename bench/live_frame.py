@@ -186,13 +186,14 @@ FLARE_NOD = (0.0, 0.12, 0.05, -0.08, 0.0, 0.0)
 #: the tracked viewers of the group sweep (angle deg, distance m): 1 = the first, 4 = all
 GROUP_VIEWERS = ((6.0, 0.6), (-15.0, 0.5), (-4.0, 0.75), (16.0, 0.9))
 #: the group sweep's runs: (mode, tracked viewers, NativeFrameConfig knobs); the defaults first, then
-#: the time-error trade-off of the group frames' cone fill (group_view_step; the default is 6), and the
+#: the time-error trade-off of the group frames' cone fill (group_view_step; the default is 6), of the
+#: viewers served with eye slices (group_slices; the default is 1: the others see the fill), and the
 #: eye slices replacing the fill instead of feathered into it (group_feather None: comfort)
 GROUP_RUNS = (("group", 0, {}), ("group", 1, {}), ("group", 4, {}), ("tracked", 1, {}), ("tracked", 4, {}),
               ("all_views", 0, {}), ("group", 0, {"group_view_step": 5}), ("group", 0, {"group_view_step": 8}),
               ("group", 1, {"group_view_step": 5}), ("group", 1, {"group_view_step": 8}),
-              ("group", 1, {"group_view_step": 12}), ("group", 4, {"group_view_step": 5}),
-              ("group", 4, {"group_view_step": 8}), ("group", 1, {"group_feather": None}))
+              ("group", 1, {"group_view_step": 12}), ("group", 4, {"group_slices": 0}),
+              ("group", 4, {"group_slices": 4}), ("group", 1, {"group_feather": None}))
 #: comfort: a tracked viewer walks past fixed single-eye positions (deg, m), 1.5 deg a frame, face still
 COMFORT_POSITIONS = ((0.0, 0.6), (-3.0, 0.6))
 COMFORT_WALK_DEG = tuple(float(a) for a in np.arange(-6.0, 4.6, 1.5))
@@ -278,7 +279,8 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
                      default=None)
         worst = cone_db.min(axis=0)
         s = float(np.median(secs))
-        rec = {"mode": mode, "viewers": n, "served": 1 if mode == "tracked" else n,
+        served = 1 if mode == "tracked" else min(n, live.config.group_slices) if mode == "group" else 0
+        rec = {"mode": mode, "viewers": n, "served": served,
                "view_step": live.view_step, "group_view_step": live.group_view_step,
                "default": not knobs, "knobs": knobs,
                "seconds_per_frame": s, "best_seconds": float(min(secs)),

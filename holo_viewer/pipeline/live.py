@@ -42,8 +42,9 @@ needs, where its work is done), and every quilt goes through
     the perspective difference (bench/live_frame.py measures it).
 ``group``
     Every position of the cone sees the present frame (issue 37): ``all_views``, then the eye slices
-    of every tracked viewer given (0-6; a TrackedViewer or a sequence of them) warped into the
-    subpixels their eyes receive, over that fill; the fill renders every
+    of the first ``NativeFrameConfig.group_slices`` tracked viewers given (1 by default: the followed
+    face; a TrackedViewer or a sequence of up to 6) warped into the subpixels their eyes receive, over
+    that fill (the other viewers see the fill, >= 41.8 dB at their eyes); the fill renders every
     ``NativeFrameConfig.group_view_step``-th view (6; ``all_views`` keeps ``view_step``). Nothing is
     kept from earlier frames.
 ``auto``
@@ -68,7 +69,7 @@ from ..render.config import RenderConfig
 from .live_modes import FRAME_MODE, TRACKED_METHODS, frame_mode
 
 __all__ = ["NativeFrameConfig", "LiveFrame", "NativeFrameRenderer", "render_native", "MODES", "TRACKED_DEFAULTS",
-           "LIVE_T_MIN", "MAX_VIEWERS", "group_viewers", "GROUP_FEATHER"]
+           "LIVE_T_MIN", "MAX_VIEWERS", "group_viewers", "GROUP_FEATHER", "GROUP_SLICES"]
 
 AUTO_VIEW_STEP = 5  # NativeFrameConfig.view_step=None on a horizontal rig
 #: NativeFrameConfig.group_view_step=None: the cone fill's step of group frames, with tracked faces or
@@ -86,6 +87,12 @@ AUTO_GROUP_VIEW_STEP = 6
 GROUP_FEATHER = -3.0
 #: group frames serve at most this many tracked viewers (the faces a webcam finds around a Portrait)
 MAX_VIEWERS = 6
+#: NativeFrameConfig.group_slices default: group frames draw exact eye slices for the first (followed)
+#: tracked viewer only; the others see the cone fill. The default avatar's flare at the bench's four
+#: viewers (6, -15, -4, 16 deg; 0.6-0.9 m): the fill alone gives 41.8-47.7 dB at their eyes (target 40),
+#: the slices 46.2-50.9 dB, at 2 slices' render (16-31 ms each) and a scatter (23-35 ms) per viewer
+#: (CPU; 4 viewers served: +2x the 1-viewer frame's extra work). docs/live_frame.md "Group frames"
+GROUP_SLICES = 1
 #: fixed-point steps of the slices' warp after the first guess: 0 (the default avatar at 0.6 m: per
 #: eye 52.1 dB against 52.2 with one step, the worst eye 1 cm off 43.4 against 43.9 dB; -20 % scatter)
 SLICE_WARP_ITERS = 0
@@ -164,6 +171,10 @@ class NativeFrameConfig:
         :func:`~holo_viewer.display.slices.scatter_slices`'s ``inner``), so that moving eyes change
         what fixed positions see smoothly. Default :data:`GROUP_FEATHER`; None: the slices replace
         the fill (sharper tracked eyes, popping where a walker's reach arrives).
+    group_slices : int
+        ``group`` frames: how many of the tracked viewers given (the first ones: the followed face,
+        then the nearest) get exact eye slices over the cone fill, 0..:data:`MAX_VIEWERS`; the others
+        see the fill. Default :data:`GROUP_SLICES` (1).
     """
 
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -179,6 +190,7 @@ class NativeFrameConfig:
     tracked: str | None = None
     group_view_step: int | None = None
     group_feather: float | None = GROUP_FEATHER
+    group_slices: int = GROUP_SLICES
 
     def __post_init__(self) -> None:
         if not isinstance(self.render, RenderConfig):
@@ -196,6 +208,9 @@ class NativeFrameConfig:
             v = getattr(self, name)
             if v is not None and (int(v) != v or v < least):
                 raise InputError(f"{name}: expected an integer >= {least}, found {v!r}")
+        n = self.group_slices
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 0 <= n <= MAX_VIEWERS:
+            raise InputError(f"group_slices: expected an integer in 0..{MAX_VIEWERS}, found {n!r}")
         f = self.group_feather
         if f is not None and not (isinstance(f, (int, float)) and math.isfinite(f) and f < reach_limit(self)):
             raise InputError(f"group_feather: expected views < the reach {reach_limit(self):.4g} or None, found {f!r}")
@@ -442,8 +457,8 @@ class NativeFrameRenderer:
 
     def _group(self, gaussians: Any, viewers: Any, timings: dict[str, float]) -> float:
         """Every position of the cone sees this frame: all views (every ``group_view_step``-th rendered,
-        the others synthesized by depth, as ``all_views``), and the exact eye slices of every tracked
-        viewer (up to :data:`MAX_VIEWERS`; drawn in the same depth sort and projection pass as the
+        the others synthesized by depth, as ``all_views``), and the exact eye slices of the first
+        ``config.group_slices`` tracked viewers (drawn in the same depth sort and projection pass as the
         rendered views) warped into the native subpixels those eyes receive, over the cone fill.
         Nothing is kept from earlier frames. Without viewers it is that fill alone; without view
         synthesis on the CPU (``view_step`` 1, the gsplat backend) it is ``all_views``."""
@@ -451,7 +466,7 @@ class NativeFrameRenderer:
         from ..display.slices import scatter_slices
         from ..render import crossed_slit
 
-        viewers = group_viewers(viewers)
+        viewers = group_viewers(viewers)[:self.config.group_slices]  # the others see the fill
         if self.view_step <= 1 or self.config.backend != "fast":
             return self._all_views(gaussians, None, timings)
         if not viewers or self._slice_rig is None:  # the same fill as with faces
