@@ -15,7 +15,9 @@ to the loop; cold in the first run, warm in the second: kernels and imports load
 tables built again) and ``quit_s`` (last frame -> the session's
 ``run`` returned: flush and joins), and the CPU seconds of the session's process and of its ffmpeg
 children (the session video's encoder, run nicer than the session on one thread, and its check
-at close), also per displayed frame.
+at close), also per displayed frame; ``in_session``: the same split by thread and child (main thread,
+the render's native workers, tracker, reaction, video writer, ffmpeg encoder and the replayed webcam's
+decoder) from the second displayed frame to the last, start-up excluded (:class:`ThreadCPU`).
 
 Reported per run: speech-onset -> display latency (median, p95; an onset is the first 25 fps frame
 whose RMS exceeds -35 dBFS after >= 0.3 s below it; a displayed frame reflects it when the reaction
@@ -71,6 +73,93 @@ def onset_latency(tracks: dict, onsets: list[int], k: int) -> list[float]:
         if ok.any():
             out.append(float(disp_t[np.argmax(ok)] - o / 25.0))
     return out
+
+
+class ThreadCPU:
+    """CPU seconds per thread of this process and per ffmpeg child, sampled from /proc every ``period`` s
+    (Linux), so the CPU spent between two moments of a session can be split by who spent it: the main
+    thread (the render's serial part and the loop), the render's native workers (OpenMP / numba: threads
+    that are not Python threads), the tracker, the reaction thread, the video writer; children by their
+    role (the session video's encoder, the replayed webcam's decoder)."""
+
+    def __init__(self, period: float = 0.2) -> None:
+        self.period = period
+        self.snaps: list[tuple[float, dict]] = []  # (perf_counter, {key: (name, cpu_s)})
+        self._names: dict[int, str] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="bench-sampler", daemon=True)
+        self._tck = os.sysconf("SC_CLK_TCK")
+
+    @staticmethod
+    def _stat(path: str) -> tuple[str, float] | None:
+        try:
+            with open(path) as fh:
+                s = fh.read()
+        except OSError:
+            return None
+        f = s[s.rindex(")") + 2:].split()
+        return s[s.index("(") + 1:s.rindex(")")], int(f[11]) + int(f[12])
+
+    def _child_role(self, pid: int) -> str:
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as fh:
+                cmd = fh.read().split(b"\0")
+        except OSError:
+            return "child"
+        if b"-i" in cmd and cmd[cmd.index(b"-i") + 1:cmd.index(b"-i") + 2] == [b"-"]:
+            return "ffmpeg encoder"
+        return "ffmpeg decoder" if b"rawvideo" in cmd or b"image2pipe" in cmd else "child"
+
+    def sample(self) -> None:
+        for t in threading.enumerate():
+            if t.native_id is not None:
+                self._names[t.native_id] = t.name
+        snap, children = {}, set()
+        for tid in os.listdir("/proc/self/task"):
+            st = self._stat(f"/proc/self/task/{tid}/stat")
+            if st is None:
+                continue
+            name = self._names.get(int(tid))
+            snap[int(tid)] = (name or "native workers", st[1] / self._tck)
+            try:
+                with open(f"/proc/self/task/{tid}/children") as fh:
+                    children.update(int(c) for c in fh.read().split())
+            except OSError:
+                pass
+        for pid in children:
+            st = self._stat(f"/proc/{pid}/stat")
+            if st is not None:
+                snap[-pid] = (self._child_role(pid), st[1] / self._tck)
+        self.snaps.append((time.perf_counter(), snap))
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.sample()
+            self._stop.wait(self.period)
+
+    def __enter__(self) -> "ThreadCPU":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def between(self, t0: float, t1: float) -> tuple[float, dict[str, float]]:
+        """(seconds between the samples nearest t0 and t1, CPU seconds per name spent between them); a
+        thread or child that ended before t1 counts up to its last sample."""
+        if len(self.snaps) < 2:
+            return 0.0, {}
+        a = min(range(len(self.snaps)), key=lambda i: abs(self.snaps[i][0] - t0))
+        b = min(range(len(self.snaps)), key=lambda i: abs(self.snaps[i][0] - t1))
+        last: dict = {}
+        for _, snap in self.snaps[a:b + 1]:
+            last.update(snap)
+        first = self.snaps[a][1]
+        out: dict[str, float] = {}
+        for key, (name, cpu) in last.items():
+            out[name] = out.get(name, 0.0) + cpu - (first[key][1] if key in first else 0.0)
+        return self.snaps[b][0] - self.snaps[a][0], out
 
 
 class TimedRenderer:
@@ -157,7 +246,8 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
 
     cpu0, kids0 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    summary = session.run(renderer)
+    with ThreadCPU() as sampler:
+        summary = session.run(renderer)
     t_end = time.perf_counter()
     cpu1, kids1 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu_s = cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime
@@ -185,6 +275,19 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
                   "process_cpu_s": round(cpu_s, 2), "ffmpeg_cpu_s": round(ffmpeg_s, 2),
                   "process_cpu_ms_per_displayed_frame": round(1000 * cpu_s / max(shown, 1), 1),
                   "ffmpeg_cpu_ms_per_displayed_frame": round(1000 * ffmpeg_s / max(shown, 1), 1)}
+        # the session itself (start-up excluded): from the second displayed frame to the last, CPU per
+        # thread and per ffmpeg child, per displayed frame; cores_used: all of it over the wall time
+        if len(renderer.done) >= 3:
+            span, cpu = sampler.between(renderer.done[1], renderer.done[-1])
+            nfr = sum(1 for d in renderer.done[2:] if d <= sampler.snaps[-1][0])
+            total = sum(cpu.values())
+            timing["in_session"] = {
+                "seconds": round(span, 2), "frames": nfr, "cores_used": round(total / max(span, 1e-9), 2),
+                "cpu_ms_per_displayed_frame": round(1000 * total / max(nfr, 1), 1),
+                "cpu_ms_per_displayed_frame_by_thread": {k: round(1000 * v / max(nfr, 1), 1) for k, v in
+                                                         sorted(cpu.items(), key=lambda kv: -kv[1]) if v > 0},
+                "cpu_s_per_session_second_by_thread": {k: round(v / max(span, 1e-9), 3) for k, v in
+                                                       sorted(cpu.items(), key=lambda kv: -kv[1]) if v > 0}}
     return {**timing,
         "render": render, "tile_scale": tile_scale, "render_mode": mode, "wall_s": round(wall, 2), "frames": n,
         "onsets": len(onsets), "onsets_reflected": len(lat),
@@ -359,6 +462,12 @@ def main() -> int:
               f"{row['visible_change_ms_median']} ms (p95 {row['visible_change_ms_p95']}, {row['onsets_visible']} onsets), "
               f"first frame {row['first_frame_s']} s, quit {row['quit_s']} s; CPU per displayed frame: process "
               f"{row['process_cpu_ms_per_displayed_frame']} ms, ffmpeg {row['ffmpeg_cpu_ms_per_displayed_frame']} ms")
+        ins = row.get("in_session")
+        if ins:
+            print(f"  in session ({ins['frames']} frames, {ins['seconds']} s, start-up excluded): "
+                  f"{ins['cpu_ms_per_displayed_frame']} ms of CPU a displayed frame, {ins['cores_used']} cores busy; "
+                  "by thread (ms a frame): " + ", ".join(f"{k} {v}" for k, v in
+                                                          ins["cpu_ms_per_displayed_frame_by_thread"].items()))
     print(f"landmark fit ms (warm median / p95, cold median): {fit['fit_ms_warm_median']} / {fit['fit_ms_warm_p95']}, "
           f"{fit['fit_ms_cold_median']}")
     if rss:
