@@ -887,6 +887,7 @@ def test_splat_view_follows_the_camera_reduced_while_dragging(splat_window, xdot
         for k in range(1, 4):
             xin.move(cx + 25 * k, cy)
             xin.settle(timeout=0.3)
+            assert viewer.last_frame_parts == ("scene",)  # a camera-drag frame draws the scene panel only
         assert not viewer._splat_full and viewer.timings.splat_drag_ms is not None
     finally:
         xin.xdo("mouseup", 1)

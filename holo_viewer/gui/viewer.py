@@ -546,7 +546,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
             if self.show_splats and "scene" in self._dirty_parts:
                 self._unprompted(self.update_splats)  # a camera drag: the worker starts on the new pose
             if not self._holding_for_splat():
-                self._render_now()
+                self._render_now(())  # the panels asked for this turn only (a camera drag: the scene)
         return not self._quit
 
     def run(self, until: Callable[[], bool] | None = None, timeout: float | None = None,
