@@ -775,18 +775,31 @@ def test_splat_view_looking_through_a_quilt_camera_shows_its_quilt_tile(splat_wi
     assert xin.key("v", until=lambda: viewer.look_through is None, timeout=5)
 
 
-def test_splats_follow_a_face_slider_release_in_one_frame(splat_window):
+def test_splats_follow_a_face_slider_release_in_one_frame(splat_window, monkeypatch):
     """A face slider released with the splat view on: the next frame shows the new face's splats (the
     image of a fresh render at the scene camera), the stand-in mesh hidden and the scene's lights back, in
-    one frame (no frame of the old splats in between)."""
+    one frame (no frame of the old splats in between). The stand-in's decimated triangles are drawn only
+    during the drag; the release puts the whole mesh's back."""
     from holo_viewer.display.quilt import to_uint8
     from holo_viewer.pipeline import render_images
 
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    def triangles():
+        return vtk_to_numpy(viewer.mesh.GetPolys().GetConnectivityArray()).reshape(-1, 3)
+
     viewer = splat_window
     lights = viewer.scene_renderer.GetLights().GetNumberOfItems()
+    # the random test mesh does not decimate (tests/test_gui_scene.py decimates a sphere): every other
+    # triangle stands in for the stand-in here, to check where it is drawn
+    monkeypatch.setattr("holo_viewer.gui.sliders.decimated_faces", lambda v, f, reduction: f[::2])
+    viewer.standin_min_triangles = 0
+    viewer._start_standin(wait=True)
+    assert np.array_equal(triangles(), viewer.faces)  # the whole mesh until a face slider is dragged
     viewer._live_face("expr1", 0.7, time.perf_counter())  # a drag step: the mesh stands in, one headlight
     assert viewer.mesh_actor.GetVisibility() and viewer.scene_renderer.GetLights().GetNumberOfItems() == 1 < lights
     assert viewer.mesh_actor.GetProperty().GetBackfaceCulling()  # the stand-in skips back faces
+    assert np.array_equal(triangles(), viewer.faces[::2])  # the stand-in's triangles, the mesh's own points
     # the mapper draws the viewer's mesh itself (no normals filter in between), smooth-shaded by its own
     # normals, which follow the live step
     from vtk.util.numpy_support import vtk_to_numpy
@@ -800,6 +813,7 @@ def test_splats_follow_a_face_slider_release_in_one_frame(splat_window):
     _fire_slider(viewer.sliders["expr1"], 1.5)
     assert viewer.scene_renderer.GetLights().GetNumberOfItems() == lights  # the light kit is back
     assert not viewer.mesh_actor.GetProperty().GetBackfaceCulling()
+    assert np.array_equal(triangles(), viewer.faces)  # the whole mesh is back
     assert viewer.frames_drawn == frames0 + 1 and viewer._splat_full and not viewer.mesh_actor.GetVisibility()
     fresh = to_uint8(render_images(viewer.pipeline.gaussians(), viewer.splat_cameras())[0])
     assert np.array_equal(viewer.splat_image, fresh) and np.abs(fresh.astype(int) - before).max() > 30

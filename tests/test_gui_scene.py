@@ -65,3 +65,30 @@ def test_overlay_cut_keeps_every_visible_part_outside_the_head_box_and_nothing_i
             covered |= (T >= t.min() - 1e-9) & (T <= t.max() + 1e-9)
         assert not ((w > 1e-6) & ~inside(q, w) & ~covered).any(), i
     assert crossed >= 3 and len(src) != len(a)  # the sample does cut lines: the test can fail
+
+
+def test_decimated_stand_in_uses_the_mesh_points_and_stays_on_its_surface():
+    """The face-drag stand-in (gui/scene.py: decimated_faces) on a sphere: about the asked fraction of the
+    triangles removed, every triangle over the mesh's own vertices (so it follows the live LBS by index),
+    and its surface still the sphere's (triangle centroids near radius 1)."""
+    from holo_viewer.gui.scene import decimated_faces, unit_icosphere
+
+    pts, tri = unit_icosphere(3)  # 1280 triangles
+    verts = pts * 1.0
+    out = decimated_faces(verts, tri, 0.5)
+    assert 0.4 * len(tri) <= len(out) <= 0.6 * len(tri), len(out)
+    assert out.dtype == np.int64 and out.min() >= 0 and out.max() < len(verts)
+    assert np.all((out[:, 0] != out[:, 1]) & (out[:, 1] != out[:, 2]) & (out[:, 0] != out[:, 2]))
+    r = np.linalg.norm(verts[out].mean(axis=1), axis=1)
+    assert r.min() > 0.9 and r.max() <= 1.0
+    assert np.array_equal(decimated_faces(verts, tri, 0.0), tri)  # 0: the whole mesh
+
+
+def test_stand_in_reduction_is_checked():
+    import pytest
+
+    from holo_viewer.errors import InputError
+    from holo_viewer.gui.viewer_config import ViewerConfig
+
+    with pytest.raises(InputError, match=r"standin_reduction: expected in \[0, 1\), found 1.0"):
+        ViewerConfig(standin_reduction=1.0)

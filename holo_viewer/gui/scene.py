@@ -19,7 +19,7 @@ __all__ = [
     "frusta_arrays", "cut_segments_at_box", "focal_plane_corners", "ellipsoid_glyph_arrays", "subsample_indices",
     "unit_icosphere", "mesh_polydata", "frusta_polydata", "focal_plane_polydata", "glyph_polydata",
     "image_plane", "view_colors", "glyph_selection", "glyph_colors", "GLYPH_COLOR_MODES",
-    "AU_DESCRIPTIONS", "au_label", "scene_bounds", "live_vertex_normals",
+    "AU_DESCRIPTIONS", "au_label", "scene_bounds", "live_vertex_normals", "decimated_faces",
 ]
 
 #: FACS action-unit names (Ekman & Friesen) of the default head's expression components
@@ -323,6 +323,42 @@ def live_vertex_normals(vertices: np.ndarray, faces: np.ndarray, out: np.ndarray
     if out is None:
         out = np.empty((v.shape[0], 3), np.float64)
     return _NORMALS_NB(v, f, out)
+
+
+def decimated_faces(vertices: np.ndarray, faces: np.ndarray, reduction: float) -> np.ndarray:
+    """(m, 3) triangles of a decimated copy of the mesh, as indices into ``vertices`` (its points are a
+    subset of the mesh's own, so the copy follows any deformation of ``vertices`` by indexing).
+
+    ``vtkDecimatePro`` removes about ``reduction`` of the triangles (topology preserved, no splitting, the
+    boundary kept) by collapsing edges onto existing vertices; each kept point carries its index in
+    ``vertices`` through the filter. The viewer draws it as the stand-in mesh while a face slider is
+    dragged (the mesh's per-triangle cost is most of that frame with software OpenGL)."""
+    import vtk
+    from vtk.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+
+    v = check_array(np.asarray(vertices, dtype=np.float64), "vertices", ("V", 3))
+    f = np.asarray(faces, dtype=np.int64)
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise InputError(f"faces: expected (F, 3) triangle indices, found shape {f.shape}")
+    if not 0.0 <= float(reduction) < 1.0:
+        raise InputError(f"reduction: expected in [0, 1), found {reduction}")
+    if float(reduction) == 0.0 or len(f) == 0:
+        return f.copy()
+    poly = mesh_polydata(v, f)
+    ids = numpy_to_vtk(np.arange(len(v), dtype=np.int64), deep=True)
+    ids.SetName("vertex_id")
+    poly.GetPointData().AddArray(ids)
+    dec = vtk.vtkDecimatePro()
+    dec.SetInputData(poly)
+    dec.SetTargetReduction(float(reduction))
+    dec.PreserveTopologyOn()
+    dec.SplittingOff()
+    dec.BoundaryVertexDeletionOff()
+    dec.Update()
+    out = dec.GetOutput()
+    kept = vtk_to_numpy(out.GetPointData().GetArray("vertex_id")).astype(np.int64)
+    cells = vtk_to_numpy(out.GetPolys().GetConnectivityArray()).astype(np.int64)
+    return kept[cells].reshape(-1, 3)
 
 
 def mesh_polydata(vertices: np.ndarray, faces: np.ndarray, normals: bool = False) -> Any:

@@ -3,6 +3,7 @@ face, the view settings and the selected view."""
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -11,7 +12,7 @@ import numpy as np
 
 from ..errors import HoloViewerError, InputError
 from ..pipeline import FaceControls, Pipeline, apply_frame
-from .scene import au_label, live_vertex_normals
+from .scene import au_label, decimated_faces, live_vertex_normals
 from .widgets import _Slider, _text_actor
 
 
@@ -22,6 +23,8 @@ FITTED_YAW_DEG = 30.0
 LIVE_PARTS = ("scene", "sliders")
 #: the viewer-angle slider's range for other avatars (Algorithm 1's cone centre)
 VIEWER_ANGLE_MAX = 30.0
+#: meshes with fewer triangles are their own stand-in during a face drag (decimating gains nothing there)
+STANDIN_MIN_TRIANGLES = 20000
 
 
 def fit_angle_range(path: str | Path) -> tuple[float, float] | None:
@@ -347,16 +350,78 @@ class SlidersMixin:
         self.timings.mesh_ms = (time.perf_counter() - t0) * 1e3
         self._after_change(t0)
 
+    def _start_standin(self, wait: bool = False) -> None:
+        """Decimate the mesh for the face-drag stand-in (``ViewerConfig.standin_reduction`` of its triangles
+        removed, :func:`~.scene.decimated_faces`) in a background thread: started after the first frame, so
+        neither the launch nor a drag waits for it (until it is done a drag shows the whole mesh).
+        Meshes under ``standin_min_triangles`` triangles are their own stand-in."""
+        self._standin_cells = None
+        faces = self.faces
+        red = float(self.config.standin_reduction)
+        if red <= 0.0 or len(faces) < int(self.standin_min_triangles):
+            self._standin_job = None
+            return
+        verts, faces = np.asarray(self.mesh.points, dtype=np.float64).copy(), np.array(faces, dtype=np.int64)
+        box: dict[str, Any] = {}
+
+        def work() -> None:
+            try:
+                box["faces"] = decimated_faces(verts, faces, red)
+            except Exception as exc:  # noqa: BLE001 - no stand-in then: the whole mesh is drawn
+                box["error"] = exc
+
+        thread = threading.Thread(target=work, name="standin-decimate", daemon=True)
+        self._standin_job = ((len(verts), len(faces)), thread, box)
+        thread.start()
+        if wait:
+            thread.join()
+
+    def _standin_polys(self) -> Any:
+        """The decimated stand-in's triangles as a ``vtkCellArray`` over the mesh's own points, or None
+        (not computed yet, failed, or the mesh is its own stand-in)."""
+        job = getattr(self, "_standin_job", None)
+        if job is None or job[1].is_alive():
+            return None
+        key, _, box = job
+        if key != (self.mesh.n_points, len(self.faces)) or "faces" not in box:
+            return None
+        if self._standin_cells is None:
+            import vtk
+            from vtk.util.numpy_support import numpy_to_vtkIdTypeArray
+
+            tri = box["faces"]
+            cells = vtk.vtkCellArray()
+            cells.SetData(numpy_to_vtkIdTypeArray(np.arange(0, 3 * len(tri) + 1, 3, dtype=np.int64), deep=True),
+                          numpy_to_vtkIdTypeArray(np.ascontiguousarray(tri, dtype=np.int64).ravel(), deep=True))
+            self._standin_cells = cells
+        return self._standin_cells
+
+    def _close_standin(self) -> None:
+        job = getattr(self, "_standin_job", None)
+        if job is not None:
+            job[1].join(timeout=10)
+
     def _stand_in_lights(self, on: bool) -> None:
         """Light the scene with one headlight while the mesh stands in for the splats during a face-slider
         drag (per-pixel lighting of the face-filling mesh is most of that frame with software OpenGL:
         pyvista's light kit has five lights); back to the light kit on release. The stand-in also skips
         the mesh's back faces (the insides of the mouth, eyelids and hair shell: ~8 ms CPU of a ~57 ms
-        step on the default head, 0.1 % of the scene's pixels differ); culling is off again on release."""
+        step on the default head, 0.1 % of the scene's pixels differ); culling is off again on release.
+        And it draws the decimated triangles (:meth:`_start_standin`; the same points, normals and LBS,
+        half the triangles on the default head), the whole mesh's triangles back on release."""
         import vtk
 
         ren = self.scene_renderer
         self.mesh_actor.GetProperty().SetBackfaceCulling(bool(on))
+        full = getattr(self, "_full_polys", None)
+        if on and full is None:
+            cells = self._standin_polys()
+            if cells is not None:
+                self._full_polys = self.mesh.GetPolys()
+                self.mesh.SetPolys(cells)
+        elif not on and full is not None:
+            self.mesh.SetPolys(full)
+            self._full_polys = None
         saved = getattr(self, "_saved_lights", None)
         if on and saved is None:
             lights = ren.GetLights()

@@ -53,7 +53,7 @@ from .previews import PreviewsMixin
 from .scene import mesh_polydata
 from .scene_view import SceneMixin
 from .screen import DEFAULT_WINDOW, open_window, require_x_window, window_size_for_screen, x_screen_size
-from .sliders import SlidersMixin, viewer_angle_limits
+from .sliders import STANDIN_MIN_TRIANGLES, SlidersMixin, viewer_angle_limits
 from .splat_view import SplatViewMixin
 from .viewer_config import HELP_TEXT, KEYS, ViewerConfig
 from .widgets import (UpdateTimings, _font_px, _ImagePanel, _ms, _scene_only_style, _Slider, _text_actor, _theme,
@@ -137,6 +137,9 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         self.last_frame_parts: tuple[str, ...] = ()
         self._splat_drawn_key: tuple | None = None
         self._presenter: Any = None  # copies only the panels drawn to the X window (gui/present.py)
+        self._standin_job: Any = None  # the decimated face-drag stand-in being computed (gui/sliders.py)
+        self._standin_cells: Any = None
+        self.standin_min_triangles = STANDIN_MIN_TRIANGLES
         self._init_splats()
         self.panel_mode = "view"  # the upper image panel: view / native / eye (key p)
         self.native_zoom = 1
@@ -268,6 +271,8 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         if verts.shape[0] != self.mesh.n_points or self.mesh.n_cells != self.faces.shape[0]:
             self.mesh.copy_from(mesh_polydata(verts, self.faces, normals=True))
         self._set_mesh_points(verts)
+        if self._opened and not self.off_screen and self.config.live_sliders:
+            self._start_standin()  # the new model's stand-in
         self._glyph_index = None
         for panel in (self.preview_panel, self.thumb_panel):
             if panel.actor is not None:
@@ -480,6 +485,10 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
             self.home_camera()  # pyvista's first show() put its own default camera in
             self.preview_panel.fit()
             self.thumb_panel.fit()
+            self._render_now()
+            if not self.off_screen and self.config.live_sliders:
+                self._start_standin()  # after the first frame: a face drag's decimated mesh
+            return
         self._render_now()
 
     def _install_input(self, iren: Any) -> None:
@@ -582,6 +591,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
 
     def close(self) -> None:
         self._close_splats()
+        self._close_standin()
         self._jobs.close()
         self._collect_jobs()
         for name in ("_worker", "_native_worker"):

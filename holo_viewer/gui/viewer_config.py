@@ -105,6 +105,10 @@ class ViewerConfig:
     partial_present : bool
         A frame copies only the panels it drew to the X window (:mod:`~holo_viewer.gui.present`: ~18 ms
         CPU less per partial frame at 1600 x 928 with software OpenGL); False: VTK copies every frame whole.
+    standin_reduction : float
+        Fraction of the mesh's triangles left out of the stand-in mesh drawn while a face slider is dragged
+        with the splats on (:func:`~holo_viewer.gui.scene.decimated_faces`; the whole mesh returns on
+        release). 0: the whole mesh. Meshes under 20,000 triangles are drawn whole.
     """
 
     window_size: tuple[int, int] | None = None
@@ -130,10 +134,13 @@ class ViewerConfig:
     splat_view: bool = True
     splat_drag_scale: float = 0.35
     partial_present: bool = True
+    standin_reduction: float = 0.5
 
     def __post_init__(self) -> None:
         if self.window_size is not None and (len(self.window_size) != 2 or min(self.window_size) < 1):
             raise InputError(f"window_size: expected (width, height) >= 1 pixel, found {self.window_size!r}")
+        if not 0.0 <= self.standin_reduction < 1.0:
+            raise InputError(f"standin_reduction: expected in [0, 1), found {self.standin_reduction}")
         if not 0.05 <= self.splat_drag_scale <= 1.0:
             raise InputError(f"splat_drag_scale: expected in [0.05, 1], found {self.splat_drag_scale}")
         if self.glyph_color not in GLYPH_COLOR_MODES:
