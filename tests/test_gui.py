@@ -863,6 +863,23 @@ def test_partial_present_window_matches_the_framebuffer(splat_window, xdotool):
     xin.settle(timeout=0.5)  # VTK asks for a frame on the Expose: every panel, so the whole window
     assert viewer.frames_drawn > frames and set(viewer.last_frame_parts) == {"scene", "sliders", "preview", "quilt"}
     assert np.array_equal(x_window_pixels(rw), drawn())
+    # the loop's idle wait (HoloViewer.wait_for_input) ends on X input or a splat image, not only at its
+    # timeout: no poll period between a drag step (or a rendered image) and its frame
+    waiter, wake = viewer._input_wait, viewer._splat_worker.wake_fd
+    assert waiter is not None
+    for _ in range(50):  # drain what the map left (Expose, ConfigureNotify)
+        viewer.step()
+        if not waiter.wait(0.02, (wake,)):
+            break
+    else:
+        raise AssertionError("the X connection never went quiet")
+    cx, cy = xin.centre("scene")
+    xin.move(cx + 7, cy + 5)
+    assert waiter.wait(10.0, (wake,))  # the motion event woke it
+    viewer.step()
+    os.write(viewer._splat_worker._wake_w, b"1")  # what the worker writes with a finished image
+    assert waiter.wait(10.0, (wake,))
+    assert not waiter.wait(0.02, (wake,))  # the wake-up was read
 
 
 def test_splat_view_follows_the_camera_reduced_while_dragging(splat_window, xdotool):

@@ -92,3 +92,30 @@ def test_stand_in_reduction_is_checked():
 
     with pytest.raises(InputError, match=r"standin_reduction: expected in \[0, 1\), found 1.0"):
         ViewerConfig(standin_reduction=1.0)
+
+
+def test_camera_drag_frame_waits_for_the_splat_render_longer_after_slow_renders():
+    """A camera-drag frame waits for the splat image in flight (SPLAT_HOLD_S), up to 1.5 x the last drag
+    render when that was slower (a loaded machine), at most SPLAT_HOLD_MAX_S; then it draws."""
+    import time
+    from types import SimpleNamespace
+
+    from holo_viewer.gui.splat_view import SPLAT_HOLD_MAX_S, SPLAT_HOLD_S, SplatViewMixin
+
+    class Stub(SplatViewMixin):
+        def _camera_moving(self) -> bool:
+            return True
+
+    v = Stub()
+    v._dirty_parts, v._splat_fresh, v._splat_requested = {"scene"}, False, ("pose",)
+    v.timings = SimpleNamespace(splat_drag_ms=None)
+
+    def holding(waited_s: float, last_ms: float | None) -> bool:
+        v._splat_requested_at, v.timings.splat_drag_ms = time.perf_counter() - waited_s, last_ms
+        return v._holding_for_splat()
+
+    assert holding(0.5 * SPLAT_HOLD_S, None) and not holding(SPLAT_HOLD_S + 0.05, None)
+    assert holding(SPLAT_HOLD_S + 0.05, 200.0) and not holding(0.35, 200.0)  # 1.5 x 200 ms
+    assert holding(SPLAT_HOLD_MAX_S - 0.05, 2000.0) and not holding(SPLAT_HOLD_MAX_S + 0.05, 2000.0)
+    v._splat_fresh = True  # an image arrived: draw it now
+    assert not holding(0.0, None)

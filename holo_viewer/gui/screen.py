@@ -16,7 +16,8 @@ from typing import Any, Callable, TypeVar
 
 from ..errors import DisplayError, InputError
 
-__all__ = ["DEFAULT_WINDOW", "x_screen_size", "window_size_for_screen", "require_x_window", "open_window"]
+__all__ = ["DEFAULT_WINDOW", "x_screen_size", "window_size_for_screen", "require_x_window", "open_window",
+           "XInputWait", "x_input_wait"]
 
 T = TypeVar("T")
 
@@ -97,3 +98,47 @@ def open_window(make: Callable[[], T], tries: int = 3) -> T:
                 raise
             time.sleep(0.2)
     raise AssertionError("unreachable")
+
+
+class XInputWait:
+    """Sleep until the X connection of a VTK window has input, a wake-up file descriptor is written, or a
+    timeout passes: the event loop's idle wait, so that an X event (a drag step) or a finished splat image
+    is handled at once instead of after a fixed sleep.
+
+    Xlib may already hold events read from the socket (during a frame's GLX round trips): ``XPending``
+    (non-blocking) is asked first, and only an empty queue waits in ``select`` on the socket."""
+
+    def __init__(self, display: int) -> None:
+        x11 = ctypes.CDLL(ctypes.util.find_library("X11") or "libX11.so.6")
+        x11.XConnectionNumber.argtypes = [ctypes.c_void_p]
+        x11.XPending.argtypes = [ctypes.c_void_p]
+        self._x11, self._display = x11, ctypes.c_void_p(display)
+        self.fd = int(x11.XConnectionNumber(self._display))
+
+    def wait(self, timeout: float, wake_fds: tuple[int, ...] = ()) -> bool:
+        """Block at most ``timeout`` seconds; True when X input or a wake-up arrived (wake-ups are read)."""
+        import select
+
+        if self._x11.XPending(self._display) > 0:
+            return True
+        ready, _, _ = select.select([self.fd, *wake_fds], [], [], max(0.0, timeout))
+        for fd in ready:
+            if fd != self.fd:
+                try:
+                    os.read(fd, 4096)
+                except BlockingIOError:
+                    pass
+        return bool(ready)
+
+
+def x_input_wait(ren_win: Any) -> XInputWait | None:
+    """An :class:`XInputWait` on ``ren_win``'s X connection, or None (not an X window, no libX11)."""
+    if ren_win is None or not ren_win.IsA("vtkXOpenGLRenderWindow") or ren_win.GetOffScreenRendering():
+        return None
+    try:
+        display = int(str(ren_win.GetGenericDisplayId()).split("_")[1], 16)
+        if not display:
+            return None
+        return XInputWait(display)
+    except (IndexError, ValueError, OSError, AttributeError):
+        return None

@@ -13,6 +13,7 @@ pixels), centred in the scene, so the scene shows exactly the quilt's tile.
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 from typing import Any, Callable
@@ -23,8 +24,11 @@ from ..camera import Cameras, intrinsics, look_at
 
 __all__ = ["scene_camera", "look_through_camera", "window_centre", "SplatViewMixin", "SplatWorker"]
 
-#: the longest a camera-drag frame waits for the splat image being rendered (seconds)
+#: the longest a camera-drag frame waits for the splat image being rendered (seconds), unless the last drag
+#: render took longer: then up to 1.5 x that, at most ``SPLAT_HOLD_MAX_S`` (a frame drawn while the render
+#: runs shows the old image under moved overlays and, on 2 cores, delays the new image by its own cost)
 SPLAT_HOLD_S = 0.15
+SPLAT_HOLD_MAX_S = 0.5
 
 
 def scene_camera(position: Any, focal_point: Any, view_up: Any, view_angle: float, width: int, height: int,
@@ -61,6 +65,10 @@ class SplatWorker:
 
     def __init__(self) -> None:
         self._cv = threading.Condition()
+        # written when a result is ready: the event loop's idle wait selects on it (wake_fd)
+        self.wake_fd, self._wake_w = os.pipe()
+        os.set_blocking(self.wake_fd, False)
+        os.set_blocking(self._wake_w, False)
         self._job: tuple[Any, Callable[[], np.ndarray]] | None = None
         self._result: tuple[Any, Any, float] | None = None
         self._busy = False
@@ -96,6 +104,10 @@ class SplatWorker:
                 self._result = (key, out, (time.perf_counter() - t0) * 1e3)
                 self._busy = False
                 self._cv.notify_all()
+            try:
+                os.write(self._wake_w, b"1")
+            except (BlockingIOError, OSError):  # the pipe is full (nobody waits) or closed
+                pass
 
     def take(self) -> tuple[Any, Any, float] | None:
         with self._cv:
@@ -123,6 +135,12 @@ class SplatWorker:
         if self._thread is not None:
             self._thread.join(timeout=10)
             self._thread = None
+        for fd in (self.wake_fd, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        self.wake_fd = self._wake_w = -1
 
 
 class SplatViewMixin:
@@ -226,11 +244,13 @@ class SplatViewMixin:
         return True
 
     def _holding_for_splat(self) -> bool:
-        """During a camera drag, a scene-only frame waits (at most ``SPLAT_HOLD_S``) for the splat image
-        being rendered: drawn now it would show the old image under moved overlays, and on 2 cores it
-        would slow the render down by as much as it costs."""
+        """During a camera drag, a scene-only frame waits for the splat image being rendered (``SPLAT_HOLD_S``,
+        up to 1.5 x the last drag render when that was slower, at most ``SPLAT_HOLD_MAX_S``): drawn now it
+        would show the old image under moved overlays, and on 2 cores it would delay the render by its cost."""
+        last = self.timings.splat_drag_ms
+        hold = SPLAT_HOLD_S if last is None else min(max(SPLAT_HOLD_S, 1.5e-3 * last), SPLAT_HOLD_MAX_S)
         return (self._dirty_parts == {"scene"} and not self._splat_fresh and self._splat_requested is not None
-                and self._camera_moving() and time.perf_counter() - self._splat_requested_at < SPLAT_HOLD_S)
+                and self._camera_moving() and time.perf_counter() - self._splat_requested_at < hold)
 
     def splat_on_screen(self) -> bool:
         """Whether the last frame drawn shows the splat image of the scene camera as it is now (benchmarks)."""

@@ -52,7 +52,8 @@ from .keys import KeysMixin
 from .previews import PreviewsMixin
 from .scene import mesh_polydata
 from .scene_view import SceneMixin
-from .screen import DEFAULT_WINDOW, open_window, require_x_window, window_size_for_screen, x_screen_size
+from .screen import (DEFAULT_WINDOW, open_window, require_x_window, window_size_for_screen, x_input_wait,
+                     x_screen_size)
 from .sliders import STANDIN_MIN_TRIANGLES, SlidersMixin, viewer_angle_limits
 from .splat_view import SplatViewMixin
 from .viewer_config import HELP_TEXT, KEYS, ViewerConfig
@@ -137,6 +138,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         self.last_frame_parts: tuple[str, ...] = ()
         self._splat_drawn_key: tuple | None = None
         self._presenter: Any = None  # copies only the panels drawn to the X window (gui/present.py)
+        self._input_wait: Any = None  # the loop's idle wait: X input, a splat image or the poll period
         self._standin_job: Any = None  # the decimated face-drag stand-in being computed (gui/sliders.py)
         self._standin_cells: Any = None
         self.standin_min_triangles = STANDIN_MIN_TRIANGLES
@@ -481,6 +483,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
                     from .present import region_presenter
 
                     self._presenter = region_presenter(self.plotter.ren_win)
+                self._input_wait = x_input_wait(self.plotter.ren_win)
             self._check_resize()
             self.home_camera()  # pyvista's first show() put its own default camera in
             self.preview_panel.fit()
@@ -572,10 +575,19 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
                     return True
                 if end is not None and time.perf_counter() > end:
                     return False
-                time.sleep(idle_sleep)
+                self.wait_for_input(idle_sleep)
         finally:
             self._looping = False
         return False
+
+    def wait_for_input(self, timeout: float) -> None:
+        """The loop's idle wait: until X input arrives or the splat worker has an image (at once, no poll
+        period on the input path), at most ``timeout`` seconds (the period at which background results,
+        thumbnails, native images and exports, are collected). Without an X connection: a plain sleep."""
+        if self._input_wait is None:
+            time.sleep(timeout)
+            return
+        self._input_wait.wait(timeout, (self._splat_worker.wake_fd,) if self._splat_worker.wake_fd >= 0 else ())
 
     def show(self) -> None:
         """Open the window and run the event loop until it is closed (``q`` or the close button)."""
@@ -615,6 +627,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         if self._presenter is not None:
             self._presenter.close()
             self._presenter = None
+        self._input_wait = None
         self.plotter.close()
 
     def window_id(self) -> int:
