@@ -193,7 +193,8 @@ GROUP_RUNS = (("group", 0, {}), ("group", 1, {}), ("group", 4, {}), ("tracked", 
               ("all_views", 0, {}), ("group", 0, {"group_view_step": 5}), ("group", 0, {"group_view_step": 8}),
               ("group", 1, {"group_view_step": 5}), ("group", 1, {"group_view_step": 8}),
               ("group", 1, {"group_view_step": 12}), ("group", 4, {"group_slices": 0}),
-              ("group", 4, {"group_slices": 4}), ("group", 1, {"group_feather": None}))
+              ("group", 4, {"group_slices": 4}), ("group", 1, {"group_slices": 0}),
+              ("group", 1, {"group_feather": None}))
 #: comfort: a tracked viewer walks past fixed single-eye positions (deg, m), 1.5 deg a frame, face still
 COMFORT_POSITIONS = ((0.0, 0.6), (-3.0, 0.6))
 COMFORT_WALK_DEG = tuple(float(a) for a in np.arange(-6.0, 4.6, 1.5))
