@@ -809,6 +809,21 @@ def test_splats_follow_a_face_slider_release_in_one_frame(splat_window, monkeypa
     assert viewer.mesh_actor.GetMapper().GetInputAlgorithm().IsA("vtkTrivialProducer")
     np.testing.assert_allclose(vtk_to_numpy(viewer.mesh.GetPointData().GetNormals()),
                                vertex_normals(np.asarray(viewer.mesh.points), viewer.faces), atol=1e-9)
+    # the overlay lines cut at the head's box: kept while the head's pixel box stays, cut again when it
+    # moves; what a drag step drew equals a fresh cut
+    def cut_lines():
+        out = []
+        for k in ("frusta", "selected", "focal"):
+            pts = viewer._cut_actors[k].GetMapper().GetInput().GetPoints()
+            out.append(None if pts is None else vtk_to_numpy(pts.GetData()).copy())
+        return out
+
+    for value in (0.72, 1.4):
+        viewer._live_face("expr1", value, time.perf_counter())
+        drawn = cut_lines()
+        viewer._cut_key = None
+        viewer._cut_overlays()
+        assert all((a is None and b is None) or np.array_equal(a, b) for a, b in zip(drawn, cut_lines()))
     before, frames0 = viewer.splat_image.copy(), viewer.frames_drawn
     _fire_slider(viewer.sliders["expr1"], 1.5)
     assert viewer.scene_renderer.GetLights().GetNumberOfItems() == lights  # the light kit is back

@@ -3,6 +3,8 @@ Gaussian ellipsoids, and the overlay toggles (``m``, ``l``, ``g``, ``c``, ``o``,
 
 from __future__ import annotations
 
+import math
+
 
 import numpy as np
 
@@ -197,9 +199,13 @@ class SceneMixin:
             q = h[:, :2] / h[:, 3:4]
             (x0, y0), (x1, y1) = q.min(axis=0), q.max(axis=0)
             pad = 0.03 * max(x1 - x0, y1 - y0)
-            box = (x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+            # grown to whole pixels of the scene: a face-slider drag step that leaves the head's pixel box
+            # as it was (most of them) keeps the cut lines (~2 ms a step) instead of cutting them again
+            w, hh = (max(1, n) / 2.0 for n in ren.GetSize())
+            box = (math.floor((x0 - pad) * w) / w, math.floor((y0 - pad) * hh) / hh,
+                   math.ceil((x1 + pad) * w) / w, math.ceil((y1 + pad) * hh) / hh)
         mtimes = (self.frusta.GetMTime(), self.selected.GetMTime(), self.focal_actor.mapper.dataset.GetMTime())
-        key = (M.tobytes(), box, mtimes, self.mesh.GetMTime())
+        key = (M.tobytes(), box, mtimes)  # the mesh enters through its box only
         if key == self._cut_key:
             return
         self._cut_key, self.head_screen_box = key, box
