@@ -460,3 +460,82 @@ def test_track_fps_skips_webcam_frames_and_keeps_the_face(clip, tmp_path):
     assert s["tracks"]["speaker_found"].mean() > 0.5
     with pytest.raises(InputError, match="track_fps: expected frames a second > 0 or None, found 0"):
         LiveSessionConfig(track_fps=0)
+
+
+class _EveryFrame:
+    """A video source that hands the tracker each frame once, whatever the clock (no frame skipped)."""
+
+    def __init__(self, frames):
+        self.frames, self.i, self.finished, self.status = frames, -1, False, "ok"
+
+    def latest(self, t):
+        self.i = min(self.i + 1, len(self.frames) - 1)
+        self.finished = self.i == len(self.frames) - 1
+        return self.frames[self.i]
+
+
+@pytest.mark.slow
+def test_viewer_fps_keeps_the_speaker_features_at_the_webcam_rate(clip, tmp_path):
+    """``viewer_fps`` (issue 37): the face search and the other faces run at the viewer's rate, the
+    speaker's landmarks and fit on every webcam frame, so the features stay at 25 Hz: on every frame of
+    the 1.6 s clip the speaker state is new, the HOG detector runs on the viewer's frames only (once
+    here; every 10th frame, 4 times, with ``viewer_fps=None``), and with one face the viewer pose
+    follows it on every frame. The tracker thread's loop, driven frame by frame (no clock)."""
+    from holo_viewer.errors import InputError
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveSession, LiveSessionConfig
+    from holo_viewer.tracking.tracker import FaceTracker
+    from holo_viewer.tracking.video import iter_video_frames
+    from holo_viewer.tracking.viewer import WebcamMount
+
+    frames = list(iter_video_frames(clip["video"]))
+    assert len(frames) == 40
+    tracker = FaceTracker()
+    runs = {}
+    for viewer_fps in (5.0, None):
+        session = LiveSession(LiveSessionConfig(out=str(tmp_path / f"s{viewer_fps}"), viewer_fps=viewer_fps),
+                              sources.WavReplay(clip["wav"]), _EveryFrame(frames))
+        tracker.reset()
+        tracker.detector.n_detections = 0
+        session._face_tracker, session._mount = tracker, WebcamMount()
+        states = []
+        put = session._speaker.put
+        session._speaker.put = lambda v, put=put, states=states: (states.append(v), put(v))
+        session._tracker_loop()
+        assert not session.errors
+        runs[viewer_fps] = (states, tracker.detector.n_detections, session.viewer_updates)
+    states, detections, updates = runs[5.0]
+    assert len(states) == 40 and all(f for _, _, f in states)  # every frame tracked, the face found
+    assert all(not np.array_equal(a[1], b[1]) for a, b in zip(states, states[1:]))  # 25 Hz features
+    assert detections == 1 and runs[None][1] == 4
+    assert updates == 40 == runs[None][2]  # one face: its viewer pose on every frame
+    # until the every-frame run's second detection re-frames the face, the same landmarks and states
+    np.testing.assert_array_equal(np.stack([st for _, st, _ in states[:10]]),
+                                  np.stack([st for _, st, _ in runs[None][0][:10]]))
+    with pytest.raises(InputError, match="viewer_fps: expected frames a second > 0 or None, found -1"):
+        LiveSessionConfig(viewer_fps=-1)
+
+
+def test_stream_speech_gate_equals_speech_gate():
+    """The live loop's pause gate reads the reaction stream's VAD (silero once per chunk instead of twice,
+    issue 37): on 8 s of recorded speech, delivered in 25 fps frames and in uneven blocks (a late
+    microphone), it gives the standalone SpeechGate's (speaking, pause onset) and probability exactly."""
+    from holo_viewer.live.loop import StreamSpeechGate
+    from holo_viewer.reaction.audio import read_wav
+    from holo_viewer.reaction.speech import SpeechGate, SpeechTracker
+
+    x, sr = read_wav(Path(__file__).parent / "data" / "speech" / "librispeech_198-209-0000.wav")
+    x = x[:8 * sr]
+    for sizes in ((640,), (300, 980, 640)):
+        bounds = np.cumsum(np.resize(sizes, x.shape[0] // min(sizes) + 1))
+        blocks = np.split(x, bounds[bounds < x.shape[0]])
+        tracker, ref = SpeechTracker(), SpeechGate()
+        gate = StreamSpeechGate(tracker)
+        assert StreamSpeechGate.fits(tracker) and not StreamSpeechGate.fits(None)
+        got, want = [], []
+        for b in blocks:
+            tracker.push(b)
+            got.append((*gate.step(b), gate._prob))
+            want.append((*ref.step(b), ref._prob))
+        assert got == want
+        assert sum(o for _, o, _ in got) >= 2 and sum(s for s, _, _ in got) > len(got) // 3

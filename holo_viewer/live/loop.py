@@ -39,7 +39,7 @@ from ..tracking.viewer import ViewerPose
 from .controls import Controls, Scenario
 from .session import NATIVE_VIDEO, SessionRecorder
 
-__all__ = ["LiveSessionConfig", "LiveSession", "starting_image"]
+__all__ = ["LiveSessionConfig", "LiveSession", "StreamSpeechGate", "starting_image"]
 
 FPS = 25
 #: the session video's encoder flags: the lossless policy's, on one encoder thread. x264's default
@@ -79,6 +79,12 @@ class LiveSessionConfig:
     #: track at most this many webcam frames a second (None: every frame, 25 fps on a webcam); the
     #: others are skipped (still recorded). The viewer pose keeps its prediction from the tracked ones
     track_fps: float | None = None
+    #: the viewer's rate: at most this many tracked frames a second look for faces and at every face (the
+    #: HOG detector every ``redetect_every``-th of them, the other faces' landmarks, the viewer pose of all
+    #: faces); on the frames between, the speaker's face alone (its landmarks and fit: the speaker's
+    #: features keep the webcam's rate) and, while one face is tracked, its viewer pose. None: every
+    #: tracked frame looks at every face (issue 37: the tracker's CPU; docs/live.md)
+    viewer_fps: float | None = 5.0
     scenario: Any = None
     #: the no-data behaviour layers (a holo_viewer.behaviour.BehaviourConfig; "default": all on, seeded
     #: by ``seed``; None: the reaction model alone, conditioned on the pain level)
@@ -88,9 +94,45 @@ class LiveSessionConfig:
 
 
     def __post_init__(self) -> None:
-        f = self.track_fps
-        if f is not None and not (isinstance(f, (int, float)) and math.isfinite(f) and f > 0):
-            raise InputError(f"track_fps: expected frames a second > 0 or None, found {f!r}")
+        for name in ("track_fps", "viewer_fps"):
+            f = getattr(self, name)
+            if f is not None and not (isinstance(f, (int, float)) and math.isfinite(f) and f > 0):
+                raise InputError(f"{name}: expected frames a second > 0 or None, found {f!r}")
+
+
+class StreamSpeechGate:
+    """:class:`~holo_viewer.reaction.speech.SpeechGate` (speaking, pause onset known now) without a VAD of
+    its own: silero's speech probabilities are those the reaction stream's
+    :class:`~holo_viewer.reaction.speech.SpeechTracker` computed from the same samples, in the same
+    512-sample chunks, from the same reset state, so the same numbers (tested against ``SpeechGate``).
+    The reaction thread ran silero twice per chunk, ~40 % of its CPU (issue 37).
+    :meth:`step` must follow ``tracker.push`` of the same samples (the loop's ``stream.push_audio``)."""
+
+    def __init__(self, tracker: Any) -> None:
+        from ..reaction.speech import ENERGY_WINDOW, PauseDetector
+
+        self._tracker = tracker
+        self._tail = np.zeros(ENERGY_WINDOW, np.float32)  # the last samples (the level's window)
+        self._prob = 0.0
+        self.detector = PauseDetector()
+
+    @staticmethod
+    def fits(tracker: Any) -> bool:
+        """The tracker keeps the chunk probabilities this gate reads (else use ``SpeechGate``)."""
+        return isinstance(getattr(tracker, "_chunks", None), list)
+
+    def step(self, samples: np.ndarray) -> tuple[bool, bool]:
+        """(speaking, pause onset known now) for the next frame; ``samples`` is that frame's audio."""
+        x = np.nan_to_num(np.asarray(samples, dtype=np.float32).reshape(-1))
+        chunks = self._tracker._chunks
+        if chunks:
+            self._prob = float(chunks[-1])
+        n = self._tail.shape[0]
+        self._tail = np.concatenate([self._tail, x])[-n:]
+        seg = self._tail.astype(np.float64)
+        db = 10.0 * np.log10(float((seg * seg).sum()) / n + 1e-10)
+        speaking, onset = self.detector.step(self._prob, db)
+        return speaking, onset is not None
 
 
 class _Slot:
@@ -139,6 +181,7 @@ class LiveSession:
         self._media_done = threading.Event()
         self.tracker_ms: list[float] = []
         self.tracker_cpu_ms: list[float] = []  # the tracker thread's CPU per tracked frame
+        self.viewer_updates = 0  # tracked frames that updated the viewer pose
         self.window_ms: list[float] = []
         self.late_windows = 0
         self.late_ms_max = 0.0
@@ -190,8 +233,10 @@ class LiveSession:
 
         tracker = self._face_tracker
         viewer = ViewerTracker(self._mount, ViewerTrackerConfig(mode=self.config.viewer_mode))
-        last_t = last_tracked = None
+        last_t = last_tracked = last_full = None
         min_dt = 0.0 if self.config.track_fps is None else 1.0 / float(self.config.track_fps)
+        full_dt = 0.0 if self.config.viewer_fps is None else 1.0 / float(self.config.viewer_fps)
+        faces_seen = 0  # faces of the last frame that looked at every face
         try:
             while not self._stop.is_set():
                 if self.controls.take_recentre():
@@ -208,13 +253,20 @@ class LiveSession:
                         self._record_webcam(frame)
                     continue
                 last_tracked = last_t
+                # viewer_fps: between the frames that look at every face, the speaker's face alone
+                full = last_full is None or last_t - last_full >= full_dt - 1e-6
                 t0, c0 = time.perf_counter(), time.thread_time()
-                tf = tracker(frame, last_t)
+                tf = tracker(frame, last_t, speaker_only=not full)
                 self.tracker_ms.append(1000 * (time.perf_counter() - t0))
                 self.tracker_cpu_ms.append(1000 * (time.thread_time() - c0))
                 self._speaker.put((last_t, tf.state, tf.found))
-                pose = viewer.update(tf.eye_positions, last_t)
-                self._viewer.put((last_t, pose))
+                if tf.all_faces:
+                    last_full, faces_seen = last_t, len(tf.faces)
+                    self.viewer_updates += 1
+                    self._viewer.put((last_t, viewer.update(tf.eye_positions, last_t)))
+                elif faces_seen == 1 and tf.found:  # one face: its pose at the webcam's rate, as before
+                    self.viewer_updates += 1
+                    self._viewer.put((last_t, viewer.update(tf.eye_positions, last_t)))
                 if self.config.record_video:
                     self._record_webcam(frame)
                 self.status["video"] = self.video.status if tf.found else f"{self.video.status}; no face"
@@ -394,7 +446,8 @@ class LiveSession:
         from ..behaviour import BehaviourConfig, ListenerBehaviour
         from ..reaction.speech import SpeechGate
 
-        self._speech_gate = SpeechGate()
+        tracker = getattr(self._stream, "_speech", None)  # the model's speech channels (their VAD), if it has them
+        self._speech_gate = StreamSpeechGate(tracker) if StreamSpeechGate.fits(tracker) else SpeechGate()
         if cfg.behaviour is not None:
             bcfg = BehaviourConfig(seed=cfg.seed) if isinstance(cfg.behaviour, str) else cfg.behaviour
             self._behaviour = ListenerBehaviour(bcfg)

@@ -86,6 +86,20 @@ def reduction(model: LandmarkHeadModel, config: TrackerFitConfig) -> np.ndarray:
     return M
 
 
+def _reduction_pair(model: LandmarkHeadModel, config: TrackerFitConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(M, pinv(M)) of :func:`reduction`, kept on the model per config (read-only): the pseudo-inverse's
+    SVD was ~10 % of a warm frame's fit, the same every frame (issue 37: the tracker's CPU)."""
+    cache = model.__dict__.setdefault("_reduction_pairs", {})
+    pair = cache.get(config)
+    if pair is None:
+        M = reduction(model, config)
+        pair = (M, np.linalg.pinv(M))
+        for a in pair:
+            a.setflags(write=False)
+        cache[config] = pair
+    return pair
+
+
 @dataclass(frozen=True)
 class TrackerFit:
     """One fitted frame.
@@ -144,10 +158,9 @@ def fit_landmarks(model: LandmarkHeadModel, landmarks: np.ndarray, K: np.ndarray
     lm = np.asarray(check_array(landmarks, "landmarks", (68, 2)), dtype=np.float64)
     K = np.asarray(check_array(K, "K", (3, 3)), dtype=np.float64)
     n, na = model.n_params, model.n_au
-    M = reduction(model, config)
+    M, Mpinv = _reduction_pair(model, config)
     nq = M.shape[1]
     nqa = nq - N_POSE_PARAMS  # fitted AUs
-    Mpinv = np.linalg.pinv(M)
     if prev is None:
         q = Mpinv @ initial_params(model, lm, K)
         prior = None

@@ -174,9 +174,31 @@ class LandmarkDetector:
         # dlib part coordinates are integer pixel indices; +0.5 puts them at pixel centres
         return np.array([[p.x + 0.5, p.y + 0.5] for p in shape.parts()], dtype=np.float64)
 
-    def __call__(self, frame: np.ndarray) -> list[FaceDetection]:
-        """Faces in ``frame`` (H, W, 3) RGB uint8, largest first (empty list: none found)."""
+    def __call__(self, frame: np.ndarray, speaker_only: bool = False) -> list[FaceDetection]:
+        """Faces in ``frame`` (H, W, 3) RGB uint8, largest first (empty list: none found).
+
+        ``speaker_only``: only the largest tracked face (the speaker), its landmarks predicted in the box
+        its previous ones give; no HOG detection and no other face (their landmarks are kept for the next
+        full call), and the frame does not count toward ``redetect_every``. With no face tracked it
+        returns [] without detecting (the next full call searches); a tracked face lost on such a frame
+        runs the detector at once, as a full call does. The live loop's frames between its viewer
+        updates (``LiveSessionConfig.viewer_fps``): the speaker's features at the webcam's rate, the
+        search for faces and the other faces at the viewer's.
+        """
         frame = check_frame(frame)
+        if speaker_only:
+            if not self._tracked:
+                return []
+            head = self._tracked[0]
+            box = np.clip(self._box_from_landmarks(head.landmarks, self._box_map), 0,
+                          [frame.shape[1], frame.shape[0]] * 2)
+            if box[2] - box[0] >= 16 and box[3] - box[1] >= 16:
+                lm = self._predict(frame, box)
+                if self._plausible(lm, box):
+                    face = FaceDetection(box=box, landmarks=lm, score=head.score)
+                    self._tracked = [face] + self._tracked[1:]
+                    return [face]
+            self._tracked = []  # lost: search the whole frame now (the speaker's features need it)
         h, w = frame.shape[:2]
         boxes: list[tuple[np.ndarray, float]]
         if not self._tracked or self._since + 1 >= self.redetect_every:

@@ -68,6 +68,7 @@ class TrackedFrame:
     eye_positions : numpy.ndarray, shape (F, 3) every face's eye midpoint in webcam coordinates (m)
     rms_px : float                  landmark residual of the fit (NaN when lost)
     detect_ms, fit_ms : float       time spent detecting and fitting
+    all_faces : bool                every face was looked for (False: ``speaker_only``, the largest only)
     """
 
     time_s: float
@@ -80,6 +81,7 @@ class TrackedFrame:
     rms_px: float
     detect_ms: float
     fit_ms: float
+    all_faces: bool = True
 
 
 class FaceTracker:
@@ -124,14 +126,20 @@ class FaceTracker:
         aus, jaw, rot, _ = self.head.split(params)
         return np.concatenate([aus, [jaw, 0.0, 0.0], rot])
 
-    def __call__(self, frame: np.ndarray, time_s: float) -> TrackedFrame:
-        """Track one RGB frame (H, W, 3) taken at ``time_s`` seconds."""
+    def __call__(self, frame: np.ndarray, time_s: float, speaker_only: bool = False) -> TrackedFrame:
+        """Track one RGB frame (H, W, 3) taken at ``time_s`` seconds.
+
+        ``speaker_only``: the speaker (the largest tracked face) alone, without searching for faces
+        (:meth:`LandmarkDetector.__call__`; a detector without that option looks at every face): its state
+        as on any frame, ``faces``/``eye_positions`` that face only, ``all_faces`` False.
+        """
         frame = check_frame(frame)
         t = check_finite_scalar(time_s, "time_s")
         h, w = frame.shape[:2]
         K = webcam_intrinsics(w, h, self.config.hfov_deg)
         t0 = time.perf_counter()
-        faces = list(self.detector(frame))
+        speaker_only = bool(speaker_only) and isinstance(self.detector, LandmarkDetector)
+        faces = list(self.detector(frame, speaker_only=True) if speaker_only else self.detector(frame))
         t1 = time.perf_counter()
         nan3 = np.full(3, np.nan)
         params = np.full(self.head.n_params, np.nan)
@@ -160,7 +168,7 @@ class FaceTracker:
         return TrackedFrame(time_s=t, found=found, faces=faces, state=self._state.copy(), params=params,
                             head_position=params[self.n_au + 4:] if found else nan3,
                             eye_positions=np.array(eyes).reshape(-1, 3), rms_px=rms,
-                            detect_ms=1000 * (t1 - t0), fit_ms=1000 * (t2 - t1))
+                            detect_ms=1000 * (t1 - t0), fit_ms=1000 * (t2 - t1), all_faces=not speaker_only)
 
     def flame_params(self, states: np.ndarray) -> dict[str, np.ndarray]:
         """GaussianAvatars-keyed arrays (``expr``, ``jaw_pose``, ``rotation``) of states (T, n_au + 6)."""
