@@ -230,24 +230,33 @@ def pct(x, q):
 
 
 def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: str = "auto",
-                record: bool = False) -> dict:
-    """One replayed session; ``record``: the session writes its native video too (as ``live`` does)."""
-    from holo_viewer.live import sources
+                record: bool = False, before: bool = False) -> dict:
+    """One replayed session; ``record``: the session writes its native video too (as ``live`` does);
+    ``before``: the loop without this round's cuts (issue 37: every tracked frame looks at every face,
+    ``viewer_fps=None``; the pause gate runs its own VAD), for a paired A/B in one run (``--ab``)."""
+    from holo_viewer.live import loop, sources
     from holo_viewer.live.loop import LiveSessionConfig, LiveSession
     from holo_viewer.live.render import LiveAvatarRenderer
     from holo_viewer.reaction.audio import read_wav
 
     load_start = os.getloadavg()[0]
     t_start = time.perf_counter()
-    cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=record, flush_s=60.0)
+    cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=record, flush_s=60.0,
+                            **({"viewer_fps": None} if before else {}))
+    fits = loop.StreamSpeechGate.fits
+    if before:
+        loop.StreamSpeechGate.fits = staticmethod(lambda tracker: False)
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
     renderer = TimedRenderer(LiveAvatarRenderer(tile_scale=tile_scale, mode=mode)) if render else None
     import resource
 
     cpu0, kids0 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    with ThreadCPU() as sampler:
-        summary = session.run(renderer)
+    try:
+        with ThreadCPU() as sampler:
+            summary = session.run(renderer)
+    finally:
+        loop.StreamSpeechGate.fits = fits
     t_end = time.perf_counter()
     cpu1, kids1 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu_s = cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime
@@ -290,6 +299,10 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
                                                        sorted(cpu.items(), key=lambda kv: -kv[1]) if v > 0}}
     return {**timing,
         "render": render, "tile_scale": tile_scale, "render_mode": mode, "wall_s": round(wall, 2), "frames": n,
+        "viewer_fps": cfg.viewer_fps, "shared_vad": type(session._speech_gate).__name__ == "StreamSpeechGate",
+        "viewer_updates": session.viewer_updates,
+        "tracker_cpu_ms_median": pct(session.tracker_cpu_ms, 50),
+        "tracker_cpu_s": round(float(np.sum(session.tracker_cpu_ms)) / 1000, 2),
         "onsets": len(onsets), "onsets_reflected": len(lat),
         "onset_to_display_ms_median": pct(1000 * np.array(lat), 50), "onset_to_display_ms_p95": pct(1000 * np.array(lat), 95),
         "tracker_ms_median": pct(session.tracker_ms, 50), "tracker_ms_p95": pct(session.tracker_ms, 95),
@@ -407,6 +420,8 @@ def main() -> int:
     ap.add_argument("--rss-seconds", type=float, default=0.0, help="also run a synthetic session this long for RSS")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "holo_viewer_live_bench"))
     ap.add_argument("--json", default=None)
+    ap.add_argument("--ab", action="store_true", help="also the loop before issue 37's cuts (viewer_fps None, "
+                    "the pause gate's own VAD) and the current one again, one after the other")
     ap.add_argument("--startup-only", action="store_true", help="only the start-up runs: the live command's first "
                     "frame cold (empty kernel cache) and warm, and its quit time")
     args = ap.parse_args()
@@ -444,6 +459,9 @@ def main() -> int:
                                     record=render))
         # the same again in this process: the renderer's tables and kernels are warm (first frame, warm)
         warm = run_session(files, Path(tmp) / "s2", True, args.tile_scale, args.render_mode, record=True)
+        # --ab: the loop before this round's cuts, then the warm session again (a paired, interleaved A/B)
+        ab = [run_session(files, Path(tmp) / f"ab{i}", True, args.tile_scale, args.render_mode, record=True,
+                          before=before) for i, before in enumerate((True, False))] if args.ab else None
         rss = rss_run(args.rss_seconds, Path(tmp) / "rss") if args.rss_seconds > 0 else None
     base, full = rows
     ratio = (full["reaction_ms_per_window_median"] or 0) / max(base["reaction_ms_per_window_median"] or 1e-9, 1e-9)
@@ -456,12 +474,14 @@ def main() -> int:
     for k in keys:
         print(f"{k:34s} {str(base[k]):>12s} {str(full[k]):>12s}")
     print(f"reaction ms/window, render vs no-render: x{ratio:.2f}")
-    for name, row in (("cold", full), ("warm", warm)):
+    for name, row in (("cold", full), ("warm", warm)) + ((("before (A)", ab[0]), ("after (B)", ab[1])) if ab else ()):
         print(f"{name}: {row['displayed_fps']} displayed fps with recording (load {row['load_1min_start']} -> "
               f"{row['load_1min_end']}), render {row['render_ms_median']} ms, visible change "
               f"{row['visible_change_ms_median']} ms (p95 {row['visible_change_ms_p95']}, {row['onsets_visible']} onsets), "
               f"first frame {row['first_frame_s']} s, quit {row['quit_s']} s; CPU per displayed frame: process "
-              f"{row['process_cpu_ms_per_displayed_frame']} ms, ffmpeg {row['ffmpeg_cpu_ms_per_displayed_frame']} ms")
+              f"{row['process_cpu_ms_per_displayed_frame']} ms, ffmpeg {row['ffmpeg_cpu_ms_per_displayed_frame']} ms; "
+              f"tracker {row['tracker_cpu_s']} CPU s over {row['tracked_frames']} frames (viewer_fps {row['viewer_fps']}, "
+              f"{row['viewer_updates']} viewer updates), shared VAD {row['shared_vad']}")
         ins = row.get("in_session")
         if ins:
             print(f"  in session ({ins['frames']} frames, {ins['seconds']} s, start-up excluded): "
@@ -474,7 +494,8 @@ def main() -> int:
         print(f"RSS over a {rss['seconds']:g} s synthetic session: {rss['rss_mb_after_10s']} -> {rss['rss_mb_end']} MB "
               f"(growth {rss['rss_growth_mb']} MB), late windows {rss['late_reaction_windows']}/{rss['reaction_windows']}")
     result = {"config": vars(args), "load_average": load, "cores": os.cpu_count(), "no_render": base, "render": full,
-              "render_warm": warm, "startup": startup,
+              "render_warm": warm, "ab_before": ab[0] if ab else None, "ab_after": ab[1] if ab else None,
+              "startup": startup,
               "reaction_window_ratio_render_vs_baseline": round(ratio, 2), "fit": fit, "rss": rss}
     if args.json:
         from holo_viewer.fileio import write_json
