@@ -938,6 +938,7 @@ def test_splat_view_follows_the_camera_reduced_while_dragging(splat_window, xdot
     finally:
         xin.xdo("mouseup", 1)
     assert xin.settle(until=lambda: viewer._splat_full, timeout=10)
+    assert viewer.last_frame_parts == ("scene",)  # the release's frame too: only the camera moved
     scene = _scene_readback(viewer)
     assert np.abs(scene.astype(int) - before).mean() > 1.0  # the camera moved: a new picture
     cams = viewer.splat_cameras()

@@ -139,6 +139,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         self._splat_drawn_key: tuple | None = None
         self._presenter: Any = None  # copies only the panels drawn to the X window (gui/present.py)
         self._input_wait: Any = None  # the loop's idle wait: X input, a splat image or the poll period
+        self._camera_released = False  # the scene camera's interaction just ended (its render: the scene)
         self._standin_job: Any = None  # the decimated face-drag stand-in being computed (gui/sliders.py)
         self._standin_cells: Any = None
         self.standin_min_triangles = STANDIN_MIN_TRIANGLES
@@ -501,6 +502,8 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
         style = _scene_only_style(inter, self.scene_renderer, on_click=self._guarded_click)
         iren.style = style
         self._style = style
+        # a camera drag or wheel turn ends with EndInteractionEvent and then a render request: the scene only
+        style.AddObserver("EndInteractionEvent", lambda *_: setattr(self, "_camera_released", True))
         self._observers = [(inter, inter.AddObserver("KeyPressEvent", self._on_key)),
                            (inter, inter.AddObserver("ExitEvent", lambda *_: self.quit())),
                            (inter, inter.AddObserver("RenderEvent", self._on_render_request))]
@@ -510,8 +513,10 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
             axes.InteractiveOff()
 
     def _on_render_request(self, *_: Any) -> None:
-        # VTK asks for a frame: a camera drag moves the scene only; widgets, expose events: everything
-        if self._camera_moving():
+        # VTK asks for a frame: a camera drag (and its release) moves the scene only; widgets, expose events:
+        # everything
+        if self._camera_moving() or self._camera_released:
+            self._camera_released = False
             self._dirty_parts.add("scene")
         elif self._live:  # a slider being dragged: its panel and the scene (the mesh follows)
             self._dirty_parts.update(("sliders", "scene"))
@@ -534,6 +539,7 @@ class HoloViewer(SceneMixin, SplatViewMixin, SlidersMixin, KeysMixin, PreviewsMi
                 iren.process_events()
             finally:
                 self._in_events = False
+                self._camera_released = False  # its render request came with it, in these events
                 inter.EnableRenderOn()
             if inter.GetDone():
                 self._quit = True
