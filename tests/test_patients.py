@@ -233,6 +233,41 @@ def test_patient_head_loads_with_its_textures():
     assert np.all(np.abs(face - skin) < 0.2), (face, skin)
 
 
+
+def _lum(c):
+    return np.asarray(c, np.float64) @ np.array([0.299, 0.587, 0.114])
+
+
+#: the brows' painted luminance against the forehead's (texture sampled at the vertices, the 3 mm band
+#: under brow landmarks 18-20 and 23-25 over the band 14-22 mm above them, mean of the six) must differ
+#: by this factor, darker (<= 0.8) or lighter (>= 1.25): a brow a landmark detector cannot see moves no
+#: brow landmark with the pain face (helen's shipped grey-white brows read 0.89 before the repaint,
+#: and her brow-eye gap was noise; grey-brown brows read 0.70; docs/face_realism.md)
+BROW_CONTRAST = 0.8
+
+
+@pytest.mark.parametrize("info", SHIPPED, ids=[p.name for p in SHIPPED])
+def test_brows_stand_out_from_the_forehead(info):
+    from holo_viewer.flame.head_textures import appearance_inputs, head_appearance
+
+    model = P.load_patient_model(info.name)
+    inputs, app = appearance_inputs(model), head_appearance(model)
+    v, lm, reg = inputs["vertices"], inputs["landmarks"], inputs["vertex_region"]
+    names = list(inputs["region_names"])
+    front = np.isin(reg, [names.index(n) for n in ("skin", "brows")])
+    col = app.vertex_colors[:len(v)]
+    ratios = []
+    for k in (18, 19, 20, 23, 24, 25):
+        dx = np.abs(v[:, 0] - lm[k, 0]) < 0.004
+        dy = v[:, 1] - lm[k, 1]
+        brow = front & dx & (np.abs(dy + 0.002) < 0.003)
+        above = front & dx & (dy > 0.014) & (dy < 0.022)
+        assert brow.sum() > 3 and above.sum() > 3, (info.name, k)
+        ratios.append(_lum(col[brow]).mean() / _lum(col[above]).mean())
+    r = float(np.mean(ratios))
+    assert r <= BROW_CONTRAST or r >= 1.0 / BROW_CONTRAST, (info.name, np.round(ratios, 3))
+
+
 # ------------------------------------------------------------------------------ the builder (slow)
 
 

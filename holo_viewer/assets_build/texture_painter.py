@@ -43,7 +43,9 @@ class Look:
     ``skin``: base skin albedo (by Fitzpatrick type); ``redness``: scale of the cheek/nose/ear flush
     (less visible on dark skin); ``periorbital``: scale of the darker skin around the eyes; ``beard``:
     the cool shadow of shaved stubble (0 for a woman); ``lip``: lip albedo; ``hair`` / ``brow``: hair
-    and brow colours; ``grey``: fraction of white strands in hair and brows; ``brow_density``: brow
+    and brow colours; ``grey``: fraction of white strands in hair and brows; ``brow_grey``: the brows'
+    own white fraction when given (brows often grey later than the hair, and a white brow on pale skin
+    is lost to a landmark detector that a clinician's eye is not); ``brow_density``: brow
     strands relative to 1400 a brow; ``age``: 0 young .. 1 old: deeper forehead lines and crow's
     feet, nasolabial and marionette folds, under-eye lines, age spots, coarser texture;
     ``iris`` / ``iris_outer``: iris colours at the pupil and at the limbus.
@@ -57,6 +59,7 @@ class Look:
     hair: tuple = tuple(_HAIR)
     brow: tuple = tuple(_BROW)
     grey: float = 0.0
+    brow_grey: float | None = None
     brow_density: float = 1.0
     age: float = 0.0
     iris: tuple = (0.36, 0.25, 0.14)
@@ -361,12 +364,13 @@ class _Painter:
         return col
 
     def brow_rgb(self, cy: np.ndarray) -> np.ndarray:
-        """(N, 3) brow strand colour: the brow colour, a ``grey`` share of white hairs."""
+        """(N, 3) brow strand colour: the brow colour, a ``brow_grey`` (else ``grey``) share of white hairs."""
         brow = np.asarray(self.look.brow, np.float64)
-        if self.look.grey <= 0:
+        grey = self.look.grey if self.look.brow_grey is None else float(self.look.brow_grey)
+        if grey <= 0:
             return np.broadcast_to(brow[None, :], (len(cy), 3))
         hair_id = _noise1(cy[:, 0] / 0.25 + 3.0 * _noise1(cy[:, 1] / 2.0, self.seed + 31), self.seed + 32)
-        white = _smoothstep(1.0 - self.look.grey - 0.05, 1.0 - self.look.grey + 0.05, hair_id)[:, None]
+        white = _smoothstep(1.0 - grey - 0.05, 1.0 - grey + 0.05, hair_id)[:, None]
         return brow[None, :] * (1 - white) + np.array([0.62, 0.60, 0.57])[None, :] * white
 
     def age_marks(self, q: np.ndarray, col: np.ndarray) -> np.ndarray:
