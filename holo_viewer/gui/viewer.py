@@ -32,8 +32,9 @@ loop, pixel readback for tests) is put together from parts, one module each:
 
 Event loop. :meth:`HoloViewer.run` drives VTK from Python: process the pending X events,
 apply the newest live slider value, collect background results (thumbnail quilt from a worker
-process, exports from a worker thread), render once if anything changed, sleep a few ms. So the
-window never waits for an export, and renders requested by several events are coalesced.
+process, exports from a worker thread), render once if anything changed (only the panels that did),
+then wait for X input or a splat image (at most a few ms: the period of the background results). So
+the window never waits for an export, and renders requested by several events are coalesced.
 """
 
 from __future__ import annotations
