@@ -86,6 +86,7 @@ class ThreadCPU:
         self.period = period
         self.snaps: list[tuple[float, dict]] = []  # (perf_counter, {key: (name, cpu_s)})
         self._names: dict[int, str] = {}
+        self._roles: dict[int, str] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="bench-sampler", daemon=True)
         self._tck = os.sysconf("SC_CLK_TCK")
@@ -101,6 +102,12 @@ class ThreadCPU:
         return s[s.index("(") + 1:s.rindex(")")], int(f[11]) + int(f[12])
 
     def _child_role(self, pid: int) -> str:
+        if pid in self._roles:  # read once: a child that has exited has no command line left to read
+            return self._roles[pid]
+        self._roles[pid] = role = self._read_role(pid)
+        return role
+
+    def _read_role(self, pid: int) -> str:
         try:
             with open(f"/proc/{pid}/cmdline", "rb") as fh:
                 cmd = fh.read().split(b"\0")
