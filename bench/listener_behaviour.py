@@ -61,6 +61,9 @@ TARGETS = {"head_motion_deg": 2.0, "nods_per_min": 3.0, "nod_contingency_ratio":
 
 
 CLIP_SECONDS = 15.0
+#: condition -> (behaviour layers on, temperature; None = the default decoding)
+CONDITIONS = {"default": (True, None), "model alone": (False, None), "sampling t=1": (True, 1.0),
+              "model alone, sampling t=1": (False, 1.0)}
 METHOD = ("nod onsets 0.2-1.0 s after a VAD pause onset (>= 200 ms silence after >= 700 ms speech), share "
           "against 1000 circular shifts of the nod times; a real recording is reacted to by N seeded "
           "listeners (seeds 0..N-1: decoding and behaviour layers), pooled, and each shift moves the nod "
@@ -132,11 +135,12 @@ def measure(params: dict, speech: np.ndarray) -> dict:
 def pool(rows: list[dict], n_shifts: int = 1000, groups: list | None = None) -> dict:
     """Pooled measures of clips; ``groups``: one label per row, rows of one label (seeded realisations
     of one recording) share each circular shift of the contingency test."""
-    from holo_viewer.reaction.listening import nod_contingency
+    from holo_viewer.reaction.listening import lag_histogram, nod_contingency, nod_lags
 
     mins = sum(r["seconds"] for r in rows) / 60.0
     c = nod_contingency([r["nods"] for r in rows], [r["pauses"] for r in rows], [r["seconds"] for r in rows],
                         n_shifts=n_shifts, seed=0, groups=groups)
+    lags = np.concatenate([nod_lags(r["nods"], r["pauses"], 2.0) for r in rows]) if rows else np.zeros(0)
     durs = np.concatenate([r["blink_durations"] for r in rows]) if rows else np.zeros(0)
     n_frames = [r["seconds"] * 25 for r in rows]
     return {
@@ -146,6 +150,9 @@ def pool(rows: list[dict], n_shifts: int = 1000, groups: list | None = None) -> 
         "nods_per_min": sum(len(r["nods"]) for r in rows) / mins,
         "pauses_per_min": sum(len(r["pauses"]) for r in rows) / mins,
         "nod_contingency_share": c.share, "nod_contingency_ratio": c.ratio, "nod_contingency_p": c.p,
+        # nod onset - the latest pause onset before it (nods within 2 s of one), 0.1-s bins 0..2 s
+        "nod_lag_hist_0.1s": lag_histogram(lags, 0.1, 2.0),
+        "nod_lag_s_quartiles": [float(x) for x in np.percentile(lags, [25, 50, 75])] if lags.size else None,
         "blinks_per_min": sum(len(r["blinks"]) for r in rows) / mins,
         "blink_duration_s": [float(np.min(durs)), float(np.median(durs)), float(np.max(durs))] if durs.size else None,
         "smiles_per_min": sum(len(r["smiles"]) for r in rows) / mins,
@@ -446,6 +453,10 @@ def main(argv=None) -> int:
                     help="live: track at most this many webcam frames a second (default: every frame)")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "holo_viewer_listener_bench"),
                     help="where the trainee webcam clip is cached")
+    ap.add_argument("--conditions", default=",".join(CONDITIONS),
+                    help="comma-separated subset of: " + ", ".join(CONDITIONS) + " (default all)")
+    ap.add_argument("--recordings", default="librispeech,jfk,tts",
+                    help="comma-separated subset of librispeech, jfk, tts (default all; JFK is held out)")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "listener_behaviour.json"))
     args = ap.parse_args(argv)
     import torch
@@ -461,13 +472,21 @@ def main(argv=None) -> int:
     n_shifts = 200 if args.quick else 1000
     n_seeds = min(args.seeds, 4) if args.quick else args.seeds
     t_all, c_all, load0 = time.perf_counter(), time.process_time(), os.getloadavg()
+    want = {x.strip() for x in args.recordings.split(",") if x.strip()}
+    bad = want - {"librispeech", "jfk", "tts"}
+    if bad:
+        ap.error(f"--recordings: expected librispeech, jfk, tts; found {sorted(bad)}")
     clips = []
     for name, group in REAL:
-        wave, _ = read_wav(SPEECH / f"{name}.wav")
-        clips.append((group, name, wave, range(n_seeds)))
-    clips += [(g, n, w, range(1)) for g, n, w in tts_clips(n_tts, args.tts_seconds)]
-    conditions = {"default": (True, None), "model alone": (False, None), "sampling t=1": (True, 1.0),
-                  "model alone, sampling t=1": (False, 1.0)}
+        if name.split("_")[0] in want:
+            wave, _ = read_wav(SPEECH / f"{name}.wav")
+            clips.append((group, name, wave, range(n_seeds)))
+    if "tts" in want:
+        clips += [(g, n, w, range(1)) for g, n, w in tts_clips(n_tts, args.tts_seconds)]
+    names = [x.strip() for x in args.conditions.split(",") if x.strip()]
+    if not names or any(x not in CONDITIONS for x in names):
+        ap.error(f"--conditions: expected a subset of {list(CONDITIONS)}, found {names}")
+    conditions = {k: CONDITIONS[k] for k in names}
     per_clip, groups, labels = [], {}, {}
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
@@ -509,6 +528,8 @@ def main(argv=None) -> int:
     # both real recordings in one test (independent recordings: each its own shift; the seeded
     # listeners of one recording share theirs): how the two recordings' evidence pools
     for cond in conditions:
+        if not all((cond, g) in groups for _, g in REAL):
+            continue
         rows = [r for _, g in REAL for r in groups[(cond, g)]]
         labs = [g for _, g in REAL for _ in groups[(cond, g)]]
         results.append({"clip": "real: both recordings pooled", "condition": cond,
@@ -518,6 +539,7 @@ def main(argv=None) -> int:
     plot(png, both, both_speech, both_params, both_m,
          "librispeech + 0.5 s + JFK (the 15-s clip), seed 0, default settings")
     from holo_viewer.reaction.api import load_default_bundle
+    from holo_viewer.reaction.decoding import listening_stride
 
     meta = load_default_bundle().meta
     record = {"bench": "listener_behaviour", "date": time.strftime("%Y-%m-%d"), "quick": bool(args.quick),
@@ -525,7 +547,8 @@ def main(argv=None) -> int:
               "config": {"seeds_per_real_recording": n_seeds, "tts_clips_per_voice": n_tts,
                          "tts_seconds": args.tts_seconds, "n_shifts": n_shifts, "speaker_face": "still",
                          "held_out": "JFK recording and both TTS voices: never looked at while tuning",
-                         "contingency_method": METHOD},
+                         "contingency_method": METHOD, "conditions": list(conditions),
+                         "recordings": sorted(want), "model_stride_frames": listening_stride(load_default_bundle().model.config.k)},
               "targets": TARGETS, "results": results, "clips": per_clip, "plot": png.name,
               "clip": {"audio": "librispeech_198-209-0000 + 0.5 s silence + jfk_inaugural_1961, cut",
                        "seconds": both_m["seconds"], "nods": len(both_m["nods"]), "pauses": len(both_m["pauses"]),

@@ -8,8 +8,8 @@ import pytest
 from holo_viewer.errors import InputError
 from holo_viewer.reaction.listening import (aversions, count_events, detect_blinks, detect_nods, eyelid_channel,
                                             gaze_angles, gaze_on_target, gaze_yaw_correlation, head_angles_deg,
-                                            head_motion_deg, ideal_contingency_p,
-                                            nod_contingency)
+                                            head_motion_deg, ideal_contingency_p, lag_histogram,
+                                            nod_contingency, nod_lags)
 
 FPS = 25
 
@@ -135,3 +135,11 @@ def test_gaze_measures():
 def test_events_with_hysteresis():
     x = np.array([0, 1.2, 0.8, 1.1, 0.3, 1.0, 1.0, 0.0])
     assert count_events(x, on=1.0).tolist() == [1, 5]
+
+
+def test_nod_lags_from_the_latest_pause_and_their_histogram():
+    lags = nod_lags(np.array([0.5, 2.35, 3.05, 9.0, 4.15]), np.array([4.0, 2.0, 1.0]), max_lag=2.0)
+    np.testing.assert_allclose(lags, [0.35, 1.05, 0.15])  # 0.5: before any pause; 9.0: 5 s after the last
+    assert nod_lags(np.zeros(0), np.array([1.0])).size == 0 and nod_lags(np.array([1.0]), np.zeros(0)).size == 0
+    h = lag_histogram(lags, 0.1, 2.0)
+    assert len(h) == 20 and sum(h) == 3 and h[1] == 1 and h[3] == 1 and h[10] == 1

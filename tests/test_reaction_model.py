@@ -104,6 +104,29 @@ def test_state_shapes_match_a_built_model(overrides):
         state_shapes(ModelConfig(**{**overrides, "speaker_window": 7}))
 
 
+def test_generate_stride_keeps_the_first_frames_of_each_window():
+    """stride < k: each step predicts k frames and keeps the first ``stride``; the next step comes
+    ``stride`` frames later and sees them (and the speaker up to there); stride = k is the default."""
+    m = _model()
+    B, T, S = 1, 22, 26
+    g = torch.Generator().manual_seed(2)
+    audio, sp, cent = torch.randn(B, T, 40, generator=g), torch.rand(B, T, S, generator=g), torch.rand(32, S, generator=g)
+    pain = torch.tensor([0.3])
+    full = generate(m, cent, audio, sp, pain, temperature=1.0, seed=5)
+    torch.testing.assert_close(generate(m, cent, audio, sp, pain, temperature=1.0, seed=5, stride=4), full)
+    half = generate(m, cent, audio, sp, pain, temperature=1.0, seed=5, stride=2)
+    assert half.shape == (B, T, S)
+    torch.testing.assert_close(half[:, :2], full[:, :2])  # the first window: same logits, same variate
+    assert not torch.allclose(half, full)
+    # causal at the stride: a change of the speaker from frame 6 on reaches frames >= 6 only
+    audio2 = audio.clone()
+    audio2[:, 6:] += 5.0
+    half2 = generate(m, cent, audio2, sp, pain, temperature=1.0, seed=5, stride=2)
+    torch.testing.assert_close(half2[:, :6], half[:, :6])
+    with pytest.raises(InputError, match="stride"):
+        generate(m, cent, audio, sp, pain, stride=5)
+
+
 def test_generate_rejects_bad_inputs():
     m = _model()
     cent = torch.rand(32, 26)

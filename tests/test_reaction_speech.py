@@ -61,7 +61,9 @@ def test_features_survive_gain(clips):
 
 def test_stream_equals_offline(clips):
     """The tracker fed 0.32 s at a time (and, for the JFK clip, 0.1 s) gives the offline rows exactly,
-    in whole pitch blocks of 8 frames."""
+    in whole pitch blocks of PITCH_BLOCK (4) frames."""
+    from holo_viewer.reaction.speech import PITCH_BLOCK
+
     for name, step in ((CLIPS[0], 640 * 8), (CLIPS[1], 1600)):
         x, sr, f = clips[name]
         tr = SpeechTracker()
@@ -70,7 +72,7 @@ def test_stream_equals_offline(clips):
             tr.push(x[i:i + step])
             rows.append(tr.frames())
         r = np.concatenate(rows)
-        n = f.shape[0] // 8 * 8
+        n = f.shape[0] // PITCH_BLOCK * PITCH_BLOCK
         assert r.shape == (n, f.shape[1])
         np.testing.assert_allclose(r, f[:n], atol=1e-5)
         assert tr._audio.shape[0] <= 2.4 * 16000 + 1024 + 8 * 640 + step  # memory stays flat
@@ -184,3 +186,6 @@ def test_reaction_stream_equals_react_on_real_speech(clips):
         out.append(stream.push_frame(still[t], 0.0)[0])
     np.testing.assert_allclose(np.array(out), offline, atol=1e-6)
     assert np.ptp(offline[:, -3]) > 0.02  # and the head moves (pitch, radians)
+    # one step every 4 frames (decoding.LISTENING_STRIDE), each keeping 4 of the k = 8 predicted
+    assert stream.stride == 4 and len(stream.windows) == 1 + T // 4
+    assert [w.first_frame for w in stream.windows[:3]] == [0, 4, 8]

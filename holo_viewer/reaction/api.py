@@ -24,7 +24,7 @@ from ..errors import InputError, ReactionError
 from ..fileio import read_npz
 from ..validation import check_array, check_finite_scalar
 from .audio import AudioConfig, log_mel
-from .decoding import DEFAULT_TEMPERATURE, DEFAULT_TOP_K
+from .decoding import DEFAULT_TEMPERATURE, DEFAULT_TOP_K, listening_stride
 from .features import FPS, flame_from_state, state_from_flame
 from .model import generate
 from .train import ReactionBundle, load_checkpoint
@@ -142,8 +142,8 @@ def speaker_audio_features(audio: np.ndarray, sample_rate: int, n_frames: int, c
 
 def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_state: np.ndarray,
           pain: float = 0.0, listener_past: np.ndarray | None = None, temperature: float = 0.0,
-          top_k: int | None = None, seed: int = 0, smoothing: float = 0.0) -> np.ndarray:
-    """Listener face states (T, S) reacting to a speaker clip, streamed k frames at a time.
+          top_k: int | None = None, seed: int = 0, smoothing: float = 0.0, stride: int | None = None) -> np.ndarray:
+    """Listener face states (T, S) reacting to a speaker clip, streamed ``stride`` frames at a time.
 
     Parameters
     ----------
@@ -159,6 +159,10 @@ def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_s
     smoothing : float >= 0
         Time constant in seconds of :func:`smooth_states` applied to the output (0 = raw model
         output, as the metrics use; animation callers pass :data:`ANIMATION_SMOOTHING_S`).
+    stride : int, optional
+        Frames between model steps (each predicts k frames and keeps the first ``stride``); default
+        :data:`~holo_viewer.reaction.decoding.LISTENING_STRIDE` (4) or k if smaller, as
+        :class:`~holo_viewer.reaction.stream.ReactionStream` (``live``) steps.
     """
     cfg = bundle.model.config
     S = cfg.state_dim
@@ -174,7 +178,7 @@ def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_s
     out = generate(bundle.model, bundle.centroids(), feats[None],
                    torch.from_numpy(np.asarray(speaker_state, dtype=np.float32))[None],
                    torch.tensor([pain], dtype=torch.float32), listener_past=past, temperature=temperature,
-                   top_k=top_k, seed=seed)
+                   top_k=top_k, seed=seed, stride=listening_stride(cfg.k) if stride is None else stride)
     initial = None if past is None else past[0, -1].numpy()  # continue smoothly from the listener's past
     return smooth_states(out[0].numpy(), smoothing, initial=initial)
 

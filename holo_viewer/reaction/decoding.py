@@ -16,4 +16,16 @@ DEFAULT_TEMPERATURE = 0.8
 #: top-k of the default decoding
 DEFAULT_TOP_K = 20
 
-__all__ = ["DEFAULT_TEMPERATURE", "DEFAULT_TOP_K"]
+#: frames between two model steps when a listener is animated (``react``, ``ReactionStream`` and so ``live``):
+#: each step predicts the model's k = 8 frames and keeps the first 4 (0.16 s), so the listener answers a
+#: pause up to 0.16 s sooner, and its nod after a pause is drawn at twice as many points of the speech
+#: (docs/reaction.md, "Stepping"). Must be a multiple of ``speech.PITCH_BLOCK`` (the pitch channel is
+#: complete per block). ``generate`` (the REACT metrics) steps k frames unless told.
+LISTENING_STRIDE = 4
+
+__all__ = ["DEFAULT_TEMPERATURE", "DEFAULT_TOP_K", "LISTENING_STRIDE", "listening_stride"]
+
+
+def listening_stride(k: int) -> int:
+    """The animation paths' frames per model step for a model predicting ``k`` frames: min(4, k)."""
+    return max(1, min(LISTENING_STRIDE, int(k)))

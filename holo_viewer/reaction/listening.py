@@ -37,7 +37,7 @@ from ..validation import check_array
 
 __all__ = ["head_angles_deg", "head_motion_deg", "detect_nods", "NodContingency", "nod_contingency",
            "ideal_contingency_p", "eyelid_channel", "detect_blinks", "gaze_angles", "gaze_on_target", "aversions",
-           "gaze_yaw_correlation", "count_events", "runs"]
+           "gaze_yaw_correlation", "count_events", "runs", "nod_lags", "lag_histogram"]
 
 FPS = 25.0
 
@@ -166,6 +166,25 @@ def nod_contingency(nod_times: Sequence[np.ndarray], pause_times: Sequence[np.nd
     mean = float(shifted.mean())
     return NodContingency(tot, n_p, share, mean, share / mean if mean > 0 else float("nan"),
                           float((1 + np.sum(shifted >= share)) / (1 + n_shifts)))
+
+
+def nod_lags(nod_times: np.ndarray, pause_times: np.ndarray, max_lag: float = 2.0) -> np.ndarray:
+    """Seconds from the latest pause onset at or before each nod onset to the nod, for the nods that
+    come within ``max_lag`` of one (nod onsets and pause onsets in seconds; order kept)."""
+    n = np.asarray(nod_times, dtype=np.float64).reshape(-1)
+    q = np.sort(np.asarray(pause_times, dtype=np.float64).reshape(-1))
+    if n.size == 0 or q.size == 0:
+        return np.zeros(0)
+    i = np.searchsorted(q, n, side="right") - 1
+    ok = i >= 0
+    d = n[ok] - q[i[ok]]
+    return d[d <= max_lag]
+
+
+def lag_histogram(lags: np.ndarray, bin_s: float = 0.1, max_lag: float = 2.0) -> list[int]:
+    """Counts of ``lags`` in bins of ``bin_s`` from 0 to ``max_lag`` (the last bin closed)."""
+    nb = int(round(max_lag / bin_s))
+    return np.histogram(np.asarray(lags, np.float64), bins=np.linspace(0.0, max_lag, nb + 1))[0].astype(int).tolist()
 
 
 def ideal_contingency_p(pause_times: np.ndarray, duration: float, n_listeners: int = 20,

@@ -249,7 +249,8 @@ def sample_tokens(logits: Tensor, temperature: float = 0.0, top_k: int | None = 
 @torch.no_grad()
 def generate(model: ReactionModel, centroids: Tensor, audio: Tensor, speaker: Tensor, pain: Tensor,
              listener_past: Tensor | None = None, n_frames: int | None = None, temperature: float = 0.0,
-             top_k: int | None = None, seed: int | None = None, start: int = 0, coupled: bool = True) -> Tensor:
+             top_k: int | None = None, seed: int | None = None, start: int = 0, coupled: bool = True,
+             stride: int | None = None) -> Tensor:
     """Stream a listener reaction, ``k`` frames per step, feeding generated frames back.
 
     Parameters
@@ -266,6 +267,9 @@ def generate(model: ReactionModel, centroids: Tensor, audio: Tensor, speaker: Te
     temperature, top_k, coupled : decoding (temperature 0 = argmax; see :func:`sample_tokens`)
     seed : int, optional  seed of the sampling generator
     start : int           first generated frame index (speaker frames ``< start`` are context)
+    stride : int, optional
+        Frames kept per step, 1..k (default k): each step predicts k frames and keeps the first
+        ``stride``; the next step comes ``stride`` frames later and sees them as listener past.
 
     Returns
     -------
@@ -285,6 +289,9 @@ def generate(model: ReactionModel, centroids: Tensor, audio: Tensor, speaker: Te
     if start < 0 or n_frames < 1 or start + n_frames > T:
         raise ReactionError(f"n_frames/start: frames [{start}, {start + n_frames}) outside the clip of {T} frames")
     S, Ws, Wl, k = cfg.state_dim, cfg.speaker_window, cfg.listener_window, cfg.k
+    stride = k if stride is None else int(stride)
+    if not 1 <= stride <= k:
+        raise InputError(f"stride: expected 1..{k} (the model's k), found {stride}")
     gen = None
     if temperature > 0:
         gen = torch.Generator().manual_seed(0 if seed is None else int(seed))
@@ -299,8 +306,9 @@ def generate(model: ReactionModel, centroids: Tensor, audio: Tensor, speaker: Te
     while done < n_frames:
         lo = t + 1  # speaker frames [t - Ws + 1, t] sit at [t + 1, t + Ws] in padded coordinates
         logits = model(a_pad[:, lo:lo + Ws], s_pad[:, lo:lo + Ws], hist, pain)
-        steps = min(k, n_frames - done)
-        tok = sample_tokens(logits[:, :steps], temperature, top_k, gen, coupled)
+        steps = min(stride, n_frames - done)
+        # stride < k: the whole k-frame window is sampled (as ReactionStream does), its first frames kept
+        tok = sample_tokens(logits if stride < k else logits[:, :steps], temperature, top_k, gen, coupled)[:, :steps]
         block = centroids[tok]
         out.append(block)
         hist = torch.cat([hist, block], dim=1)[:, -Wl:]

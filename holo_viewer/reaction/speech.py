@@ -19,8 +19,8 @@ live loop); every channel is causal except Praat's pitch path (see ``pitch``)::
                640 (i + 1) / 16000 - 0.02 s, else 0
     3 pitch    log2(f0 / running geometric mean of the voiced speech f0 so far) in octaves, clipped
                to [-1, 1]; 0 where unvoiced.  Praat's path finder looks ahead, so the pitch is found
-               in blocks of 8 frames (the model's step, 0.32 s): block [8j, 8j + 8) from Praat over
-               the 2.4 s of audio ending with its last frame -- the same offline and streaming
+               in blocks of 4 frames (the listening paths' model step, 0.16 s): block [4j, 4j + 4) from
+               Praat over the 2.4 s of audio ending with its last frame -- the same offline and streaming
     4 silence  seconds since speech stopped / 2, clipped to 1; 0 while speaking
     5 speech   length of the latest speech run (ongoing or ended) in seconds / 3, clipped to 1
 
@@ -61,7 +61,7 @@ MIN_SILENCE_S, MIN_SPEECH_S = 0.2, 0.7
 LEVEL_PRIOR_DB, PRIOR_FRAMES = -26.0, 5.0
 PITCH_PRIOR_HZ = 150.0
 STREAM_PITCH_S = 2.4  # trailing audio Praat runs over for each block
-PITCH_BLOCK = 8  # frames per pitch block (the model's k)
+PITCH_BLOCK = 4  # frames per pitch block (decoding.LISTENING_STRIDE: the model steps at block ends)
 
 #: channel names of :func:`speech_features`, in column order
 SPEECH_FEATURES: tuple[str, ...] = ("vad", "energy", "voiced", "pitch", "silence", "speech")
@@ -361,7 +361,7 @@ def low_pitch_cues(features: np.ndarray, fps: float = FPS, percentile: float = 2
 class SpeechTracker:
     """The speech channels computed as audio arrives (the live loop's and :mod:`.stream`'s path).
 
-    :meth:`push` takes new samples; :meth:`frames` returns the rows of the pitch blocks (8 frames)
+    :meth:`push` takes new samples; :meth:`frames` returns the rows of the pitch blocks (4 frames)
     whose audio is complete and not yet returned, equal to :func:`speech_features` rows.
     """
 

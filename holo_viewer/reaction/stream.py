@@ -1,10 +1,11 @@
 """The reaction model streamed frame by frame (no threads, no devices): the live loop's clock calls it.
 
 Frame ``t`` (25 fps) arrives as its speaker state plus the audio up to sample ``640 (t + 1)``.
-Whenever ``t + 1`` is a multiple of ``k``, one model step predicts listener frames
-``t + 1 .. t + k`` from the speaker's last ``speaker_window`` frames and the listener's last
-``listener_window`` frames, exactly the step of :func:`holo_viewer.reaction.model.generate`
-(the first window, frames ``0 .. k-1``, is predicted from the padding alone, as offline).
+Whenever ``t + 1`` is a multiple of ``stride`` (default 4, :func:`~.decoding.listening_stride`), one
+model step predicts listener frames ``t + 1 .. t + k`` from the speaker's last ``speaker_window``
+frames and the listener's last ``listener_window`` frames and keeps ``t + 1 .. t + stride``, exactly
+the step of :func:`holo_viewer.reaction.model.generate` with that ``stride`` (the first window is
+predicted from the padding alone, as offline).
 Log-mel frames come from the last window of audio only (a rolling buffer), so memory stays
 flat in long sessions; each frame sees the same samples as offline (frame ``t`` needs audio up to
 sample ``640 t + 512``, delivered with the frame). Output is smoothed causally (:func:`~holo_viewer.reaction.api.smooth_states`).
@@ -42,10 +43,13 @@ class ReactionStream:
     temperature, top_k, seed : decoding (temperature 0 = argmax)
     smoothing : float
         Output smoothing time constant in seconds (0 = raw tokens).
+    stride : int, optional
+        Frames between model steps, 1..k (default :func:`~.decoding.listening_stride` of k: 4), as
+        :func:`~holo_viewer.reaction.api.react`.
     """
 
     def __init__(self, bundle, temperature: float = 0.0, top_k: int | None = None, seed: int = 0,
-                 smoothing: float = 0.12) -> None:
+                 smoothing: float = 0.12, stride: int | None = None) -> None:
         import torch
 
         from .audio import AudioConfig
@@ -55,6 +59,11 @@ class ReactionStream:
         cfg = self.model.config
         self.cfg = cfg
         self.S, self.Ws, self.Wl, self.k = cfg.state_dim, cfg.speaker_window, cfg.listener_window, cfg.k
+        from .decoding import listening_stride
+
+        self.stride = listening_stride(self.k) if stride is None else int(stride)
+        if not 1 <= self.stride <= self.k:
+            raise ReactionError(f"stride: expected 1..{self.k} (the model's k), found {self.stride}")
         self.audio_config = AudioConfig(n_mels=cfg.n_mels)
         self.hop = self.audio_config.hop
         self.temperature = check_finite_scalar(temperature, "temperature", low=0.0)
@@ -170,7 +179,7 @@ class ReactionStream:
         with torch.no_grad():
             logits = self.model(a, s, h, torch.tensor([float(pain)], dtype=torch.float32))
             tok = sample_tokens(logits, self.temperature, self.top_k, self._gen, coupled=True)
-        block = self._centroids[tok][0].numpy()  # (k, S)
+        block = self._centroids[tok][0].numpy()[:self.stride]  # (stride, S) of the k predicted
         self._hist = np.concatenate([self._hist, block])[-self.Wl:]
         self._pending.extend(block)
         self.windows.append(WindowInfo(len(self.windows), self.t + 1, self.t, time.perf_counter() - t0))
@@ -182,18 +191,18 @@ class ReactionStream:
         if st.shape[0] != self.S:
             raise ReactionError(f"speaker_state: expected {self.S} values, found {st.shape[0]}")
         pain = check_finite_scalar(pain, "pain", low=0.0, high=1.0)
-        if self.t == -1:  # frames 0 .. k-1 from the padding alone, as generate() does
+        if self.t == -1:  # frames 0 .. stride-1 from the padding alone, as generate() does
             self._step(pain)
         self.t += 1
         self._speaker = np.concatenate([self._speaker[1:], np.nan_to_num(st)[None]])
         raw = self._pending.pop(0)
-        window = (self.t // self.k)
+        window = (self.t // self.stride)
         if self.smoothing > 0:
             a = 1.0 - np.exp(-1.0 / (25.0 * self.smoothing))
             self._smoothed = raw.copy() if self._smoothed is None else self._smoothed + a * (raw - self._smoothed)
             out = self._smoothed.copy()
         else:
             out = raw.copy()
-        if (self.t + 1) % self.k == 0:
+        if (self.t + 1) % self.stride == 0:
             self._step(pain)
         return out, window
