@@ -57,10 +57,15 @@ def _interleave() -> None:
             lin = Interleaver(cal, quilt.shape, mode=mode)
             out = lin(quilt)
             lin.update(quilt, out, np.arange(0, out.size, 97, dtype=np.int32))
+            # the one-pass column update (tracked frames; its weights are read-only in nearest mode)
+            nb = -(-(quilt.shape[1] // lin.cols) // 16)
+            lin.update_columns(quilt, out, np.arange(lin.n_views * nb).reshape(lin.n_views, nb) % 5 == 0, block=16)
 
 
 def _live_frames() -> None:
     """Tracked (eye slices) and all-views (synthesized views) live frames on a small random scene."""
+    import numpy as np
+
     from bench.scenes import random_scene
     from holo_viewer.display import eyes
     from holo_viewer.display.calibration import DisplayCalibration
@@ -77,6 +82,15 @@ def _live_frames() -> None:
         live.frame(g, mode="all_views")
         for mode in ("tracked", "eye_centred"):
             live.frame(g, eyes.TrackedViewer(2.0, 0.6), mode=mode)
+    # the eye slices' reference: the moved splats written out (crossed_slit.transform_splats) and drawn by pinholes
+    from holo_viewer.render import crossed_slit, fast
+    from holo_viewer.render.config import RenderConfig
+
+    rig = crossed_slit.slice_rig(cams, cal)
+    es = crossed_slit.eye_slices(rig, eyes.eye_positions(eyes.TrackedViewer(6.0, 0.5)))
+    ref = np.zeros((len(es), cams.height, cams.width, 3), np.float32)
+    fast.render(g, cams, RenderConfig(), tile_mask=np.zeros((len(cams),) + fast.tile_grid(cams), bool),
+                passes=crossed_slit.slice_pass(rig, es, ref))
     # the eye slices' numba scatter (the C++ one is used when built; tests compare the two)
     from holo_viewer.display import slices
 
