@@ -91,6 +91,15 @@ def _live_frames() -> None:
     ref = np.zeros((len(es), cams.height, cams.width, 3), np.float32)
     fast.render(g, cams, RenderConfig(), tile_mask=np.zeros((len(cams),) + fast.tile_grid(cams), bool),
                 passes=crossed_slit.slice_pass(rig, es, ref))
+    # view synthesis on a source stack that is not one contiguous block (its row-extent and warp kernels
+    # specialise on the layout; tests pass such stacks)
+    from holo_viewer.render import view_synthesis
+
+    sources = view_synthesis.source_views(len(cams), 5)
+    stack = np.zeros((sources.size, cams.height, cams.width, 4), np.float32)[..., :3]
+    view_synthesis.warp_views(stack, np.ones((sources.size, cams.height, cams.width), np.float32), sources,
+                              view_synthesis.rig_of(cams), iters=1,
+                              out=np.zeros((len(cams), cams.height, cams.width, 3), np.float32))
     # the eye slices' numba scatter (the C++ one is used when built; tests compare the two)
     from holo_viewer.display import slices
 
