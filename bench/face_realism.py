@@ -476,14 +476,22 @@ def load_patient_avatar(name: str) -> Any:
     return load(name)
 
 
-def run_patient(name: str, images_dir: Path | None = None) -> dict[str, Any]:
+def run_patient(name: str, images_dir: Path | None = None, renderer: str = "gaussians") -> dict[str, Any]:
     """The issue's detector targets for one avatar, on its Gaussians: faces found in the 48 quilt views
     (neutral, smile, pain 1, mouth open), the landmark ratios and monotonicity over pain 0 / 0.25 / 0.5 / 1
     in the three view windows, and the same on what an eye receives through the panel (the native image
-    seen by :class:`~holo_viewer.display.simulate.VirtualDisplay` from ``EYE_ANGLES``, at infinity)."""
+    seen by :class:`~holo_viewer.display.simulate.VirtualDisplay` from ``EYE_ANGLES``, at infinity).
+
+    ``renderer="mesh"``: the same, with every quilt view rendered as the avatar's textured mesh (the
+    posed head the Gaussians are rigged to, its textures, the quilt cameras; interleaved into the native
+    image as the pipeline does): a texture change read before the avatar is refitted to it."""
     from holo_viewer.display.simulate import VirtualDisplay
     from holo_viewer.fileio import save_image
     from holo_viewer.pipeline import Pipeline
+    from holo_viewer.pipeline.core import quilt_layout, tile_views
+
+    if renderer not in ("gaussians", "mesh"):
+        raise ValueError(f"renderer: expected 'gaussians' or 'mesh', found {renderer!r}")
 
     det = Detector()
     t0, c0, load0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
@@ -493,10 +501,19 @@ def run_patient(name: str, images_dir: Path | None = None) -> dict[str, Any]:
     angles = camera_angles(cams, np.asarray(framing[0]))
     windows = {f"{t:+g} deg": view_window(angles, t) for t in LANDMARK_ANGLES}
     eye = VirtualDisplay(pipe.calibration, downsample=EYE_DOWNSAMPLE)
+    if renderer == "mesh":
+        from holo_viewer.flame.head_textures import head_appearance
+        from holo_viewer.flame.preview import render_mesh_cameras
+
+        appearance, faces = head_appearance(pipe.model), pipe.model.faces.cpu().numpy()
     per: dict[str, Any] = {}
     for ename, face in expressions().items():
         pipe.set_face(face)
-        views = pipe.views()
+        if renderer == "mesh":
+            imgs, _ = render_mesh_cameras(pipe.mesh(), faces, cams, list(range(len(cams))), appearance=appearance)
+            views = np.stack([np.clip(np.asarray(im, np.float32), 0.0, 1.0) for im in imgs])
+        else:
+            views = pipe.views()
         found, meas = 0, {}
         for i in range(len(cams)):
             r = det(views[i])
@@ -505,7 +522,8 @@ def run_patient(name: str, images_dir: Path | None = None) -> dict[str, Any]:
         entry: dict[str, Any] = {"found": int(found), "quilt": {
             label: median_measures([meas[i] for i in w]) for label, w in windows.items()}}
         if ename in ("neutral", "pain_025", "pain_05", "pain_1"):
-            native = pipe.native()
+            native = pipe.native() if renderer != "mesh" else \
+                pipe._compute_native(tile_views(views, *quilt_layout(pipe.calibration)))
             entry["eye"] = {}
             for a in EYE_ANGLES:
                 img = eye.see(native, a)
@@ -521,7 +539,8 @@ def run_patient(name: str, images_dir: Path | None = None) -> dict[str, Any]:
                 save_image(images_dir / f"{name}_{ename}_view{len(cams) // 2}.png", views[len(cams) // 2])
         per[ename] = entry
         print(f"  {name} {ename}: found {found}/48", flush=True)
-    return {"name": name, "per_expression": per, "windows": windows, "seconds": time.perf_counter() - t0,
+    return {"name": name, "renderer": renderer, "per_expression": per, "windows": windows,
+            "seconds": time.perf_counter() - t0,
             "cpu_seconds": time.process_time() - c0, "load_1min": [load0, os.getloadavg()[0]]}
 
 
@@ -594,7 +613,7 @@ def sheet_views(name: str) -> dict[str, Any]:
 
 
 def main_patients(names: Sequence[str], json_path: str, images: str | None, sheet: str | None = None,
-                  sheet_only: bool = False, merge: bool = False) -> int:
+                  sheet_only: bool = False, merge: bool = False, renderer: str = "gaussians") -> int:
     from holo_viewer.fileio import atomic_write
 
     if "all" in names:  # every fitted patient, in place of "all" (``all default`` adds the default avatar)
@@ -621,7 +640,8 @@ def main_patients(names: Sequence[str], json_path: str, images: str | None, shee
         out.update({k: v for k, v in prev["patients"].items() if k not in names})
     results: dict[str, Any] = {}
     for name in names:
-        res = run_patient(name, Path(images) if images else None)
+        res = run_patient(name, Path(images) if images else None,
+                          **({"renderer": renderer} if renderer != "gaussians" else {}))
         rows = evaluate_patient(res)
         n_pass = sum(r["pass"] for r in rows)
         print(f"\n{name}: {n_pass}/{len(rows)} pass ({res['seconds']:.0f} s, {res['cpu_seconds']:.0f} s CPU, load "
@@ -637,7 +657,7 @@ def main_patients(names: Sequence[str], json_path: str, images: str | None, shee
         record = {"config": {"eye_angles_deg": list(EYE_ANGLES), "eye_downsample": EYE_DOWNSAMPLE,
                              "eye_distance": "infinity", "pain": list(PAIN_LEVELS), "window_half_width_deg": WINDOW_DEG,
                              "detector": "dlib HOG (upsample 1) + shape_predictor_68_face_landmarks",
-                             "host": platform.node()}, "patients": out}
+                             "renderer": renderer, "host": platform.node()}, "patients": out}
         with atomic_write(json_path, "w") as fh:
             json.dump(record, fh, indent=1)
     print(f"wrote {json_path}")
@@ -661,13 +681,17 @@ def main(argv: list[str] | None = None) -> int:
                          "default avatar): faces found, pain ratios and monotonicity on the quilt and through the panel (writes bench/results/face_realism_patients.json "
                          "unless --json is given)")
     ap.add_argument("--sheet-only", action="store_true", help="with --patients and --sheet: only the contact sheet")
+    ap.add_argument("--mesh", action="store_true", help="with --patients: render the textured mesh instead of "
+                    "the Gaussians (quilt views and the panel; writes bench/results/face_realism_patients_mesh.json "
+                    "unless --json is given): a texture change read before the avatar is refitted")
     ap.add_argument("--merge", action="store_true", help="with --patients: keep the other avatars' entries of the "
                     "JSON file (per-patient runs into one file)")
     args = ap.parse_args(argv)
     if args.patients:
-        path = args.json if "--json" in (argv or sys.argv) else str(Path(__file__).parent / "results" /
-                                                                    "face_realism_patients.json")
-        return main_patients(args.patients, path, args.images, args.sheet, args.sheet_only, args.merge)
+        default = "face_realism_patients_mesh.json" if args.mesh else "face_realism_patients.json"
+        path = args.json if "--json" in (argv or sys.argv) else str(Path(__file__).parent / "results" / default)
+        return main_patients(args.patients, path, args.images, args.sheet, args.sheet_only, args.merge,
+                             "mesh" if args.mesh else "gaussians")
     if args.quick:
         from holo_viewer.fileio import atomic_write
 

@@ -238,3 +238,12 @@ def test_patients_all_expands_and_merge_keeps_other_avatars(tmp_path, monkeypatc
     assert sorted(json.loads(path.read_text())["patients"]) == ["ann", "cy", "default"]
     path.write_text("[1]")
     assert fr.main(["--patients", "ann", "--json", str(path), "--merge"]) == 2
+    # --mesh: the textured mesh instead of the Gaussians, recorded in the file's config
+    kinds = []
+    monkeypatch.setattr(fr, "run_patient", lambda name, images_dir=None, renderer="gaussians": kinds.append(renderer) or {
+        "name": name, "per_expression": {}, "seconds": 1.0, "cpu_seconds": 1.0, "load_1min": [0.0, 0.0]})
+    assert fr.main(["--patients", "cy", "--mesh", "--json", str(path)]) == 0
+    assert kinds == ["mesh"] and json.loads(path.read_text())["config"]["renderer"] == "mesh"
+    monkeypatch.undo()
+    with pytest.raises(ValueError, match="renderer: expected"):
+        fr.run_patient("ann", renderer="splats")
