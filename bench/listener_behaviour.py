@@ -453,8 +453,8 @@ def main(argv=None) -> int:
                     help="live: track at most this many webcam frames a second (default: every frame)")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "holo_viewer_listener_bench"),
                     help="where the trainee webcam clip is cached")
-    ap.add_argument("--conditions", default=",".join(CONDITIONS),
-                    help="comma-separated subset of: " + ", ".join(CONDITIONS) + " (default all)")
+    ap.add_argument("--condition", action="append", default=None, choices=list(CONDITIONS),
+                    help="run this condition (repeatable; default all four)")
     ap.add_argument("--recordings", default="librispeech,jfk,tts",
                     help="comma-separated subset of librispeech, jfk, tts (default all; JFK is held out)")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "listener_behaviour.json"))
@@ -483,10 +483,7 @@ def main(argv=None) -> int:
             clips.append((group, name, wave, range(n_seeds)))
     if "tts" in want:
         clips += [(g, n, w, range(1)) for g, n, w in tts_clips(n_tts, args.tts_seconds)]
-    names = [x.strip() for x in args.conditions.split(",") if x.strip()]
-    if not names or any(x not in CONDITIONS for x in names):
-        ap.error(f"--conditions: expected a subset of {list(CONDITIONS)}, found {names}")
-    conditions = {k: CONDITIONS[k] for k in names}
+    conditions = {k: CONDITIONS[k] for k in (args.condition or CONDITIONS)}
     per_clip, groups, labels = [], {}, {}
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
