@@ -79,6 +79,7 @@ def test_render_batch_flags_switch_layers_off(tmp_path):
                  "--no-gaze", "--no-blinks"]) == 0
 
 
+@pytest.mark.slow
 def test_manifest_viewer_fields_set_the_gaze_target(tmp_path):
     from holo_viewer.reaction.api import default_checkpoint_path
 

@@ -62,6 +62,7 @@ def test_live_pain_change_shows_within_half_a_second_and_eyes_follow_the_viewer(
     assert PainTimeline.from_json(tl).level_at(1.5) == 0.7
 
 
+@pytest.mark.slow
 def test_live_without_behaviour_is_the_model_alone(tmp_path):
     _, tr, _ = _session(tmp_path, "off", {"events": [{"t": 0, "pain": 0.3}]}, behaviour=None, seconds=1.2)
     assert not np.any(tr["listener_eyes_pose"]) and np.all(tr["pain_shown"] == -1)

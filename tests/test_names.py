@@ -93,6 +93,7 @@ def implementations(word: str, tell: str, root: Path = PKG) -> list[str]:
     return out
 
 
+@pytest.mark.slow
 def test_shared_helpers_are_defined_once(tmp_path):
     for word, (where, tell) in ONE_OF_EACH.items():
         assert implementations(word, tell) == [where], f"a second {word} implementation: use {where}'s"

@@ -267,6 +267,7 @@ def test_replay_refuses_another_avatar(recorded: Path, tmp_path: Path) -> None:
     assert not (tmp_path / "r.mkv").exists()
 
 
+@pytest.mark.slow
 def test_mute_key_keeps_the_voice_out_of_the_patients_input(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """m after 3 frames: from then on the reaction stream and audio.wav get silence; the key is recorded."""
     import json
@@ -296,6 +297,7 @@ def test_mute_key_keeps_the_voice_out_of_the_patients_input(tmp_path: Path, monk
     assert not np.concatenate(heard)[cut:].any()  # the model heard silence too
 
 
+@pytest.mark.slow
 def test_rating_keys_store_trainee_ratings_and_help_shows_the_key_map(tmp_path: Path) -> None:
     """t selects the next trainee, 0-9 and x (10) rate; each rating is stored with its session time;
     h shows the key map on the preview."""
