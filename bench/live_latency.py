@@ -250,9 +250,9 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     t_start = time.perf_counter()
     cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=record, flush_s=60.0,
                             **({"viewer_fps": None} if before else {}))
-    fits = loop.StreamSpeechGate.fits
-    if before:
-        loop.StreamSpeechGate.fits = staticmethod(lambda tracker: False)
+    gate_for = loop.speech_gate
+    if before:  # the old loop: the pause gate runs its own VAD
+        loop.speech_gate = lambda stream: gate_for(None)
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
     renderer = TimedRenderer(LiveAvatarRenderer(tile_scale=tile_scale, mode=mode)) if render else None
     import resource
@@ -263,7 +263,7 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
         with ThreadCPU() as sampler:
             summary = session.run(renderer)
     finally:
-        loop.StreamSpeechGate.fits = fits
+        loop.speech_gate = gate_for
     t_end = time.perf_counter()
     cpu1, kids1 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu_s = cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime
@@ -306,7 +306,7 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
                                                        sorted(cpu.items(), key=lambda kv: -kv[1]) if v > 0}}
     return {**timing,
         "render": render, "tile_scale": tile_scale, "render_mode": mode, "wall_s": round(wall, 2), "frames": n,
-        "viewer_fps": cfg.viewer_fps, "shared_vad": type(session._speech_gate).__name__ == "StreamSpeechGate",
+        "viewer_fps": cfg.viewer_fps, "shared_vad": session._speech_gate.shares_vad,
         "viewer_updates": session.viewer_updates,
         "tracker_cpu_ms_median": pct(session.tracker_cpu_ms, 50),
         "tracker_cpu_s": round(float(np.sum(session.tracker_cpu_ms)) / 1000, 2),

@@ -520,7 +520,7 @@ def test_stream_speech_gate_equals_speech_gate():
     """The live loop's pause gate reads the reaction stream's VAD (silero once per chunk instead of twice,
     issue 37): on 8 s of recorded speech, delivered in 25 fps frames and in uneven blocks (a late
     microphone), it gives the standalone SpeechGate's (speaking, pause onset) and probability exactly."""
-    from holo_viewer.live.loop import StreamSpeechGate
+    from holo_viewer.live.loop import speech_gate
     from holo_viewer.reaction.audio import read_wav
     from holo_viewer.reaction.speech import SpeechGate, SpeechTracker
 
@@ -530,8 +530,12 @@ def test_stream_speech_gate_equals_speech_gate():
         bounds = np.cumsum(np.resize(sizes, x.shape[0] // min(sizes) + 1))
         blocks = np.split(x, bounds[bounds < x.shape[0]])
         tracker, ref = SpeechTracker(), SpeechGate()
-        gate = StreamSpeechGate(tracker)
-        assert StreamSpeechGate.fits(tracker) and not StreamSpeechGate.fits(None)
+
+        class _Stream:
+            _speech = tracker
+
+        gate = speech_gate(_Stream())
+        assert gate.shares_vad and not ref.shares_vad and not speech_gate(None).shares_vad
         got, want = [], []
         for b in blocks:
             tracker.push(b)

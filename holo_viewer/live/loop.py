@@ -39,7 +39,7 @@ from ..tracking.viewer import ViewerPose
 from .controls import Controls, Scenario
 from .session import NATIVE_VIDEO, SessionRecorder
 
-__all__ = ["LiveSessionConfig", "LiveSession", "StreamSpeechGate", "starting_image"]
+__all__ = ["LiveSessionConfig", "LiveSession", "speech_gate", "starting_image"]
 
 FPS = 25
 #: the session video's encoder flags: the lossless policy's, on one encoder thread. x264's default
@@ -100,39 +100,15 @@ class LiveSessionConfig:
                 raise InputError(f"{name}: expected frames a second > 0 or None, found {f!r}")
 
 
-class StreamSpeechGate:
-    """:class:`~holo_viewer.reaction.speech.SpeechGate` (speaking, pause onset known now) without a VAD of
-    its own: silero's speech probabilities are those the reaction stream's
-    :class:`~holo_viewer.reaction.speech.SpeechTracker` computed from the same samples, in the same
-    512-sample chunks, from the same reset state, so the same numbers (tested against ``SpeechGate``).
-    The reaction thread ran silero twice per chunk, ~40 % of its CPU (issue 37).
-    :meth:`step` must follow ``tracker.push`` of the same samples (the loop's ``stream.push_audio``)."""
+def speech_gate(stream: Any) -> Any:
+    """The behaviour layers' pause gate (:class:`~holo_viewer.reaction.speech.SpeechGate`) for a session
+    whose reaction stream is ``stream``: reading that stream's silero probabilities when it keeps speech
+    channels (silero ran twice per chunk otherwise, ~40 % of the reaction thread's CPU; issue 37), else
+    with its own VAD."""
+    from ..reaction.speech import SpeechGate, SpeechTracker
 
-    def __init__(self, tracker: Any) -> None:
-        from ..reaction.speech import ENERGY_WINDOW, PauseDetector
-
-        self._tracker = tracker
-        self._tail = np.zeros(ENERGY_WINDOW, np.float32)  # the last samples (the level's window)
-        self._prob = 0.0
-        self.detector = PauseDetector()
-
-    @staticmethod
-    def fits(tracker: Any) -> bool:
-        """The tracker keeps the chunk probabilities this gate reads (else use ``SpeechGate``)."""
-        return isinstance(getattr(tracker, "_chunks", None), list)
-
-    def step(self, samples: np.ndarray) -> tuple[bool, bool]:
-        """(speaking, pause onset known now) for the next frame; ``samples`` is that frame's audio."""
-        x = np.nan_to_num(np.asarray(samples, dtype=np.float32).reshape(-1))
-        chunks = self._tracker._chunks
-        if chunks:
-            self._prob = float(chunks[-1])
-        n = self._tail.shape[0]
-        self._tail = np.concatenate([self._tail, x])[-n:]
-        seg = self._tail.astype(np.float64)
-        db = 10.0 * np.log10(float((seg * seg).sum()) / n + 1e-10)
-        speaking, onset = self.detector.step(self._prob, db)
-        return speaking, onset is not None
+    tracker = getattr(stream, "_speech", None)
+    return SpeechGate(vad=tracker if isinstance(tracker, SpeechTracker) else None)
 
 
 class _Slot:
@@ -262,9 +238,8 @@ class LiveSession:
                 self._speaker.put((last_t, tf.state, tf.found))
                 if tf.all_faces:
                     last_full, faces_seen = last_t, len(tf.faces)
-                    self.viewer_updates += 1
-                    self._viewer.put((last_t, viewer.update(tf.eye_positions, last_t)))
-                elif faces_seen == 1 and tf.found:  # one face: its pose at the webcam's rate, as before
+                # every face looked at, or one face: its pose at the webcam's rate, as before
+                if tf.all_faces or (faces_seen == 1 and tf.found):
                     self.viewer_updates += 1
                     self._viewer.put((last_t, viewer.update(tf.eye_positions, last_t)))
                 if self.config.record_video:
@@ -444,10 +419,8 @@ class LiveSession:
         self._stream = ReactionStream(load_default_bundle(), temperature=cfg.temperature,
                                       top_k=DEFAULT_TOP_K if cfg.temperature else None, seed=cfg.seed)
         from ..behaviour import BehaviourConfig, ListenerBehaviour
-        from ..reaction.speech import SpeechGate
 
-        tracker = getattr(self._stream, "_speech", None)  # the model's speech channels (their VAD), if it has them
-        self._speech_gate = StreamSpeechGate(tracker) if StreamSpeechGate.fits(tracker) else SpeechGate()
+        self._speech_gate = speech_gate(self._stream)  # the model's speech channels' VAD, if it has them
         if cfg.behaviour is not None:
             bcfg = BehaviourConfig(seed=cfg.seed) if isinstance(cfg.behaviour, str) else cfg.behaviour
             self._behaviour = ListenerBehaviour(bcfg)

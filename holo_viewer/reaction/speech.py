@@ -379,6 +379,11 @@ class SpeechTracker:
         """Samples received so far."""
         return self._start + self._audio.shape[0]
 
+    @property
+    def vad_probability(self) -> float | None:
+        """silero-vad's speech probability of the last complete 512-sample chunk (None before the first)."""
+        return self._chunks[-1] if self._chunks else None
+
     def push(self, samples: np.ndarray) -> None:
         """Append 16-kHz mono samples (NaN/inf become 0)."""
         x = np.nan_to_num(np.asarray(samples, dtype=np.float32).reshape(-1))
@@ -455,27 +460,44 @@ class SpeechGate:
     of the silero-vad probability and the level) and whether a pause onset (:class:`PauseDetector`,
     the definition of :func:`pause_onsets`) became known at this frame, 200 ms after the silence
     began. :func:`speech_cues` is the same over a whole clip.
+
+    ``vad``: a :class:`SpeechTracker` fed the same samples (its :meth:`~SpeechTracker.push` before each
+    :meth:`step`): the gate reads that tracker's silero probabilities instead of running silero a second
+    time on the same chunks (the live loop's reaction stream; the same numbers, tested).
     """
 
-    def __init__(self) -> None:
-        self._vad_model = _load_vad()
-        self._vad_model.reset_states()
+    def __init__(self, vad: SpeechTracker | None = None) -> None:
+        self._vad = vad
+        self._vad_model = None
+        if vad is None:
+            self._vad_model = _load_vad()
+            self._vad_model.reset_states()
         self._tail = np.zeros(ENERGY_WINDOW, np.float32)  # the last samples (energy window, VAD chunk rest)
         self._pending = np.zeros(0, np.float32)  # samples not yet in a VAD chunk
         self._prob = 0.0
         self._n = 0  # samples received
         self.detector = PauseDetector()
 
+    @property
+    def shares_vad(self) -> bool:
+        """Whether the gate reads another :class:`SpeechTracker`'s VAD (``vad``) instead of its own."""
+        return self._vad is not None
+
     def step(self, samples: np.ndarray) -> tuple[bool, bool]:
         """(speaking, pause onset known now) for the next frame; ``samples`` is that frame's audio."""
         x = np.nan_to_num(np.asarray(samples, dtype=np.float32).reshape(-1))
         self._n += x.shape[0]
-        self._pending = np.concatenate([self._pending, x])
-        n_chunks = self._pending.shape[0] // CHUNK
-        if n_chunks:
-            probs = vad_probabilities(self._pending[:n_chunks * CHUNK], model=self._vad_model)
-            self._prob = float(probs[-1])
-            self._pending = self._pending[n_chunks * CHUNK:]
+        if self._vad is not None:
+            p = self._vad.vad_probability
+            if p is not None:
+                self._prob = float(p)
+        else:
+            self._pending = np.concatenate([self._pending, x])
+            n_chunks = self._pending.shape[0] // CHUNK
+            if n_chunks:
+                probs = vad_probabilities(self._pending[:n_chunks * CHUNK], model=self._vad_model)
+                self._prob = float(probs[-1])
+                self._pending = self._pending[n_chunks * CHUNK:]
         self._tail = np.concatenate([self._tail, x])[-ENERGY_WINDOW:]
         seg = self._tail.astype(np.float64)
         db = 10.0 * np.log10(float((seg * seg).sum()) / ENERGY_WINDOW + 1e-10)
