@@ -42,6 +42,21 @@ def test_manifest_behaviour_and_pain_timeline_fields(tmp_path):
     assert job_hash(jobs[10]) == job_hash(read_manifest(_write(tmp_path / "n.jsonl", [{"frames": 2}]))[0])
 
 
+def test_the_job_hash_follows_the_reaction_checkpoint(tmp_path, monkeypatch):
+    """A retrained checkpoint is another job for the reaction drivers (its contents are hashed), not for a
+    job that only replays FLAME parameters."""
+    from holo_viewer.batch import manifest
+
+    np.savez(tmp_path / "f.npz", expr=np.zeros((2, 4), np.float32), rotation=np.zeros((2, 3), np.float32))
+    ck = tmp_path / "ck.pt"
+    ck.write_bytes(b"checkpoint one")
+    monkeypatch.setitem(manifest.SHIPPED_ASSETS, "reaction_checkpoint", str(ck))
+    react, replay = read_manifest(_write(tmp_path / "m.jsonl", [{"seconds": 0.4}, {"flame_params": "f.npz"}]))
+    before = job_hash(react), job_hash(replay)
+    ck.write_bytes(b"checkpoint two, retrained")  # another size: the digest cache keys on size and mtime
+    assert job_hash(react) != before[0] and job_hash(replay) == before[1]
+
+
 def test_csv_cells_hold_json(tmp_path):
     (tmp_path / "m.csv").write_text('seconds,behaviour,pain_timeline\n0.4,"{""blinks"": false}",'
                                     '"[{""t"": 0, ""level"": 0.5}]"\n0.4,false,\n')

@@ -45,6 +45,31 @@ def test_neighbour_matrix_groups_listeners_of_one_context(split):
     assert set(split.style) <= {"mirror", "backchannel", "mixed"}
 
 
+def test_cue_lag_jitter_spreads_each_listeners_backchannels(split):
+    """cue_lag_jitter_s 0 keeps one lag per listener (the data bit for bit as without it); J > 0 draws
+    each cue's lag around the listener's own, inside [0.2, 1.0] s, and moves only backchannels."""
+    from holo_viewer.reaction.data import LAG_RANGE_S, cue_lags
+
+    assert cue_lags(0.37, 5, 0.0, None).tolist() == [0.37] * 5
+    rng = np.random.default_rng(0)
+    means, stds = [], []
+    for lag in np.linspace(0.2, 1.0, 41):
+        x = cue_lags(float(lag), 400, 0.3, rng)
+        assert LAG_RANGE_S[0] <= x.min() and x.max() <= LAG_RANGE_S[1]
+        means.append(abs(x.mean() - lag))
+        stds.append(x.std())
+    assert np.median(means) < 0.06 and 0.12 < np.median(stds) < 0.18  # U(-0.3, 0.3): std 0.173 before reflection
+    pooled = np.concatenate([cue_lags(float(lag), 50, 0.3, rng) for lag in rng.uniform(0.2, 1.0, 400)])
+    assert np.histogram(pooled, bins=8, range=LAG_RANGE_S)[0].min() > 0.08 * pooled.size  # still spread over the range
+    zero = make_synthetic_split("test", SyntheticConfig(**{**SMALL.__dict__, "cue_lag_jitter_s": 0.0}))
+    np.testing.assert_array_equal(zero.listener_state, split.listener_state)
+    jit = make_synthetic_split("test", SyntheticConfig(**{**SMALL.__dict__, "cue_lag_jitter_s": 0.3}))
+    np.testing.assert_array_equal(jit.speaker_state, split.speaker_state)
+    np.testing.assert_array_equal(jit.lag_s, split.lag_s)
+    moved = np.abs(jit.listener_state - split.listener_state).max(axis=(1, 2)) > 1e-6
+    assert moved.any() and not moved[[s == "mirror" for s in split.style]].any()
+
+
 def test_speech_like_audio_and_face_follow_speech(split):
     w = split.waveforms[0]
     assert np.abs(w).max() <= 1.0

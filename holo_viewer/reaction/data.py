@@ -11,7 +11,8 @@ bit for bit. The generative story (docs/reaction.md, "Synthetic data") in short:
   brows (AU1/AU2) rise on pitch accents, smile (AU6/AU12) and frown (AU4/AU15) episodes,
   head pitch bobs with speech energy, slow head sway.
 * **Listeners.** Each speaker context is heard by several listeners (``listeners_per_context``),
-  each with a style and a lag ``L ~ U(0.2, 1.0) s``:
+  each with a style and a lag ``L ~ U(0.2, 1.0) s`` (per cue ``L + U(-J, J)`` reflected into
+  [0.2, 1.0] s when ``cue_lag_jitter_s`` J > 0):
   ``mirror`` (smile and brows copy the speaker's, delayed by L), ``backchannel`` (at each
   pause onset + L a head nod with p = 0.85 and a smile with p = 0.7), ``mixed`` (0.6 x both).
   All listeners of one context are mutually appropriate: the neighbour matrix is 1 where two
@@ -62,6 +63,10 @@ class SyntheticConfig:
     audio_features: str = "log_mel"
     #: tts voices: the share of speaker contexts whose face stays still (as a user's still video)
     still_face_fraction: float = 0.5
+    #: backchannel timing spread within one listener, seconds: 0 = every cue answered at the listener's
+    #: own lag L; J > 0 = each cue's lag is L + U(-J, J), reflected into [0.2, 1.0] s (people's
+    #: backchannels vary from cue to cue as well as between listeners: Blomsma et al. 2024)
+    cue_lag_jitter_s: float = 0.0
 
     @property
     def n_frames(self) -> int:
@@ -269,8 +274,25 @@ def _pain_table(au_names) -> tuple[np.ndarray, np.ndarray]:
     return grid, table
 
 
+#: the rule listeners' backchannel lag after a cue, seconds (people: 0.2-1.0 s, Ward & Tsukahara 2000)
+LAG_RANGE_S = (0.2, 1.0)
+
+
+def cue_lags(lag_s: float, n: int, jitter_s: float, rng: np.random.Generator | None) -> np.ndarray:
+    """Per-cue backchannel lags (n,) of a listener with lag ``lag_s``: all ``lag_s`` when ``jitter_s`` is 0,
+    else ``lag_s + U(-jitter_s, jitter_s)`` reflected into [LAG_RANGE_S] (so a listener's mean stays near
+    its own lag and the pooled lags stay spread over the whole range)."""
+    lo, hi = LAG_RANGE_S
+    if jitter_s <= 0 or n == 0:
+        return np.full(n, float(lag_s))
+    x = lag_s + rng.uniform(-jitter_s, jitter_s, n) - lo
+    w = hi - lo
+    x = np.mod(x, 2 * w)
+    return lo + np.where(x > w, 2 * w - x, x)
+
+
 def _listener(rng, sp: SpeakerClip, style: str, lag_s: float, pain: float, config: SyntheticConfig,
-              au_names, pain_grid, pain_table) -> np.ndarray:
+              au_names, pain_grid, pain_table, jitter_rng: np.random.Generator | None = None) -> np.ndarray:
     T = config.n_frames
     tf = np.arange(T) / FPS
     lag = int(round(lag_s * FPS))
@@ -284,7 +306,7 @@ def _listener(rng, sp: SpeakerClip, style: str, lag_s: float, pain: float, confi
         smile = smile + w_m * g * shifted(sp.smile)
         brow = brow + w_m * 0.7 * shifted(sp.brow)
     if w_b > 0:
-        t0 = sp.pause_onsets / FPS + lag_s
+        t0 = sp.pause_onsets / FPS + cue_lags(lag_s, sp.pause_onsets.size, config.cue_lag_jitter_s, jitter_rng)
         nod = rng.random(t0.size) < 0.85
         smi = rng.random(t0.size) < 0.7
         pitch = pitch + w_b * _bumps(tf, t0[nod], np.full(nod.sum(), 0.8), rng.uniform(0.08, 0.15, nod.sum()))
@@ -422,9 +444,12 @@ def make_synthetic_split(name: str, config: SyntheticConfig = SyntheticConfig(),
             style = STYLES[order[j % len(STYLES)]]
             if style == "mirror" and not sp.state.any():  # a still face: nothing to mirror
                 style = "backchannel"
-            lag = float(rng.uniform(0.2, 1.0))
+            lag = float(rng.uniform(*LAG_RANGE_S))
             pain = 0.0 if rng.random() < config.pain_zero_fraction else float(rng.uniform(0.0, 1.0))
-            l_states.append(_listener(rng, sp, style, lag, pain, config, au_names, grid, table))
+            # the per-cue jitter draws from its own stream, so jitter 0 leaves the data bit for bit as before
+            jit = (np.random.default_rng(np.random.SeedSequence([config.seed, _SPLIT_IDS[name], c, j, 2]))
+                   if config.cue_lag_jitter_s > 0 else None)
+            l_states.append(_listener(rng, sp, style, lag, pain, config, au_names, grid, table, jit))
             sp_states.append(sp.state)
             ctx.append(c)
             pains.append(pain)
