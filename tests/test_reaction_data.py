@@ -68,6 +68,14 @@ def test_cue_lag_jitter_spreads_each_listeners_backchannels(split):
     np.testing.assert_array_equal(jit.lag_s, split.lag_s)
     moved = np.abs(jit.listener_state - split.listener_state).max(axis=(1, 2)) > 1e-6
     assert moved.any() and not moved[[s == "mirror" for s in split.style]].any()
+    # cue_smile_prob: how often a backchannel listener smiles at a cue (0 = only the mirrored smiles)
+    ten = SyntheticConfig(seed=3, seconds=10.0, train_contexts=1, val_contexts=1, test_contexts=2, listeners_per_context=3)
+    some, none = (make_synthetic_split("test", SyntheticConfig(**{**ten.__dict__, "cue_smile_prob": p})) for p in (0.7, 0.0))
+    au12 = list(some.au_names).index("AU12")
+    back = np.asarray([s != "mirror" for s in some.style])
+    assert back.any() and some.listener_state[back, :, au12].max() > 0.2  # AU12 / 5: a smile of >= 1
+    only = np.asarray([s == "backchannel" for s in some.style])  # mixed listeners also mirror the speaker's smile
+    assert only.any() and none.listener_state[only, :, au12].max() < 0.1
 
 
 def test_speech_like_audio_and_face_follow_speech(split):

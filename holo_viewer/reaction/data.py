@@ -14,7 +14,7 @@ bit for bit. The generative story (docs/reaction.md, "Synthetic data") in short:
   each with a style and a lag ``L ~ U(0.2, 1.0) s`` (per cue ``L + U(-J, J)`` reflected into
   [0.2, 1.0] s when ``cue_lag_jitter_s`` J > 0):
   ``mirror`` (smile and brows copy the speaker's, delayed by L), ``backchannel`` (at each
-  pause onset + L a head nod with p = 0.85 and a smile with p = 0.7), ``mixed`` (0.6 x both).
+  pause onset + L a head nod with p = 0.85 and a smile with p = 0.7, ``cue_smile_prob``), ``mixed`` (0.6 x both).
   All listeners of one context are mutually appropriate: the neighbour matrix is 1 where two
   clips share the speaker context.
 * **Pain.** Each clip has a pain level ``p`` (0 with probability ``pain_zero_fraction``, else
@@ -67,6 +67,8 @@ class SyntheticConfig:
     #: own lag L; J > 0 = each cue's lag is L + U(-J, J), reflected into [0.2, 1.0] s (people's
     #: backchannels vary from cue to cue as well as between listeners: Blomsma et al. 2024)
     cue_lag_jitter_s: float = 0.0
+    #: probability that a backchannel listener smiles at a cue (a nod: 0.85)
+    cue_smile_prob: float = 0.7
 
     @property
     def n_frames(self) -> int:
@@ -308,7 +310,7 @@ def _listener(rng, sp: SpeakerClip, style: str, lag_s: float, pain: float, confi
     if w_b > 0:
         t0 = sp.pause_onsets / FPS + cue_lags(lag_s, sp.pause_onsets.size, config.cue_lag_jitter_s, jitter_rng)
         nod = rng.random(t0.size) < 0.85
-        smi = rng.random(t0.size) < 0.7
+        smi = rng.random(t0.size) < config.cue_smile_prob
         pitch = pitch + w_b * _bumps(tf, t0[nod], np.full(nod.sum(), 0.8), rng.uniform(0.08, 0.15, nod.sum()))
         smile = smile + w_b * _bumps(tf, t0[smi], np.full(smi.sum(), 1.6), rng.uniform(0.5, 0.9, smi.sum()))
     smile, brow = np.clip(smile, 0, 1), np.clip(brow, 0, 1)

@@ -111,7 +111,7 @@ _LIMITS: dict[str, tuple[float | None, float | None, bool]] = {
     "data.seed": (0, None, False), "data.seconds": (1.0, 3600.0, False), "data.train_contexts": (1, None, False),
     "data.val_contexts": (1, None, False), "data.test_contexts": (1, None, False),
     "data.listeners_per_context": (1, None, False), "data.pain_zero_fraction": (0, 1, False),
-    "data.cue_lag_jitter_s": (0, 0.8, False),
+    "data.cue_lag_jitter_s": (0, 0.8, False), "data.cue_smile_prob": (0, 1, False),
     "data.audio.sample_rate": (1, None, False), "data.audio.fps": (1, None, False),
     "data.audio.n_fft": (2, None, False), "data.audio.n_mels": (1, None, False), "data.audio.fmin": (0, None, False),
     "data.audio.fmax": (0, None, True), "data.audio.eps": (0, None, True),
