@@ -327,7 +327,7 @@ def live_listening(wave: np.ndarray, out: Path, cache: Path, render: bool = True
     from holo_viewer.reaction.speech import pause_onsets, speech_features
 
     sys.path.insert(0, str(ROOT / "bench"))
-    from live_latency import TimedRenderer, backchannel_latency
+    from live_latency import FrameTimes, backchannel_latency
 
     t_clip = time.perf_counter()
     files = write_trainee_clip(cache, wave)
@@ -336,9 +336,10 @@ def live_listening(wave: np.ndarray, out: Path, cache: Path, render: bool = True
     cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=False, flush_s=60.0,
                             track_fps=track_fps)
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
-    renderer = TimedRenderer(LiveAvatarRenderer(tile_scale=tile_scale)) if render else None
+    renderer = LiveAvatarRenderer(tile_scale=tile_scale) if render else None
+    shown = FrameTimes()  # each displayed frame's visible change, in the order shown
     t0, c0 = time.perf_counter(), time.process_time()
-    session.run(renderer)
+    session.run(renderer, on_frame=shown)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     with np.load(out / "tracks.npz") as z:
         tr = {k: z[k] for k in z.files}
@@ -376,7 +377,7 @@ def live_listening(wave: np.ndarray, out: Path, cache: Path, render: bool = True
            "nods_per_min": len(nods) / minutes, "brow_raises_per_min": len(brows) / minutes,
            "smiles_per_min": len(smiles) / minutes, "pauses": len(pauses)}
     if render:
-        vis = backchannel_latency(tr, pauses, backs, renderer.change)
+        vis = backchannel_latency(tr, pauses, backs, shown.change)
         got = [v for v in vis if v is not None]
         row.update({"backchannel_latency_s_median": float(np.median(got)) if got else None,
                     "backchannel_latency_s": vis, "pauses_answered_visibly": len(got),

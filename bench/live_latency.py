@@ -169,29 +169,24 @@ class ThreadCPU:
         return self.snaps[b][0] - self.snaps[a][0], out
 
 
-class TimedRenderer:
-    """A LiveAvatarRenderer as the loop sees it, noting when each frame is handed back and how much
-    its native image changed from the frame before (RMS, 8-bit levels, every 4th pixel): when the
-    first frame came and when a change became visible."""
+class FrameTimes:
+    """The live loop's ``on_frame`` callback: when each frame was shown (perf_counter, in the order shown)
+    and how much its native image changed from the frame shown before it (RMS, 8-bit levels, every 4th
+    pixel): when the first frame came and when a change became visible. (With frames in flight the
+    frames are rendered by several renderers; they are shown, and timed here, in order.)"""
 
-    def __init__(self, renderer) -> None:
-        self._r = renderer
-        self.done: list[float] = []  # perf_counter when each frame was handed to the loop
+    def __init__(self) -> None:
+        self.done: list[float] = []  # perf_counter when each frame was shown
         self.change: list[float] = []  # RMS change of the native image from the previous frame
         self._prev = None
 
-    def __getattr__(self, name):
-        return getattr(self._r, name)
-
-    def render(self, *args, **kwargs):
-        res = self._r.render(*args, **kwargs)
+    def __call__(self, res) -> None:
         if res.native is not None:
             cur = res.native[::4, ::4].astype(np.float32)
             self.change.append(float("inf") if self._prev is None else
                                float(np.sqrt(np.mean((cur - self._prev) ** 2))))
             self._prev = cur
         self.done.append(time.perf_counter())
-        return res
 
 
 #: RMS change of the native image (8-bit levels, every 4th pixel) that counts as visible
@@ -237,11 +232,14 @@ def pct(x, q):
 
 
 def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: str = "auto",
-                record: bool = False, before: bool = False) -> dict:
+                record: bool = False, in_flight: int | None = None, render_threads: int | None = None,
+                threads_in_flight: int | None = None) -> dict:
     """One replayed session; ``record``: the session writes its native video too (as ``live`` does);
-    ``before``: the loop without this round's cuts (issue 37: every tracked frame looks at every face,
-    ``viewer_fps=None``; the pause gate runs its own VAD), for a paired A/B in one run (``--ab``)."""
-    from holo_viewer.live import loop, sources
+    ``in_flight``: ``LiveSessionConfig.frames_in_flight`` (None: the default), ``render_threads``: the
+    renderer's threads (None: all cores), ``threads_in_flight``: each renderer's threads once frames are in
+    flight (``LiveSessionConfig.render_threads_in_flight``; None: the cores over the frames in flight), for
+    paired A/Bs in one run (``--ab``, ``--ab-threads``)."""
+    from holo_viewer.live import sources
     from holo_viewer.live.loop import LiveSessionConfig, LiveSession
     from holo_viewer.live.render import LiveAvatarRenderer
     from holo_viewer.reaction.audio import read_wav
@@ -249,21 +247,17 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     load_start = os.getloadavg()[0]
     t_start = time.perf_counter()
     cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=record, flush_s=60.0,
-                            **({"viewer_fps": None} if before else {}))
-    gate_for = loop.speech_gate
-    if before:  # the old loop: the pause gate runs its own VAD
-        loop.speech_gate = lambda stream: gate_for(None)
+                            render_threads_in_flight=threads_in_flight,
+                            **({"frames_in_flight": int(in_flight)} if in_flight is not None else {}))
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
-    renderer = TimedRenderer(LiveAvatarRenderer(tile_scale=tile_scale, mode=mode)) if render else None
+    renderer = LiveAvatarRenderer(tile_scale=tile_scale, mode=mode, render_threads=render_threads) if render else None
+    times = FrameTimes()
     import resource
 
     cpu0, kids0 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    try:
-        with ThreadCPU() as sampler:
-            summary = session.run(renderer)
-    finally:
-        loop.speech_gate = gate_for
+    with ThreadCPU() as sampler:
+        summary = session.run(renderer, on_frame=times)
     t_end = time.perf_counter()
     cpu1, kids1 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu_s = cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime
@@ -277,11 +271,18 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     n = len(tracks["time_s"])
     shown = len(set(tracks["display_frame"].tolist()))
 
-    vis = visible_latency(tracks, onsets, 8, renderer.change) if render else []
+    vis = visible_latency(tracks, onsets, 8, times.change) if render else []
     timing = {}
-    if render and renderer.done:
-        timing = {"first_frame_s": round(renderer.done[0] - t_start, 2),  # renderer built + session started
-                  "quit_s": round(t_end - renderer.done[-1], 2),  # last frame -> run() returned (flush, joins)
+    if render and times.done:
+        pool = session.frames_in_flight
+        gaps = np.diff(times.done)
+        timing = {"first_frame_s": round(times.done[0] - t_start, 2),  # renderer built + session started
+                  "quit_s": round(t_end - times.done[-1], 2),  # last frame -> run() returned (flush, joins)
+                  "frames_in_flight": pool.n, "render_threads": render_threads,
+                  "render_threads_in_flight": pool.threads_each if pool.n > 1 else None,
+                  "twins_ready_s": None if pool.twins_ready_s is None else round(pool.twins_ready_s, 2),
+                  # wall time between frames shown (the render_ms of a frame in flight is longer than this)
+                  "display_interval_ms_median": pct(1000 * gaps, 50), "display_interval_ms_p95": pct(1000 * gaps, 95),
                   "displayed_fps": round(shown / (n / 25.0), 2), "recording": record,
                   "visible_change_ms_median": pct(1000 * np.array(vis), 50),
                   "visible_change_ms_p95": pct(1000 * np.array(vis), 95), "onsets_visible": len(vis),
@@ -293,9 +294,9 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
                   "ffmpeg_cpu_ms_per_displayed_frame": round(1000 * ffmpeg_s / max(shown, 1), 1)}
         # the session itself (start-up excluded): from the second displayed frame to the last, CPU per
         # thread and per ffmpeg child, per displayed frame; cores_used: all of it over the wall time
-        if len(renderer.done) >= 3:
-            span, cpu = sampler.between(renderer.done[1], renderer.done[-1])
-            nfr = sum(1 for d in renderer.done[2:] if d <= sampler.snaps[-1][0])
+        if len(times.done) >= 3:
+            span, cpu = sampler.between(times.done[1], times.done[-1])
+            nfr = sum(1 for d in times.done[2:] if d <= sampler.snaps[-1][0])
             total = sum(cpu.values())
             timing["in_session"] = {
                 "seconds": round(span, 2), "frames": nfr, "cores_used": round(total / max(span, 1e-9), 2),
@@ -307,6 +308,7 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     return {**timing,
         "render": render, "tile_scale": tile_scale, "render_mode": mode, "wall_s": round(wall, 2), "frames": n,
         "viewer_fps": cfg.viewer_fps, "shared_vad": session._speech_gate.shares_vad,
+        "frames_in_flight_asked": cfg.frames_in_flight,
         "viewer_updates": session.viewer_updates,
         "tracker_cpu_ms_median": pct(session.tracker_cpu_ms, 50),
         "tracker_cpu_s": round(float(np.sum(session.tracker_cpu_ms)) / 1000, 2),
@@ -427,8 +429,13 @@ def main() -> int:
     ap.add_argument("--rss-seconds", type=float, default=0.0, help="also run a synthetic session this long for RSS")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "holo_viewer_live_bench"))
     ap.add_argument("--json", default=None)
-    ap.add_argument("--ab", action="store_true", help="also the loop before issue 37's cuts (viewer_fps None, "
-                    "the pause gate's own VAD) and the current one again, one after the other")
+    ap.add_argument("--ab", action="store_true", help="also one frame in flight (A: the loop before "
+                    "holo_viewer.live.inflight) and the default again (B), one after the other")
+    ap.add_argument("--in-flight", type=int, default=None, help="LiveSessionConfig.frames_in_flight of the "
+                    "render runs (default: the loop's default)")
+    ap.add_argument("--render-threads", type=int, default=None, help="each renderer's threads (default: all cores)")
+    ap.add_argument("--ab-threads", action="store_true", help="also the default with all cores per renderer "
+                    "in flight instead of the cores over the frames in flight (row ab_threads_all)")
     ap.add_argument("--startup-only", action="store_true", help="only the start-up runs: the live command's first "
                     "frame cold (empty kernel cache) and warm, and its quit time")
     args = ap.parse_args()
@@ -461,14 +468,19 @@ def main() -> int:
     fit = fit_speed()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
+        kw = {"in_flight": args.in_flight, "render_threads": args.render_threads}
         for render in (False, True):
             rows.append(run_session(files, Path(tmp) / f"s{int(render)}", render, args.tile_scale, args.render_mode,
-                                    record=render))
+                                    record=render, **kw))
         # the same again in this process: the renderer's tables and kernels are warm (first frame, warm)
-        warm = run_session(files, Path(tmp) / "s2", True, args.tile_scale, args.render_mode, record=True)
-        # --ab: the loop before this round's cuts, then the warm session again (a paired, interleaved A/B)
+        warm = run_session(files, Path(tmp) / "s2", True, args.tile_scale, args.render_mode, record=True, **kw)
+        # --ab: one frame in flight (A), then the default again (B): a paired A/B, one after the other
         ab = [run_session(files, Path(tmp) / f"ab{i}", True, args.tile_scale, args.render_mode, record=True,
-                          before=before) for i, before in enumerate((True, False))] if args.ab else None
+                          in_flight=n, render_threads=args.render_threads)
+              for i, n in enumerate((1, args.in_flight))] if args.ab else None
+        ab_threads = run_session(files, Path(tmp) / "abt", True, args.tile_scale, args.render_mode, record=True,
+                                 in_flight=args.in_flight, render_threads=args.render_threads,
+                                 threads_in_flight=os.cpu_count()) if args.ab_threads else None
         rss = rss_run(args.rss_seconds, Path(tmp) / "rss") if args.rss_seconds > 0 else None
     base, full = rows
     ratio = (full["reaction_ms_per_window_median"] or 0) / max(base["reaction_ms_per_window_median"] or 1e-9, 1e-9)
@@ -481,14 +493,19 @@ def main() -> int:
     for k in keys:
         print(f"{k:34s} {str(base[k]):>12s} {str(full[k]):>12s}")
     print(f"reaction ms/window, render vs no-render: x{ratio:.2f}")
-    for name, row in (("cold", full), ("warm", warm)) + ((("before (A)", ab[0]), ("after (B)", ab[1])) if ab else ()):
+    named = [("cold", full), ("warm", warm)] + ([("1 in flight (A)", ab[0]), ("default (B)", ab[1])] if ab else []) + \
+        ([("all cores per renderer in flight", ab_threads)] if ab_threads else [])
+    for name, row in named:
         print(f"{name}: {row['displayed_fps']} displayed fps with recording (load {row['load_1min_start']} -> "
               f"{row['load_1min_end']}), render {row['render_ms_median']} ms, visible change "
               f"{row['visible_change_ms_median']} ms (p95 {row['visible_change_ms_p95']}, {row['onsets_visible']} onsets), "
-              f"first frame {row['first_frame_s']} s, quit {row['quit_s']} s; CPU per displayed frame: process "
+              f"first frame {row['first_frame_s']} s, quit {row['quit_s']} s; {row['frames_in_flight']} in flight "
+              f"({row['render_threads_in_flight']} threads each) "
+              f"(twins ready {row['twins_ready_s']} s), shown every {row['display_interval_ms_median']} ms "
+              f"(p95 {row['display_interval_ms_p95']}); CPU per displayed frame: process "
               f"{row['process_cpu_ms_per_displayed_frame']} ms, ffmpeg {row['ffmpeg_cpu_ms_per_displayed_frame']} ms; "
               f"tracker {row['tracker_cpu_s']} CPU s over {row['tracked_frames']} frames (viewer_fps {row['viewer_fps']}, "
-              f"{row['viewer_updates']} viewer updates), shared VAD {row['shared_vad']}")
+              f"{row['viewer_updates']} viewer updates)")
         ins = row.get("in_session")
         if ins:
             print(f"  in session ({ins['frames']} frames, {ins['seconds']} s, start-up excluded): "
@@ -502,6 +519,7 @@ def main() -> int:
               f"(growth {rss['rss_growth_mb']} MB), late windows {rss['late_reaction_windows']}/{rss['reaction_windows']}")
     result = {"config": vars(args), "load_average": load, "cores": os.cpu_count(), "no_render": base, "render": full,
               "render_warm": warm, "ab_before": ab[0] if ab else None, "ab_after": ab[1] if ab else None,
+              "ab_threads_all": ab_threads,
               "startup": startup,
               "reaction_window_ratio_render_vs_baseline": round(ratio, 2), "fit": fit, "rss": rss}
     if args.json:

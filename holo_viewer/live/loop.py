@@ -85,6 +85,13 @@ class LiveSessionConfig:
     #: features keep the webcam's rate) and, while one face is tracked, its viewer pose. None: every
     #: tracked frame looks at every face (issue 37: the tracker's CPU; docs/live.md)
     viewer_fps: float | None = 5.0
+    #: render up to this many frames at once, each on a renderer of its own in a thread of its own, shown in
+    #: the order started (holo_viewer.live.inflight): on 2 cores one group frame leaves ~0.6 of a core idle.
+    #: Only renderers whose frames do not depend on earlier ones (LiveAvatarRenderer.frames_independent);
+    #: others render one frame at a time in this thread, as with 1
+    frames_in_flight: int = 2
+    #: each renderer's threads while frames are in flight (None: the cores over frames_in_flight, at least 1)
+    render_threads_in_flight: int | None = None
     scenario: Any = None
     #: the no-data behaviour layers (a holo_viewer.behaviour.BehaviourConfig; "default": all on, seeded
     #: by ``seed``; None: the reaction model alone, conditioned on the pain level)
@@ -94,6 +101,9 @@ class LiveSessionConfig:
 
 
     def __post_init__(self) -> None:
+        if isinstance(self.frames_in_flight, bool) or not isinstance(self.frames_in_flight, int) or \
+                self.frames_in_flight < 1:
+            raise InputError(f"frames_in_flight: expected an integer >= 1, found {self.frames_in_flight!r}")
         for name in ("track_fps", "viewer_fps"):
             f = getattr(self, name)
             if f is not None and not (isinstance(f, (int, float)) and math.isfinite(f) and f > 0):
@@ -176,6 +186,8 @@ class LiveSession:
         self._pain_source = "key"
         self._behaviour = None
         self._speech_gate = None
+        #: the renderers of run() (holo_viewer.live.inflight.FramesInFlight; None without a renderer)
+        self.frames_in_flight = None
         #: called with a line for each start-up step (the live command prints it and shows it on the preview)
         self.progress: Callable[[str], None] = lambda line: None
 
@@ -377,7 +389,8 @@ class LiveSession:
                 "render_ms": stats(self.render_ms), "late_reaction_windows": self.late_windows,
                 "late_reaction_window_max_ms": round(self.late_ms_max, 1),
                 "late_reaction_ticks": self.late_ticks, "reaction_windows": len(self.window_ms),
-                "displayed_frames": len(self.render_ms), "status": dict(self.status)}
+                "displayed_frames": len(self.render_ms), "status": dict(self.status),
+                **({"frames_in_flight": self.frames_in_flight.n} if self.frames_in_flight is not None else {})}
 
     def _log_pain(self, t: float, level: float) -> None:
         """Record an instructor level change (the session report's pain timeline, the shared schema)."""
@@ -433,9 +446,20 @@ class LiveSession:
             header["avatar"] = avatar_record(renderer.pipeline, getattr(renderer, "avatar_name", "default"))
             header["render"] = {"mode": renderer.mode, "backend": renderer.backend, "tile_scale": cfg.tile_scale,
                                 "warmup_pain": cfg.pain}
+        frames = None
         if renderer is not None:  # replay --quality live repeats this call (header["render"]["warmup_pain"])
             self.progress("rendering a first frame")
-            renderer.render({"expr": np.zeros(1)}, cfg.pain, (), 0.0, 0.6)
+            warmup = ({"expr": np.zeros(1)}, cfg.pain, (), 0.0, 0.6)
+            # up to frames_in_flight frames at once on renderers of their own: their twins are built on the
+            # other core from now on (during this warm-up, the tracker's and the first seconds if need be)
+            from .inflight import FramesInFlight
+
+            frames = FramesInFlight(renderer, cfg.frames_in_flight, warmup=warmup,
+                                    threads_each=cfg.render_threads_in_flight)
+            renderer.render(*warmup)
+            if "render" in header:
+                header["render"]["frames_in_flight"] = frames.n  # the frames are the same for any n (tested)
+        self.frames_in_flight = frames
         if self.video is not None and self.synthetic is None:
             from ..tracking.tracker import FaceTracker, TrackerConfig
             from ..tracking.viewer import WebcamMount
@@ -455,14 +479,14 @@ class LiveSession:
             threads.append(threading.Thread(target=self._tracker_loop, name="tracker", daemon=True))
         for th in threads:
             th.start()
-        shown = -1
+        submitted = -1  # the newest listener frame handed to a renderer
         frames_shown = 0
         last_render = self.clock()
         last_preview = None  # (preview image, fps, pain, pose) of the last frame: shown with "PAUSED"
         paused_shown = False
         t_shown = -1.0
-        # Ctrl-C ends the session between frames: the frame being rendered, written and shown
-        # completes (native.mkv then holds exactly the frames session.json counts)
+        # Ctrl-C ends the session between frames: the frame being shown completes (native.mkv then holds
+        # exactly the frames session.json counts); frames still rendering are dropped, never shown
         interrupted = threading.Event()
         old_sigint = None
         if threading.current_thread() is threading.main_thread():
@@ -481,47 +505,64 @@ class LiveSession:
                 if paused and not paused_shown and preview is not None and last_preview is not None:
                     preview.show(self._overlay(*last_preview))  # the last frame, "PAUSED" on it
                 paused_shown = paused
+                # 1. the newest listener frame and viewer pose to a free renderer
                 item = self._listener.get()
-                if item is None or item[0] == shown or paused:
-                    if self._media_done.is_set() and (item is None or item[0] == shown):
-                        break
-                    time.sleep(0.005)
-                    continue
-                frame, lf, pain, named, _ready = item
-                ang, dist, tracked = self._render_pose()
-                if renderer is not None:
+                new = item is not None and item[0] != submitted and not paused
+                if new and (frames is None or (frames.can_submit() and (
+                        cfg.frames is None or frames_shown + frames.in_flight < cfg.frames))):
+                    frame, lf, pain, named, _ready = item
+                    ang, dist, tracked = self._render_pose()
+                    submitted = frame
+                    if frames is None:  # no renderer: the session is still recorded
+                        frames_shown += 1
+                        self.recorder.add_display(self.now(), frame, 0.0, render_angle_deg=ang, render_distance_m=dist,
+                                                  render_tracked=tracked, render_others=())
+                        if cfg.frames is not None and frames_shown >= cfg.frames:
+                            break
+                        continue
                     # the behaviour layers put the pain in the expressions already: add none on top
                     others = self._viewer.get()[1].others if tracked else ()  # the other faces seen
-                    res = renderer.render(lf, pain if self._behaviour is None else 0.0, named, ang, dist, tracked,
-                                          **({"others": others} if others else {}))
-                    self.render_ms.append(1000 * res.seconds)
-                    # each frame once at the session time it is shown (>= 1 ms after the previous one)
-                    t_shown = max(self.now(), t_shown + 0.001)
-                    if res.native is not None and cfg.write_native_video:
-                        if writer is None:  # lossless RGB, timed Matroska; verified and renamed on close
-                            writer = ThreadedWriter(VideoWriter(
-                                out / NATIVE_VIDEO, cfg.video_fps, content="lossless", timed=True,
-                                output_params=SESSION_VIDEO_PARAMS, what="session video", nice=SESSION_VIDEO_NICE))
-                        # handed to the writer's thread (RenderedFrame.native is the frame's own array):
-                        # piping it to ffmpeg overlaps the next render
-                        writer.write(res.native, t=t_shown)
-                    if panel is not None and res.native is not None:
-                        panel.show(res.native)
-                    if preview is not None and res.preview is not None:
-                        now = self.clock()
-                        fps = 1.0 / max(now - last_render, 1e-6)
-                        last_render = now
-                        last_preview = (res.preview, fps, pain, ang, dist, tracked)
-                        preview.show(self._overlay(*last_preview))
-                    if on_frame is not None:
-                        on_frame(res)
-                shown = frame
+                    frames.submit((lf, pain if self._behaviour is None else 0.0, named, ang, dist, tracked),
+                                  {"others": others} if others else {}, tag=(frame, pain, ang, dist, tracked, others))
+                # 2. the oldest frame in flight, once rendered: shown, written, recorded (in the order started;
+                # with one renderer it rendered in this thread just now)
+                job = frames.take() if frames is not None else None
+                if job is None:
+                    in_flight = frames.in_flight if frames is not None else 0
+                    if self._media_done.is_set() and not in_flight and (item is None or item[0] == submitted):
+                        break
+                    if in_flight:
+                        frames.wait(0.005)
+                    else:
+                        time.sleep(0.005)
+                    continue
+                res = job.result
+                frame, pain, ang, dist, tracked, others = job.tag
+                self.render_ms.append(1000 * res.seconds)
+                # each frame once at the session time it is shown (>= 1 ms after the previous one)
+                t_shown = max(self.now(), t_shown + 0.001)
+                if res.native is not None and cfg.write_native_video:
+                    if writer is None:  # lossless RGB, timed Matroska; verified and renamed on close
+                        writer = ThreadedWriter(VideoWriter(
+                            out / NATIVE_VIDEO, cfg.video_fps, content="lossless", timed=True,
+                            output_params=SESSION_VIDEO_PARAMS, what="session video", nice=SESSION_VIDEO_NICE))
+                    # handed to the writer's thread (RenderedFrame.native is the frame's own array):
+                    # piping it to ffmpeg overlaps the next render
+                    writer.write(res.native, t=t_shown)
+                if panel is not None and res.native is not None:
+                    panel.show(res.native)
+                if preview is not None and res.preview is not None:
+                    now = self.clock()
+                    fps = 1.0 / max(now - last_render, 1e-6)
+                    last_render = now
+                    last_preview = (res.preview, fps, pain, ang, dist, tracked)
+                    preview.show(self._overlay(*last_preview))
+                if on_frame is not None:
+                    on_frame(res)
                 frames_shown += 1
                 # with the render call's arguments: replay --quality live repeats the call exactly
-                self.recorder.add_display(t_shown if renderer is not None else self.now(), frame,
-                                          self.render_ms[-1] if self.render_ms else 0.0, render_angle_deg=ang,
-                                          render_distance_m=dist, render_tracked=tracked,
-                                          render_others=others if renderer is not None else ())
+                self.recorder.add_display(t_shown, frame, self.render_ms[-1], render_angle_deg=ang,
+                                          render_distance_m=dist, render_tracked=tracked, render_others=others)
                 if cfg.frames is not None and frames_shown >= cfg.frames:
                     break
         except KeyboardInterrupt:
@@ -530,6 +571,8 @@ class LiveSession:
             if old_sigint is not None:
                 signal.signal(signal.SIGINT, old_sigint)
             self._stop.set()
+            if frames is not None:
+                frames.close()  # the render threads finish the frame they render; it is not shown
             for th in threads:
                 th.join(timeout=5.0)
             self.audio.stop()

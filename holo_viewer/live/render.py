@@ -101,6 +101,10 @@ class LiveAvatarRenderer:
 
         from ..pipeline.live_modes import SESSION_MODE
 
+        #: the arguments, for :meth:`twin`
+        self._args = {"tile_scale": tile_scale, "native": native, "preview": preview, "backend": backend,
+                      "calibration": calibration, "render_threads": render_threads, "mode": mode,
+                      "view_step": view_step, "avatar": avatar}
         threads = max(1, os.cpu_count() or 1) if render_threads is None else int(render_threads)
         if mode not in SESSION_MODE:
             from ..errors import InputError
@@ -108,6 +112,7 @@ class LiveAvatarRenderer:
             raise InputError(f"mode: expected one of {', '.join(SESSION_MODE)}, found {mode!r}")
         self.mode = mode
         self.session_mode = SESSION_MODE[mode]
+        self._threads = threads
         #: ``default``, a patient's name or a fitted .npz (docs/patients.md); session.json records it
         self.avatar_name = str(avatar)
         self.native_enabled = bool(native)
@@ -159,6 +164,51 @@ class LiveAvatarRenderer:
         else:
             for prepare in self.session_mode.prepare:
                 getattr(self._live, prepare)()
+
+    @property
+    def frames_independent(self) -> bool:
+        """Each frame is a function of its own render call alone, not of earlier frames: the CPU backend's
+        frame modes that redraw everything (``group``, ``all_views``: rows of
+        :data:`~holo_viewer.pipeline.live_modes.FRAME_MODES` that are not ``incremental``), so renderers
+        with the same settings give the same frame for the same call, whatever each rendered before
+        (tested), and the live loop may render frames on several of them at once
+        (:mod:`holo_viewer.live.inflight`). False for ``tracked`` (it updates the previous frame),
+        ``cone`` (not checked) and gsplat (one device)."""
+        from ..pipeline.live_modes import FRAME_MODE
+
+        if self._live is None or self.backend != "fast":
+            return False
+        s = self.session_mode
+        return all(m is not None and not FRAME_MODE[m].incremental for m in (s.tracked, s.untracked))
+
+    def twin(self, render_threads: int | None = None) -> "LiveAvatarRenderer":
+        """A new renderer with this one's settings (its own pipeline and frame buffers: safe to run in
+        another thread beside this one); ``render_threads`` replaces the thread count (the frames are the
+        same for any count: tested). The backend is the one this renderer resolved to."""
+        args = {**self._args, "backend": self.backend}
+        if render_threads is not None:
+            args["render_threads"] = int(render_threads)
+        return LiveAvatarRenderer(**args)
+
+    @property
+    def render_threads(self) -> int:
+        """The render's threads (its kernels' numba / OpenMP threads)."""
+        return self._threads
+
+    def set_render_threads(self, n: int) -> None:
+        """Render the next frames on ``n`` threads (the frames are the same for any count: tested); the
+        live loop gives each of two renderers in flight one thread of the 2 cores (holo_viewer.live.inflight)."""
+        import dataclasses
+
+        from ..render.config import RenderConfig
+
+        n = max(1, int(n))
+        self._threads = n
+        p = self.pipeline
+        p.set_render(config=dataclasses.replace(p.render_config or RenderConfig(), num_threads=n))
+        if self._live is not None:
+            c = self._live.config
+            self._live.config = dataclasses.replace(c, render=dataclasses.replace(c.render, num_threads=n))
 
     def render(self, listener: Mapping[str, np.ndarray], pain: float, named: tuple[tuple[str, float], ...],
                viewer_angle_deg: float, viewer_distance_m: float, viewer_tracked: bool = True,

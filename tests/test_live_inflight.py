@@ -1,0 +1,172 @@
+"""Frames in flight (holo_viewer.live.inflight): several renderers at once, frames shown in the order
+started, the recording and ``replay --quality live`` still the displayed frames bit-exact."""
+
+from __future__ import annotations
+
+import threading
+import time
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from holo_viewer import media
+from holo_viewer.live.inflight import FramesInFlight
+from holo_viewer.live.render import RenderedFrame
+
+
+class _HashRenderer:
+    """A stand-in renderer whose native frame is a function of the render call alone (like group frames),
+    taking a random 5-40 ms, so frames on two renderers finish out of order; ``twin()`` gives another."""
+
+    def __init__(self, seed: int = 0, log: list | None = None) -> None:
+        self.frames_independent = True
+        self.rng = np.random.default_rng(seed)
+        self.log = [] if log is None else log  # (renderer id, angle) of every call, shared by the twins
+        self.calls = 0
+
+    def twin(self, render_threads=None) -> "_HashRenderer":
+        return _HashRenderer(int(self.rng.integers(1 << 30)), self.log)
+
+    def render(self, listener, pain, named, angle, distance, tracked=True, others=()):
+        time.sleep(float(self.rng.uniform(0.005, 0.04)))
+        self.calls += 1
+        self.log.append((id(self), float(angle)))
+        key = np.concatenate([np.ravel(np.asarray(listener.get("expr", np.zeros(1)), np.float64)),
+                              [pain, angle, distance, float(tracked)], np.ravel(np.asarray(others, np.float64))])
+        seed = zlib.crc32(key.tobytes())
+        native = np.random.default_rng(seed).integers(0, 256, (24, 32, 3), dtype=np.uint8)
+        return RenderedFrame(native=native, preview=None, seconds=0.0)
+
+
+def test_jobs_are_taken_in_the_order_started_even_when_a_later_one_finishes_first() -> None:
+    class Slow:
+        frames_independent = True
+
+        def __init__(self, delays):
+            self.delays = delays
+
+        def twin(self, render_threads=None):
+            return Slow(self.delays)
+
+        def render(self, i):
+            time.sleep(self.delays[i])
+            return RenderedFrame(native=None, preview=None, seconds=0.0)
+
+    pool = FramesInFlight(Slow({0: 0.3, 1: 0.0}), 2, warmup=None)
+    deadline = time.perf_counter() + 10
+    while pool.renderers < 2 and time.perf_counter() < deadline:  # the twin joins from its thread
+        pool.wait(0.01)
+    assert pool.renderers == 2 and pool.threaded
+    a = pool.submit((0,), tag="a")
+    assert pool.can_submit()  # no render time known yet: no spacing
+    b = pool.submit((1,), tag="b")
+    assert not pool.can_submit()  # both renderers busy
+    b.done.wait(5)
+    assert b.done.is_set() and not a.done.is_set()
+    assert pool.take() is None  # the newer frame waits for the older one
+    a.done.wait(5)
+    assert [pool.take().tag, pool.take().tag] == ["a", "b"]
+    assert a.renderer is not b.renderer
+    pool.close()
+
+
+def test_a_renderer_without_independent_frames_renders_alone_in_this_thread() -> None:
+    class Stateful:
+        def render(self):
+            self.thread = threading.current_thread()
+            return RenderedFrame(native=None, preview=None, seconds=0.0)
+
+    r = Stateful()
+    pool = FramesInFlight(r, 2)
+    assert not pool.threaded and pool.n == 1
+    job = pool.submit(())
+    assert job.done.is_set() and r.thread is threading.current_thread()
+    assert not pool.can_submit() and pool.take() is job and pool.can_submit()
+    from holo_viewer.errors import InputError
+
+    with pytest.raises(InputError, match="frames_in_flight: expected >= 1, found 0"):
+        FramesInFlight(r, 0)
+
+
+def _session(tmp_path: Path, seconds: float, **config):
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveSession, LiveSessionConfig
+    from holo_viewer.pipeline.live_support import SyntheticSpeaker
+
+    syn = SyntheticSpeaker(seconds)
+    cfg = LiveSessionConfig(out=str(tmp_path / "s"), tile_scale=0.1, behaviour=None, **config)
+    return LiveSession(cfg, sources.ArrayAudio(syn.waveform), None, syn)
+
+
+def test_two_frames_in_flight_show_in_order_and_replay_bit_exact(tmp_path: Path, monkeypatch) -> None:
+    """A 1.2 s session on two renderers whose frames finish out of order: both render, the displayed frames
+    are in the order of their listener frames and session times, native.mkv holds them bit-exact, and
+    replay --quality live (one renderer, the recorded calls) gives the same frames."""
+    from holo_viewer.live import replay
+
+    first = _HashRenderer()
+    session = _session(tmp_path, 1.2, frames_in_flight=2)
+    shown = []
+    session.run(first, on_frame=lambda res: shown.append(res.native))
+    with np.load(tmp_path / "s" / "tracks.npz") as z:
+        tr = {k: z[k] for k in z.files}
+    assert session.frames_in_flight.n == 2 and len({who for who, _ in first.log}) == 2  # both renderers drew
+    assert len(shown) == len(tr["display_frame"]) >= 6
+    assert (np.diff(tr["display_frame"]) > 0).all() and (np.diff(tr["display_time_s"]) > 0).all()
+    stored = list(media.read_frames(tmp_path / "s" / "native.mkv"))
+    assert len(stored) == len(shown) and all(np.array_equal(a, b) for a, b in zip(shown, stored))
+    monkeypatch.setattr(replay, "_renderer", lambda *a, **k: _HashRenderer(7))
+    again = [img for _, img in replay.replay_timed_frames(tmp_path / "s")]
+    assert len(again) == len(stored) and all(np.array_equal(a, b) for a, b in zip(stored, again))
+
+
+def test_frames_limit_counts_frames_in_flight(tmp_path: Path) -> None:
+    """--frames 3 with two in flight: exactly 3 frames shown and recorded, none started beyond them."""
+    first = _HashRenderer()
+    session = _session(tmp_path, 1.0, frames_in_flight=2, frames=3)
+    session.run(first)
+    with np.load(tmp_path / "s" / "tracks.npz") as z:
+        assert len(z["display_frame"]) == 3
+    renderers = len({who for who, _ in first.log})
+    assert len(first.log) - renderers <= 3  # each renderer's warm-up call, then at most the frames shown
+
+
+# ---------------------------------------------------------------- the real renderer's frames
+@pytest.fixture(scope="module")
+def renderers():
+    from holo_viewer.live.render import LiveAvatarRenderer
+
+    a = LiveAvatarRenderer(tile_scale=0.1, native=True, preview=False, mode="auto", render_threads=2)
+    return a, a.twin(render_threads=1)
+
+
+def test_group_frames_do_not_depend_on_earlier_frames_or_the_thread_count(renderers) -> None:
+    """What frames in flight rely on: two renderers with the live settings (2 and 1 threads) give
+    bit-identical frames for the same call whatever each rendered before (tracked, untracked, other
+    faces), so a frame rendered by a twin equals replay's render of it on one renderer."""
+    a, b = renderers
+    assert a.frames_independent and b.frames_independent and b.mode == a.mode == "auto"
+    rng = np.random.default_rng(3)
+    calls = []
+    for i in range(5):
+        lf = {"expr": rng.normal(0, 0.6, 50), "jaw_pose": np.array([0.15 * rng.random(), 0.0, 0.0])}
+        others = ((12.0, 0.8),) if i == 2 else ()
+        calls.append(((lf, 0.2 * i, (), -8.0 + 5 * i, 0.55 + 0.05 * i, i != 3), {"others": others} if others else {}))
+    seq = [a.render(*args, **kw).native for args, kw in calls]  # in order on one renderer
+    for i in (4, 1, 3, 2):  # out of order, with other histories, on the twin
+        args, kw = calls[i]
+        assert np.array_equal(b.render(*args, **kw).native, seq[i]), i
+    assert not np.array_equal(seq[2], seq[3])
+    a.set_render_threads(1)  # what the live loop does to the first renderer once its twin has joined
+    assert a.render_threads == 1 and a._live.config.render.num_threads == 1
+    args, kw = calls[2]
+    assert np.array_equal(a.render(*args, **kw).native, seq[2])
+
+
+def test_which_modes_render_frames_in_flight() -> None:
+    from holo_viewer.live.render import LiveAvatarRenderer
+
+    assert not LiveAvatarRenderer(tile_scale=0.1, mode="tracked").frames_independent  # updates the last frame
+    assert not LiveAvatarRenderer(tile_scale=0.1, native=False, preview=True, mode="cone").frames_independent
