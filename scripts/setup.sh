@@ -58,3 +58,13 @@ if ! ls holo_viewer/render/__pycache__/fast_kernels.*.nbi >/dev/null 2>&1; then
   echo "setup: compiling the numba kernels once (scripts/warm_kernels.py)"
   "$VENV/bin/python" scripts/warm_kernels.py || true
 fi
+# bytecode, as pip compiles an installed package: the package's .pyc and the tests' (pytest's assertion
+# rewriting, cached beside them), once. Every make test worker collects all test files and the suite starts
+# dozens of Python children; they read these instead of compiling again (also where PYTHONDONTWRITEBYTECODE is
+# set: it stops writing, not reading). Whole-suite collection: 11.5 -> 6.4 s of CPU per worker.
+if ! ls tests/__pycache__/conftest.*-pytest-*.pyc >/dev/null 2>&1; then
+  echo "setup: compiling the package's and the tests' bytecode once"
+  PYTHONDONTWRITEBYTECODE= "$VENV/bin/python" -m compileall -q holo_viewer bench >/dev/null || true
+  PYTHONDONTWRITEBYTECODE= "$VENV/bin/python" -m pytest -q --collect-only -p no:cacheprovider -p no:xdist tests \
+    >/dev/null 2>&1 || true
+fi
