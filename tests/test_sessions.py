@@ -107,12 +107,28 @@ class _KeyWindow:
         return []
 
 
+_SPEAKERS: dict = {}
+
+
+def _speaker(seconds: float):
+    """``SyntheticSpeaker(seconds)``, synthesized once per module: each one is the same 10 s clip (seed 0) and
+    costs text-to-speech and voice detection (0.6-0.9 s of CPU); every caller gets its own arrays."""
+    import copy
+
+    from holo_viewer.pipeline.live_support import SyntheticSpeaker
+
+    if seconds not in _SPEAKERS:
+        _SPEAKERS[seconds] = SyntheticSpeaker(seconds)
+    syn = copy.copy(_SPEAKERS[seconds])
+    syn.states, syn.waveform = syn.states.copy(), syn.waveform.copy()
+    return syn
+
+
 def _session(tmp_path: Path, seconds: float = 1.0, **config):
     from holo_viewer.live import sources
     from holo_viewer.live.loop import LiveSession, LiveSessionConfig
-    from holo_viewer.pipeline.live_support import SyntheticSpeaker
 
-    syn = SyntheticSpeaker(seconds)
+    syn = _speaker(seconds)
     cfg = LiveSessionConfig(out=str(tmp_path / "s"), tile_scale=0.1, behaviour=None, **config)
     return LiveSession(cfg, sources.ArrayAudio(syn.waveform), None, syn)
 
@@ -403,9 +419,8 @@ def test_behaviour_layer_keys_switch_the_layers(tmp_path: Path) -> None:
 
     from holo_viewer.live import sources
     from holo_viewer.live.loop import LiveSession, LiveSessionConfig
-    from holo_viewer.pipeline.live_support import SyntheticSpeaker
 
-    syn = SyntheticSpeaker(1.0)
+    syn = _speaker(1.0)
     session = LiveSession(LiveSessionConfig(out=str(tmp_path / "s"), tile_scale=0.1),  # behaviour on (default)
                           sources.ArrayAudio(syn.waveform), None, syn)
     window = _KeyWindow([(2, "g", 0.0), (2, "b", 0.0), (2, "a", 0.0), (2, "s", 0.0), (2, "b", 0.0)])
