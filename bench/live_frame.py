@@ -187,14 +187,14 @@ FLARE_NOD = (0.0, 0.12, 0.05, -0.08, 0.0, 0.0)
 GROUP_VIEWERS = ((6.0, 0.6), (-15.0, 0.5), (-4.0, 0.75), (16.0, 0.9))
 #: the group sweep's runs: (mode, tracked viewers, NativeFrameConfig knobs); the defaults first, then
 #: the time-error trade-off of the group frames' cone fill (group_view_step; the default is 6), of the
-#: viewers served with eye slices (group_slices; the default is 1: the others see the fill), and the
+#: viewers served with eye slices (group_slices; the default is 0: every viewer sees the fill), and the
 #: eye slices replacing the fill instead of feathered into it (group_feather None: comfort)
 GROUP_RUNS = (("group", 0, {}), ("group", 1, {}), ("group", 4, {}), ("tracked", 1, {}), ("tracked", 4, {}),
               ("all_views", 0, {}), ("group", 0, {"group_view_step": 5}), ("group", 0, {"group_view_step": 8}),
               ("group", 1, {"group_view_step": 5}), ("group", 1, {"group_view_step": 8}),
-              ("group", 1, {"group_view_step": 12}), ("group", 4, {"group_slices": 0}),
-              ("group", 4, {"group_slices": 4}), ("group", 1, {"group_slices": 0}),
-              ("group", 1, {"group_feather": None}))
+              ("group", 1, {"group_view_step": 12}), ("group", 1, {"group_slices": 1}),
+              ("group", 4, {"group_slices": 1}), ("group", 4, {"group_slices": 4}),
+              ("group", 1, {"group_slices": 1, "group_feather": None}))
 #: comfort: a tracked viewer walks past fixed single-eye positions (deg, m), 1.5 deg a frame, face still
 COMFORT_POSITIONS = ((0.0, 0.6), (-3.0, 0.6))
 COMFORT_WALK_DEG = tuple(float(a) for a in np.arange(-6.0, 4.6, 1.5))
@@ -259,8 +259,8 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
     records, shown = [], {}
     moments = (1, 2, 4)  # before, onset, easing
     # warm-up, untimed: the first timed rows of a run measured ~0.03 s a frame slower than the same work
-    # timed later in the run (the default 0-face fill 0.183 s first, its equal "1 face, group_slices 0"
-    # 0.150 s near the end; 2026-11-28 12:00, load 0.5-1.1); priming each renderer with one frame did not remove it
+    # timed later in the run (the 0-face fill 0.183 s first, its equal "1 face, no eye slices" 0.150 s
+    # near the end; 2026-11-28 12:00, load 0.5-1.1); priming each renderer with one frame did not remove it
     warm = NativeFrameRenderer(cal, cams)
     for k in range(len(frames)):
         warm.frame(frames[k], all_viewers[:1] or None, "group")

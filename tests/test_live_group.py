@@ -1,22 +1,26 @@
 """Group frames (issue 37): every position of the viewing cone sees the present face.
 
 The default live frame (``auto`` -> ``group``) renders every view (every 6th, the others synthesized
-by depth) and the followed viewer's exact eye slices over them. Judged as a person standing there
+by depth): the cone fill, which every viewer sees (``group_slices`` 0); ``group_slices`` > 0 draws the
+first viewers' exact eye slices over it. Judged as a person standing there
 sees it (:class:`holo_viewer.display.eyes.ConeSweep`, single eyes, head region) against the *present*
 frame's full quilt. Tolerances (stated once):
 
 * ``ConeSweep.see`` equals ``VirtualDisplay.see`` within 2e-4 per pixel (weights below 1e-4 of the
   strongest are left out);
-* a pain flare (with a nod) shown to two tracked viewers at +6 deg (served with eye slices) and -4 deg
-  (the fill alone: ``group_slices`` 1) is seen at -15, 0 and +15 deg within one frame at >= 35 dB (the
-  issue's cone target) and at both viewers' eyes at >= 40 dB; the old
+* a pain flare (with a nod) shown to two tracked viewers at +6 deg and -4 deg (both see the fill) is
+  seen at -15, 0 and +15 deg within one frame at >= 35 dB (the issue's cone target) and at both
+  viewers' eyes at >= 40 dB (the issue's tracked-eye target; measured 40.1 / 42.7 dB at these
+  quarter-size views, 40.8 dB the worst eye of a full-size walk over the flare); the old
   eyes-only default (``tracked``) is checked to fail there (< 25 dB: bystanders saw the neutral face;
   measured 17 dB);
-* comfort: with the face still, consecutive frames at fixed positions are identical without a tracked
-  viewer and, away from a face, when it is found or lost, and agree to >= 48 dB (the issue's target)
-  while a tracked viewer walks past, at 0 and -3 deg: measured 50.0 dB here with the slices feathered
-  into the fill (``NativeFrameConfig.group_feather``), 41.5 dB with the slices replacing it (checked
-  to fail the target; docs/live_frame.md "Comfort").
+* comfort: with the face still, consecutive default frames are identical without a tracked viewer,
+  with one, and while one walks past (nothing depends on the viewers); with eye slices
+  (``group_slices`` 1) positions away from a face see nothing change when it is found or lost, and
+  fixed positions at 0 and -3 deg agree to >= 48 dB (the issue's target) while a tracked viewer walks
+  past: measured 50.0 dB here with the slices feathered into the fill
+  (``NativeFrameConfig.group_feather``), 41.5 dB with the slices replacing it (checked to fail the
+  target; docs/live_frame.md "Comfort").
 
 Views at tile_scale 0.25 (105x140) keep the renders cheap; the optics are the Portrait's.
 """
@@ -67,7 +71,7 @@ def test_cone_sweep_sees_what_the_virtual_display_sees(rig):
 def test_bystanders_see_a_pain_flare_within_one_frame(rig):
     cal, cams, cone = rig["cal"], rig["cams"], rig["cone"]
     ref = NativeFrameRenderer(cal, cams).frame(rig["flare"], mode="full_quilt").native.copy()
-    viewer, second = TrackedViewer(6.0, 0.6), TrackedViewer(-4.0, 0.75)  # the second sees the fill (group_slices 1)
+    viewer, second = TrackedViewer(6.0, 0.6), TrackedViewer(-4.0, 0.75)  # both see the fill (group_slices 0)
     seen = {}
     for mode in ("auto", "tracked"):
         live = rig["group"] if mode == "auto" else NativeFrameRenderer(cal, cams)
@@ -92,22 +96,28 @@ def test_still_face_frames_agree_at_fixed_positions(rig):
     fixed = ConeSweep(display, [(0.0, 0.6), (-3.0, 0.6)])
     live = rig["group"]
     a = live.frame(rig["neutral"]).native.copy()
-    b = live.frame(rig["neutral"]).native
-    assert np.array_equal(a, b)  # no viewer: nothing changes
-    # a face found, then lost: positions away from it see nothing change (one fill with faces or without)
-    away = ConeSweep(display, [(-15.0, 0.6), (15.0, 0.6)])
-    found = live.frame(rig["neutral"], TrackedViewer(6.0, 0.6)).native.copy()
-    lost = live.frame(rig["neutral"]).native
-    assert np.isinf(away.psnr(a, found)).all() and np.isinf(away.psnr(found, lost)).all()
-    replacing = NativeFrameRenderer(rig["cal"], rig["cams"], NativeFrameConfig(group_feather=None))
-    worst = {}
-    for name, r in (("feathered", live), ("replacing", replacing)):
-        prev, worst[name] = None, np.inf
-        for angle in np.arange(-6.0, 4.6, 1.5):  # a tracked viewer walks past
-            f = r.frame(rig["neutral"], TrackedViewer(float(angle), 0.6))
-            if prev is not None:
-                worst[name] = min(worst[name], float(fixed.psnr(prev, f.native).min()))
-            prev = f.native.copy()
+    assert np.array_equal(a, live.frame(rig["neutral"]).native)  # no viewer: nothing changes
+    for angle in (-6.0, -1.5, 3.0):  # the default (no eye slices): a walking viewer changes nothing either
+        assert np.array_equal(a, live.frame(rig["neutral"], TrackedViewer(angle, 0.6)).native)
+    default = live.config
+    try:  # eye slices for the first viewer (the same renderer: group frames keep nothing)
+        live.config = dataclasses.replace(default, group_slices=1)
+        # a face found, then lost: positions away from it see nothing change (one fill with faces or without)
+        away = ConeSweep(display, [(-15.0, 0.6), (15.0, 0.6)])
+        found = live.frame(rig["neutral"], TrackedViewer(6.0, 0.6)).native.copy()
+        lost = live.frame(rig["neutral"]).native
+        assert np.isinf(away.psnr(a, found)).all() and np.isinf(away.psnr(found, lost)).all()
+        worst = {}
+        for name, feather in (("feathered", default.group_feather), ("replacing", None)):
+            live.config = dataclasses.replace(default, group_slices=1, group_feather=feather)
+            prev, worst[name] = None, np.inf
+            for angle in np.arange(-6.0, 4.6, 1.5):  # a tracked viewer walks past
+                f = live.frame(rig["neutral"], TrackedViewer(float(angle), 0.6))
+                if prev is not None:
+                    worst[name] = min(worst[name], float(fixed.psnr(prev, f.native).min()))
+                prev = f.native.copy()
+    finally:
+        live.config = default
     assert worst["feathered"] >= 48.0 > worst["replacing"], worst
 
 
@@ -115,18 +125,20 @@ def test_group_frames_take_up_to_six_viewers_and_name_a_bad_one(rig):
     live = rig["group"]
     viewers = [TrackedViewer(a, 0.6) for a in (-20, -12, -4, 4, 12, 20, 25)]
     f = live.frame(rig["neutral"], viewers)
+    seen = f.native.copy()  # (the renderer's buffer: the next frame overwrites it)
     assert f.mode == "group"
-    # the cone fill at group_view_step (6: 9 source views, with faces or without) + the first viewer's 2
-    # slices (group_slices 1: the others see the fill)
-    assert live.group_view_step == 6 and f.rendered_fraction == pytest.approx((9 + 2) / 48)
-    assert live.frame(rig["neutral"]).rendered_fraction == pytest.approx(9 / 48)
+    # the cone fill at group_view_step (6: 9 source views, with faces or without); no eye slices by
+    # default (group_slices 0: every viewer sees the fill)
+    assert live.group_view_step == 6 and f.rendered_fraction == pytest.approx(9 / 48)
     fill = live.frame(rig["neutral"]).native.copy()
+    assert live.frame(rig["neutral"]).rendered_fraction == pytest.approx(9 / 48)
+    assert np.array_equal(seen, fill)
     default = live.config
     try:  # the same renderer with other group_slices (read per frame; a new renderer's tables cost ~0.9 s)
+        live.config = dataclasses.replace(default, group_slices=1)
+        assert live.frame(rig["neutral"], viewers).rendered_fraction == pytest.approx((9 + 2) / 48)  # the first
         live.config = dataclasses.replace(default, group_slices=6)
         assert live.frame(rig["neutral"], viewers).rendered_fraction == pytest.approx((9 + 12) / 48)  # 6 of 7
-        live.config = dataclasses.replace(default, group_slices=0)
-        assert np.array_equal(live.frame(rig["neutral"], viewers).native, fill)  # no slices: the fill
     finally:
         live.config = default
     with pytest.raises(InputError, match=r"group_slices: expected an integer in 0..6, found 7"):

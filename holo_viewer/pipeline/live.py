@@ -41,12 +41,12 @@ needs, where its work is done), and every quilt goes through
     but a different picture from the 48-view light field: its error against full quality is
     the perspective difference (bench/live_frame.py measures it).
 ``group``
-    Every position of the cone sees the present frame (issue 37): ``all_views``, then the eye slices
-    of the first ``NativeFrameConfig.group_slices`` tracked viewers given (1 by default: the followed
-    face; a TrackedViewer or a sequence of up to 6) warped into the subpixels their eyes receive, over
-    that fill (the other viewers see the fill, >= 41.8 dB at their eyes); the fill renders every
-    ``NativeFrameConfig.group_view_step``-th view (6; ``all_views`` keeps ``view_step``). Nothing is
-    kept from earlier frames.
+    Every position of the cone sees the present frame (issue 37): ``all_views`` (the cone fill), then
+    the eye slices of the first ``NativeFrameConfig.group_slices`` tracked viewers given (0 by default:
+    every viewer sees the fill, >= 40.8 dB at any eye over the default avatar's flare; a TrackedViewer
+    or a sequence of up to 6) warped into the subpixels their eyes receive, over that fill; the fill
+    renders every ``NativeFrameConfig.group_view_step``-th view (6; ``all_views`` keeps ``view_step``).
+    Nothing is kept from earlier frames.
 ``auto``
     ``group``.
 
@@ -87,12 +87,12 @@ AUTO_GROUP_VIEW_STEP = 6
 GROUP_FEATHER = -3.0
 #: group frames serve at most this many tracked viewers (the faces a webcam finds around a Portrait)
 MAX_VIEWERS = 6
-#: NativeFrameConfig.group_slices default: group frames draw exact eye slices for the first (followed)
-#: tracked viewer only; the others see the cone fill. The default avatar's flare at the bench's four
-#: viewers (6, -15, -4, 16 deg; 0.6-0.9 m): the fill alone gives 41.8-47.7 dB at their eyes (target 40),
-#: the slices 46.2-50.9 dB, at 2 slices' render (16-31 ms each) and a scatter (23-35 ms) per viewer
-#: (CPU; 4 viewers served: +2x the 1-viewer frame's extra work). docs/live_frame.md "Group frames"
-GROUP_SLICES = 1
+#: NativeFrameConfig.group_slices default: group frames draw no eye slices; every viewer sees the cone
+#: fill, which meets the tracked eyes' target by itself: over the default avatar's whole flare and a walk
+#: of eyes over -20..20 deg x 0.45-0.9 m the worst eye sees 40.8 dB (median 45.7; target 40). One
+#: viewer's slices raise its eyes to 46-51 dB for ~60-90 ms of CPU a frame (2 slices' render and a
+#: scatter: 0.30 against 0.25 s), which the frame-time targets cannot pay (docs/live_frame.md "Group frames")
+GROUP_SLICES = 0
 #: fixed-point steps of the slices' warp after the first guess: 0 (the default avatar at 0.6 m: per
 #: eye 52.1 dB against 52.2 with one step, the worst eye 1 cm off 43.4 against 43.9 dB; -20 % scatter)
 SLICE_WARP_ITERS = 0
@@ -174,7 +174,7 @@ class NativeFrameConfig:
     group_slices : int
         ``group`` frames: how many of the tracked viewers given (the first ones: the followed face,
         then the nearest) get exact eye slices over the cone fill, 0..:data:`MAX_VIEWERS`; the others
-        see the fill. Default :data:`GROUP_SLICES` (1).
+        see the fill. Default :data:`GROUP_SLICES` (0: every viewer sees the fill).
     """
 
     render: RenderConfig = field(default_factory=RenderConfig)
