@@ -424,6 +424,84 @@ def _warp(images: np.ndarray, wmaps: np.ndarray, slot: np.ndarray, jobs: np.ndar
                     out[k, y, x, 2] = bl
 
 
+@numba.njit(inline="always")
+def _columns32(wrow: np.ndarray, xlist: np.ndarray, d0: np.float32, d1: np.float32, iters: int, xs: np.ndarray,
+               i0: np.ndarray, f: np.ndarray) -> None:
+    """:func:`_columns` in float32 (``xs``, ``f`` float32, ``i0`` int32): the same expressions."""
+    W = wrow.size
+    n = xlist.size
+    one, zero = np.float32(1.0), np.float32(0.0)
+    for i in range(n):
+        x = xlist[i]
+        xs[i] = np.float32(x) + d0 + d1 * wrow[x]
+    for it in range(iters + 1):
+        for i in range(n):
+            v = xs[i]
+            p = min(max(int(np.floor(v)), 0), W - 2)
+            i0[i] = p
+            f[i] = min(max(v - np.float32(p), zero), one)
+        if it == iters:
+            break
+        for i in range(n):
+            p = i0[i]
+            xs[i] = np.float32(xlist[i]) + d0 + d1 * ((one - f[i]) * wrow[p] + f[i] * wrow[p + 1])
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _warp_u8(images: np.ndarray, wmaps: np.ndarray, slot: np.ndarray, jobs: np.ndarray, d: np.ndarray,
+             iters: int, offsets: np.ndarray, columns: np.ndarray, spans: np.ndarray, wr: np.ndarray,
+             bg: np.ndarray, out_u8: np.ndarray, row0: np.ndarray, col0: np.ndarray) -> None:
+    """:func:`_warp` into the uint8 quilt, in float32 (the live path): the same columns, weights and
+    rounding half up, the arithmetic in float32 instead of float64 (0.81x the CPU of the float64
+    kernel on a group frame's 39 synthesized views; within 1 of it per channel, tested)."""
+    T = jobs.shape[0]
+    H, W = images.shape[1], images.shape[2]
+    every = np.arange(W).astype(np.int32)
+    listed = offsets.size > 0
+    bg8 = np.empty(3, np.uint8)
+    for c in range(3):
+        bg8[c] = min(max(int(bg[c] * 255.0 + 0.5), 0), 255)
+    one, half, full = np.float32(1.0), np.float32(0.5), np.float32(255.0)
+    rows = 8  # rows per work item: the per-row buffers are made once per item
+    per = (H + rows - 1) // rows
+    for item in numba.prange(T * per):  # band-major: neighbouring items read the same source rows
+        j, y0 = item % T, (item // T) * rows
+        k, a, b = jobs[j, 0], jobs[j, 1], jobs[j, 2]
+        sa, sb = slot[a], slot[b]
+        wa = np.float32((b - k) / (b - a))
+        wb = one - wa
+        da0, da1, db0, db1 = np.float32(d[j, 0]), np.float32(d[j, 1]), np.float32(d[j, 2]), np.float32(d[j, 3])
+        xs = np.empty(W, np.float32)
+        i0a, i0b = np.empty(W, np.int32), np.empty(W, np.int32)
+        fa, fb = np.empty(W, np.float32), np.empty(W, np.float32)
+        for y in range(y0, min(H, y0 + rows)):
+            xall = columns[offsets[k * H + y]:offsets[k * H + y + 1]] if listed else every
+            # columns that can only read background in both sources are background: not warped
+            lo, hi = _live_range(spans[sa, y], wr[sa, y], d[j, 0], d[j, 1], W, -1)
+            lo, hi = _live_range(spans[sb, y], wr[sb, y], d[j, 2], d[j, 3], lo, hi)
+            n0 = np.searchsorted(xall, lo) if hi >= lo else xall.size
+            n1 = np.searchsorted(xall, hi, side="right") if hi >= lo else xall.size
+            orow = out_u8[row0[j] + y]
+            for i in range(xall.size):
+                if n0 <= i < n1:
+                    continue
+                ox = col0[j] + xall[i]
+                for c in range(3):
+                    orow[ox, c] = bg8[c]
+            xl = xall[n0:n1]
+            ia, ib = images[sa, y], images[sb, y]
+            _columns32(wmaps[sa, y], xl, da0, da1, iters, xs, i0a, fa)
+            _columns32(wmaps[sb, y], xl, db0, db1, iters, xs, i0b, fb)
+            for i in range(xl.size):
+                p, q = i0a[i], i0b[i]
+                ca0, ca1 = wa * (one - fa[i]), wa * fa[i]
+                cb0, cb1 = wb * (one - fb[i]), wb * fb[i]
+                ox = col0[j] + xl[i]
+                for c in range(3):
+                    v = ca0 * ia[p, c] + ca1 * ia[p + 1, c] + cb0 * ib[q, c] + cb1 * ib[q + 1, c]
+                    orow[ox, c] = min(max(int(v * full + half), 0), 255)
+
+
 def sampled_columns(pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(offsets (V H + 1,) int64, columns int32): per (view, row) the columns where ``pixels``
     (V, H, W) bool is set, for :func:`warp_views`' ``pixels`` (e.g. the quilt pixels the
@@ -441,7 +519,7 @@ def sampled_columns(pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: Rig, *, iters: int = 1,
                out: np.ndarray | None = None, quilt: np.ndarray | None = None,
                tiles: np.ndarray | None = None, pixels: tuple[np.ndarray, np.ndarray] | None = None,
-               background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+               background: tuple[float, float, float] = (0.0, 0.0, 0.0), exact: bool = False) -> np.ndarray:
     """Synthesize every view of the rig not in ``sources`` from its nearest rendered views on
     either side.
 
@@ -471,6 +549,9 @@ def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: 
         The renders' background colour: target pixels that can read only background pixels of
         both sources (outside each source row's non-background span, grown by the largest shift
         its depths allow) are set to it without a warp, which is what the warp gives there.
+    exact : bool
+        Into ``quilt``: the float64 kernel (the reference) instead of the float32 one (default; within
+        1 per channel of it). ``out`` is always written by the float64 kernel.
 
     Returns
     -------
@@ -515,8 +596,11 @@ def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: 
         if (row0.min(initial=0) < 0 or col0.min(initial=0) < 0 or row0.max(initial=0) + H > quilt.shape[0]
                 or col0.max(initial=0) + W > quilt.shape[1]):
             raise InputError(f"tiles: a {H}x{W} tile falls outside the {quilt.shape[:2]} quilt")
-        _warp(images, wmaps, slot, jobs, d, int(iters), offsets, columns, spans, wr, bg,
-              np.empty((1, 1, 1, 3), np.float32), quilt, row0, col0, True)
+        if exact:
+            _warp(images, wmaps, slot, jobs, d, int(iters), offsets, columns, spans, wr, bg,
+                  np.empty((1, 1, 1, 3), np.float32), quilt, row0, col0, True)
+        else:
+            _warp_u8(images, wmaps, slot, jobs, d, int(iters), offsets, columns, spans, wr, bg, quilt, row0, col0)
         return quilt
     if out is None or out.shape != (V, H, W, 3) or out.dtype != np.float32:
         raise InputError(f"out: expected a float32 {(V, H, W, 3)} array (or quilt and tiles), found "
