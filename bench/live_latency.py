@@ -15,7 +15,9 @@ to the loop; cold in the first run, warm in the second: kernels and imports load
 tables built again) and ``quit_s`` (last frame -> the session's
 ``run`` returned: flush and joins), and the CPU seconds of the session's process and of its ffmpeg
 children (the session video's encoder, run nicer than the session on one thread, and its check
-at close), also per displayed frame; ``in_session``: the same split by thread and child (main thread,
+at close), also per displayed frame; ``frames_in_flight`` (the loop's renderers at once, ``holo_viewer.live.
+inflight``), ``twins_ready_s`` (when the second renderer joined, after the start-up's warm-up frame) and
+``display_interval_ms`` (wall time between frames shown; a frame in flight renders longer than that); ``in_session``: the same split by thread and child (main thread,
 the render's native workers, tracker, reaction, video writer, ffmpeg encoder and the replayed webcam's
 decoder) from the second displayed frame to the last, start-up excluded (:class:`ThreadCPU`).
 

@@ -90,6 +90,21 @@ def test_a_renderer_without_independent_frames_renders_alone_in_this_thread() ->
         FramesInFlight(r, 0)
 
 
+def test_a_twin_that_fails_leaves_one_renderer_in_flight() -> None:
+    class NoTwin(_HashRenderer):
+        def twin(self, render_threads=None):
+            raise MemoryError("no room for a second renderer")
+
+    pool = FramesInFlight(NoTwin(), 2)
+    pool._builder.join(5)
+    assert isinstance(pool.twin_error, MemoryError) and pool.renderers == 1
+    job = pool.submit(({"expr": np.zeros(3)}, 0.0, (), 1.0, 0.6))
+    assert not pool.can_submit()  # its one renderer is busy
+    job.done.wait(5)
+    assert pool.take() is job and job.result.native.shape == (24, 32, 3)
+    pool.close()
+
+
 def _session(tmp_path: Path, seconds: float, **config):
     from holo_viewer.live import sources
     from holo_viewer.live.loop import LiveSession, LiveSessionConfig
@@ -125,7 +140,7 @@ def test_two_frames_in_flight_show_in_order_and_replay_bit_exact(tmp_path: Path,
 def test_frames_limit_counts_frames_in_flight(tmp_path: Path) -> None:
     """--frames 3 with two in flight: exactly 3 frames shown and recorded, none started beyond them."""
     first = _HashRenderer()
-    session = _session(tmp_path, 1.0, frames_in_flight=2, frames=3)
+    session = _session(tmp_path, 0.8, frames_in_flight=2, frames=3)
     session.run(first)
     with np.load(tmp_path / "s" / "tracks.npz") as z:
         assert len(z["display_frame"]) == 3
@@ -166,7 +181,15 @@ def test_group_frames_do_not_depend_on_earlier_frames_or_the_thread_count(render
 
 
 def test_which_modes_render_frames_in_flight() -> None:
+    """group and all_views on the CPU; not tracked (it updates the last frame), cone or gsplat (the flag's
+    logic on unbuilt renderers: building each costs a second)."""
     from holo_viewer.live.render import LiveAvatarRenderer
+    from holo_viewer.pipeline.live_modes import SESSION_MODE
 
-    assert not LiveAvatarRenderer(tile_scale=0.1, mode="tracked").frames_independent  # updates the last frame
-    assert not LiveAvatarRenderer(tile_scale=0.1, native=False, preview=True, mode="cone").frames_independent
+    def unbuilt(mode, backend="fast"):
+        r = LiveAvatarRenderer.__new__(LiveAvatarRenderer)
+        r.session_mode, r.backend, r._live = SESSION_MODE[mode], backend, None if mode == "cone" else object()
+        return r.frames_independent
+
+    assert unbuilt("auto") and unbuilt("all_views")
+    assert not unbuilt("tracked") and not unbuilt("cone") and not unbuilt("auto", "gsplat")

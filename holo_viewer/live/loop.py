@@ -573,6 +573,9 @@ class LiveSession:
             self._stop.set()
             if frames is not None:
                 frames.close()  # the render threads finish the frame they render; it is not shown
+                if frames.twin_error is not None:  # the session ran on the renderers it had: say why
+                    self.status["render"] = (f"one frame at a time: the second renderer failed "
+                                             f"({type(frames.twin_error).__name__}: {frames.twin_error})")
             for th in threads:
                 th.join(timeout=5.0)
             self.audio.stop()
