@@ -193,3 +193,15 @@ def test_which_modes_render_frames_in_flight() -> None:
 
     assert unbuilt("auto") and unbuilt("all_views")
     assert not unbuilt("tracked") and not unbuilt("cone") and not unbuilt("auto", "gsplat")
+
+
+def test_live_command_takes_frames_in_flight(capsys) -> None:
+    from holo_viewer.cli import main
+    from holo_viewer.live.loop import LiveSessionConfig
+    from holo_viewer.errors import InputError
+
+    with pytest.raises(SystemExit):
+        main(["live", "--synthetic", "--headless", "--frames-in-flight", "0"])
+    assert "--frames-in-flight: expected an integer >= 1, found '0'" in capsys.readouterr().err
+    with pytest.raises(InputError, match="frames_in_flight: expected an integer >= 1, found 1.5"):
+        LiveSessionConfig(frames_in_flight=1.5)

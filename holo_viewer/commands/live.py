@@ -10,6 +10,17 @@ from ..validation import fps_arg, seed_arg
 __all__ = ["add_arguments", "run"]
 
 
+def _in_flight_arg(text: str) -> int:
+    """--frames-in-flight: an integer >= 1."""
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, found {text!r}")
+    return n
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``live``."""
     src = parser.add_argument_group("sources (default: microphone + webcam)")
@@ -48,6 +59,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      "eye (fastest); all_views: default cone, every 5th view rendered and the others warped by depth; "
                      "cone: the 48 cameras follow the tracked viewer (Algorithm 1's viewer angle and distance), the "
                      "whole quilt each frame (slowest)")
+    out.add_argument("--frames-in-flight", type=_in_flight_arg, default=2, metavar="N",
+                     help="render up to N frames at once, each on a renderer of its own (default 2: both cores of "
+                     "a 2-core CPU busy, each frame shown a little later; 1: one frame at a time). Only modes whose "
+                     "frames do not depend on earlier ones (auto, all_views on the CPU)")
     out.add_argument("--video-fps", type=fps_arg, default=10.0, help="nominal frame rate of native.mkv (each displayed "
                      "frame is stored once with the time it was shown; default 10)")
     out.add_argument("--record-video", action="store_true", help="also keep the webcam video (off by default: "
@@ -164,6 +179,7 @@ def _run(args: argparse.Namespace, mount: object, scenario: object, precompile: 
                                temperature=args.temperature, seed=args.seed, hfov_deg=mount.hfov_deg, mount=mount,
                                viewer_mode="group" if args.group else "nearest",
                                predict_viewer=not args.no_viewer_prediction, track_fps=args.track_fps,
+                               frames_in_flight=args.frames_in_flight,
                                scenario=scenario,
                                max_seconds=args.seconds, settings=settings,
                                behaviour=behaviour_from_args(args, seed=args.seed))
