@@ -148,6 +148,11 @@ def test_background_columns_skipped_equal_the_full_warp(cams):
     vs.warp_views(images, wmaps, sources, rig, out=full, background=(-1.0, -1.0, -1.0))  # nothing skipped
     np.testing.assert_array_equal(skipped, full)
     assert (full[vs.bracket(V, sources)[:, 0]] > 0).mean() > 0.01  # the bands did move into targets
+    tiles = np.array([[(5 - k // 8) * H, (k % 8) * W] for k in range(V)])
+    quilts = [np.full((6 * H, 8 * W, 3), 7, np.uint8) for _ in range(2)]  # the float32 quilt kernel: the same
+    for quilt, bg in zip(quilts, ((0.0, 0.0, 0.0), (-1.0, -1.0, -1.0))):
+        vs.warp_views(images, wmaps, sources, rig, quilt=quilt, tiles=tiles, background=bg)
+    np.testing.assert_array_equal(quilts[0], quilts[1])
 
 
 def test_warp_into_the_quilt_writes_only_the_listed_pixels(cams):
