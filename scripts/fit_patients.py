@@ -4,6 +4,7 @@ Usage::
 
     python scripts/fit_patients.py [NAME ... | --all] [--iterations N] [--source assets/default_avatar.npz]
         [--out FILE (one patient)] [--no-eval] [--images DIR] [--json FILE] [--stage2 N] [--init FILE]
+        [--stage3 N] [--init-stage 2|3] [--dataset-cache FILE]
 
 Every patient shares the default head's ICT topology, so the default's fitted Gaussians keep their
 triangles and local offsets, rotations and scales on the patient's head (``fit_avatar.transfer_avatar``:
@@ -13,7 +14,9 @@ faintest others are dropped to keep the count), and a short fine-tune on renders
 textured mesh (``PATIENT_CONFIG``: 7 poses, quilt and sheared cameras over +-30 deg, so the lights stay
 world-fixed as in the quilt) learns the rest; a second stage (``STAGE2_CONFIG``, ``--stage2 N``, 0 skips
 it) adds steps on full-resolution crops centred where the target has fine detail (the hair strands hold
-most of the remaining error). Writes ``assets/patients/<name>/avatar.npz`` with
+most of the remaining error); for the patients of ``STAGE3_PATIENTS`` (mei, helen, rafael: the fine
+texture that the first two stages leave 2-4 dB short of 35) a third stage (``STAGE3_CONFIG``, ``--stage3 N``)
+adds the D-SSIM term of 3DGS (0.2) beside L1 on the same detail-centred crops. Writes ``assets/patients/<name>/avatar.npz`` with
 ``fit_angle_range_deg`` and, in its ``info``, ``psnr_min_db`` (worst of the 48 quilt views and the two
 slider-limit views, neutral). ``default`` as NAME fine-tunes the default avatar itself the same way
 (the second stage of ``scripts/fit_default_avatar.py``). Deterministic (seeded, one thread); fits run
@@ -50,6 +53,11 @@ PATIENT_CONFIG = fa.AvatarFitConfig(
 #: hair strands, where the first stage leaves most of the error), a fresh Adam, the offsets' rate low
 STAGE2_CONFIG = fa.replace_config(PATIENT_CONFIG, iterations=400, crop_fraction=1.0, crop_detail=0.7,
                                   lr_means=1e-4, lr_means_final=1e-4, seed=1)
+#: the third stage (mei, helen, rafael; docs/avatar_fit.md "Third stage"): the second stage's detail-centred
+#: full-resolution crops with ``(1 - 0.2) L1 + 0.2 (1 - SSIM)`` (3DGS's lambda), a fresh Adam, seed 2
+STAGE3_CONFIG = fa.replace_config(STAGE2_CONFIG, iterations=400, ssim_weight=0.2, seed=2)
+#: the patients whose shipped avatar has the third stage (the others' files stay reproducible as shipped)
+STAGE3_PATIENTS = ("mei", "helen", "rafael")
 #: training expressions: these named ones of fit_avatar.training_poses and its first random mix
 POSES = ("neutral", "smile_1", "mouth_open_1", "pain_0.5", "pain_1", "surprise_1", "random_00")
 N_LASH = 2000
@@ -169,12 +177,15 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
     model, head_path, out_default = _target(name)
     out = Path(args.out) if args.out else out_default
     cfg = fa.replace_config(PATIENT_CONFIG, iterations=args.iterations)
-    if args.init:  # a saved first stage (this script with --stage2 0): its Gaussians, as shipped (float16)
+    stage3 = (STAGE3_CONFIG.iterations if name in STAGE3_PATIENTS else 0) if args.stage3 is None else args.stage3
+    stage2 = 0 if args.init and args.init_stage == 3 else args.stage2
+    if args.init:  # a saved earlier stage (e.g. --stage2 0): its Gaussians, as shipped (float16)
         init, binding, init_keys = load_fitted_avatar(Path(args.init))
         if init_keys["head_sha256"] != _sha256(head_path):
             raise SystemExit(f"error: --init {args.init}: fitted to another head (head_sha256 "
                              f"{init_keys['head_sha256'][:12]}), expected {name}'s {head_path}")
-        how = {"init": str(args.init), "init_iterations": dict(init_keys.get("info") or {}).get("iterations")}
+        how = {"init": str(args.init), "init_stage": args.init_stage,
+               "init_iterations": dict(init_keys.get("info") or {}).get("iterations")}
     else:
         init, binding, how = initial_avatar(Path(args.source), model)
     source = fa.TargetSource.for_model(model)
@@ -188,7 +199,7 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
         c2 = c3 = time.process_time()
         record: dict[str, Any] = {"name": name, "iterations": 0, "fit_angle_range_deg": list(angle_range), **how}
     else:
-        data = fa.build_dataset(pipe, poses, source.render, cfg, progress=False)
+        data = _dataset(pipe, poses, source, cfg, head_path, args.dataset_cache)
         t2, c2 = time.perf_counter(), time.process_time()
         print(f"{name}: dataset {len(data.names)} poses (skipped {data.skipped}) x {data.images.shape[1]} cameras, "
               f"angles {data.angle_range_deg[0]:+.1f}..{data.angle_range_deg[1]:+.1f} deg, {t2 - t1:.0f} s "
@@ -203,18 +214,28 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
                   f"({time.process_time() - c2:.0f} s CPU), L1 first/last 50 {np.mean(res.losses[:50]):.4f} / "
                   f"{np.mean(res.losses[-50:]):.4f}", flush=True)
         losses = list(res.losses) if res is not None else []
-        if args.stage2 > 0:
-            res2 = fa.fit_gaussians(start, binding, data, fa.replace_config(STAGE2_CONFIG, iterations=args.stage2),
+        if stage2 > 0:
+            res2 = fa.fit_gaussians(start, binding, data, fa.replace_config(STAGE2_CONFIG, iterations=stage2),
                                     progress=False)
             start = res2.local
             losses += list(res2.losses)
-            print(f"{name}: stage 2 {args.stage2} steps, L1 first/last 50 {np.mean(res2.losses[:50]):.4f} / "
+            print(f"{name}: stage 2 {stage2} steps, L1 first/last 50 {np.mean(res2.losses[:50]):.4f} / "
                   f"{np.mean(res2.losses[-50:]):.4f}", flush=True)
+        if stage3 > 0:
+            c3 = time.process_time()
+            res3 = fa.fit_gaussians(start, binding, data, fa.replace_config(STAGE3_CONFIG, iterations=stage3),
+                                    progress=False)
+            start, binding = res3.local, res3.binding
+            losses3 = list(res3.losses)
+            print(f"{name}: stage 3 {stage3} steps ({time.process_time() - c3:.0f} s CPU), (1 - l) L1 + l D-SSIM "
+                  f"first/last 50 {np.mean(losses3[:50]):.4f} / {np.mean(losses3[-50:]):.4f}, "
+                  f"{len(start)} Gaussians", flush=True)
         t3, c3 = time.perf_counter(), time.process_time()
         print(f"{name}: fit {t3 - t2:.0f} s ({c3 - c2:.0f} s CPU)", flush=True)
         fitted, angle_range, n_poses = start, data.angle_range_deg, len(data.names)
         record = {
-            "name": name, "iterations": 0 if args.init else cfg.iterations, "stage2_iterations": args.stage2,
+            "name": name, "iterations": 0 if args.init else cfg.iterations, "stage2_iterations": stage2,
+            "stage3_iterations": stage3,
             "poses": data.names, "skipped_poses": data.skipped,
             "cameras": int(data.images.shape[1]), "fit_angle_range_deg": list(data.angle_range_deg), **how,
             "loss_first_50": float(np.mean(losses[:50])), "loss_last_50": float(np.mean(losses[-50:]))}
@@ -222,9 +243,16 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
     record["cpu_seconds"] = {"setup": c1 - c0, "dataset_parent": c2 - c1, "fit": c3 - c2}
     info = {"method": "transfer of the default avatar + fine-tune in two stages (scripts/fit_patients.py)" if cfg.iterations else
             "transfer of the default avatar, not fine-tuned (scripts/fit_patients.py --iterations 0)",
-            "iterations": cfg.iterations, "stage2_iterations": args.stage2 if cfg.iterations else 0,
+            "iterations": cfg.iterations, "stage2_iterations": stage2 if cfg.iterations else 0,
             "stage2": {"crop_detail": STAGE2_CONFIG.crop_detail, "lr_means": STAGE2_CONFIG.lr_means,
                        "seed": STAGE2_CONFIG.seed}, "poses": n_poses, "seconds": t3 - t0}
+    if cfg.iterations and stage3:
+        info["method"] = "transfer of the default avatar + fine-tune in three stages (scripts/fit_patients.py)"
+        info["stage3_iterations"] = stage3
+        info["stage3"] = {"ssim_weight": STAGE3_CONFIG.ssim_weight, "crop_detail": STAGE3_CONFIG.crop_detail,
+                          "seed": STAGE3_CONFIG.seed}
+    if args.init:
+        info["init_stage"] = args.init_stage
     path = save_fitted_avatar(out, fitted, binding, model, colour_source=source.name, head_path=head_path,
                               info=info, fit_angle_range_deg=angle_range)
     if not args.no_eval:
@@ -256,6 +284,29 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
     return record
 
 
+def _dataset(pipe: Any, poses: list, source: Any, cfg: Any, head_path: Path, cache: str | None) -> Any:
+    """The training renders (``fit_avatar.build_dataset``); with ``cache``, loaded from that pickle when it
+    holds this head's renders for these poses and cameras, else built and written there (development:
+    several runs on one patient share the renders)."""
+    import pickle
+
+    key = {"head_sha256": _sha256(head_path), "colour_source": source.name, "poses": [p.name for p in poses],
+           "quilt_views": list(cfg.quilt_views), "orbit": [list(o) for o in cfg.orbit], "orbit_mode": cfg.orbit_mode}
+    if cache and Path(cache).exists():
+        with open(cache, "rb") as fh:
+            got = pickle.load(fh)
+        if isinstance(got, dict) and got.get("key") == key:
+            return got["data"]
+        print(f"{cache}: renders of another head, poses or cameras; rendering again", flush=True)
+    data = fa.build_dataset(pipe, poses, source.render, cfg, progress=False)
+    if cache:
+        from holo_viewer.fileio import atomic_write
+
+        with atomic_write(Path(cache)) as fh:
+            pickle.dump({"key": key, "data": data}, fh, protocol=4)
+    return data
+
+
 def _write_pairs(folder: Path, name: str, fname: str, pairs: dict[str, np.ndarray], r: dict[str, Any]) -> None:
     from holo_viewer.fileio import save_image
 
@@ -282,6 +333,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="second-stage steps (detail-centred full-resolution crops; 0: the first stage only)")
     ap.add_argument("--init", default=None, help="start the second stage from this saved first stage (one name; "
                     "e.g. a file this script wrote with --stage2 0) instead of transfer + first stage")
+    ap.add_argument("--init-stage", type=int, default=2, choices=(2, 3), help="the stage --init starts (3: the "
+                    "file is a second stage, e.g. the avatar shipped before the third stage)")
+    ap.add_argument("--stage3", type=int, default=None, help="third-stage steps (D-SSIM; default "
+                    f"{STAGE3_CONFIG.iterations} for {', '.join(STAGE3_PATIENTS)}, 0 for the others)")
+    ap.add_argument("--dataset-cache", default=None, help="keep the training renders in this pickle and reuse "
+                    "them when they match (one name)")
     ap.add_argument("--threads", type=int, default=1, help="torch and numba threads (default 1)")
     args = ap.parse_args(argv)
     names = list(args.names)
@@ -295,6 +352,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--out takes one name")
     if args.init and len(names) != 1:
         ap.error("--init takes one name")
+    if args.stage3 is not None and args.stage3 < 0:
+        ap.error(f"--stage3: expected >= 0, found {args.stage3}")
+    if args.dataset_cache and len(names) != 1:
+        ap.error("--dataset-cache takes one name")
     if args.stage2 < 0:
         ap.error(f"--stage2: expected >= 0, found {args.stage2}")
     if not args.eval_faces or not set(args.eval_faces.split(",")) <= {"neutral", "pain_1"}:

@@ -96,6 +96,24 @@ class AvatarFitConfig:
     #: (``detail_map``: |target - blur(target)|, where a smooth fit misses most, e.g. hair strands) instead
     #: of uniformly; 0: every crop uniform (the first fits)
     crop_detail: float = 0.0
+    #: adaptive density control (3DGS, inside a budget; 0: off, the count and binding fixed): every
+    #: ``densify_every`` steps from ``densify_from`` to ``densify_until`` (0: 3/4 of the iterations), the
+    #: ``densify_split`` Gaussians of the highest mean world-space positional gradient (over the steps that
+    #: saw them) are each split in two on their own triangle (centres drawn from the Gaussian, scales
+    #: / ``split_factor``), those below ``prune_opacity`` are dropped, and the faintest beyond
+    #: ``max_gaussians`` (0: no cap) too
+    densify_every: int = 0
+    densify_from: int = 0
+    densify_until: int = 0
+    densify_split: int = 0
+    split_factor: float = 1.6
+    #: "sample": children's centres drawn from the parent Gaussian, all scales / ``split_factor`` (3DGS);
+    #: "axis": children at +-0.6 sigma along the parent's longest axis, that axis x 0.8 (the pair keeps the
+    #: parent's variance), opacity ``1 - sqrt(1 - o)`` each (the pair keeps its alpha): the image barely
+    #: changes at the split, for a fine-tune at a low position learning rate
+    split_mode: str = "sample"
+    prune_opacity: float = 0.0
+    max_gaussians: int = 0
     seed: int = 0
     dtype: str = "float32"
 
@@ -116,6 +134,10 @@ class AvatarFit:
     losses: list[float]
     seconds: dict[str, float]
     n_images: int
+    #: (N,) parent faces of ``local`` (the input binding unless densification changed the set)
+    binding: np.ndarray | None = None
+    #: adaptive density control per round: (step, split, pruned, count after)
+    densify_log: list[tuple[int, int, int, int]] = dataclasses.field(default_factory=list)
 
 
 # =============================================================================== poses and colours
@@ -507,6 +529,13 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
     n_pose, n_cam = data.images.shape[:2]
     losses: list[float] = []
     detail_cdf: dict[tuple[int, int], np.ndarray] = {}
+    src = np.arange(len(local))  # each current Gaussian's index in ``local`` (for ``extra``)
+    densify_until = config.densify_until or int(config.iterations * 0.75)
+    dens = config.densify_every > 0 and (config.densify_split > 0 or config.prune_opacity > 0
+                                         or config.max_gaussians > 0)
+    acc = np.zeros(len(local))
+    cnt = np.zeros(len(local))
+    dlog: list[tuple[int, int, int, int]] = []
     decay = (config.lr_means_final / config.lr_means) ** (1.0 / max(config.iterations - 1, 1))
     bar = tqdm(range(config.iterations), desc="fit", disable=not progress, mininterval=5.0)
     for it in bar:
@@ -514,6 +543,8 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
         rot, scale, centre = data.frames[p]
         q = params["quats"] / torch.linalg.norm(params["quats"], dim=-1, keepdim=True)
         means, quats, log_scales = bind_to_world(params["means"], q, params["log_scales"], b, rot, scale, centre)
+        if dens:
+            means.retain_grad()
         sh = torch.cat([params["sh_dc"], params["sh_rest"]], dim=1)
         loss = torch.zeros((), dtype=dtype)
         for c in rng.choice(n_cam, size=min(config.views_per_step, n_cam), replace=False):
@@ -553,7 +584,19 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
         total = loss + reg
         opt.zero_grad(set_to_none=True)
         total.backward()
+        if dens and means.grad is not None:
+            gn = torch.linalg.norm(means.grad[0], dim=-1).numpy()
+            acc += gn
+            cnt += gn > 0
         opt.step()
+        if (dens and config.densify_from <= it < densify_until and it > 0
+                and (it - config.densify_from) % config.densify_every == config.densify_every - 1):
+            params, opt, keep_src, n_split, n_pruned = _densify(params, opt, acc, cnt, config, rng)
+            src = src[keep_src]
+            b = b[torch.as_tensor(keep_src)]
+            acc = np.zeros(len(src))
+            cnt = np.zeros(len(src))
+            dlog.append((it, n_split, n_pruned, len(src)))
         for grp in opt.param_groups:
             if grp["name"] == "means":
                 grp["lr"] *= decay
@@ -563,11 +606,94 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
     with torch.no_grad():
         sh = torch.cat([params["sh_dc"], params["sh_rest"]], dim=1)
         q = params["quats"] / torch.linalg.norm(params["quats"], dim=-1, keepdim=True)
+        extra = {k: (np.asarray(v)[src] if np.ndim(v) and len(v) == len(local) else v)
+                 for k, v in local.extra.items()}
         out = Gaussians(params["means"].numpy().astype(np.float32), q.numpy().astype(np.float32),
                         params["log_scales"].numpy().astype(np.float32),
                         params["opacity"].numpy().astype(np.float32), sh.numpy().astype(np.float32),
-                        extra=dict(local.extra))
-    return AvatarFit(out, losses, {"fit": time.perf_counter() - t0}, int(n_pose * n_cam))
+                        extra=extra)
+    return AvatarFit(out, losses, {"fit": time.perf_counter() - t0}, int(n_pose * n_cam),
+                     b.numpy().copy(), dlog)
+
+
+def _densify(params: dict[str, torch.Tensor], opt: torch.optim.Optimizer, acc: np.ndarray, cnt: np.ndarray,
+             config: AvatarFitConfig, rng: np.random.Generator
+             ) -> tuple[dict[str, torch.Tensor], torch.optim.Optimizer, np.ndarray, int, int]:
+    """One round of adaptive density control (:class:`AvatarFitConfig` ``densify_*``): split the
+    ``densify_split`` Gaussians of the highest mean positional gradient ``acc / cnt`` in two (local centres
+    drawn from the Gaussian, in its triangle's frame; scales / ``split_factor``; the rest copied), drop
+    those below ``prune_opacity`` and the faintest beyond ``max_gaussians``. Returns the new parameters
+    and optimiser (Adam moments carried over, zero for the children) and, per new Gaussian, the index
+    of the Gaussian it came from, the number split and the number dropped."""
+    from ..geometry import quat_to_rotmat_np
+
+    n = len(acc)
+    avg = np.where(cnt > 0, acc / np.maximum(cnt, 1), 0.0)
+    k = int(min(config.densify_split, int((avg > 0).sum())))
+    split = np.zeros(n, bool)
+    if k > 0:
+        split[np.argpartition(-avg, k - 1)[:k]] = True
+    with torch.no_grad():
+        op = torch.sigmoid(params["opacity"]).numpy().reshape(n, -1)[:, 0]
+        keep = ~split
+        if config.prune_opacity > 0:
+            keep &= op >= config.prune_opacity
+        si = np.nonzero(split)[0]
+        n_new = 2 * len(si)
+        if config.max_gaussians > 0 and keep.sum() + n_new > config.max_gaussians:  # the faintest kept go
+            ki = np.nonzero(keep)[0]
+            drop = int(keep.sum() + n_new - config.max_gaussians)
+            keep[ki[np.argsort(op[ki], kind="stable")[:min(drop, len(ki))]]] = False
+        ki = np.nonzero(keep)[0]
+        mu = params["means"].numpy().astype(np.float64)
+        q = params["quats"].numpy().astype(np.float64)
+        ls = params["log_scales"].numpy().astype(np.float64)
+        R = quat_to_rotmat_np(q[si] / np.linalg.norm(q[si], axis=1, keepdims=True))  # (k, 3, 3)
+        children = []
+        child_ls = np.concatenate([ls[si], ls[si]]) - math.log(config.split_factor)
+        child_op = None
+        if config.split_mode == "axis":
+            j = np.argmax(ls[si], axis=1)
+            axis = R[np.arange(len(si)), :, j] * np.exp(ls[si, j])[:, None]  # (k, 3): sigma along the axis
+            children = [mu[si] + 0.6 * axis, mu[si] - 0.6 * axis]
+            child_ls = np.concatenate([ls[si], ls[si]])
+            child_ls[np.arange(2 * len(si)), np.concatenate([j, j])] += math.log(0.8)
+            o = np.clip(np.concatenate([op[si], op[si]]), 1e-6, 1 - 1e-6)
+            oc = np.clip(1 - np.sqrt(1 - o), 1e-6, 1 - 1e-6)
+            child_op = np.log(oc / (1 - oc))
+        elif config.split_mode == "sample":
+            for _ in range(2):
+                z = rng.standard_normal((len(si), 3)) * np.exp(ls[si])
+                children.append(mu[si] + np.einsum("nij,nj->ni", R, z))
+        else:
+            raise InputError(f"split_mode: expected 'sample' or 'axis', found {config.split_mode!r}")
+        new: dict[str, torch.Tensor] = {}
+        idx = np.concatenate([ki, si, si])
+        for name, p in params.items():
+            t = p.detach()[torch.as_tensor(idx)].clone()
+            if name == "means" and len(si):
+                t[len(ki):] = torch.as_tensor(np.concatenate(children), dtype=t.dtype)
+            if name == "log_scales" and len(si):
+                t[len(ki):] = torch.as_tensor(child_ls, dtype=t.dtype)
+            if name == "opacity" and len(si) and child_op is not None:
+                t[len(ki):] = torch.as_tensor(child_op, dtype=t.dtype).reshape(t[len(ki):].shape)
+            new[name] = t.requires_grad_(True)
+        groups = [{"params": [new[g["name"]]], "lr": g["lr"], "name": g["name"]} for g in opt.param_groups]
+        opt2 = torch.optim.Adam(groups, eps=1e-15)
+        for g_old, g_new in zip(opt.param_groups, opt2.param_groups):
+            st = opt.state.get(g_old["params"][0], {})
+            if not st:
+                continue
+            moved = {}
+            for key, v in st.items():
+                if torch.is_tensor(v) and v.dim() > 0 and v.shape[0] == n:
+                    v2 = v[torch.as_tensor(idx)].clone()
+                    v2[len(ki):] = 0
+                    moved[key] = v2
+                else:
+                    moved[key] = v.clone() if torch.is_tensor(v) else v
+            opt2.state[g_new["params"][0]] = moved
+    return new, opt2, idx, len(si), int(n - len(ki) - len(si))
 
 
 def initial_with_surface_colors(local: Gaussians, binding: np.ndarray, model: Any,
