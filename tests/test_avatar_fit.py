@@ -263,7 +263,8 @@ def test_detail_map_weights_strands_over_smooth_skin():
 
 def test_the_patients_third_stage_is_d_ssim_on_the_hard_three_only():
     """scripts/fit_patients.py: the third stage is the second stage's detail-centred crops with 3DGS's
-    D-SSIM weight (0.2) and its own seed, and it runs by default only for mei, helen and rafael, so
+    D-SSIM weight (0.2), its own seed and
+    image-preserving splits, and it runs by default only for mei, helen and rafael, so
     ``default`` and the other patients' shipped files stay reproducible by the same command."""
     import importlib.util
     from pathlib import Path
@@ -274,8 +275,11 @@ def test_the_patients_third_stage_is_d_ssim_on_the_hard_three_only():
     spec.loader.exec_module(fp)
     s2, s3 = fp.STAGE2_CONFIG, fp.STAGE3_CONFIG
     assert s3.ssim_weight == 0.2 and s2.ssim_weight == 0.0 and s3.seed != s2.seed
-    assert fa.replace_config(s3, ssim_weight=0.0, seed=s2.seed) == s2
-    assert s3.densify_every == 0  # the binding stays fixed (the split measured worse, docs/avatar_fit.md)
+    assert fa.replace_config(s3, ssim_weight=0.0, seed=s2.seed, densify_every=0, densify_until=0, densify_split=0,
+                             split_mode="sample", prune_opacity=0.0, max_gaussians=0) == s2
+    assert s3.split_mode == "axis" and 0 < s3.densify_split and s3.densify_every < s3.iterations
     assert set(fp.STAGE3_PATIENTS) == {"mei", "helen", "rafael"}
+    assert fp.stage3_config("mei") == s3  # default's (run with --stage3 400 before the splits): D-SSIM alone
+    assert fp.stage3_config("default") == fa.replace_config(s2, ssim_weight=0.2, seed=s3.seed)
     with pytest.raises(SystemExit):
         fp.main(["mei", "--stage3", "-1"])
