@@ -62,7 +62,7 @@ STAGE2_CONFIG = fa.replace_config(PATIENT_CONFIG, iterations=400, crop_fraction=
 STAGE3_CONFIG = fa.replace_config(STAGE2_CONFIG, iterations=400, ssim_weight=0.2, seed=2, densify_every=100,
                                   densify_until=250, densify_split=4000, split_mode="axis", prune_opacity=0.005,
                                   max_gaussians=125_000)
-#: ``default``'s third stage (1d7b76f, ``--stage3 400``) ran before the splits were added: D-SSIM alone, so
+#: ``default``'s third stage (69200a4, ``--stage3 400``) ran before the splits were added: D-SSIM alone, so
 #: the same command reproduces that file
 STAGE3_SSIM_CONFIG = fa.replace_config(STAGE2_CONFIG, iterations=400, ssim_weight=0.2, seed=2)
 #: the patients whose shipped avatar has the third stage (the others' files stay reproducible as shipped)
