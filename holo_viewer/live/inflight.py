@@ -31,10 +31,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["FramesInFlight", "Job"]
+__all__ = ["FramesInFlight", "RenderJob"]
 
 
-class Job:
+class RenderJob:
     """One render call: ``args``/``kwargs`` of ``renderer.render``, ``tag`` (the caller's), and when done
     ``result`` (a RenderedFrame) or ``error``, ``started`` / ``finished`` (perf_counter)."""
 
@@ -62,14 +62,14 @@ class _Worker:
         #: a thread count to give the renderer before its next job (None: keep it)
         self.threads: int | None = None
         self._wake = wake
-        self._job: Job | None = None
+        self._job: RenderJob | None = None
         self._go = threading.Condition()
         self._stop = False
         self.busy = False
         self.thread = threading.Thread(target=self._run, name=name, daemon=True)
         self.thread.start()
 
-    def submit(self, job: Job) -> None:
+    def submit(self, job: RenderJob) -> None:
         with self._go:
             self._job = job
             self._go.notify()
@@ -97,7 +97,7 @@ class _Worker:
                 self._wake.notify_all()
 
 
-def _render(renderer: Any, job: Job) -> None:
+def _render(renderer: Any, job: RenderJob) -> None:
     job.renderer = renderer
     job.started = time.perf_counter()
     try:
@@ -144,7 +144,7 @@ class FramesInFlight:
         self.threads_each = max(1, int(threads_each) if threads_each is not None else (os.cpu_count() or 1) // self.n)
         self._wake = threading.Condition()
         self._workers: list[_Worker] = []
-        self._pending: deque[Job] = deque()
+        self._pending: deque[RenderJob] = deque()
         self._durations: deque[float] = deque(maxlen=9)
         self._last_start = -np.inf
         self._closed = False
@@ -203,8 +203,8 @@ class FramesInFlight:
         spacing = 0.8 * float(np.median(self._durations)) / max(1, self.renderers)
         return now - self._last_start >= spacing
 
-    def submit(self, args: tuple, kwargs: dict | None = None, tag: Any = None) -> Job:
-        job = Job(tuple(args), dict(kwargs or {}), tag)
+    def submit(self, args: tuple, kwargs: dict | None = None, tag: Any = None) -> RenderJob:
+        job = RenderJob(tuple(args), dict(kwargs or {}), tag)
         self._pending.append(job)
         self._last_start = time.perf_counter()
         if not self.threaded:
@@ -217,7 +217,7 @@ class FramesInFlight:
         worker.submit(job)
         return job
 
-    def take(self) -> Job | None:
+    def take(self) -> RenderJob | None:
         """The oldest job if it is done (removed; its error raised), else None."""
         if not self._pending or not self._pending[0].done.is_set():
             return None
