@@ -321,7 +321,7 @@ def test_panel_window_under_xvfb(tmp_path, xvfb_server):
 
 
 def test_auto_render_mode_renders_group_frames_with_the_tracked_face():
-    """The live command's default: group frames (every view, the tracked face's eyes exact), with the
+    """The live command's default: group frames (every view, one fill for every viewer), with the
     viewer while the tracker sees a face and without one otherwise."""
     from holo_viewer.live.render import LiveAvatarRenderer
 
