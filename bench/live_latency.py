@@ -431,8 +431,8 @@ def main() -> int:
     ap.add_argument("--rss-seconds", type=float, default=0.0, help="also run a synthetic session this long for RSS")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "holo_viewer_live_bench"))
     ap.add_argument("--json", default=None)
-    ap.add_argument("--ab", action="store_true", help="also one frame in flight (A: the loop before "
-                    "holo_viewer.live.inflight) and the default again (B), one after the other")
+    ap.add_argument("--ab", action="store_true", help="also one frame in flight (A) and --in-flight "
+                    "frames (B, default 2), one after the other")
     ap.add_argument("--in-flight", type=int, default=None, help="LiveSessionConfig.frames_in_flight of the "
                     "render runs (default: the loop's default)")
     ap.add_argument("--render-threads", type=int, default=None, help="each renderer's threads (default: all cores)")
@@ -476,10 +476,10 @@ def main() -> int:
                                     record=render, **kw))
         # the same again in this process: the renderer's tables and kernels are warm (first frame, warm)
         warm = run_session(files, Path(tmp) / "s2", True, args.tile_scale, args.render_mode, record=True, **kw)
-        # --ab: one frame in flight (A), then the default again (B): a paired A/B, one after the other
+        # --ab: one frame in flight (A), then --in-flight (B, default 2): a paired A/B, one after the other
         ab = [run_session(files, Path(tmp) / f"ab{i}", True, args.tile_scale, args.render_mode, record=True,
                           in_flight=n, render_threads=args.render_threads)
-              for i, n in enumerate((1, args.in_flight))] if args.ab else None
+              for i, n in enumerate((1, args.in_flight or 2))] if args.ab else None
         ab_threads = run_session(files, Path(tmp) / "abt", True, args.tile_scale, args.render_mode, record=True,
                                  in_flight=args.in_flight, render_threads=args.render_threads,
                                  threads_in_flight=os.cpu_count()) if args.ab_threads else None
@@ -495,7 +495,7 @@ def main() -> int:
     for k in keys:
         print(f"{k:34s} {str(base[k]):>12s} {str(full[k]):>12s}")
     print(f"reaction ms/window, render vs no-render: x{ratio:.2f}")
-    named = [("cold", full), ("warm", warm)] + ([("1 in flight (A)", ab[0]), ("default (B)", ab[1])] if ab else []) + \
+    named = [("cold", full), ("warm", warm)] + ([("1 in flight (A)", ab[0]), (f"{args.in_flight or 2} in flight (B)", ab[1])] if ab else []) + \
         ([("all cores per renderer in flight", ab_threads)] if ab_threads else [])
     for name, row in named:
         print(f"{name}: {row['displayed_fps']} displayed fps with recording (load {row['load_1min_start']} -> "

@@ -59,10 +59,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      "eye (fastest); all_views: default cone, every 5th view rendered and the others warped by depth; "
                      "cone: the 48 cameras follow the tracked viewer (Algorithm 1's viewer angle and distance), the "
                      "whole quilt each frame (slowest)")
-    out.add_argument("--frames-in-flight", type=_in_flight_arg, default=2, metavar="N",
-                     help="render up to N frames at once, each on a renderer of its own (default 2: both cores of "
-                     "a 2-core CPU busy, each frame shown a little later; 1: one frame at a time). Only modes whose "
-                     "frames do not depend on earlier ones (auto, all_views on the CPU)")
+    out.add_argument("--frames-in-flight", type=_in_flight_arg, default=1, metavar="N",
+                     help="render up to N frames at once, each on a renderer of its own (default 1: one frame at a "
+                     "time, which keeps 2 cores busy with group frames; 2 may help where one frame leaves cores "
+                     "idle, each frame shown a little later). Only modes whose frames do not depend on earlier ones "
+                     "(auto, all_views on the CPU)")
     out.add_argument("--video-fps", type=fps_arg, default=10.0, help="nominal frame rate of native.mkv (each displayed "
                      "frame is stored once with the time it was shown; default 10)")
     out.add_argument("--record-video", action="store_true", help="also keep the webcam video (off by default: "

@@ -86,10 +86,12 @@ class LiveSessionConfig:
     #: tracked frame looks at every face (issue 37: the tracker's CPU; docs/live.md)
     viewer_fps: float | None = 5.0
     #: render up to this many frames at once, each on a renderer of its own in a thread of its own, shown in
-    #: the order started (holo_viewer.live.inflight): on 2 cores one group frame leaves ~0.6 of a core idle.
-    #: Only renderers whose frames do not depend on earlier ones (LiveAvatarRenderer.frames_independent);
-    #: others render one frame at a time in this thread, as with 1
-    frames_in_flight: int = 2
+    #: the order started (holo_viewer.live.inflight). Only renderers whose frames do not depend on earlier
+    #: ones (LiveAvatarRenderer.frames_independent); others render one frame at a time in this thread. 1 by
+    #: default: since group frames draw no eye slices, one frame keeps the 2 cores busy and a second one in
+    #: flight cost CPU and latency (quiet A/B, docs/live.md: 7.75 against 7.38 displayed fps, 414 against
+    #: 582 ms to a visible change)
+    frames_in_flight: int = 1
     #: each renderer's threads while frames are in flight (None: the cores over frames_in_flight, at least 1)
     render_threads_in_flight: int | None = None
     scenario: Any = None
