@@ -263,11 +263,11 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
     if cfg.iterations and stage3:
         info["method"] = "transfer of the default avatar + fine-tune in three stages (scripts/fit_patients.py)"
         info["stage3_iterations"] = stage3
-        c3 = stage3_config(name)
-        info["stage3"] = {"ssim_weight": c3.ssim_weight, "crop_detail": c3.crop_detail, "seed": c3.seed}
-        if c3.densify_every:
-            info["stage3"].update(densify_split=c3.densify_split, split_mode=c3.split_mode,
-                                  prune_opacity=c3.prune_opacity, n_gaussians=len(fitted))
+        s3 = stage3_config(name)  # (c3 is the fit's CPU clock above)
+        info["stage3"] = {"ssim_weight": s3.ssim_weight, "crop_detail": s3.crop_detail, "seed": s3.seed}
+        if s3.densify_every:
+            info["stage3"].update(densify_split=s3.densify_split, split_mode=s3.split_mode,
+                                  prune_opacity=s3.prune_opacity, n_gaussians=len(fitted))
     if args.init:
         info["init_stage"] = args.init_stage
     path = save_fitted_avatar(out, fitted, binding, model, colour_source=source.name, head_path=head_path,
