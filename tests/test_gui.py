@@ -28,7 +28,19 @@ GOLDEN = Path(__file__).parent / "golden" / "viewer_snapshot.png"
 GOLDEN_SIZE = (640, 360)
 
 
-def _small_scene(tile_scale: float = 0.25, seed: int = 0):
+def _small_panel():
+    """The shipped Portrait calibration's optics on a 384 x 512 panel (1/16 of its subpixels, the same aspect,
+    so the same quilt): the exports' and the panel's native images cost 1/16 as much. The tests that use it
+    check the viewer's native images against the calibration they were made for, not the Portrait's size
+    (test_views_to_native.py and test_golden_images.py check the full-size chain)."""
+    import dataclasses
+
+    from holo_viewer.display.calibration import DisplayCalibration
+
+    return dataclasses.replace(DisplayCalibration.load(None), screen_w=384, screen_h=512)
+
+
+def _small_scene(tile_scale: float = 0.25, seed: int = 0, calibration=None):
     from holo_viewer.avatar import Gaussians, RiggedAvatar
     from holo_viewer.flame.model import FlameModel
     from holo_viewer.flame.synthetic import random_flame_arrays
@@ -45,7 +57,8 @@ def _small_scene(tile_scale: float = 0.25, seed: int = 0):
         sh=rng.normal(scale=0.6, size=(n, 4, 3)).astype(np.float32),
         extra={"binding": rng.integers(0, F, size=n).astype(np.int64)},
     )
-    return Pipeline(model=model, avatar=RiggedAvatar(model, local), view=ViewSettings(tile_scale=tile_scale))
+    return Pipeline(model=model, avatar=RiggedAvatar(model, local), calibration=calibration,
+                    view=ViewSettings(tile_scale=tile_scale))
 
 
 # ------------------------------------------------------------------ Xvfb fixture
@@ -75,7 +88,7 @@ def window(xvfb, tmp_path):
 
     cfg = ViewerConfig(window_size=(960, 540), out_dir=str(tmp_path / "exports"), sweep_frames=3,
                        sweep_scale=0.1, thumbnail_scale=0.1, preview_scale=0.5, splat_view=False)
-    viewer = HoloViewer(_small_scene(), cfg)
+    viewer = HoloViewer(_small_scene(calibration=_small_panel()), cfg)
     viewer.open()  # map the window without entering the event loop
     viewer.wait_for_thumbnail()  # the window shows it after its first frame; the tests want it there
     yield viewer
@@ -959,8 +972,8 @@ def test_panel_shows_the_native_image_zoomed_and_what_a_placed_eye_sees(xvfb, xd
     from holo_viewer.gui.previews import zoom_centre
     from holo_viewer.gui.viewer import HoloViewer, ViewerConfig
 
-    viewer = HoloViewer(_small_scene(), ViewerConfig(window_size=(960, 540), out_dir=str(tmp_path),
-                                                     thumbnail_scale=0.1, splat_view=False))
+    viewer = HoloViewer(_small_scene(calibration=_small_panel()), ViewerConfig(
+        window_size=(960, 540), out_dir=str(tmp_path), thumbnail_scale=0.1, splat_view=False))
     try:
         viewer.open()
         viewer.wait_for_thumbnail()
