@@ -40,6 +40,9 @@ from holo_viewer.render.lod import contribution, lod_keep  # noqa: E402
 
 CAL = DisplayCalibration.load(None)  # the shipped Portrait calibration
 SMALL = CAL.with_quilt(8, 6, 840, 840)  # same optics, 105 x 140 tiles: cheap renders
+# and on a 384 x 512 panel (1/16 of the subpixels, the same aspect): for the interleaver's exact-equality tests,
+# whose brute-force references walk every subpixel; the eye tests keep the Portrait's panel
+PANEL = dataclasses.replace(SMALL, screen_w=384, screen_h=512)
 
 KERNELS = ["numba"] + (["cpp", "cpp-scalar"] if fast.cpp_available() else [])
 if fast.cpp_available() and fast._cpp().has_avx2():
@@ -118,7 +121,8 @@ def display():
 
 @pytest.fixture(scope="module", params=["nearest", "blend"])
 def small_interleaver(request):
-    return _interleaver(request.param)
+    """The small quilt interleaved for the 384 x 512 panel (PANEL)."""
+    return Interleaver(PANEL, (840, 840, 3), mode=request.param)
 
 
 def _read_columns(il: Interleaver, subpixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -423,7 +427,7 @@ def test_device_gather_equals_numpy_path(mode):
     rng = np.random.default_rng(7)
     views = rng.random((48, 140, 105, 3)).astype(np.float32)
     views[0, :3, :3] = [[0.5 / 255, 1.5 / 255, 254.5 / 255]]  # exact halves round to even
-    il = Interleaver(SMALL, (840, 840, 3), mode=mode)
+    il = Interleaver(PANEL, (840, 840, 3), mode=mode)
     expected = il(tile_quilt(views, 8, 6, as_uint8=True))
     for dev in _devices():
         di = DeviceInterleaver(il, 48, 140, 105, device=dev)
