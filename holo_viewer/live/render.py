@@ -92,11 +92,17 @@ class LiveAvatarRenderer:
     view_step : int or None
         ``all_views``: render every view_step-th view and synthesize the others by depth
         (:class:`holo_viewer.pipeline.live.NativeFrameConfig`; None: the live default, 5; 1: every view).
+    visible_only : bool
+        CPU frames that redraw every view (``auto``/``group``, ``all_views``) skip the Gaussians nobody
+        sees (:func:`holo_viewer.pipeline.live_support.visible_mask`: largest blending weight over the
+        quilt views at a set of poses <= 0.5/255; the default avatar keeps ~70 % at full size, the cone
+        error unchanged, docs/live_frame.md). Built at the first start per avatar and quilt size (~3 s
+        of CPU a pose at tile scale 0.5), then loaded from the cache. ``holo-viewer live`` turns it on.
     """
 
     def __init__(self, tile_scale: float = 1.0, native: bool = True, preview: bool = False, backend: str = "auto",
                  calibration: Any = None, render_threads: int | None = None, mode: str = "auto",
-                 view_step: int | None = None, avatar: str = "default") -> None:
+                 view_step: int | None = None, avatar: str = "default", visible_only: bool = False) -> None:
         import os
 
         from ..pipeline.live_modes import SESSION_MODE
@@ -104,7 +110,8 @@ class LiveAvatarRenderer:
         #: the arguments, for :meth:`twin`
         self._args = {"tile_scale": tile_scale, "native": native, "preview": preview, "backend": backend,
                       "calibration": calibration, "render_threads": render_threads, "mode": mode,
-                      "view_step": view_step, "avatar": avatar}
+                      "view_step": view_step, "avatar": avatar, "visible_only": bool(visible_only)}
+        self.visible_only = bool(visible_only)
         threads = max(1, os.cpu_count() or 1) if render_threads is None else int(render_threads)
         if mode not in SESSION_MODE:
             from ..errors import InputError
@@ -158,7 +165,12 @@ class LiveAvatarRenderer:
         from ..pipeline.live import NativeFrameConfig, NativeFrameRenderer
 
         config = NativeFrameConfig(render=RenderConfig(num_threads=threads), view_step=view_step, backend=self.backend)
-        self._live = NativeFrameRenderer(self.pipeline.calibration, self.pipeline.cameras(), config)
+        keep = None
+        if self.visible_only and self.backend == "fast":
+            from ..pipeline.live_support import visible_mask
+
+            keep = visible_mask(self.pipeline)
+        self._live = NativeFrameRenderer(self.pipeline.calibration, self.pipeline.cameras(), config, keep=keep)
         if self.backend == "gsplat":
             self._live.frame(self.pipeline.gaussians(), None, "all_views")
         else:

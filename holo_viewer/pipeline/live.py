@@ -244,6 +244,11 @@ class NativeFrameRenderer:
     config : NativeFrameConfig, optional
     rest : Gaussians, optional
         The avatar at rest, for the level of detail (default: the first frame's Gaussians).
+    keep : numpy.ndarray, optional
+        (N,) bool: the Gaussians the approximate live frames (``group``, ``all_views``) draw, the others
+        never being seen (:func:`holo_viewer.pipeline.live_support.visible_mask`: largest blending weight
+        over the 48 views at a set of poses <= 0.5/255); ``full_quilt`` (exports) and the tracked modes
+        draw all. A mask of another length than the frame's Gaussians (another avatar) is ignored.
 
     Notes
     -----
@@ -254,7 +259,7 @@ class NativeFrameRenderer:
     """
 
     def __init__(self, calibration: Any, cameras: Cameras, config: NativeFrameConfig | None = None,
-                 rest: Any = None) -> None:
+                 rest: Any = None, keep: np.ndarray | None = None) -> None:
         from ..display.calibration import DisplayCalibration
         from ..display.lenticular import Interleaver
 
@@ -288,6 +293,13 @@ class NativeFrameRenderer:
         self._rr = 0
         self._lod = None
         self._rest = rest
+        self._keep: np.ndarray | None = None  # the visible Gaussians (bool mask), see keep
+        self._depth_cell: int | None = None  # the z-buffer's cell of the whole avatar, when keep drops some
+        if keep is not None:
+            k = np.asarray(keep)
+            if k.ndim != 1 or k.dtype != np.bool_:
+                raise InputError(f"keep: expected an (N,) bool mask of the Gaussians drawn, found {k.dtype} {k.shape}")
+            self._keep = k.copy()
         self._device = None
         self._zeta: np.ndarray | None = None
         self._texel: np.ndarray | None = None
@@ -366,6 +378,7 @@ class NativeFrameRenderer:
         if self._n_gaussians != len(gaussians):  # a new avatar: no valid previous frame
             self._n_gaussians = None
             self._lod = None
+            self._depth_cell = None
         timings: dict[str, float] = {"validate": time.perf_counter() - t0}
         if row.incremental and self._n_gaussians is None:
             row = FRAME_MODE["full_quilt"]  # nothing to update yet: everything
@@ -402,14 +415,27 @@ class NativeFrameRenderer:
         return 1.0
 
     def _lod_subset(self, gaussians: Any) -> Any:
-        """The Gaussians kept by ``lod_fraction`` (chosen once per avatar, from the rest pose), or all."""
-        if self.config.lod_fraction >= 1.0:
+        """The Gaussians the approximate frames draw: those of ``keep`` (the visible ones) and of
+        ``lod_fraction`` (chosen once per avatar, from the rest pose), or all."""
+        visible = self._keep is not None and self._keep.size == len(gaussians)
+        if self.config.lod_fraction >= 1.0 and not visible:
             return gaussians
         if self._lod is None:
             from ..render.lod import lod_keep
+            from ..render.view_synthesis import auto_cell
 
-            rest = self._rest if self._rest is not None and len(self._rest) == len(gaussians) else gaussians
-            self._lod = lod_keep(rest, self.config.lod_fraction)
+            n = len(gaussians)
+            idx = np.arange(n, dtype=np.int64)
+            if self.config.lod_fraction < 1.0:
+                rest = self._rest if self._rest is not None and len(self._rest) == n else gaussians
+                idx = lod_keep(rest, self.config.lod_fraction)
+            if visible:
+                idx = idx[self._keep[idx]]
+                # the depth maps' cell from the whole avatar's centres (auto_cell counts them: the
+                # dropped ones are unseen, not a sparser surface)
+                op = np.asarray(gaussians.numpy().opacity_logits, dtype=np.float64).reshape(-1)
+                self._depth_cell = auto_cell(int((op >= 0.0).sum()), self.cameras.height, self.cameras.width)
+            self._lod = idx
         return gaussians.subset(self._lod)
 
     def _synth_buffers(self, step: int) -> tuple:
@@ -440,7 +466,8 @@ class NativeFrameRenderer:
         t1 = time.perf_counter()
         gn = g.numpy()
         opacity = 1.0 / (1.0 + np.exp(-np.asarray(gn.opacity_logits, dtype=np.float64)))
-        view_synthesis.inverse_depth(gn.means, opacity, self.cameras, src, rig=self._rig, out=wmaps)
+        view_synthesis.inverse_depth(gn.means, opacity, self.cameras, src, rig=self._rig, out=wmaps,
+                                     cell=self._depth_cell)
         t2 = time.perf_counter()
         layout = (self.calibration.cols, self.calibration.rows)
         views_to_native(images, layout, quilt=self.quilt, tiles=src)  # the rendered views' tiles
