@@ -252,7 +252,8 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
                             render_threads_in_flight=threads_in_flight,
                             **({"frames_in_flight": int(in_flight)} if in_flight is not None else {}))
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
-    renderer = LiveAvatarRenderer(tile_scale=tile_scale, mode=mode, render_threads=render_threads) if render else None
+    renderer = LiveAvatarRenderer(tile_scale=tile_scale, mode=mode, render_threads=render_threads,
+                                  visible_only=True) if render else None  # as `holo-viewer live`
     times = FrameTimes()
     import resource
 

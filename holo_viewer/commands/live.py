@@ -190,7 +190,7 @@ def _run(args: argparse.Namespace, mount: object, scenario: object, precompile: 
     # the reaction model loads on the other core meanwhile (the renderer's tables are mostly one thread)
     reaction = _ReactionPreload()
     renderer = LiveAvatarRenderer(tile_scale=args.tile_scale, native=True, preview=config.preview,
-                                  mode=args.render_mode, backend=args.renderer, avatar=args.avatar)
+                                  mode=args.render_mode, backend=args.renderer, avatar=args.avatar, visible_only=True)
     settings["render_backend"] = renderer.backend  # what "auto" chose (session.json)
     reaction.join()  # loaded and cached: the session's "warming the reaction model" finds it
     session = LiveSession(config, audio, video, synthetic)

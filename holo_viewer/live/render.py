@@ -96,8 +96,10 @@ class LiveAvatarRenderer:
         CPU frames that redraw every view (``auto``/``group``, ``all_views``) skip the Gaussians nobody
         sees (:func:`holo_viewer.pipeline.live_support.visible_mask`: largest blending weight over the
         quilt views at a set of poses <= 0.5/255; the default avatar keeps ~70 % at full size, the cone
-        error unchanged, docs/live_frame.md). Built at the first start per avatar and quilt size (~3 s
-        of CPU a pose at tile scale 0.5), then loaded from the cache. ``holo-viewer live`` turns it on.
+        error unchanged, docs/live_frame.md). Loaded from the cache; where it is not there yet this session
+        draws every Gaussian and a process at nice 19 builds it for the next ones (~30 s of CPU at tile
+        scale 0.5, :func:`~holo_viewer.pipeline.live_support.build_visible_mask_later`; default
+        calibration only). ``holo-viewer live`` turns it on.
     """
 
     def __init__(self, tile_scale: float = 1.0, native: bool = True, preview: bool = False, backend: str = "auto",
@@ -167,9 +169,11 @@ class LiveAvatarRenderer:
         config = NativeFrameConfig(render=RenderConfig(num_threads=threads), view_step=view_step, backend=self.backend)
         keep = None
         if self.visible_only and self.backend == "fast":
-            from ..pipeline.live_support import visible_mask
+            from ..pipeline.live_support import build_visible_mask_later, visible_mask
 
-            keep = visible_mask(self.pipeline)
+            keep = visible_mask(self.pipeline, cached_only=True)
+            if keep is None and calibration is None:  # not cached yet: built beside this session, used next time
+                build_visible_mask_later(self.avatar_name, tile_scale)
         self._live = NativeFrameRenderer(self.pipeline.calibration, self.pipeline.cameras(), config, keep=keep)
         if self.backend == "gsplat":
             self._live.frame(self.pipeline.gaussians(), None, "all_views")

@@ -21,7 +21,7 @@ from ..errors import InputError
 from ..validation import check_finite_scalar
 
 __all__ = ["webcam_camera", "HeadRenderer", "write_talking_head_clip", "HEAD_CENTRE", "SyntheticSpeaker",
-           "speaker_clip", "FaceStates", "VISIBILITY_POSES", "visible_mask"]
+           "speaker_clip", "FaceStates", "VISIBILITY_POSES", "visible_mask", "build_visible_mask_later"]
 
 #: a point between the default head's eyes (FLAME frame, metres): the webcam's look-at target
 HEAD_CENTRE = np.array([0.0, 0.02, 0.06])
@@ -214,18 +214,20 @@ VISIBILITY_POSES: tuple[dict, ...] = (
     {"eyes_pose": (-0.3, -0.45, 0.0, -0.3, -0.45, 0.0)})
 
 
-def visible_mask(pipe: Any, threshold: float | None = None, poses: tuple[dict, ...] | None = None) -> np.ndarray:
+def visible_mask(pipe: Any, threshold: float | None = None, poses: tuple[dict, ...] | None = None,
+                 cached_only: bool = False) -> np.ndarray | None:
     """(N,) bool: the Gaussians of ``pipe``'s avatar that anybody can see in its quilt views: largest
     blending weight (:func:`holo_viewer.render.visibility.max_weights`, float64) over ``pipe.cameras()`` at
     any of ``poses`` (default :data:`VISIBILITY_POSES`) above ``threshold`` (default
     :data:`~holo_viewer.render.visibility.KEEP_WEIGHT`, 0.5/255). Cached on disk
     (:func:`holo_viewer.display.table_cache.cached_tables`, kind ``visible_gaussians``), keyed by the avatar's
     neutral Gaussians, the cameras, the poses, the threshold and the visibility code: ~5-7 s of CPU per pose
-    at 48 views of 420x560 the first time. ``pipe``'s face is restored afterwards."""
+    at 48 views of 420x560 the first time (~3 s at tile scale 0.5). ``pipe``'s face is restored afterwards.
+    ``cached_only``: None instead of building a mask that is not cached (:func:`build_visible_mask_later`)."""
     import hashlib
     from pathlib import Path
 
-    from ..display.table_cache import cached_tables, table_key
+    from ..display.table_cache import cached_tables, table_key, table_path
     from ..render import visibility
     from .settings import FaceControls
 
@@ -248,6 +250,10 @@ def visible_mask(pipe: Any, threshold: float | None = None, poses: tuple[dict, .
     h.update(Path(visibility.__file__).read_bytes())
     key = table_key("visible_gaussians", None, avatar=h.hexdigest(), poses=repr(poses), threshold=thr)
 
+    if cached_only and (os.environ.get("HOLO_VIEWER_TABLE_CACHE", "1") == "0"
+                        or not table_path("visible_gaussians", key).is_file()):
+        return None
+
     def build() -> dict[str, np.ndarray]:
         best = np.zeros(n)
         try:
@@ -260,3 +266,49 @@ def visible_mask(pipe: Any, threshold: float | None = None, poses: tuple[dict, .
         return {"keep": best > thr}
 
     return cached_tables("visible_gaussians", key, {"keep": ((n,), "bool")}, build)["keep"]
+
+
+_later: set = set()  # (avatar, tile_scale) whose mask this process has asked a background build of
+
+
+def build_visible_mask_later(avatar: str = "default", tile_scale: float = 1.0) -> bool:
+    """Start, once per process and (``avatar``, ``tile_scale``), a separate process at the lowest CPU
+    priority (nice 19) that builds and caches :func:`visible_mask` for that avatar's quilt cameras on the
+    default calibration, so that a live session's first start on an avatar does not wait ~30 s of CPU for
+    it: that session draws every Gaussian, the next ones load the mask. Returns whether one was started."""
+    import subprocess
+    import sys
+
+    if (avatar, float(tile_scale)) in _later or os.environ.get("HOLO_VIEWER_TABLE_CACHE", "1") == "0":
+        return False
+    _later.add((avatar, float(tile_scale)))
+    cmd = [sys.executable, "-m", "holo_viewer.pipeline.live_support", str(avatar), repr(float(tile_scale))]
+    try:
+        subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True, preexec_fn=lambda: os.nice(19))  # noqa: PLW1509 - only os.nice
+    except OSError:
+        return False
+    return True
+
+
+def _build_visible_mask_main(argv: list[str]) -> int:
+    """``python -m holo_viewer.pipeline.live_support AVATAR TILE_SCALE``: cache :func:`visible_mask`."""
+    from ..display.calibration import DisplayCalibration
+    from . import Pipeline, ViewSettings
+
+    avatar, tile_scale = argv[0], float(argv[1])
+    who = {}
+    if avatar != "default":
+        from .scene import load_avatar
+
+        model, av, _, _ = load_avatar(avatar, need_gaussians=True)
+        who = {"model": model, "avatar": av}
+    pipe = Pipeline(calibration=DisplayCalibration.load(None), view=ViewSettings(tile_scale=tile_scale), **who)
+    visible_mask(pipe)
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    raise SystemExit(_build_visible_mask_main(sys.argv[1:]))
