@@ -45,6 +45,13 @@ def _share_the_cores() -> None:
 
 _share_the_cores()
 
+# `holo-viewer live` starts a nice-19 process that builds the avatar's visible-Gaussian mask for the next start
+# (pipeline/live_support.build_visible_mask_later, ~30 s of CPU per avatar and tile scale). The suite's live
+# sessions (in process and their children, which inherit this) start none: they would run beside the workers,
+# outlive the tests that started them and fill the cache with masks no later test loads. A test of the build
+# itself sets the variable back (monkeypatch.setenv).
+os.environ.setdefault("HOLO_VIEWER_BACKGROUND_BUILDS", "0")
+
 
 @pytest.fixture(scope="module")
 def small_model():

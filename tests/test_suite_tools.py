@@ -149,3 +149,19 @@ def test_warm_kernels_steps_run(monkeypatch):
             "reaction metrics"} <= set(steps)
     for name in ("avatars", "differentiable renderer", "reaction metrics"):
         steps[name]()
+
+
+def test_the_suite_starts_no_background_mask_builds(monkeypatch):
+    """conftest sets HOLO_VIEWER_BACKGROUND_BUILDS=0: `holo-viewer live` in a test (and its children) starts no
+    nice-19 visible-mask build (~30 s of CPU each, outliving the test); with the variable at 1 it would."""
+    from holo_viewer.pipeline import live_support
+
+    started = []
+    monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: started.append(a[0]))
+    monkeypatch.setattr(live_support, "_later", set())
+    monkeypatch.delenv("HOLO_VIEWER_TABLE_CACHE", raising=False)
+    assert os.environ.get("HOLO_VIEWER_BACKGROUND_BUILDS") == "0"
+    assert not live_support.build_visible_mask_later("default", 0.125) and not started
+    monkeypatch.setenv("HOLO_VIEWER_BACKGROUND_BUILDS", "1")  # the variable is what stops it: the test can fail
+    assert live_support.build_visible_mask_later("default", 0.125)
+    assert len(started) == 1 and started[0][-2:] == ["default", "0.125"]

@@ -275,11 +275,14 @@ def build_visible_mask_later(avatar: str = "default", tile_scale: float = 1.0) -
     """Start, once per process and (``avatar``, ``tile_scale``), a separate process at the lowest CPU
     priority (nice 19) that builds and caches :func:`visible_mask` for that avatar's quilt cameras on the
     default calibration, so that a live session's first start on an avatar does not wait ~30 s of CPU for
-    it: that session draws every Gaussian, the next ones load the mask. Returns whether one was started."""
+    it: that session draws every Gaussian, the next ones load the mask. Returns whether one was started.
+    ``HOLO_VIEWER_BACKGROUND_BUILDS=0`` starts none (the test suite: a build per tile scale, ~30 s of CPU each,
+    would outlive the tests that started it)."""
     import subprocess
     import sys
 
-    if (avatar, float(tile_scale)) in _later or os.environ.get("HOLO_VIEWER_TABLE_CACHE", "1") == "0":
+    if (avatar, float(tile_scale)) in _later or os.environ.get("HOLO_VIEWER_TABLE_CACHE", "1") == "0" \
+            or os.environ.get("HOLO_VIEWER_BACKGROUND_BUILDS", "1") == "0":
         return False
     _later.add((avatar, float(tile_scale)))
     cmd = [sys.executable, "-m", "holo_viewer.pipeline.live_support", str(avatar), repr(float(tile_scale))]
