@@ -235,12 +235,13 @@ def pct(x, q):
 
 def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: str = "auto",
                 record: bool = False, in_flight: int | None = None, render_threads: int | None = None,
-                threads_in_flight: int | None = None) -> dict:
+                threads_in_flight: int | None = None, visible_only: bool = True) -> dict:
     """One replayed session; ``record``: the session writes its native video too (as ``live`` does);
     ``in_flight``: ``LiveSessionConfig.frames_in_flight`` (None: the default), ``render_threads``: the
     renderer's threads (None: all cores), ``threads_in_flight``: each renderer's threads once frames are in
     flight (``LiveSessionConfig.render_threads_in_flight``; None: the cores over the frames in flight), for
-    paired A/Bs in one run (``--ab``, ``--ab-threads``)."""
+    paired A/Bs in one run (``--ab``, ``--ab-threads``); ``visible_only``: skip the Gaussians nobody sees, as
+    ``holo-viewer live`` does (False: every Gaussian drawn, ``--ab-visible``'s A)."""
     from holo_viewer.live import sources
     from holo_viewer.live.loop import LiveSessionConfig, LiveSession
     from holo_viewer.live.render import LiveAvatarRenderer
@@ -253,7 +254,7 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
                             **({"frames_in_flight": int(in_flight)} if in_flight is not None else {}))
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
     renderer = LiveAvatarRenderer(tile_scale=tile_scale, mode=mode, render_threads=render_threads,
-                                  visible_only=True) if render else None  # as `holo-viewer live`
+                                  visible_only=visible_only) if render else None  # True: as `holo-viewer live`
     times = FrameTimes()
     import resource
 
@@ -401,6 +402,8 @@ def startup_run(cold: bool, out: Path, files: dict, frames: int = 3, fresh_cache
     if cold:
         env["NUMBA_CACHE_DIR"] = str(out / "numba_cache")
     env["HOLO_VIEWER_TABLE_CACHE"] = str(out.parent / "table_cache")
+    # no nice-19 build of the visible-Gaussian mask into these throw-away folders (it would outlive the run)
+    env["HOLO_VIEWER_BACKGROUND_BUILDS"] = "0"
     if fresh_caches:
         env["HOLO_VIEWER_CACHE"] = str(out / "user_cache")
         env["HOLO_VIEWER_TABLE_CACHE"] = str(out / "table_cache")
@@ -439,6 +442,8 @@ def main() -> int:
     ap.add_argument("--render-threads", type=int, default=None, help="each renderer's threads (default: all cores)")
     ap.add_argument("--ab-threads", action="store_true", help="also the default with all cores per renderer "
                     "in flight instead of the cores over the frames in flight (row ab_threads_all)")
+    ap.add_argument("--ab-visible", action="store_true", help="also every Gaussian drawn (A) against the "
+                    "visible ones only (B, the default), one after the other (rows ab_visible)")
     ap.add_argument("--startup-only", action="store_true", help="only the start-up runs: the live command's first "
                     "frame cold (empty kernel cache) and warm, and its quit time")
     args = ap.parse_args()
@@ -484,6 +489,8 @@ def main() -> int:
         ab_threads = run_session(files, Path(tmp) / "abt", True, args.tile_scale, args.render_mode, record=True,
                                  in_flight=args.in_flight, render_threads=args.render_threads,
                                  threads_in_flight=os.cpu_count()) if args.ab_threads else None
+        abv = [run_session(files, Path(tmp) / f"abv{i}", True, args.tile_scale, args.render_mode, record=True,
+                           visible_only=v, **kw) for i, v in enumerate((False, True))] if args.ab_visible else None
         rss = rss_run(args.rss_seconds, Path(tmp) / "rss") if args.rss_seconds > 0 else None
     base, full = rows
     ratio = (full["reaction_ms_per_window_median"] or 0) / max(base["reaction_ms_per_window_median"] or 1e-9, 1e-9)
@@ -497,7 +504,8 @@ def main() -> int:
         print(f"{k:34s} {str(base[k]):>12s} {str(full[k]):>12s}")
     print(f"reaction ms/window, render vs no-render: x{ratio:.2f}")
     named = [("cold", full), ("warm", warm)] + ([("1 in flight (A)", ab[0]), (f"{args.in_flight or 2} in flight (B)", ab[1])] if ab else []) + \
-        ([("all cores per renderer in flight", ab_threads)] if ab_threads else [])
+        ([("all cores per renderer in flight", ab_threads)] if ab_threads else []) + \
+        ([("every Gaussian (A)", abv[0]), ("visible Gaussians (B)", abv[1])] if abv else [])
     for name, row in named:
         print(f"{name}: {row['displayed_fps']} displayed fps with recording (load {row['load_1min_start']} -> "
               f"{row['load_1min_end']}), render {row['render_ms_median']} ms, visible change "
@@ -522,7 +530,7 @@ def main() -> int:
               f"(growth {rss['rss_growth_mb']} MB), late windows {rss['late_reaction_windows']}/{rss['reaction_windows']}")
     result = {"config": vars(args), "load_average": load, "cores": os.cpu_count(), "no_render": base, "render": full,
               "render_warm": warm, "ab_before": ab[0] if ab else None, "ab_after": ab[1] if ab else None,
-              "ab_threads_all": ab_threads,
+              "ab_threads_all": ab_threads, "ab_visible": abv,
               "startup": startup,
               "reaction_window_ratio_render_vs_baseline": round(ratio, 2), "fit": fit, "rss": rss}
     if args.json:
