@@ -142,6 +142,11 @@ def pool(rows: list[dict], n_shifts: int = 1000, groups: list | None = None) -> 
                         n_shifts=n_shifts, seed=0, groups=groups)
     lags = np.concatenate([nod_lags(r["nods"], r["pauses"], 2.0) for r in rows]) if rows else np.zeros(0)
     durs = np.concatenate([r["blink_durations"] for r in rows]) if rows else np.zeros(0)
+    # nod onsets per pause onset: in [pause, the next pause or pause + 2 s): 0, 1, 2 or more
+    per_pause = [int(((r["nods"] >= q) & (r["nods"] < min(q + 2.0, r["pauses"][i + 1] if i + 1 < len(r["pauses"])
+                                                          else np.inf))).sum())
+                 for r in rows for i, q in enumerate(r["pauses"])]
+    per_pause = np.asarray(per_pause, np.int64)
     n_frames = [r["seconds"] * 25 for r in rows]
     return {
         "minutes": mins, "clips": len(rows),
@@ -152,6 +157,8 @@ def pool(rows: list[dict], n_shifts: int = 1000, groups: list | None = None) -> 
         "nod_contingency_share": c.share, "nod_contingency_ratio": c.ratio, "nod_contingency_p": c.p,
         # nod onset - the latest pause onset before it (nods within 2 s of one), 0.1-s bins 0..2 s
         "nod_lag_hist_0.1s": lag_histogram(lags, 0.1, 2.0),
+        "pauses_by_nod_onsets_0_1_2plus": [int((per_pause == 0).sum()), int((per_pause == 1).sum()),
+                                            int((per_pause >= 2).sum())],
         "nod_lag_s_quartiles": [float(x) for x in np.percentile(lags, [25, 50, 75])] if lags.size else None,
         "blinks_per_min": sum(len(r["blinks"]) for r in rows) / mins,
         "blink_duration_s": [float(np.min(durs)), float(np.median(durs)), float(np.max(durs))] if durs.size else None,

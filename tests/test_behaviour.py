@@ -118,13 +118,15 @@ def test_brow_raises_on_the_face_and_off_when_switched_off():
     assert np.abs(off[:, [i1, i2]]).max() < 1e-6 and np.allclose(on[:, i12], 2.0, atol=1e-5)
 
 
-def test_backchannel_nods_answer_pauses_at_once():
+def test_backchannel_nods_answer_pauses_after_a_reaction_time():
     """30 min with a pause onset every 3.75 s: 0.3 of the cues answered (binomial bounds), each nod
-    starting 0.05-0.3 s after its cue, 0.4-0.7 s long, 3-6 deg deep; none without pauses; seeded."""
+    starting 0.15-0.45 s after its cue (a listener's reaction time, spread over that range: never the
+    50-ms reactions of the first version), 0.4-0.7 s long, 3-6 deg deep; none without pauses; seeded."""
     cue, v, runs, starts, lags = _answers_to_pauses(NodLayer(seed=3))
     n_cues = int(cue.sum())  # 480: 0.3 of them = 144, sd 10
     assert 0.3 * n_cues - 35 <= len(runs) <= 0.3 * n_cues + 35
-    assert lags.min() >= 0.04 and lags.max() <= 0.34
+    assert lags.min() >= 0.15 and lags.max() <= 0.49
+    assert np.percentile(lags, 10) <= 0.22 and np.percentile(lags, 90) >= 0.40  # spread, not bunched
     lengths = np.array([n for _, n in runs]) / FPS
     assert lengths.min() >= 0.36 and lengths.max() <= 0.72
     depth = np.array([v[a:a + n].max() for a, n in runs])
@@ -133,6 +135,38 @@ def test_backchannel_nods_answer_pauses_at_once():
     assert np.array_equal(v, [again.step(bool(x)) for x in cue])
     quiet = NodLayer(seed=3)
     assert not any(quiet.step(False) for _ in range(FPS * 120))
+
+
+def test_backchannel_nods_can_yield_to_the_model():
+    """``yield_to_model`` (off by default): a planned nod is dropped when the model's head began a nod
+    since the cue, and a model nod that starts during the layer's is max-combined, never stacked."""
+    T = FPS * 120
+    cue = np.zeros(T, bool)
+    cue[::int(3.75 * FPS)] = True
+    c = np.flatnonzero(cue)
+    early = np.zeros(T)  # the model nods 4 deg, starting 2 frames after each cue (before any layer nod)
+    late = np.zeros(T)  # ... or starting 10 frames (0.4 s) after each cue
+    for k in c:
+        for model, at in ((early, 2), (late, 10)):
+            a = k + at
+            n = min(T - a, 15)
+            model[a:a + n] = 4.0 * np.sin(np.linspace(0.0, np.pi, 15))[:n]
+    off = NodLayer(seed=3)
+    v_off = np.array([off.step(bool(x), m) for x, m in zip(cue, early)])
+    assert len(_runs(v_off > 0)) >= 5  # default: the layer nods whatever the model does
+    plain = NodLayer(seed=3)
+    assert np.array_equal(v_off, [plain.step(bool(x)) for x in cue])
+    on = NodLayer(seed=3, yield_to_model=True)
+    v_on = np.array([on.step(bool(x), m) for x, m in zip(cue, early)])
+    assert not v_on.any() and on.dropped == len(_runs(v_off > 0))
+    lone = NodLayer(seed=3)
+    v_lone = np.array([lone.step(bool(x)) for x in cue])
+    mix = NodLayer(seed=3, yield_to_model=True)
+    v_mix = np.array([mix.step(bool(x), m) for x, m in zip(cue, late)])
+    both, stacked = v_mix + late, v_lone + late
+    assert np.all(v_mix <= v_lone + 1e-12) and v_mix.any()
+    # the head goes as deep as the deeper of the two (from the model's pitch at the layer's start, < 1 deg)
+    assert both.max() <= max(late.max(), v_lone.max() + 1.0) + 1e-9 and both.max() < stacked.max() - 0.5
 
 
 def test_backchannel_nods_on_the_head_and_off_when_switched_off():

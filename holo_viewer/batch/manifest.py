@@ -69,7 +69,7 @@ __all__ = ["JobSpec", "RowError", "read_manifest", "job_hash", "FORMAT_VERSION",
 #: 2: the hash also covers the code, the renderer settings and the fitted default avatar
 FORMAT_VERSION = 2
 #: bump when the behaviour layers' output changes (invalidates finished reaction jobs only)
-BEHAVIOUR_VERSION = 3  # 2: brow raises at pauses, the one pause-onset definition; 3: backchannel nods
+BEHAVIOUR_VERSION = 4  # 2: brow raises at pauses, the one pause-onset definition; 3: backchannel nods; 4: nod reaction time
 #: what a job can ask for
 OUTPUT_KINDS: tuple[str, ...] = ("quilt_mp4", "native_mp4", "quilt_png", "native_png")
 #: pain over the clip: factor of ``pain`` at clip time t in [0, 1]
