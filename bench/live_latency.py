@@ -472,6 +472,13 @@ def main() -> int:
                 json.dump({"config": vars(args), "cores": os.cpu_count(), "startup": startup}, fh, indent=2)
             print(f"wrote {args.json}")
         return 0
+    if args.render_mode in ("auto", "all_views"):  # the live frames' visible Gaussians, built (untimed) if not cached
+        from holo_viewer.pipeline import Pipeline, ViewSettings
+        from holo_viewer.pipeline.live_support import visible_mask
+
+        c0 = time.process_time()
+        keep = visible_mask(Pipeline(view=ViewSettings(tile_scale=args.tile_scale)))
+        print(f"visible Gaussians: {int(keep.sum())} of {keep.size} ({time.process_time() - c0:.1f} s of CPU)", flush=True)
     load = os.getloadavg()
     fit = fit_speed()
     rows = []

@@ -7,9 +7,10 @@ Tolerances (stated once):
 * the Gaussians whose largest weight is 0 are never blended: the float64 reference render without them
   equals the render with them within 1e-6 per channel;
 * a group frame that skips the Gaussians whose largest weight over the 48 quilt views (at that pose) is
-  <= 0.5/255 is seen at -15, 0 and +15 deg within >= 45 dB of the frame with all of them (the default
-  avatar, quarter-size views: 44k of 102k kept; measured 73.6-75.1 dB); ``keep`` all True gives the
-  same frame bit for bit, and a mask of another avatar's length is ignored.
+  <= ``KEEP_WEIGHT`` (1/255) is seen at -15, 0 and +15 deg within >= 45 dB of the frame with all of them
+  (the default avatar, quarter-size views: 41.7k of 102k kept; measured 67.0-68.0 dB; 73.6-75.1 dB at
+  0.5/255); ``keep`` all True gives the same frame bit for bit, and a mask of another avatar's length is
+  ignored.
 """
 
 from __future__ import annotations
@@ -109,7 +110,7 @@ def test_group_frames_skip_what_nobody_sees(quarter):
     g = pipe.gaussians()
     pipe.set_face(FaceControls())
     mask = visibility.max_weights(g, cams) > visibility.KEEP_WEIGHT
-    assert 0.4 * mask.size < mask.sum() < 0.9 * mask.size
+    assert 0.3 * mask.size < mask.sum() < 0.9 * mask.size
     full = NativeFrameRenderer(cal, cams).frame(g, None, "group").native.copy()
     kept = NativeFrameRenderer(cal, cams, keep=mask).frame(g, None, "group").native.copy()
     cone = ConeSweep(VirtualDisplay(cal), [(-15.0, 0.6), (0.0, 0.6), (15.0, 0.6)])

@@ -95,7 +95,7 @@ class LiveAvatarRenderer:
     visible_only : bool
         CPU frames that redraw every view (``auto``/``group``, ``all_views``) skip the Gaussians nobody
         sees (:func:`holo_viewer.pipeline.live_support.visible_mask`: largest blending weight over the
-        quilt views at a set of poses <= 0.5/255; the default avatar keeps ~70 % at full size, the cone
+        quilt views at a set of poses <= 1/255; the default avatar keeps ~65 % at full size, the cone
         error unchanged, docs/live_frame.md). Loaded from the cache; where it is not there yet this session
         draws every Gaussian and a process at nice 19 builds it for the next ones (~30 s of CPU at tile
         scale 0.5, :func:`~holo_viewer.pipeline.live_support.build_visible_mask_later`; default

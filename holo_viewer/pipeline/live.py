@@ -247,7 +247,7 @@ class NativeFrameRenderer:
     keep : numpy.ndarray, optional
         (N,) bool: the Gaussians the approximate live frames (``group``, ``all_views``) draw, the others
         never being seen (:func:`holo_viewer.pipeline.live_support.visible_mask`: largest blending weight
-        over the 48 views at a set of poses <= 0.5/255); ``full_quilt`` (exports) and the tracked modes
+        over the 48 views at a set of poses <= 1/255); ``full_quilt`` (exports) and the tracked modes
         draw all. A mask of another length than the frame's Gaussians (another avatar) is ignored.
 
     Notes

@@ -219,7 +219,7 @@ def visible_mask(pipe: Any, threshold: float | None = None, poses: tuple[dict, .
     """(N,) bool: the Gaussians of ``pipe``'s avatar that anybody can see in its quilt views: largest
     blending weight (:func:`holo_viewer.render.visibility.max_weights`, float64) over ``pipe.cameras()`` at
     any of ``poses`` (default :data:`VISIBILITY_POSES`) above ``threshold`` (default
-    :data:`~holo_viewer.render.visibility.KEEP_WEIGHT`, 0.5/255). Cached on disk
+    :data:`~holo_viewer.render.visibility.KEEP_WEIGHT`, 1/255). Cached on disk
     (:func:`holo_viewer.display.table_cache.cached_tables`, kind ``visible_gaussians``), keyed by the avatar's
     neutral Gaussians, the cameras, the poses, the threshold and the visibility code: ~5-7 s of CPU per pose
     at 48 views of 420x560 the first time (~3 s at tile scale 0.5). ``pipe``'s face is restored afterwards.
