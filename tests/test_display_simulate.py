@@ -85,3 +85,19 @@ def test_see_many_is_see_of_each(setup):
     np.testing.assert_array_equal(many[0], many[2])
     with pytest.raises(InputError, match="native"):
         disp.see_many([imgs[0], imgs[0][:-1]], 0.0)
+
+
+def test_weights_are_the_beam_formula_bit_for_bit():
+    """VirtualDisplay.weights (computed in place) equals exp(-0.5 ((mod(zeta - t + N/2, N) - N/2) / sigma)^2)
+    written plainly, exactly, at infinity and at finite distances (a 384 x 512 panel of the Portrait's optics)."""
+    from dataclasses import replace
+
+    vd = VirtualDisplay(replace(FIX, screen_w=384, screen_h=512), sigma_views=0.7)
+    n = vd.n_views
+    for angle, dist in ((0.0, None), (13.0, 0.6), (-19.0, 2.5)):
+        t = vd._eye_coordinate(angle, dist)[None, :, None]
+        want = np.exp(-0.5 * ((np.mod(vd.zeta - t + n / 2.0, n) - n / 2.0) / vd.sigma) ** 2)
+        got = vd.weights(angle, dist)
+        assert got.shape == (512, 384, 3) and got.dtype == np.float64
+        np.testing.assert_array_equal(got, want)
+    assert not np.array_equal(vd.weights(1.0, 0.6), vd.weights(1.5, 0.6))  # another eye, other weights

@@ -121,8 +121,16 @@ class VirtualDisplay:
         """(H, W, 3) light weight each subpixel sends to the eye (Gaussian beam, circular in views)."""
         t = self._eye_coordinate(angle_deg, distance_m)[None, :, None]
         n = self.n_views
-        d = np.mod(self.zeta - t + n / 2.0, n) - n / 2.0
-        return np.exp(-0.5 * (d / self.sigma) ** 2)
+        # exp(-0.5 * ((mod(zeta - t + n/2, n) - n/2) / sigma) ** 2), the same operations in the same order
+        # (bit-identical) in one (H, W, 3) array instead of six temporaries: 0.23-0.37 -> 0.16 s of CPU
+        d = np.subtract(self.zeta, t)
+        d += n / 2.0
+        np.mod(d, n, out=d)
+        d -= n / 2.0
+        d /= self.sigma
+        np.square(d, out=d)
+        d *= -0.5
+        return np.exp(d, out=d)
 
     # ---------------------------------------------------------------- seeing
     def see(self, native: np.ndarray, angle_deg: float, distance_m: float | None = None) -> np.ndarray:
