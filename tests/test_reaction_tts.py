@@ -75,3 +75,24 @@ def test_live_synthetic_speaker_is_heard_as_speech(monkeypatch):
     with pytest.warns(RuntimeWarning, match="espeak-ng not found.*harmonic voice"):
         sp = speaker_clip(10.0, 1, 16)
     assert sp.waveform.shape[0] >= 250 * 640
+
+
+@needs_espeak
+def test_speaker_clip_is_synthesized_once_per_process_and_each_caller_gets_a_copy():
+    """speaker_clip keeps this process's clips: the same arguments give equal arrays without synthesizing again,
+    and a caller writing into its copy changes no other caller's."""
+    from holo_viewer.pipeline import live_support
+
+    a = live_support.speaker_clip(10.0, 0, 16)
+    key = (10.0, 0, 16, True)
+    assert key in live_support._CLIPS
+    b = live_support.speaker_clip(4.0, 0, 16)  # at least 10 s are synthesized: the same clip
+    for name in ("waveform", "state", "talking", "pause_onsets", "smile", "brow"):
+        assert getattr(a, name) is not getattr(b, name)
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    b.waveform[:] = 0.0
+    b.state[:] = 0.0
+    c = live_support.speaker_clip(10.0, 0, 16)
+    np.testing.assert_array_equal(c.waveform, a.waveform)
+    np.testing.assert_array_equal(c.state, a.state)
+    assert np.abs(a.waveform).max() > 0.01  # a voice, not the zeros written into b

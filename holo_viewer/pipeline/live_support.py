@@ -93,12 +93,19 @@ class HeadRenderer:
         return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
+#: this process's synthetic speakers, (seconds, seed, salt, espeak-ng present) -> SpeakerClip (the last few)
+_CLIPS: dict = {}
+_CLIPS_KEPT = 4
+
+
 def speaker_clip(seconds: float, seed: int, salt: int) -> Any:
     """A synthetic speaker (:class:`holo_viewer.reaction.data.SpeakerClip`) of at least 10 s whose
     voice the reaction model hears as speech: an espeak-ng text-to-speech voice with a face moving
     with it (:func:`holo_viewer.reaction.data.tts_speaker`). Where espeak-ng is not installed, the
     harmonic synthetic voice, with a RuntimeWarning saying that the model does not hear it as speech.
-    (At least 10 s are synthesized: the generators normalise slow sway per clip.)"""
+    (At least 10 s are synthesized: the generators normalise slow sway per clip.) Synthesized once per
+    process and arguments (text-to-speech and voice detection, ~0.75 s of CPU); each call returns its own copy."""
+    import copy
     import warnings
     from dataclasses import replace
 
@@ -106,17 +113,25 @@ def speaker_clip(seconds: float, seed: int, salt: int) -> Any:
     from ..reaction.data import SyntheticConfig, synth_speaker, tts_speaker
     from ..reaction.tts import espeak_available
 
-    au = default_au_map()
     cfg = SyntheticConfig(seconds=max(float(seconds), 10.0))
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(salt)]))
-    jaw = np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64)
-    if espeak_available():
-        sp, _ = tts_speaker(rng, replace(cfg, still_face_fraction=0.0), au.names, jaw)
-        return sp
-    warnings.warn("espeak-ng not found: the synthetic speaker is the harmonic voice, which the reaction model "
-                  "does not hear as speech, so the patient will hardly react (apt-get install espeak-ng)",
-                  RuntimeWarning, stacklevel=3)
-    return synth_speaker(rng, cfg, au.names, jaw)
+    espeak = espeak_available()
+    if not espeak:
+        warnings.warn("espeak-ng not found: the synthetic speaker is the harmonic voice, which the reaction model "
+                      "does not hear as speech, so the patient will hardly react (apt-get install espeak-ng)",
+                      RuntimeWarning, stacklevel=3)
+    key = (cfg.seconds, int(seed), int(salt), espeak)
+    if key not in _CLIPS:
+        au = default_au_map()
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(salt)]))
+        jaw = np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64)
+        if espeak:
+            sp, _ = tts_speaker(rng, replace(cfg, still_face_fraction=0.0), au.names, jaw)
+        else:
+            sp = synth_speaker(rng, cfg, au.names, jaw)
+        while len(_CLIPS) >= _CLIPS_KEPT:
+            _CLIPS.pop(next(iter(_CLIPS)))
+        _CLIPS[key] = sp
+    return copy.deepcopy(_CLIPS[key])
 
 
 def write_talking_head_clip(out_dir: str | os.PathLike, seconds: float = 4.0, seed: int = 0,
