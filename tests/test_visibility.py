@@ -122,3 +122,24 @@ def test_group_frames_skip_what_nobody_sees(quarter):
     assert np.array_equal(other, full)
     with pytest.raises(InputError, match="keep: expected"):
         NativeFrameRenderer(cal, cams, keep=np.flatnonzero(mask))
+
+
+def test_visible_mask_is_built_once_then_loaded(tmp_path, monkeypatch):
+    from holo_viewer.display.calibration import DisplayCalibration
+    from holo_viewer.pipeline import FaceControls, Pipeline, ViewSettings
+    from holo_viewer.pipeline.live_support import visible_mask
+
+    monkeypatch.setenv("HOLO_VIEWER_TABLE_CACHE", str(tmp_path))
+    pipe = Pipeline(calibration=DisplayCalibration.load(None), view=ViewSettings(tile_scale=0.05))
+    face = FaceControls(pain=0.3)
+    pipe.set_face(face)
+    poses = ({"jaw_pose": (0.3, 0.0, 0.0)},)
+    assert visible_mask(pipe, poses=poses, cached_only=True) is None
+    built = visible_mask(pipe, poses=poses)
+    assert pipe.face == face  # restored
+    pipe.set_face(FaceControls(jaw_pose=np.array([0.3, 0.0, 0.0])))
+    w = visibility.max_weights(pipe.gaussians(), pipe.cameras())
+    np.testing.assert_array_equal(built, w > visibility.KEEP_WEIGHT)
+    assert len(list(tmp_path.glob("visible_gaussians_*.npz"))) == 1
+    np.testing.assert_array_equal(visible_mask(pipe, poses=poses, cached_only=True), built)
+    assert visible_mask(pipe, poses=({"jaw_pose": (0.2, 0.0, 0.0)},), cached_only=True) is None  # another key
