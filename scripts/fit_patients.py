@@ -4,7 +4,7 @@ Usage::
 
     python scripts/fit_patients.py [NAME ... | --all] [--iterations N] [--source assets/default_avatar.npz]
         [--out FILE (one patient)] [--no-eval] [--images DIR] [--json FILE] [--stage2 N] [--init FILE]
-        [--stage3 N] [--init-stage 2|3] [--dataset-cache FILE]
+        [--stage3 N] [--stage4 N] [--init-stage 2|3|4] [--dataset-cache FILE]
 
 Every patient shares the default head's ICT topology, so the default's fitted Gaussians keep their
 triangles and local offsets, rotations and scales on the patient's head (``fit_avatar.transfer_avatar``:
@@ -17,7 +17,10 @@ it) adds steps on full-resolution crops centred where the target has fine detail
 most of the remaining error); for the patients of ``STAGE3_PATIENTS`` (mei, helen, rafael: the fine
 texture that the first two stages leave 2-4 dB short of 35) a third stage (``STAGE3_CONFIG``, ``--stage3 N``)
 adds the D-SSIM term of 3DGS (0.2) beside L1 on the same detail-centred crops, with two rounds of
-adaptive density control (split where the positional gradient is high, prune the faint). Writes ``assets/patients/<name>/avatar.npz`` with
+adaptive density control (split where the positional gradient is high, prune the faint); for
+``STAGE4_PATIENTS`` a fourth, pain stage (``pain_stage_config``, ``--stage4 N``) draws its steps mostly from
+pain 1, pain 0.5 and neutral (the first three stages draw the seven poses alike, and pain 1 scored 2-3 dB
+below neutral on every patient). Writes ``assets/patients/<name>/avatar.npz`` with
 ``fit_angle_range_deg`` and, in its ``info``, ``psnr_min_db`` (worst of the 48 quilt views and the two
 slider-limit views, neutral). ``default`` as NAME fine-tunes the default avatar itself the same way
 (the second stage of ``scripts/fit_default_avatar.py``). Deterministic (seeded, one thread); fits run
@@ -66,13 +69,30 @@ STAGE3_CONFIG = fa.replace_config(STAGE2_CONFIG, iterations=400, ssim_weight=0.2
 #: the same command reproduces that file
 STAGE3_SSIM_CONFIG = fa.replace_config(STAGE2_CONFIG, iterations=400, ssim_weight=0.2, seed=2)
 #: the patients whose shipped avatar has the third stage (the others' files stay reproducible as shipped)
-STAGE3_PATIENTS = ("mei", "helen", "rafael")
+STAGE3_PATIENTS = ("mei", "helen", "rafael", "james")
 #: training expressions: these named ones of fit_avatar.training_poses and its first random mix
 POSES = ("neutral", "smile_1", "mouth_open_1", "pain_0.5", "pain_1", "surprise_1", "random_00")
+#: the pain stage's share of the steps per pose (the others 0.05 each): the first three stages draw the 7
+#: poses alike, so pain 1 gets 1/7 of the steps while its deformed skin (squeezed lids, raised cheeks, the
+#: nasolabial fold and the bared teeth) is where one static colour per Gaussian misses most; a fit on pain 1
+#: alone gains 3 dB there and loses 3 dB on neutral (docs/avatar_fit.md "Pain stage"), so neutral keeps a share
+PAIN_STAGE_WEIGHTS = {"neutral": 0.3, "pain_1": 0.35, "pain_0.5": 0.15}
+#: the fourth stage (issue 35, pain 1 2-3 dB below neutral): the third stage's D-SSIM crops with the poses
+#: drawn by ``PAIN_STAGE_WEIGHTS``, a fresh Adam, seed 3, no density control
+STAGE4_CONFIG = fa.replace_config(STAGE2_CONFIG, iterations=400, ssim_weight=0.2, seed=3)
+#: the patients whose shipped avatar has the pain stage
+STAGE4_PATIENTS = ("mei", "helen", "rafael", "james")
 N_LASH = 2000
 #: the cameras of the default avatar's own fit (scripts/fit_default_avatar.py): a transfer without a
 #: fine-tune (``--iterations 0``) records their range
 SOURCE_FIT_CONFIG = fa.AvatarFitConfig()  # Gaussians seeded on the lashes (the default generator gives them none)
+
+
+def pain_stage_config(pose_names: list[str], iterations: int = STAGE4_CONFIG.iterations) -> fa.AvatarFitConfig:
+    """The fourth stage's settings for a dataset of ``pose_names`` (its order): ``STAGE4_CONFIG`` with the
+    poses weighted by ``PAIN_STAGE_WEIGHTS`` (0.05 for each pose it does not name)."""
+    w = tuple(float(PAIN_STAGE_WEIGHTS.get(n, 0.05)) for n in pose_names)
+    return fa.replace_config(STAGE4_CONFIG, iterations=iterations, pose_weights=w)
 
 
 def stage3_config(name: str) -> fa.AvatarFitConfig:
@@ -192,7 +212,10 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
     out = Path(args.out) if args.out else out_default
     cfg = fa.replace_config(PATIENT_CONFIG, iterations=args.iterations)
     stage3 = (STAGE3_CONFIG.iterations if name in STAGE3_PATIENTS else 0) if args.stage3 is None else args.stage3
-    stage2 = 0 if args.init and args.init_stage == 3 else args.stage2
+    stage4 = (STAGE4_CONFIG.iterations if name in STAGE4_PATIENTS else 0) if args.stage4 is None else args.stage4
+    stage2 = 0 if args.init and args.init_stage >= 3 else args.stage2
+    if args.init and args.init_stage == 4:
+        stage3 = 0
     if args.init:  # a saved earlier stage (e.g. --stage2 0): its Gaussians, as shipped (float16)
         init, binding, init_keys = load_fitted_avatar(Path(args.init))
         if init_keys["head_sha256"] != _sha256(head_path):
@@ -244,12 +267,18 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
             print(f"{name}: stage 3 {stage3} steps ({time.process_time() - c3:.0f} s CPU), (1 - l) L1 + l D-SSIM "
                   f"first/last 50 {np.mean(losses3[:50]):.4f} / {np.mean(losses3[-50:]):.4f}, "
                   f"{len(start)} Gaussians", flush=True)
+        if stage4 > 0:
+            c4 = time.process_time()
+            res4 = fa.fit_gaussians(start, binding, data, pain_stage_config(data.names, stage4), progress=False)
+            start = res4.local
+            print(f"{name}: stage 4 (pain) {stage4} steps ({time.process_time() - c4:.0f} s CPU), first/last 50 "
+                  f"{np.mean(res4.losses[:50]):.4f} / {np.mean(res4.losses[-50:]):.4f}", flush=True)
         t3, c3 = time.perf_counter(), time.process_time()
         print(f"{name}: fit {t3 - t2:.0f} s ({c3 - c2:.0f} s CPU)", flush=True)
         fitted, angle_range, n_poses = start, data.angle_range_deg, len(data.names)
         record = {
             "name": name, "iterations": 0 if args.init else cfg.iterations, "stage2_iterations": stage2,
-            "stage3_iterations": stage3,
+            "stage3_iterations": stage3, "stage4_iterations": stage4,
             "poses": data.names, "skipped_poses": data.skipped,
             "cameras": int(data.images.shape[1]), "fit_angle_range_deg": list(data.angle_range_deg), **how,
             "loss_first_50": float(np.mean(losses[:50])), "loss_last_50": float(np.mean(losses[-50:]))}
@@ -268,6 +297,13 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
         if s3.densify_every:
             info["stage3"].update(densify_split=s3.densify_split, split_mode=s3.split_mode,
                                   prune_opacity=s3.prune_opacity, n_gaussians=len(fitted))
+    if cfg.iterations and stage4:
+        s4 = STAGE4_CONFIG
+        info["method"] = ("transfer of the default avatar + fine-tune in four stages, the last weighted to pain "
+                          "(scripts/fit_patients.py)")
+        info["stage4_iterations"] = stage4
+        info["stage4"] = {"ssim_weight": s4.ssim_weight, "crop_detail": s4.crop_detail, "seed": s4.seed,
+                          "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05}
     if args.init:
         info["init_stage"] = args.init_stage
     path = save_fitted_avatar(out, fitted, binding, model, colour_source=source.name, head_path=head_path,
@@ -350,10 +386,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="second-stage steps (detail-centred full-resolution crops; 0: the first stage only)")
     ap.add_argument("--init", default=None, help="start the second stage from this saved first stage (one name; "
                     "e.g. a file this script wrote with --stage2 0) instead of transfer + first stage")
-    ap.add_argument("--init-stage", type=int, default=2, choices=(2, 3), help="the stage --init starts (3: the "
-                    "file is a second stage, e.g. the avatar shipped before the third stage)")
+    ap.add_argument("--init-stage", type=int, default=2, choices=(2, 3, 4), help="the stage --init starts (3: the "
+                    "file is a second stage, e.g. the avatar shipped before the third stage; 4: a third stage)")
     ap.add_argument("--stage3", type=int, default=None, help="third-stage steps (D-SSIM; default "
                     f"{STAGE3_CONFIG.iterations} for {', '.join(STAGE3_PATIENTS)}, 0 for the others)")
+    ap.add_argument("--stage4", type=int, default=None, help="pain-stage steps (poses weighted to pain 1; default "
+                    f"{STAGE4_CONFIG.iterations} for {', '.join(STAGE4_PATIENTS)}, 0 for the others)")
     ap.add_argument("--dataset-cache", default=None, help="keep the training renders in this pickle and reuse "
                     "them when they match (one name)")
     ap.add_argument("--threads", type=int, default=1, help="torch and numba threads (default 1)")
@@ -371,6 +409,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--init takes one name")
     if args.stage3 is not None and args.stage3 < 0:
         ap.error(f"--stage3: expected >= 0, found {args.stage3}")
+    if args.stage4 is not None and args.stage4 < 0:
+        ap.error(f"--stage4: expected >= 0, found {args.stage4}")
     if args.dataset_cache and len(names) != 1:
         ap.error("--dataset-cache takes one name")
     if args.stage2 < 0:

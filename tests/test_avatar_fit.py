@@ -278,8 +278,31 @@ def test_the_patients_third_stage_is_d_ssim_on_the_hard_three_only():
     assert fa.replace_config(s3, ssim_weight=0.0, seed=s2.seed, densify_every=0, densify_until=0, densify_split=0,
                              split_mode="sample", prune_opacity=0.0, max_gaussians=0) == s2
     assert s3.split_mode == "axis" and 0 < s3.densify_split and s3.densify_every < s3.iterations
-    assert set(fp.STAGE3_PATIENTS) == {"mei", "helen", "rafael"}
+    assert set(fp.STAGE3_PATIENTS) == {"mei", "helen", "rafael", "james"}
     assert fp.stage3_config("mei") == s3  # default's (run with --stage3 400 before the splits): D-SSIM alone
     assert fp.stage3_config("default") == fa.replace_config(s2, ssim_weight=0.2, seed=s3.seed)
     with pytest.raises(SystemExit):
         fp.main(["mei", "--stage3", "-1"])
+    s4 = fp.pain_stage_config(["neutral", "smile_1", "pain_0.5", "pain_1"])  # the pain stage: poses weighted
+    assert s4.pose_weights == (0.3, 0.05, 0.15, 0.35) and s4.ssim_weight == 0.2 and s4.densify_every == 0
+    assert set(fp.STAGE4_PATIENTS) == {"mei", "helen", "rafael", "james"}  # kwame, amara, default: as shipped
+
+
+def test_pose_weights_draw_only_the_weighted_poses(tiny_case):
+    """``AvatarFitConfig.pose_weights``: a pose of weight 0 is never drawn (blanking its images changes
+    nothing), and a list of the wrong length is an error naming the dataset's poses."""
+    import dataclasses
+
+    student, binding, data, cfg = tiny_case
+    cfg = fa.replace_config(cfg, iterations=6, pose_weights=(1.0, 0.0, 3.0))
+    blank = data.images.copy()
+    blank[1] = 0
+    a = fa.fit_gaussians(student, binding, data, cfg, progress=False)
+    b = fa.fit_gaussians(student, binding, dataclasses.replace(data, images=blank), cfg, progress=False)
+    assert np.array_equal(a.local.sh, b.local.sh) and a.losses == b.losses
+    uniform = fa.replace_config(cfg, pose_weights=())  # drawn alike, pose 1 is seen: the blank images tell
+    assert fa.fit_gaussians(student, binding, dataclasses.replace(data, images=blank), uniform,
+                            progress=False).losses != fa.fit_gaussians(student, binding, data, uniform,
+                                                                       progress=False).losses
+    with pytest.raises(ValueError, match="neutral, a, b"):
+        fa.fit_gaussians(student, binding, data, fa.replace_config(cfg, pose_weights=(1.0, 2.0)), progress=False)

@@ -114,6 +114,9 @@ class AvatarFitConfig:
     split_mode: str = "sample"
     prune_opacity: float = 0.0
     max_gaussians: int = 0
+    #: the share of the steps drawn from each pose of the dataset (its order; normalised); empty: uniform.
+    #: The patients' pain stage weights pain 1 up (its deformed skin is where a static colour misses most)
+    pose_weights: tuple[float, ...] = ()
     seed: int = 0
     dtype: str = "float32"
 
@@ -538,8 +541,17 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
     dlog: list[tuple[int, int, int, int]] = []
     decay = (config.lr_means_final / config.lr_means) ** (1.0 / max(config.iterations - 1, 1))
     bar = tqdm(range(config.iterations), desc="fit", disable=not progress, mininterval=5.0)
+    if config.pose_weights and len(config.pose_weights) != n_pose:
+        raise ValueError(f"AvatarFitConfig.pose_weights: expected {n_pose} weights (one per pose of the dataset: "
+                         f"{', '.join(data.names)}), found {len(config.pose_weights)}")
+    pose_p = np.asarray(config.pose_weights, np.float64) if config.pose_weights else None
+    if pose_p is not None:
+        if not np.all(np.isfinite(pose_p)) or np.any(pose_p < 0) or pose_p.sum() <= 0:
+            raise ValueError(f"AvatarFitConfig.pose_weights: expected non-negative weights with a positive sum, "
+                             f"found {config.pose_weights}")
+        pose_p = pose_p / pose_p.sum()
     for it in bar:
-        p = int(rng.integers(n_pose))
+        p = int(rng.integers(n_pose)) if pose_p is None else int(rng.choice(n_pose, p=pose_p))
         rot, scale, centre = data.frames[p]
         q = params["quats"] / torch.linalg.norm(params["quats"], dim=-1, keepdim=True)
         means, quats, log_scales = bind_to_world(params["means"], q, params["log_scales"], b, rot, scale, centre)
