@@ -515,7 +515,8 @@ class NativeFrameRenderer:
         t1 = time.perf_counter()
         gn = g.numpy()
         opacity = 1.0 / (1.0 + np.exp(-np.asarray(gn.opacity_logits, dtype=np.float64)))
-        crossed_slit.slice_depth(gn.means, opacity, rig, eyes_, out=self._slice_w[:E])
+        crossed_slit.slice_depth(gn.means, opacity, rig, eyes_, out=self._slice_w[:E],
+                                 cell=self._depth_cell)  # the whole avatar's cell, as the views' depth
         t2 = time.perf_counter()
         reach = reach_views(c.sigma_views, c.threshold)
         e = 0
