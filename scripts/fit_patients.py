@@ -318,7 +318,7 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
         for fname in args.eval_faces.split(","):
             face = faces[fname]
             pairs: dict[str, np.ndarray] | None = {} if args.images else None
-            r = fa.quilt_fidelity(av, source.render, face, keys["fit_angle_range_deg"], pairs)
+            r = fa.quilt_fidelity(av, source.render, face, keys["fit_angle_range_deg"], pairs, timeout_s=3600.0)
             record["psnr_db"][fname] = r
             print(f"{name}: {fname:<8} worst {r['worst_db']:.2f} dB (view {r['worst_view']}), median "
                   f"{r['median_db']:.2f}, slider -{r['slider_limit_deg']:g} {r['slider_min_db']:.2f} / "

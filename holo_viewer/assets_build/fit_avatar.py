@@ -868,11 +868,13 @@ def slider_limit_deg(angle_range_deg: Sequence[float] | None, cone_deg: float, d
 
 def quilt_fidelity(avatar: Any, target_renderer: TargetRenderer, face: FaceControls,
                    angle_range_deg: Sequence[float] | None = None,
-                   images: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
+                   images: dict[str, np.ndarray] | None = None, timeout_s: float | None = 300.0) -> dict[str, Any]:
     """PSNR (:func:`fidelity`) of every quilt view with the cone centred and of the outermost views with
     the cone at the viewer slider's limits (:func:`slider_limit_deg`): per-view list, worst (and which
     view), median, the two limit views and their minimum over all (``min_db``). ``images`` receives
-    ``"views"`` (48 Gaussians | mesh pairs), ``"slider_lo"`` and ``"slider_hi"``."""
+    ``"views"`` (48 Gaussians | mesh pairs), ``"slider_lo"`` and ``"slider_hi"``. A target render that
+    does not finish in ``timeout_s`` (wall clock; a loaded machine) raises ``TimeoutError``: a minimum
+    over the views that did finish would not be the worst view."""
     from ..pipeline.core import Pipeline
     from ..pipeline.settings import ViewSettings
 
@@ -882,11 +884,16 @@ def quilt_fidelity(avatar: Any, target_renderer: TargetRenderer, face: FaceContr
     n = len(pipe.cameras())
     per: dict[str, dict[str, np.ndarray]] = {"views": {}, "slider_lo": {}, "slider_hi": {}}
     want = images is not None
-    centre = fidelity(avatar, {"f": face}, list(range(n)), target_renderer, per["views"] if want else None)["f"]
-    lo = fidelity(avatar, {"f": face}, [0], target_renderer, per["slider_lo"] if want else None,
+    centre = fidelity(avatar, {"f": face}, list(range(n)), target_renderer, per["views"] if want else None,
+                      timeout_s=timeout_s)["f"]
+    lo = fidelity(avatar, {"f": face}, [0], target_renderer, per["slider_lo"] if want else None, timeout_s=timeout_s,
                   view=ViewSettings(viewer_angle=-lim))["f"][0]
     hi = fidelity(avatar, {"f": face}, [n - 1], target_renderer, per["slider_hi"] if want else None,
-                  view=ViewSettings(viewer_angle=lim))["f"][n - 1]
+                  timeout_s=timeout_s, view=ViewSettings(viewer_angle=lim))["f"][n - 1]
+    if not np.isfinite([*centre.values(), lo, hi]).all():
+        raise TimeoutError(f"quilt_fidelity: the textured mesh's target render did not finish in {timeout_s} s "
+                           f"(wall clock) for {sum(not np.isfinite(v) for v in [*centre.values(), lo, hi])} views; "
+                           "expected every view measured (run it on a less loaded machine or with a longer timeout_s)")
     if want:
         for k, d in per.items():
             images[k] = d["f"]
