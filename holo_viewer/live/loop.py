@@ -448,6 +448,8 @@ class LiveSession:
             header["avatar"] = avatar_record(renderer.pipeline, getattr(renderer, "avatar_name", "default"))
             header["render"] = {"mode": renderer.mode, "backend": renderer.backend, "tile_scale": cfg.tile_scale,
                                 "warmup_pain": cfg.pain}
+            if hasattr(renderer, "visible_record"):  # the visible-Gaussian mask the frames drew (replay draws it)
+                header["render"]["visible"] = renderer.visible_record()
         frames = None
         if renderer is not None:  # replay --quality live repeats this call (header["render"]["warmup_pain"])
             self.progress("rendering a first frame")

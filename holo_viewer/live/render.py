@@ -33,7 +33,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ["LiveAvatarRenderer", "RenderedFrame", "resolve_backend"]
+__all__ = ["LiveAvatarRenderer", "RenderedFrame", "resolve_backend", "visible_record"]
 
 BACKENDS = ("auto", "fast", "gsplat")
 
@@ -53,6 +53,20 @@ def resolve_backend(backend: str) -> str:
     if backend == "auto":
         return "gsplat" if gsplat_backend.is_available() else "fast"
     return backend
+
+
+def visible_record(keep: np.ndarray | None, gaussians: int) -> dict:
+    """``{"used", "gaussians", "kept", "digest"}`` of a visible-Gaussian mask (None: every Gaussian drawn,
+    ``kept`` = ``gaussians``, digest None); the digest is the first 32 hex digits of the sha256 of the
+    mask's length and its packed bits."""
+    import hashlib
+
+    if keep is None:
+        return {"used": False, "gaussians": int(gaussians), "kept": int(gaussians), "digest": None}
+    k = np.asarray(keep, dtype=bool)
+    h = hashlib.sha256(f"{k.size}:".encode())
+    h.update(np.packbits(k).tobytes())
+    return {"used": True, "gaussians": int(k.size), "kept": int(k.sum()), "digest": h.hexdigest()[:32]}
 
 
 @dataclass
@@ -99,21 +113,34 @@ class LiveAvatarRenderer:
         error unchanged, docs/live_frame.md). Loaded from the cache; where it is not there yet this session
         draws every Gaussian and a process at nice 19 builds it for the next ones (~30 s of CPU at tile
         scale 0.5, :func:`~holo_viewer.pipeline.live_support.build_visible_mask_later`; default
-        calibration only). ``holo-viewer live`` turns it on.
+        calibration only). ``holo-viewer live`` turns it on. ``"build"``: loaded, or built now in this
+        process (replay --quality live of a session that used it). The mask used is
+        :attr:`visible_keep`, recorded by :meth:`visible_record` (session.json ``render.visible``).
+    visible_keep : numpy.ndarray, optional
+        The (N,) bool mask itself, instead of looking it up (:meth:`twin` passes its renderer's, so
+        frames in flight draw the same Gaussians even when a background build lands in between).
     """
 
     def __init__(self, tile_scale: float = 1.0, native: bool = True, preview: bool = False, backend: str = "auto",
                  calibration: Any = None, render_threads: int | None = None, mode: str = "auto",
-                 view_step: int | None = None, avatar: str = "default", visible_only: bool = False) -> None:
+                 view_step: int | None = None, avatar: str = "default", visible_only: bool | str = False,
+                 visible_keep: np.ndarray | None = None) -> None:
         import os
 
         from ..pipeline.live_modes import SESSION_MODE
 
+        if visible_only not in (False, True, "build"):
+            from ..errors import InputError
+
+            raise InputError(f"visible_only: expected False, True or 'build', found {visible_only!r}")
         #: the arguments, for :meth:`twin`
         self._args = {"tile_scale": tile_scale, "native": native, "preview": preview, "backend": backend,
                       "calibration": calibration, "render_threads": render_threads, "mode": mode,
-                      "view_step": view_step, "avatar": avatar, "visible_only": bool(visible_only)}
-        self.visible_only = bool(visible_only)
+                      "view_step": view_step, "avatar": avatar, "visible_only": visible_only}
+        self.visible_only = visible_only
+        self._visible_given = None if visible_keep is None else np.asarray(visible_keep, dtype=bool)
+        #: the visible-Gaussian mask the frames draw (None: every Gaussian)
+        self.visible_keep: np.ndarray | None = None
         threads = max(1, os.cpu_count() or 1) if render_threads is None else int(render_threads)
         if mode not in SESSION_MODE:
             from ..errors import InputError
@@ -168,13 +195,18 @@ class LiveAvatarRenderer:
 
         config = NativeFrameConfig(render=RenderConfig(num_threads=threads), view_step=view_step, backend=self.backend)
         keep = None
-        if self.visible_only and self.backend == "fast":
+        if self._visible_given is not None and self.backend == "fast":
+            keep = self._visible_given
+        elif self.visible_only and self.backend == "fast":
             from ..pipeline.live_support import build_visible_mask_later, visible_mask
 
-            keep = visible_mask(self.pipeline, cached_only=True)
+            keep = visible_mask(self.pipeline, cached_only=self.visible_only != "build")
             if keep is None and calibration is None:  # not cached yet: built beside this session, used next time
                 build_visible_mask_later(self.avatar_name, tile_scale)
         self._live = NativeFrameRenderer(self.pipeline.calibration, self.pipeline.cameras(), config, keep=keep)
+        # what the frames draw: NativeFrameRenderer ignores a mask of another length (another avatar)
+        self.visible_keep = self._live._keep if self._live._keep is not None \
+            and self._live._keep.size == len(self.pipeline.gaussians()) else None
         if self.backend == "gsplat":
             self._live.frame(self.pipeline.gaussians(), None, "all_views")
         else:
@@ -201,10 +233,16 @@ class LiveAvatarRenderer:
         """A new renderer with this one's settings (its own pipeline and frame buffers: safe to run in
         another thread beside this one); ``render_threads`` replaces the thread count (the frames are the
         same for any count: tested). The backend is the one this renderer resolved to."""
-        args = {**self._args, "backend": self.backend}
+        args = {**self._args, "backend": self.backend, "visible_only": False, "visible_keep": self.visible_keep}
         if render_threads is not None:
             args["render_threads"] = int(render_threads)
         return LiveAvatarRenderer(**args)
+
+    def visible_record(self) -> dict:
+        """session.json ``render.visible``: whether the frames skip the Gaussians nobody sees, how many
+        they draw of how many, and a digest of the mask (sha256 of its length and packed bits, 32 hex
+        digits), so that replay --quality live draws the same ones (:mod:`holo_viewer.live.replay`)."""
+        return visible_record(self.visible_keep, len(self.pipeline.gaussians()))
 
     @property
     def render_threads(self) -> int:

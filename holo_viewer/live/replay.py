@@ -3,7 +3,10 @@
 Two qualities:
 
 ``live``
-    The live renderer as the session used it (mode, tile scale, the fast CPU backend), called
+    The live renderer as the session used it (mode, tile scale, the fast CPU backend, the
+    visible-Gaussian mask when session.json ``render.visible`` says the frames skipped the Gaussians
+    nobody sees: loaded from the cache or built again, deterministic, and refused when its digest is
+    not the recorded one; sessions without the field draw every Gaussian, as they did), called
     exactly as the live loop called it (its warm-up, then each displayed frame with the recorded
     listener parameters, pain, named expressions and viewer pose): the frames of ``native.mkv``
     again, bit-exact on the same build, from any working folder; written at the times they were
@@ -48,6 +51,21 @@ def _scenario(session: Path, meta: dict):
     return None
 
 
+def _visible(session: Path, render: dict) -> dict | None:
+    """session.json ``render.visible`` (None in sessions recorded before it: every Gaussian drawn), checked."""
+    from ..errors import InputError
+
+    visible = render.get("visible")
+    if visible is None:
+        return None
+    where = f"{session / 'session.json'}: render.visible"
+    if not isinstance(visible, dict) or not isinstance(visible.get("used"), bool):
+        raise InputError(f"{where}: expected an object with a boolean 'used', found {visible!r:.80}")
+    if visible["used"] and not (isinstance(visible.get("digest"), str) and len(visible["digest"]) == 32):
+        raise InputError(f"{where}.digest: expected the mask's digest (32 hex digits), found {visible.get('digest')!r:.80}")
+    return visible
+
+
 def _renderer(session: Path, meta: dict, quality: str, tile_scale: float | None, render_threads: int | None = None):
     """The renderer for ``quality``, after checking the session's avatar is this build's."""
     from ..errors import InputError
@@ -63,8 +81,18 @@ def _renderer(session: Path, meta: dict, quality: str, tile_scale: float | None,
     recorded = meta.get("avatar")
     avatar = str(recorded.get("name", "default")) if isinstance(recorded, dict) else "default"  # a patient's name
     if quality == "live":
+        visible = _visible(session, render)
         renderer = LiveAvatarRenderer(tile_scale=scale, native=True, preview=False, backend="fast", mode=mode,
-                                      avatar=avatar, render_threads=render_threads)
+                                      avatar=avatar, render_threads=render_threads,
+                                      visible_only="build" if visible and visible["used"] else False)
+        if visible and visible["used"] and scale == float(render.get("tile_scale", scale)):
+            mine = renderer.visible_record()
+            if mine["digest"] != visible["digest"]:
+                raise InputError(f"{session / 'session.json'}: render.visible.digest: the session's frames drew the "
+                                 f"visible-Gaussian mask {visible['digest']} ({visible.get('kept')} of "
+                                 f"{visible.get('gaussians')} Gaussians), this build's mask is {mine['digest']} "
+                                 f"({mine['kept']} of {mine['gaussians']}): replay would not show what the trainees "
+                                 f"saw; use --quality full (every Gaussian)")
     else:
         renderer = LiveAvatarRenderer(tile_scale=scale, native=True, preview=False, backend="fast",  # exact, any machine
                                       mode="all_views" if mode in ("tracked", "auto") else mode,

@@ -1,0 +1,114 @@
+"""replay --quality live draws the visible-Gaussian mask the live session drew (issue 37).
+
+``holo-viewer live`` skips the Gaussians nobody sees when their mask is cached (and draws every one on a
+first start); session.json ``render.visible`` records which, with the mask's digest, and replay
+--quality live repeats it: the frames of native.mkv again, bit for bit (tolerance 0), with the mask and
+without it; a digest that is not this build's mask is refused, naming session.json and the field.
+Cheap: tile scale 0.1, 0.4 s sessions, a one-pose mask in a test-local table cache.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from holo_viewer import media
+from holo_viewer.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    """Two 0.4 s synthetic all_views sessions at tile scale 0.1 recorded as ``holo-viewer live`` records
+    them (visible_only=True): ``masked`` with the mask cached, ``plain`` before it was."""
+    from holo_viewer.live import sources
+    from holo_viewer.live.loop import LiveSession, LiveSessionConfig
+    from holo_viewer.live.render import LiveAvatarRenderer
+    from holo_viewer.pipeline import live_support
+
+    root = tmp_path_factory.mktemp("vis")
+    mp = pytest.MonkeyPatch()
+    mp.setenv("HOLO_VIEWER_TABLE_CACHE", str(root / "cache"))
+    mp.setenv("HOLO_VIEWER_BACKGROUND_BUILDS", "0")
+    mp.setattr(live_support, "VISIBILITY_POSES", ({"jaw_pose": (0.3, 0.0, 0.0)},))  # one pose: ~1 s, not ~10
+    syn = live_support.SyntheticSpeaker(0.4)
+    out = {}
+    try:
+        for name in ("plain", "masked"):
+            renderer = LiveAvatarRenderer(tile_scale=0.1, native=True, preview=False, backend="fast",
+                                          mode="all_views", visible_only=True)
+            cfg = LiveSessionConfig(out=str(root / name), tile_scale=0.1, behaviour=None, pain=0.5)
+            LiveSession(cfg, sources.ArrayAudio(syn.waveform.copy()), None, syn).run(renderer)
+            out[name] = (root / name, renderer)
+            if name == "plain":  # what a first start leaves for the next: the cached mask
+                built = LiveAvatarRenderer(tile_scale=0.1, native=False, backend="fast", mode="all_views",
+                                           visible_only="build")
+                assert built.visible_keep is not None
+        yield out
+    finally:
+        mp.undo()
+
+
+def _meta(folder: Path) -> dict:
+    return json.loads((folder / "session.json").read_text())
+
+
+def _replayed(folder: Path) -> list[np.ndarray]:
+    from holo_viewer.live.replay import replay_timed_frames
+
+    return [img for _, img in replay_timed_frames(folder)]
+
+
+def test_session_json_records_the_mask(sessions) -> None:
+    plain, masked = _meta(sessions["plain"][0]), _meta(sessions["masked"][0])
+    vis = masked["render"]["visible"]
+    assert vis["used"] is True and len(vis["digest"]) == 32
+    assert 0 < vis["kept"] < vis["gaussians"]  # the mask drops some: the frames with and without it differ
+    assert vis == sessions["masked"][1].visible_record()
+    assert plain["render"]["visible"] == {"used": False, "gaussians": vis["gaussians"], "kept": vis["gaussians"],
+                                          "digest": None}
+
+
+@pytest.mark.parametrize("name", ["masked", "plain"])
+def test_replay_live_is_bit_exact_with_and_without_the_mask(sessions, name, monkeypatch) -> None:
+    folder = sessions[name][0]
+    # replay finds the mask in the cache (masked) or draws every Gaussian (plain), whatever is cached now
+    monkeypatch.setenv("HOLO_VIEWER_TABLE_CACHE", str(folder.parent / "cache"))
+    monkeypatch.setenv("HOLO_VIEWER_BACKGROUND_BUILDS", "0")
+    from holo_viewer.pipeline import live_support
+
+    monkeypatch.setattr(live_support, "VISIBILITY_POSES", ({"jaw_pose": (0.3, 0.0, 0.0)},))
+    live = list(media.read_frames(folder / "native.mkv"))
+    again = _replayed(folder)
+    assert len(live) == len(again) >= 1
+    assert all(np.array_equal(a, b) for a, b in zip(live, again))
+
+
+def test_replay_rebuilds_a_missing_mask_and_refuses_another(sessions, tmp_path, monkeypatch) -> None:
+    """No cache: the mask is built again (deterministic) and the frames are the same; a session whose
+    digest is not this build's mask is refused; one recorded before the field draws every Gaussian."""
+    import shutil
+
+    from holo_viewer.pipeline import live_support
+
+    monkeypatch.setenv("HOLO_VIEWER_TABLE_CACHE", str(tmp_path / "empty"))
+    monkeypatch.setenv("HOLO_VIEWER_BACKGROUND_BUILDS", "0")
+    monkeypatch.setattr(live_support, "VISIBILITY_POSES", ({"jaw_pose": (0.3, 0.0, 0.0)},))
+    folder = sessions["masked"][0]
+    live = list(media.read_frames(folder / "native.mkv"))
+    assert all(np.array_equal(a, b) for a, b in zip(live, _replayed(folder)))
+
+    other = tmp_path / "other"
+    shutil.copytree(folder, other)
+    meta = _meta(other)
+    meta["render"]["visible"]["digest"] = "0" * 32
+    (other / "session.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match=r"session\.json: render\.visible\.digest: .*0{32}"):
+        _replayed(other)
+
+    del meta["render"]["visible"]  # a session from before the field: every Gaussian, as before
+    (other / "session.json").write_text(json.dumps(meta))
+    old = _replayed(other)
+    assert len(old) == len(live) and not all(np.array_equal(a, b) for a, b in zip(live, old))
