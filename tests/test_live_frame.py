@@ -41,8 +41,13 @@ from holo_viewer.render.lod import contribution, lod_keep  # noqa: E402
 CAL = DisplayCalibration.load(None)  # the shipped Portrait calibration
 SMALL = CAL.with_quilt(8, 6, 840, 840)  # same optics, 105 x 140 tiles: cheap renders
 # and on a 384 x 512 panel (1/16 of the subpixels, the same aspect): for the interleaver's exact-equality tests,
-# whose brute-force references walk every subpixel; the eye tests keep the Portrait's panel
+# whose brute-force references walk every subpixel
 PANEL = dataclasses.replace(SMALL, screen_w=384, screen_h=512)
+# and the eye tests' panel: the Portrait's physical size, pitch, slope and cone with 4x coarser pixels (384 x 512
+# at a quarter of the DPI, 4.7 subpixels a lens instead of 18.6), so an eye sees it from where it sees the
+# Portrait; what they check (every received subpixel or sample covered) holds for any panel whose interleaver,
+# view columns and VirtualDisplay share one calibration (the Portrait's own: test_live_group.py)
+EYE_PANEL = dataclasses.replace(SMALL, screen_w=384, screen_h=512, dpi=SMALL.dpi / 4)
 
 KERNELS = ["numba"] + (["cpp", "cpp-scalar"] if fast.cpp_available() else [])
 if fast.cpp_available() and fast._cpp().has_avx2():
@@ -116,7 +121,7 @@ def test_tile_mask_and_out_are_validated():
 # ----------------------------------------------------------------------------- what eyes see
 @pytest.fixture(scope="module")
 def display():
-    return VirtualDisplay(CAL)
+    return VirtualDisplay(EYE_PANEL)
 
 
 @pytest.fixture(scope="module", params=["nearest", "blend"])
@@ -136,7 +141,7 @@ _INTERLEAVERS: dict = {}
 
 def _interleaver(mode: str) -> Interleaver:
     if mode not in _INTERLEAVERS:
-        _INTERLEAVERS[mode] = Interleaver(SMALL, (840, 840, 3), mode=mode)
+        _INTERLEAVERS[mode] = Interleaver(EYE_PANEL, (840, 840, 3), mode=mode)
     return _INTERLEAVERS[mode]
 
 
@@ -147,7 +152,7 @@ def test_view_columns_cover_every_received_sample(display, mode, angle, distance
     il = _interleaver(mode)
     viewer = eyes.TrackedViewer(angle, distance)
     margin = dict(motion_m=0.01, motion_distance_m=0.04)
-    cols = eyes.view_columns(SMALL, viewer, 105, mode=il.mode, **margin)
+    cols = eyes.view_columns(EYE_PANEL, viewer, 105, mode=il.mode, **margin)
     # the tracked position and eyes displaced to corners of the motion margin (t is monotone in both:
     # the corners bound the box)
     for dx, dd in [(0.0, 0.0), (0.01, 0.04), (-0.01, -0.04), (0.01, -0.04)]:
@@ -281,8 +286,8 @@ def small_cameras():
 def test_tracked_frame_matches_full_path_where_eyes_see(display, small_cameras, blend):
     rng = np.random.default_rng(int(blend))
     cfg = NativeFrameConfig(blend=blend, motion_m=0.01, motion_distance_m=0.04, refresh_columns=5, tracked="bands")
-    live = NativeFrameRenderer(SMALL, small_cameras, cfg)
-    reference = NativeFrameRenderer(SMALL, small_cameras, cfg)
+    live = NativeFrameRenderer(EYE_PANEL, small_cameras, cfg)
+    reference = NativeFrameRenderer(EYE_PANEL, small_cameras, cfg)
     g0 = _scene(0)
     first = live.frame(g0, eyes.TrackedViewer(0.0, 0.6), mode="tracked")
     assert first.mode == "full_quilt" and first.rendered_fraction == 1.0  # nothing to keep yet
@@ -383,7 +388,7 @@ def test_eye_cameras_reproduce_the_quilt_cameras(small_cameras):
 def test_eye_centred_writes_only_received_subpixels(display, small_cameras):
     g = _scene(4)
     cfg = NativeFrameConfig()
-    live = NativeFrameRenderer(SMALL, small_cameras, cfg)
+    live = NativeFrameRenderer(EYE_PANEL, small_cameras, cfg)
     before = live.frame(g, mode="full_quilt").native.copy()
     viewer = eyes.TrackedViewer(4.0, 0.6)
     f = live.frame(_moved(g, 4), viewer, mode="eye_centred")
