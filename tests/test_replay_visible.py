@@ -71,6 +71,14 @@ def test_session_json_records_the_mask(sessions) -> None:
                                           "digest": None}
 
 
+def test_twins_draw_their_renderers_mask_even_once_one_is_cached(sessions) -> None:
+    """Frames in flight render on twins: the plain session's renderer started before the mask was cached,
+    so its twin (built now, the mask cached) draws every Gaussian too; the masked one's twin its mask."""
+    masked, plain = sessions["masked"][1], sessions["plain"][1]
+    np.testing.assert_array_equal(masked.twin().visible_keep, masked.visible_keep)
+    assert plain.visible_keep is None and plain.twin().visible_keep is None
+
+
 @pytest.mark.parametrize("name", ["masked", "plain"])
 def test_replay_live_is_bit_exact_with_and_without_the_mask(sessions, name, monkeypatch) -> None:
     folder = sessions[name][0]
