@@ -46,7 +46,8 @@ PANEL = dataclasses.replace(SMALL, screen_w=384, screen_h=512)
 # and the eye tests' panel: the Portrait's physical size, pitch, slope and cone with 4x coarser pixels (384 x 512
 # at a quarter of the DPI, 4.7 subpixels a lens instead of 18.6), so an eye sees it from where it sees the
 # Portrait; what they check (every received subpixel or sample covered) holds for any panel whose interleaver,
-# view columns and VirtualDisplay share one calibration (the Portrait's own: test_live_group.py)
+# view columns and VirtualDisplay share one calibration (the Portrait's own: test_live_group.py); the renderer's
+# mode and exactness tests against its own interleaver run there too (the full-size chain: test_views_to_native.py)
 EYE_PANEL = dataclasses.replace(SMALL, screen_w=384, screen_h=512, dpi=SMALL.dpi / 4)
 
 KERNELS = ["numba"] + (["cpp", "cpp-scalar"] if fast.cpp_available() else [])
@@ -311,14 +312,14 @@ def test_tracked_frame_matches_full_path_where_eyes_see(display, small_cameras, 
 
 def test_full_quilt_and_all_views_modes(small_cameras):
     g = _scene(1)
-    live = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(view_step=1))  # every view: exact
+    live = NativeFrameRenderer(EYE_PANEL, small_cameras, NativeFrameConfig(view_step=1))  # every view: exact
     f = live.frame(g, mode="full_quilt")
     views = fast.render(g, small_cameras, RenderConfig()).images
-    expected = Interleaver(SMALL, (840, 840, 3))(tile_quilt(views, 8, 6, as_uint8=True))
+    expected = Interleaver(EYE_PANEL, (840, 840, 3))(tile_quilt(views, 8, 6, as_uint8=True))
     np.testing.assert_array_equal(f.native, expected)
     assert live.frame(g).mode == "group"  # auto: group frames; without a viewer every view, as all_views
     np.testing.assert_array_equal(live.frame(g, mode="all_views").native, expected)
-    lod = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(lod_fraction=0.5, view_step=1)).frame(g, mode="all_views")
+    lod = NativeFrameRenderer(EYE_PANEL, small_cameras, NativeFrameConfig(lod_fraction=0.5, view_step=1)).frame(g, mode="all_views")
     assert lod.mode == "all_views" and not np.array_equal(lod.native, expected)
     assert eyes.psnr(expected / 255.0, lod.native / 255.0) > 15.0
     with pytest.raises(InputError, match="viewer"):
@@ -349,8 +350,8 @@ def test_prepare_all_views_changes_no_frame(small_cameras):
     """prepare_all_views builds the synthesized frames' read table once, leaves the images as
     they were, and the next all_views frames are those of a renderer that was not prepared."""
     g = _scene(2)
-    live = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(view_step=3))
-    plain = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(view_step=3))
+    live = NativeFrameRenderer(EYE_PANEL, small_cameras, NativeFrameConfig(view_step=3))
+    plain = NativeFrameRenderer(EYE_PANEL, small_cameras, NativeFrameConfig(view_step=3))
     live.frame(g, mode="all_views")
     plain.frame(g, mode="all_views")
     table = live._sampled
@@ -364,9 +365,9 @@ def test_prepare_all_views_changes_no_frame(small_cameras):
         np.testing.assert_array_equal(a, b)
     # a prepared renderer's first frame is the first frame of one that builds the table lazily
     # (mid-frame, after the frame's depth maps: the warm-up must not touch them)
-    fresh = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(view_step=3))
+    fresh = NativeFrameRenderer(EYE_PANEL, small_cameras, NativeFrameConfig(view_step=3))
     fresh.prepare_all_views()
-    lazy = NativeFrameRenderer(SMALL, small_cameras, NativeFrameConfig(view_step=3))
+    lazy = NativeFrameRenderer(EYE_PANEL, small_cameras, NativeFrameConfig(view_step=3))
     g2 = _moved(g, 0)
     np.testing.assert_array_equal(fresh.frame(g2, mode="all_views").native, lazy.frame(g2, mode="all_views").native)
     np.testing.assert_array_equal(fresh.native, plain.frame(g2, mode="all_views").native)
@@ -401,9 +402,9 @@ def test_eye_centred_writes_only_received_subpixels(display, small_cameras):
 
 def test_render_native_picks_the_mode(small_cameras):
     g = _scene(2)
-    assert render_native(g, small_cameras, SMALL).mode == "group"  # auto: every viewer sees the present
-    assert render_native(g, small_cameras, SMALL, eyes.TrackedViewer(5.0, 0.6)).mode == "group"
-    assert render_native(g, small_cameras, SMALL, eyes.TrackedViewer(5.0, 0.6), mode="tracked").mode == "tracked"
+    assert render_native(g, small_cameras, EYE_PANEL).mode == "group"  # auto: every viewer sees the present
+    assert render_native(g, small_cameras, EYE_PANEL, eyes.TrackedViewer(5.0, 0.6)).mode == "group"
+    assert render_native(g, small_cameras, EYE_PANEL, eyes.TrackedViewer(5.0, 0.6), mode="tracked").mode == "tracked"
 
 
 def test_lod_keeps_the_largest_contributions():
