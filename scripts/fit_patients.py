@@ -81,7 +81,7 @@ PAIN_STAGE_WEIGHTS = {"neutral": 0.3, "pain_1": 0.35, "pain_0.5": 0.15}
 #: drawn by ``PAIN_STAGE_WEIGHTS``, a fresh Adam, seed 3, no density control
 STAGE4_CONFIG = fa.replace_config(STAGE2_CONFIG, iterations=400, ssim_weight=0.2, seed=3)
 #: the patients whose shipped avatar has the pain stage
-STAGE4_PATIENTS = ("mei", "helen", "rafael", "james")
+STAGE4_PATIENTS = ("mei", "helen", "rafael", "james", "kwame")
 N_LASH = 2000
 #: the cameras of the default avatar's own fit (scripts/fit_default_avatar.py): a transfer without a
 #: fine-tune (``--iterations 0``) records their range
@@ -387,7 +387,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--init", default=None, help="start the second stage from this saved first stage (one name; "
                     "e.g. a file this script wrote with --stage2 0) instead of transfer + first stage")
     ap.add_argument("--init-stage", type=int, default=2, choices=(2, 3, 4), help="the stage --init starts (3: the "
-                    "file is a second stage, e.g. the avatar shipped before the third stage; 4: a third stage)")
+                    "file is a second stage, e.g. the avatar shipped before the third stage; 4: the stages before the pain stage, "
+                    "a third stage, or kwame's second)")
     ap.add_argument("--stage3", type=int, default=None, help="third-stage steps (D-SSIM; default "
                     f"{STAGE3_CONFIG.iterations} for {', '.join(STAGE3_PATIENTS)}, 0 for the others)")
     ap.add_argument("--stage4", type=int, default=None, help="pain-stage steps (poses weighted to pain 1; default "
