@@ -142,13 +142,37 @@ class XInput:
     def settle(self, until=None, timeout: float = 0.4) -> bool:
         return self.viewer.run(until=until, timeout=timeout)
 
+    def sync(self, timeout: float = 5.0) -> None:
+        """Run the viewer's loop until every X event sent so far is handled (at most ``timeout`` s), instead of
+        a fixed wait. xdotool ends with XCloseDisplay (an XSync): the server has taken its fake input; the
+        server handles queued input before the next client request, so the viewer's own XSync reply comes
+        after those events, which Xlib then holds (XPending); ``step`` handles them and draws the frame.
+        Without an X connection (no ``_input_wait``): the old fixed wait."""
+        import ctypes
+
+        w = self.viewer._input_wait
+        if w is None:
+            self.settle(timeout=0.4)
+            return
+        w._x11.XSync.argtypes = [ctypes.c_void_p, ctypes.c_int]
+        w._x11.XSync(w._display, 0)
+        end = time.perf_counter() + timeout
+        while self.viewer.step() and w._x11.XPending(w._display) > 0 and time.perf_counter() < end:
+            pass
+        self.viewer.step()  # the frame the last events asked for (step draws when something is dirty)
+
     def move(self, x: int, y: int) -> None:
         self.xdo("mousemove", "--window", self.wid, int(x), int(y))
 
-    def key(self, *keys: str, until=None, timeout: float = 0.5) -> bool:
+    def key(self, *keys: str, until=None, timeout: float | None = None) -> bool:
+        """Press ``keys``; then the loop runs until ``until()`` (``timeout`` s, default 0.5) or, with neither
+        given, until the presses are handled (:meth:`sync`)."""
         for k in keys:
             self.xdo("key", k)
-        return self.settle(until, timeout)
+        if until is None and timeout is None:
+            self.sync()
+            return False
+        return self.settle(until, 0.5 if timeout is None else timeout)
 
     def type(self, text: str) -> None:
         names = {" ": "space", ".": "period", "-": "minus", "_": "underscore"}
@@ -158,14 +182,14 @@ class XInput:
     def drag(self, start, end, button: int = 1, steps: int = 4, during=None) -> None:
         self.move(*start)
         self.xdo("mousedown", button)
-        self.settle(timeout=0.15)
+        self.sync()
         for k in range(1, steps + 1):
             self.move(start[0] + (end[0] - start[0]) * k // steps, start[1] + (end[1] - start[1]) * k // steps)
-            self.settle(timeout=0.15)
+            self.sync()
         if during is not None:
             during()
         self.xdo("mouseup", button)
-        self.settle(timeout=0.3)
+        self.sync()
 
     def wheel(self, at, clicks: int = 3) -> None:
         self.move(*at)
@@ -173,7 +197,7 @@ class XInput:
             self.xdo("click", 4)
             self.xdo("click", 5)
             self.xdo("click", 5)
-        self.settle(timeout=0.3)
+        self.sync()
 
     def centre(self, panel: str) -> tuple[int, int]:
         x0, y0, x1, y1 = self.viewer.panel_box(panel)
