@@ -185,7 +185,9 @@ session = LiveSession(LiveSessionConfig(out=sys.argv[1], tile_scale=0.1, preview
 renderer = LiveAvatarRenderer(tile_scale=0.1, native=False, preview=True)
 pressed = []
 def press(keys):
-    time.sleep(1.5)
+    end = time.time() + 120  # until the window has shown a frame (it is mapped), not a fixed 1.5 s
+    while preview.shown < 1 and time.time() < end:
+        time.sleep(0.02)
     subprocess.run(["xdotool", "mousemove", "60", "60"], check=False)
     for k in keys:
         subprocess.run(["xdotool", "key", k], check=True)
