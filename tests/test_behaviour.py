@@ -137,38 +137,6 @@ def test_backchannel_nods_answer_pauses_after_a_reaction_time():
     assert not any(quiet.step(False) for _ in range(FPS * 120))
 
 
-def test_backchannel_nods_can_yield_to_the_model():
-    """``yield_to_model`` (off by default): a planned nod is dropped when the model's head began a nod
-    since the cue, and a model nod that starts during the layer's is max-combined, never stacked."""
-    T = FPS * 120
-    cue = np.zeros(T, bool)
-    cue[::int(3.75 * FPS)] = True
-    c = np.flatnonzero(cue)
-    early = np.zeros(T)  # the model nods 4 deg, starting 2 frames after each cue (before any layer nod)
-    late = np.zeros(T)  # ... or starting 10 frames (0.4 s) after each cue
-    for k in c:
-        for model, at in ((early, 2), (late, 10)):
-            a = k + at
-            n = min(T - a, 15)
-            model[a:a + n] = 4.0 * np.sin(np.linspace(0.0, np.pi, 15))[:n]
-    off = NodLayer(seed=3)
-    v_off = np.array([off.step(bool(x), m) for x, m in zip(cue, early)])
-    assert len(_runs(v_off > 0)) >= 5  # default: the layer nods whatever the model does
-    plain = NodLayer(seed=3)
-    assert np.array_equal(v_off, [plain.step(bool(x)) for x in cue])
-    on = NodLayer(seed=3, yield_to_model=True)
-    v_on = np.array([on.step(bool(x), m) for x, m in zip(cue, early)])
-    assert not v_on.any() and on.dropped == len(_runs(v_off > 0))
-    lone = NodLayer(seed=3)
-    v_lone = np.array([lone.step(bool(x)) for x in cue])
-    mix = NodLayer(seed=3, yield_to_model=True)
-    v_mix = np.array([mix.step(bool(x), m) for x, m in zip(cue, late)])
-    both, stacked = v_mix + late, v_lone + late
-    assert np.all(v_mix <= v_lone + 1e-12) and v_mix.any()
-    # the head goes as deep as the deeper of the two (from the model's pitch at the layer's start, < 1 deg)
-    assert both.max() <= max(late.max(), v_lone.max() + 1.0) + 1e-9 and both.max() < stacked.max() - 0.5
-
-
 def test_backchannel_nods_on_the_head_and_off_when_switched_off():
     """The nod turns the face down (+ pitch, measured as the bench does) and only with the layer on;
     switching it off leaves every other layer's output unchanged."""

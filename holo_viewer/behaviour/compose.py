@@ -256,7 +256,6 @@ class ListenerBehaviour:
         out = {k: np.asarray(frame[k], dtype=np.float64).reshape(-1).copy() if k in frame else np.zeros(n)
                for k, n in (("jaw_pose", 3), ("rotation", 3), ("neck_pose", 3), ("translation", 3),
                             ("eyes_pose", 6))}
-        model_pitch = math.degrees(out["rotation"][0] + out["neck_pose"][0])  # the model's own nods (+ = down)
         # pain: the PSPI face of the pain shown now, max-combined with the model's AUs
         p = self.pain.step(float(pain_level))
         aus = np.clip(expr @ self._pinv, 0.0, None)
@@ -277,7 +276,7 @@ class ListenerBehaviour:
         if c.breathing:
             out["translation"] += np.array([0.0, 1e-3 * c.breath_mm * breath, 1e-3 * c.breath_mm / 3 * breath])
             out["neck_pose"][0] -= math.radians(c.breath_deg) * breath  # -x pitch lifts the chin
-        nod = self.nods.step(pause_onset, model_pitch)
+        nod = self.nods.step(pause_onset)
         if c.nods and nod > 0:  # a backchannel nod: +x pitch of the neck turns the face down
             out["neck_pose"][0] += math.radians(nod)
         sway = self.sway.step()

@@ -208,65 +208,35 @@ class NodLayer:
     0.15-0.25 s (smoothstep) and comes back up in 0.25-0.45 s. Listeners answer pauses with nods
     (Ward & Tsukahara 2000; Gratch et al.'s Rapport Agent 2006 nods at the speaker's pauses).
     Nothing without pauses. Returns the nod's head pitch in degrees (+ = face down).
-
-    One backchannel per pause (``yield_to_model``): given the reaction model's own head pitch
-    (``model_pitch_deg`` of each frame), the planned nod is dropped when the model's head has
-    begun a nod since the cue (its pitch ``model_rise_deg`` above its minimum of the last 0.6 s),
-    and while the layer's nod runs it is composed with a nod the model starts meanwhile by a
-    maximum (the layer adds only what exceeds the model's own rise), so the two never stack.
     """
 
     def __init__(self, seed: int = 0, pause_p: float = 0.3, refractory_s: float = 2.0,
-                 delay_s: tuple[float, float] = (0.15, 0.45), yield_to_model: bool = False,
-                 model_rise_deg: float = 1.0, fps: float = FPS) -> None:
+                 delay_s: tuple[float, float] = (0.15, 0.45), fps: float = FPS) -> None:
         self.rng = _rng(seed, 7)
         self.dt = 1.0 / fps
         self.pause_p, self.refractory = float(pause_p), float(refractory_s)
         self.delay = (float(delay_s[0]), float(delay_s[1]))
-        self.yield_to_model, self.rise = bool(yield_to_model), float(model_rise_deg)
         self.t = 0.0
         self.nod: tuple[float, float, float, float] | None = None  # start, down, up, amplitude (deg)
-        self.pending = False  # the planned nod has not started yet (it may still be dropped)
-        self.model_nodded = False  # the model's head began a nod since the latest cue
-        self.dropped = 0  # planned nods dropped because the model answered the pause
-        self._hist: list[float] = []  # the model's pitch over the last 0.6 s
-        self._base = 0.0  # the model's pitch when the layer's nod started
 
-    def step(self, pause_onset: bool = False, model_pitch_deg: float | None = None) -> float:
+    def step(self, pause_onset: bool = False) -> float:
         self.t += self.dt
-        mp = 0.0 if model_pitch_deg is None else float(model_pitch_deg)
-        self._hist.append(mp)
-        if len(self._hist) > int(round(0.6 / self.dt)):
-            self._hist.pop(0)
-        model_rising = mp - min(self._hist) >= self.rise
         if pause_onset:  # every draw at every cue, taken or not: determinism under switches
             u, delay = float(self.rng.uniform()), float(self.rng.uniform(*self.delay))
             shape = (float(self.rng.uniform(0.15, 0.25)), float(self.rng.uniform(0.25, 0.45)),
                      float(self.rng.uniform(3.0, 6.0)))
-            busy = self.nod is not None and (self.pending or self.t - self.nod[0] < max(self.refractory,
-                                                                                   self.nod[1] + self.nod[2]))
-            self.model_nodded = False
-            if not busy and u < self.pause_p:
+            free = self.nod is None or self.t - self.nod[0] >= max(self.refractory, self.nod[1] + self.nod[2])
+            if free and u < self.pause_p:
                 self.nod = (self.t + delay, *shape)
-                self.pending = True
-        self.model_nodded = self.model_nodded or model_rising
         if self.nod is None:
             return 0.0
         start, down, up, amp = self.nod
         v = self.t - start
-        if self.pending and v >= 0:
-            if self.yield_to_model and self.model_nodded:  # the model answered this pause: one nod
-                self.nod, self.pending = None, False
-                self.dropped += 1
-                return 0.0
-            self.pending = False
-            self._base = mp
         if v < 0 or v >= down + up:
             return 0.0
-        x = amp * smoothstep(v / down) if v < down else amp * (1.0 - smoothstep((v - down) / up))
-        if self.yield_to_model:  # the model's own rise since the start counts toward this nod
-            x = max(0.0, x - max(0.0, mp - self._base))
-        return x
+        if v < down:
+            return amp * smoothstep(v / down)
+        return amp * (1.0 - smoothstep((v - down) / up))
 
 
 # ============================================================================ breathing
