@@ -19,7 +19,14 @@ at close), also per displayed frame; ``frames_in_flight`` (the loop's renderers 
 inflight``), ``twins_ready_s`` (when the second renderer joined, after the start-up's warm-up frame) and
 ``display_interval_ms`` (wall time between frames shown; a frame in flight renders longer than that); ``in_session``: the same split by thread and child (main thread,
 the render's native workers, tracker, reaction, video writer, ffmpeg encoder and the replayed webcam's
-decoder) from the second displayed frame to the last, start-up excluded (:class:`ThreadCPU`).
+decoder) from the second displayed frame to the last, start-up excluded (:class:`ThreadCPU`), and its
+``timeline``: the cores each kept busy during the render calls and between them, and the idle ones
+(:func:`busy_timeline`); ``render_call_main_thread``: each render call's wall time on the main thread
+split into on a CPU, waiting for one and blocked (the GIL, the render's workers; :class:`SchedTimes`).
+``--ab`` runs one frame in flight (``ab_before``), the same with ``--sched-b``'s scheduling (``ab_sched``:
+the session video's encoder and the tracker nicer, Python's switch interval), the same with the next
+frame's deformation done ahead (``ab_deform_ahead``, ``LiveSessionConfig.deform_ahead``; its
+``render_ms`` is the drawing alone) and two in flight (``ab_after``).
 
 Reported per run: speech-onset -> display latency (median, p95; an onset is the first 25 fps frame
 whose RMS exceeds -35 dBFS after >= 0.3 s below it; a displayed frame reflects it when the reaction
@@ -106,7 +113,9 @@ class ThreadCPU:
     def _child_role(self, pid: int) -> str:
         if pid in self._roles:  # read once: a child that has exited has no command line left to read
             return self._roles[pid]
-        self._roles[pid] = role = self._read_role(pid)
+        role = self._read_role(pid)
+        if role != "child":  # "child": maybe read between its fork and its exec; read again next time
+            self._roles[pid] = role
         return role
 
     def _read_role(self, pid: int) -> str:
@@ -171,6 +180,82 @@ class ThreadCPU:
         return self.snaps[b][0] - self.snaps[a][0], out
 
 
+def busy_timeline(sampler: "ThreadCPU", done: list[float], render_s: list[float], t0: float, t1: float,
+                  cores: int) -> dict:
+    """Where the cores idle in a displayed frame's cycle: each interval between two samples of ``sampler``
+    (its period, 50 ms in the render runs) within [t0, t1] counts as *in a render* when its middle lies in
+    a render call of the main thread (ended at ``done[i]``, lasting ``render_s[i]``), else *between
+    renders*; per part, the cores each thread / child kept busy on average (CPU seconds over wall seconds)
+    and the idle cores (``cores`` minus all of them). With frames in flight the renders overlap: the
+    intervals of any render count."""
+    spans = sorted((d - r, d) for d, r in zip(done, render_s))
+    starts = np.array([a for a, _ in spans]) if spans else np.zeros(0)
+    ends = np.array([b for _, b in spans]) if spans else np.zeros(0)
+    parts = {"in_render": [0.0, {}], "between_renders": [0.0, {}]}
+    snaps = [sn for sn in sampler.snaps if t0 <= sn[0] <= t1]
+    for (ta, a), (tb, b) in zip(snaps, snaps[1:]):
+        mid = 0.5 * (ta + tb)
+        inside = bool(((starts <= mid) & (mid <= ends)).any())
+        part = parts["in_render" if inside else "between_renders"]
+        part[0] += tb - ta
+        for key, (name, cpu) in b.items():
+            d = cpu - (a[key][1] if key in a else 0.0)
+            if d > 0:
+                part[1][name] = part[1].get(name, 0.0) + d
+    out = {}
+    for label, (wall, cpu) in parts.items():
+        if wall <= 0:
+            continue
+        busy = {k: round(v / wall, 3) for k, v in sorted(cpu.items(), key=lambda kv: -kv[1]) if v / wall >= 0.005}
+        out[label] = {"wall_s": round(wall, 2), "share_of_time": None, "cores_busy": round(sum(cpu.values()) / wall, 2),
+                      "cores_idle": round(max(0.0, cores - sum(cpu.values()) / wall), 2), "by_thread": busy}
+    total = sum(v["wall_s"] for v in out.values())
+    for v in out.values():
+        v["share_of_time"] = round(v["wall_s"] / max(total, 1e-9), 2)
+    return out
+
+
+def _schedstat() -> tuple[float, float]:
+    """(seconds on a CPU, seconds runnable but waiting for one) of the calling thread (Linux schedstat)."""
+    with open("/proc/thread-self/schedstat") as fh:
+        a = fh.read().split()
+    return int(a[0]) / 1e9, int(a[1]) / 1e9
+
+
+class SchedTimes:
+    """Wraps ``renderer.render`` (on the instance: its twins are not wrapped) to split each call's wall time
+    on the calling thread into on a CPU, waiting for a CPU (another thread or process had it: load,
+    the session's other threads) and *blocked* (neither: waiting for the GIL, the render's native workers
+    at a barrier, a lock); Linux ``/proc/thread-self/schedstat``."""
+
+    def __init__(self, renderer) -> None:
+        self.rows: list[tuple[float, float, float]] = []  # (wall, on cpu, waiting for a cpu) per call
+        try:
+            _schedstat()
+        except OSError:
+            return
+        inner = renderer.render
+
+        def render(*args, **kwargs):
+            s0, t0 = _schedstat(), time.perf_counter()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                s1, dt = _schedstat(), time.perf_counter() - t0
+                self.rows.append((dt, s1[0] - s0[0], s1[1] - s0[1]))
+
+        renderer.render = render
+
+    def summary(self, skip: int = 1) -> dict | None:
+        """ms per render call, mean over the calls after the first ``skip``."""
+        r = np.asarray(self.rows[skip:], dtype=np.float64)
+        if not r.size:
+            return None
+        wall, cpu, rq = (float(v) for v in 1000 * r.mean(axis=0))
+        return {"calls": int(len(r)), "wall_ms": round(wall, 1), "on_cpu_ms": round(cpu, 1),
+                "waiting_for_cpu_ms": round(rq, 1), "blocked_ms": round(wall - cpu - rq, 1)}
+
+
 class FrameTimes:
     """The live loop's ``on_frame`` callback: when each frame was shown (perf_counter, in the order shown)
     and how much its native image changed from the frame shown before it (RMS, 8-bit levels, every 4th
@@ -179,16 +264,31 @@ class FrameTimes:
 
     def __init__(self) -> None:
         self.done: list[float] = []  # perf_counter when each frame was shown
-        self.change: list[float] = []  # RMS change of the native image from the previous frame
-        self._prev = None
+        self.render_s: list[float] = []  # the render call's wall seconds (it ended just before it was shown)
+        # every 4th pixel of each frame shown, uint8 (0.6 MB a native frame): the changes are computed after
+        # the session, not on the loop's thread (the float RMS took ~2-3 ms of each frame's critical path)
+        self._small: list[np.ndarray | None] = []
+        self._change: list[float] | None = None
 
     def __call__(self, res) -> None:
-        if res.native is not None:
-            cur = res.native[::4, ::4].astype(np.float32)
-            self.change.append(float("inf") if self._prev is None else
-                               float(np.sqrt(np.mean((cur - self._prev) ** 2))))
-            self._prev = cur
+        self._small.append(None if res.native is None else res.native[::4, ::4].copy())
+        self._change = None
         self.done.append(time.perf_counter())
+        self.render_s.append(float(getattr(res, "seconds", 0.0)))
+
+    @property
+    def change(self) -> list[float]:
+        """RMS change of each shown native image from the one shown before it (inf for the first)."""
+        if self._change is None:
+            out, prev = [], None
+            for cur in self._small:
+                if cur is None:
+                    continue
+                cur = cur.astype(np.float32)
+                out.append(float("inf") if prev is None else float(np.sqrt(np.mean((cur - prev) ** 2))))
+                prev = cur
+            self._change = out
+        return self._change
 
 
 #: RMS change of the native image (8-bit levels, every 4th pixel) that counts as visible
@@ -235,7 +335,9 @@ def pct(x, q):
 
 def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: str = "auto",
                 record: bool = False, in_flight: int | None = None, render_threads: int | None = None,
-                threads_in_flight: int | None = None, visible_only: bool = True) -> dict:
+                threads_in_flight: int | None = None, visible_only: bool = True,
+                recording_nice: int | None = None, tracker_nice: int | None = None,
+                switch_interval_s: float | None = None, deform_ahead: bool | None = None) -> dict:
     """One replayed session; ``record``: the session writes its native video too (as ``live`` does);
     ``in_flight``: ``LiveSessionConfig.frames_in_flight`` (None: the default), ``render_threads``: the
     renderer's threads (None: all cores), ``threads_in_flight``: each renderer's threads once frames are in
@@ -251,7 +353,11 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     t_start = time.perf_counter()
     cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=record, flush_s=60.0,
                             render_threads_in_flight=threads_in_flight,
-                            **({"frames_in_flight": int(in_flight)} if in_flight is not None else {}))
+                            **({"frames_in_flight": int(in_flight)} if in_flight is not None else {}),
+                            **({"recording_nice": int(recording_nice)} if recording_nice is not None else {}),
+                            **({"tracker_nice": int(tracker_nice)} if tracker_nice is not None else {}),
+                            **({"switch_interval_s": switch_interval_s} if switch_interval_s is not None else {}),
+                            **({"deform_ahead": bool(deform_ahead)} if deform_ahead is not None else {}))
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
     renderer = LiveAvatarRenderer(tile_scale=tile_scale, mode=mode, render_threads=render_threads,
                                   visible_only=visible_only) if render else None  # True: as `holo-viewer live`
@@ -260,7 +366,8 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
 
     cpu0, kids0 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    with ThreadCPU() as sampler:
+    sched = SchedTimes(renderer) if renderer is not None else None
+    with ThreadCPU(period=0.05) as sampler:  # 50 ms: the in-render / between-renders split (20 ms cost ~8 ms a frame)
         summary = session.run(renderer, on_frame=times)
     t_end = time.perf_counter()
     cpu1, kids1 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -288,6 +395,8 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
                   # wall time between frames shown (the render_ms of a frame in flight is longer than this)
                   "display_interval_ms_median": pct(1000 * gaps, 50), "display_interval_ms_p95": pct(1000 * gaps, 95),
                   "displayed_fps": round(shown / (n / 25.0), 2), "recording": record,
+                  # the render calls on the main thread: on a CPU / waiting for one / blocked (GIL, barriers)
+                  "render_call_main_thread": sched.summary() if sched is not None and pool.n == 1 else None,
                   "visible_change_ms_median": pct(1000 * np.array(vis), 50),
                   "visible_change_ms_p95": pct(1000 * np.array(vis), 95), "onsets_visible": len(vis),
                   "load_1min_start": round(load_start, 2), "load_1min_end": round(os.getloadavg()[0], 2),
@@ -308,10 +417,16 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
                 "cpu_ms_per_displayed_frame_by_thread": {k: round(1000 * v / max(nfr, 1), 1) for k, v in
                                                          sorted(cpu.items(), key=lambda kv: -kv[1]) if v > 0},
                 "cpu_s_per_session_second_by_thread": {k: round(v / max(span, 1e-9), 3) for k, v in
-                                                       sorted(cpu.items(), key=lambda kv: -kv[1]) if v > 0}}
+                                                       sorted(cpu.items(), key=lambda kv: -kv[1]) if v > 0},
+                # where the cores idle: during the render calls and between them (the loop, showing, waiting)
+                "timeline": busy_timeline(sampler, times.done, times.render_s, times.done[1], times.done[-1],
+                                          os.cpu_count() or 1)}
     return {**timing,
         "render": render, "tile_scale": tile_scale, "render_mode": mode, "wall_s": round(wall, 2), "frames": n,
         "viewer_fps": cfg.viewer_fps, "shared_vad": session._speech_gate.shares_vad,
+        "recording_nice": cfg.recording_nice, "tracker_nice": cfg.tracker_nice,
+        "switch_interval_s": cfg.switch_interval_s, "deform_ahead": cfg.deform_ahead,
+        "deformed_ahead": summary.get("deformed_ahead"),
         "frames_in_flight_asked": cfg.frames_in_flight,
         "viewer_updates": session.viewer_updates,
         "tracker_cpu_ms_median": pct(session.tracker_cpu_ms, 50),
@@ -444,6 +559,11 @@ def main() -> int:
                     "in flight instead of the cores over the frames in flight (row ab_threads_all)")
     ap.add_argument("--ab-visible", action="store_true", help="also every Gaussian drawn (A) against the "
                     "visible ones only (B, the default), one after the other (rows ab_visible)")
+    ap.add_argument("--sched-b", type=float, nargs=3, default=(19, 0, 1.0),
+                    metavar=("RECORDING_NICE", "TRACKER_NICE", "SWITCH_MS"),
+                    help="--ab's scheduling row (ab_sched, one frame in flight, run between A and B): the session "
+                    "video's encoder and the tracker thread this much nicer than the session, Python's switch "
+                    "interval in ms (default 19 0 1.0; A has the loop's defaults)")
     ap.add_argument("--startup-only", action="store_true", help="only the start-up runs: the live command's first "
                     "frame cold (empty kernel cache) and warm, and its quit time")
     args = ap.parse_args()
@@ -489,10 +609,16 @@ def main() -> int:
                                     record=render, **kw))
         # the same again in this process: the renderer's tables and kernels are warm (first frame, warm)
         warm = run_session(files, Path(tmp) / "s2", True, args.tile_scale, args.render_mode, record=True, **kw)
-        # --ab: one frame in flight (A), then --in-flight (B, default 2): a paired A/B, one after the other
+        # --ab, paired, one after the other: one frame in flight (A, ab_before), the same with --sched-b's
+        # scheduling (ab_sched), the same with the next frame deformed ahead (ab_deform_ahead), then
+        # --in-flight frames (B, ab_after, default 2)
+        sb = args.sched_b
+        extra = [{}, {"recording_nice": int(sb[0]), "tracker_nice": int(sb[1]), "switch_interval_s": sb[2] / 1000.0},
+                 {"deform_ahead": True}, {}]
         ab = [run_session(files, Path(tmp) / f"ab{i}", True, args.tile_scale, args.render_mode, record=True,
-                          in_flight=n, render_threads=args.render_threads)
-              for i, n in enumerate((1, args.in_flight or 2))] if args.ab else None
+                          in_flight=n, render_threads=args.render_threads, **extra[i])
+              for i, n in enumerate((1, 1, 1, args.in_flight or 2))] if args.ab else None
+        ab_sched, ab_ahead = (ab.pop(1), ab.pop(1)) if ab else (None, None)
         ab_threads = run_session(files, Path(tmp) / "abt", True, args.tile_scale, args.render_mode, record=True,
                                  in_flight=args.in_flight, render_threads=args.render_threads,
                                  threads_in_flight=os.cpu_count()) if args.ab_threads else None
@@ -512,7 +638,11 @@ def main() -> int:
     print(f"reaction ms/window, render vs no-render: x{ratio:.2f}")
     named = [("cold", full), ("warm", warm)] + ([("1 in flight (A)", ab[0]), (f"{args.in_flight or 2} in flight (B)", ab[1])] if ab else []) + \
         ([("all cores per renderer in flight", ab_threads)] if ab_threads else []) + \
-        ([("every Gaussian (A)", abv[0]), ("visible Gaussians (B)", abv[1])] if abv else [])
+        ([("every Gaussian (A)", abv[0]), ("visible Gaussians (B)", abv[1])] if abv else []) + \
+        ([(f"1 in flight, recording nice {ab_sched['recording_nice']}, tracker nice {ab_sched['tracker_nice']}, "
+           f"switch interval {ab_sched['switch_interval_s']} s (ab_sched)", ab_sched),
+          (f"1 in flight, the next frame deformed ahead (ab_deform_ahead; used / discarded "
+           f"{ab_ahead['deformed_ahead']})", ab_ahead)] if ab_sched else [])
     for name, row in named:
         print(f"{name}: {row['displayed_fps']} displayed fps with recording (load {row['load_1min_start']} -> "
               f"{row['load_1min_end']}), render {row['render_ms_median']} ms, visible change "
@@ -524,12 +654,19 @@ def main() -> int:
               f"{row['process_cpu_ms_per_displayed_frame']} ms, ffmpeg {row['ffmpeg_cpu_ms_per_displayed_frame']} ms; "
               f"tracker {row['tracker_cpu_s']} CPU s over {row['tracked_frames']} frames (viewer_fps {row['viewer_fps']}, "
               f"{row['viewer_updates']} viewer updates)")
+        rc = row.get("render_call_main_thread")
+        if rc:
+            print(f"  render calls on the main thread (ms, mean of {rc['calls']}): wall {rc['wall_ms']} = on a CPU "
+                  f"{rc['on_cpu_ms']} + waiting for a CPU {rc['waiting_for_cpu_ms']} + blocked {rc['blocked_ms']}")
         ins = row.get("in_session")
         if ins:
             print(f"  in session ({ins['frames']} frames, {ins['seconds']} s, start-up excluded): "
                   f"{ins['cpu_ms_per_displayed_frame']} ms of CPU a displayed frame, {ins['cores_used']} cores busy; "
                   "by thread (ms a frame): " + ", ".join(f"{k} {v}" for k, v in
                                                           ins["cpu_ms_per_displayed_frame_by_thread"].items()))
+            for part, v in ins.get("timeline", {}).items():
+                print(f"    {part} ({v['share_of_time']:.0%} of the time): {v['cores_busy']} cores busy, "
+                      f"{v['cores_idle']} idle; " + ", ".join(f"{k} {c}" for k, c in v["by_thread"].items()))
     print(f"landmark fit ms (warm median / p95, cold median): {fit['fit_ms_warm_median']} / {fit['fit_ms_warm_p95']}, "
           f"{fit['fit_ms_cold_median']}")
     if rss:
@@ -537,7 +674,7 @@ def main() -> int:
               f"(growth {rss['rss_growth_mb']} MB), late windows {rss['late_reaction_windows']}/{rss['reaction_windows']}")
     result = {"config": vars(args), "load_average": load, "cores": os.cpu_count(), "no_render": base, "render": full,
               "render_warm": warm, "ab_before": ab[0] if ab else None, "ab_after": ab[1] if ab else None,
-              "ab_threads_all": ab_threads, "ab_visible": abv,
+              "ab_threads_all": ab_threads, "ab_visible": abv, "ab_sched": ab_sched, "ab_deform_ahead": ab_ahead,
               "startup": startup,
               "reaction_window_ratio_render_vs_baseline": round(ratio, 2), "fit": fit, "rss": rss}
     if args.json:

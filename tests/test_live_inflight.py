@@ -205,3 +205,119 @@ def test_live_command_takes_frames_in_flight(capsys) -> None:
     assert "--frames-in-flight: expected an integer >= 1, found '0'" in capsys.readouterr().err
     with pytest.raises(InputError, match="frames_in_flight: expected an integer >= 1, found 1.5"):
         LiveSessionConfig(frames_in_flight=1.5)
+
+
+def test_scheduling_settings_are_checked_applied_and_restored(tmp_path: Path) -> None:
+    """issue 37's scheduling knobs: the session video's and the tracker thread's niceness, the thread switch
+    interval during the session (restored after it, also when a frame callback fails)."""
+    import os
+    import sys
+
+    from holo_viewer.errors import InputError
+    from holo_viewer.live.loop import LiveSessionConfig, _nice_this_thread
+
+    for name, bad in (("recording_nice", 20), ("recording_nice", -1), ("tracker_nice", 1.5), ("tracker_nice", True)):
+        with pytest.raises(InputError, match=f"{name}: expected an integer 0..19, found {bad!r}"):
+            LiveSessionConfig(**{name: bad})
+    for bad in (0.0, 1.0, float("nan"), True):
+        with pytest.raises(InputError, match="switch_interval_s: expected seconds in 1e-5..0.1 or None"):
+            LiveSessionConfig(switch_interval_s=bad)
+    if hasattr(os, "setpriority"):  # a thread's own nice value (Linux), the other threads' unchanged
+        got = []
+
+        def body():
+            tid = threading.get_native_id()
+            before = os.getpriority(os.PRIO_PROCESS, tid)
+            _nice_this_thread(2)
+            got.append((before, os.getpriority(os.PRIO_PROCESS, tid)))
+
+        th = threading.Thread(target=body)
+        th.start()
+        th.join()
+        assert got[0][1] == min(19, got[0][0] + 2)
+        assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == got[0][0]
+    before = sys.getswitchinterval()
+    seen = []
+    session = _session(tmp_path, 0.4, switch_interval_s=0.0007, write_native_video=False, frames=2)
+    session.run(_HashRenderer(), on_frame=lambda res: seen.append(sys.getswitchinterval()))
+    assert seen and all(abs(s - 0.0007) < 1e-9 for s in seen) and sys.getswitchinterval() == before
+
+    def boom(res):
+        raise RuntimeError("a failing frame callback")
+
+    with pytest.raises(RuntimeError, match="a failing frame callback"):
+        _session(tmp_path / "b", 0.4, switch_interval_s=0.0007, write_native_video=False).run(_HashRenderer(),
+                                                                                                on_frame=boom)
+    assert sys.getswitchinterval() == before
+
+
+class _DeformingRenderer(_HashRenderer):
+    """A :class:`_HashRenderer` whose frame is drawn from a deformation (``deform``: a key of the listener
+    frame and pain, 4 ms) that the loop may do ahead in another thread: a frame drawn from another listener
+    frame's deformation differs from replay's render of the recorded call. Counts deformations that overlap."""
+
+    deforms_apart = True
+
+    def __init__(self, seed: int = 0, log: list | None = None) -> None:
+        super().__init__(seed, log)
+        self.deformers: set[str] = set()
+        self._deforming = False
+        self.overlaps = 0
+
+    def deform(self, listener, pain, named):
+        self.overlaps += self._deforming
+        self._deforming = True
+        time.sleep(0.004)
+        self.deformers.add(threading.current_thread().name)
+        self._deforming = False
+        return np.concatenate([np.ravel(np.asarray(listener.get("expr", np.zeros(1)), np.float64)), [pain]])
+
+    def render(self, listener, pain, named, angle, distance, tracked=True, others=(), deformed=None):
+        d = self.deform(listener, pain, named) if deformed is None else deformed
+        time.sleep(float(self.rng.uniform(0.005, 0.04)))
+        key = np.concatenate([d, [angle, distance, float(tracked)], np.ravel(np.asarray(others, np.float64))])
+        native = np.random.default_rng(zlib.crc32(key.tobytes())).integers(0, 256, (24, 32, 3), dtype=np.uint8)
+        return RenderedFrame(native=native, preview=None, seconds=0.0)
+
+
+def test_deform_ahead_shows_the_recorded_frames_and_replays_bit_exact(tmp_path: Path, monkeypatch) -> None:
+    """deform_ahead: the next frame's deformation runs in its own thread while a frame renders, never two at
+    once; each frame shown is drawn from its own listener frame's deformation (replay --quality live, which
+    deforms in render, gives native.mkv's frames again), frames in order."""
+    from holo_viewer.live import replay
+
+    r = _DeformingRenderer()
+    session = _session(tmp_path, 1.2, deform_ahead=True)
+    shown = []
+    summary = session.run(r, on_frame=lambda res: shown.append(res.native))
+    with np.load(tmp_path / "s" / "tracks.npz") as z:
+        tr = {k: z[k] for k in z.files}
+    assert summary["deformed_ahead"]["used"] >= 3 and "deform-ahead" in r.deformers and r.overlaps == 0
+    assert len(shown) == len(tr["display_frame"]) >= 6 and (np.diff(tr["display_frame"]) > 0).all()
+    stored = list(media.read_frames(tmp_path / "s" / "native.mkv"))
+    assert len(stored) == len(shown) and all(np.array_equal(a, b) for a, b in zip(shown, stored))
+    monkeypatch.setattr(replay, "_renderer", lambda *a, **k: _DeformingRenderer(7))
+    again = [img for _, img in replay.replay_timed_frames(tmp_path / "s")]
+    assert len(again) == len(stored) and all(np.array_equal(a, b) for a, b in zip(stored, again))
+
+
+def test_a_frame_deformed_ahead_is_the_frame_rendered_at_once(renderers) -> None:
+    """The real renderer: render(..., deformed=deform(...)) is bit-identical to render(...) (replay deforms
+    in render), also after other frames; a renderer that reads the pipeline's face refuses it."""
+    from holo_viewer.errors import InputError
+    from holo_viewer.live.render import LiveAvatarRenderer
+
+    a, _ = renderers
+    assert a.deforms_apart
+    rng = np.random.default_rng(5)
+    lfs = [{"expr": rng.normal(0, 0.6, 50), "jaw_pose": np.array([0.1 * i, 0.0, 0.0])} for i in range(2)]
+    once = [a.render(lf, 0.3, (), 4.0, 0.6, True).native for lf in lfs]
+    ahead = [a.deform(lf, 0.3, ()) for lf in lfs]  # both deformed before either is drawn, as in the loop
+    assert all(np.array_equal(a.render(lf, 0.3, (), 4.0, 0.6, True, deformed=g).native, want)
+               for lf, g, want in zip(lfs, ahead, once))
+    assert not np.array_equal(once[0], once[1])
+    r = LiveAvatarRenderer.__new__(LiveAvatarRenderer)
+    r._live, r.preview_enabled, r.backend, r.pipeline = object(), True, "fast", a.pipeline
+    assert not r.deforms_apart
+    with pytest.raises(InputError, match="deformed: this renderer reads the pipeline's face"):
+        r.render(lfs[0], 0.3, (), 4.0, 0.6, deformed=ahead[0])
