@@ -559,11 +559,11 @@ def main() -> int:
                     "in flight instead of the cores over the frames in flight (row ab_threads_all)")
     ap.add_argument("--ab-visible", action="store_true", help="also every Gaussian drawn (A) against the "
                     "visible ones only (B, the default), one after the other (rows ab_visible)")
-    ap.add_argument("--sched-b", type=float, nargs=3, default=(19, 0, 1.0),
+    ap.add_argument("--sched-b", type=float, nargs=3, default=(19, 5, 1.0),
                     metavar=("RECORDING_NICE", "TRACKER_NICE", "SWITCH_MS"),
                     help="--ab's scheduling row (ab_sched, one frame in flight, run between A and B): the session "
                     "video's encoder and the tracker thread this much nicer than the session, Python's switch "
-                    "interval in ms (default 19 0 1.0; A has the loop's defaults)")
+                    "interval in ms (default 19 5 1.0; A has the loop's defaults)")
     ap.add_argument("--startup-only", action="store_true", help="only the start-up runs: the live command's first "
                     "frame cold (empty kernel cache) and warm, and its quit time")
     args = ap.parse_args()
