@@ -189,14 +189,17 @@ GROUP_VIEWERS = ((6.0, 0.6), (-15.0, 0.5), (-4.0, 0.75), (16.0, 0.9))
 #: the time-error trade-off of the group frames' cone fill (group_view_step; the default is 6), of the
 #: viewers served with eye slices (group_slices; the default is 0: every viewer sees the fill), and the
 #: eye slices replacing the fill instead of feathered into it (group_feather None: comfort); group and
-#: all_views rows skip the Gaussians nobody sees as `holo-viewer live` does (live_support.visible_mask),
-#: except the last ("all_gaussians": every Gaussian drawn, as before 2026-11-28 16:00)
+#: all_views rows skip the Gaussians nobody sees (live_support.visible_mask), each rendered source view only those
+#: seen in that view (per_view=True, since 2026-11-28 19:00), except "union_keep" (every source view draws the
+#: union over the views, as `holo-viewer live` did until then) and the last ("all_gaussians": every Gaussian
+#: drawn, as before 2026-11-28 16:00)
 GROUP_RUNS = (("group", 0, {}), ("group", 1, {}), ("group", 4, {}), ("tracked", 1, {}), ("tracked", 4, {}),
               ("all_views", 0, {}), ("group", 0, {"group_view_step": 5}), ("group", 0, {"group_view_step": 8}),
               ("group", 1, {"group_view_step": 5}), ("group", 1, {"group_view_step": 8}),
               ("group", 1, {"group_view_step": 12}), ("group", 1, {"group_slices": 1}),
               ("group", 4, {"group_slices": 1}), ("group", 4, {"group_slices": 4}),
-              ("group", 1, {"group_slices": 1, "group_feather": None}), ("group", 0, {"all_gaussians": True}))
+              ("group", 1, {"group_slices": 1, "group_feather": None}), ("group", 0, {"union_keep": True}),
+              ("group", 0, {"all_gaussians": True}))
 #: comfort: a tracked viewer walks past fixed single-eye positions (deg, m), 1.5 deg a frame, face still
 COMFORT_POSITIONS = ((0.0, 0.6), (-3.0, 0.6))
 COMFORT_WALK_DEG = tuple(float(a) for a in np.arange(-6.0, 4.6, 1.5))
@@ -249,9 +252,11 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
 
     cams = pipe.cameras()
     t0, c0 = time.perf_counter(), time.process_time()
-    keep = visible_mask(pipe)  # what `holo-viewer live` skips (cached on disk after the first run)
-    print(f"visible Gaussians: {int(keep.sum())} of {keep.size} ({time.perf_counter() - t0:.1f} s, "
-          f"CPU {time.process_time() - c0:.1f} s)", flush=True)
+    keep_views = visible_mask(pipe, per_view=True)  # what live frames skip (cached on disk after the first run)
+    keep = keep_views.any(axis=0)
+    per_view = keep_views.sum(axis=1)
+    print(f"visible Gaussians: {int(keep.sum())} of {keep.size}, per view {int(per_view.min())}-{int(per_view.max())} "
+          f"({time.perf_counter() - t0:.1f} s, CPU {time.process_time() - c0:.1f} s)", flush=True)
     frames = flare_frames(pipe)
     display = VirtualDisplay(cal)
     full = NativeFrameRenderer(cal, cams)
@@ -269,15 +274,16 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
     # warm-up, untimed: the first timed rows of a run measured ~0.03 s a frame slower than the same work
     # timed later in the run (the 0-face fill 0.183 s first, its equal "1 face, no eye slices" 0.150 s
     # near the end; 2026-11-28 12:00, load 0.5-1.1); priming each renderer with one frame did not remove it
-    warm = NativeFrameRenderer(cal, cams, keep=keep)
+    warm = NativeFrameRenderer(cal, cams, keep=keep_views)
     for k in range(len(frames)):
         warm.frame(frames[k], all_viewers[:1] or None, "group")
     del warm
     for mode, n, knobs in GROUP_RUNS:
         viewers = all_viewers[:n]
-        config = {k: v for k, v in knobs.items() if k != "all_gaussians"}  # every Gaussian drawn, as before
-        live = NativeFrameRenderer(cal, cams, NativeFrameConfig(**config),
-                                   keep=None if knobs.get("all_gaussians") else keep)
+        config = {k: v for k, v in knobs.items() if k not in ("all_gaussians", "union_keep")}
+        live = NativeFrameRenderer(cal, cams, NativeFrameConfig(**config),  # all_gaussians: every one, as before
+                                   keep=None if knobs.get("all_gaussians") else keep if knobs.get("union_keep")
+                                   else keep_views)
         arg = (viewers[0] if viewers else None) if mode == "tracked" else (viewers or None)
         live.frame(frames[0], arg, mode)  # everything once (the kept state of incremental modes)
         live.prepare_tracked()
@@ -303,6 +309,7 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
                "default": not knobs, "knobs": knobs,
                "gaussians_drawn": int(keep.sum()) if mode != "tracked" and not knobs.get("all_gaussians")
                else len(frames[0]),
+               "per_view_keep": mode != "tracked" and not knobs.get("all_gaussians") and not knobs.get("union_keep"),
                "seconds_per_frame": s, "best_seconds": float(min(secs)),
                "cpu_seconds_per_frame": float(np.median(cpus)),
                "tracked_eye_db": eye_db, "cone_worst_db": float(worst.min()),

@@ -249,6 +249,9 @@ class NativeFrameRenderer:
         never being seen (:func:`holo_viewer.pipeline.live_support.visible_mask`: largest blending weight
         over the 48 views at a set of poses <= 1/255); ``full_quilt`` (exports) and the tracked modes
         draw all. A mask of another length than the frame's Gaussians (another avatar) is ignored.
+        Or (V, N) bool, one row per camera (``visible_mask(per_view=True)``): the frames draw the union
+        of the rows, and each view rendered on the CPU path draws only its own row
+        (``fast.render(view_keep=)``; the eye slices draw the union).
 
     Notes
     -----
@@ -295,10 +298,17 @@ class NativeFrameRenderer:
         self._rest = rest
         self._keep: np.ndarray | None = None  # the visible Gaussians (bool mask), see keep
         self._depth_cell: int | None = None  # the z-buffer's cell of the whole avatar, when keep drops some
+        self._view_keep: np.ndarray | None = None  # (V, N) bool: per camera, the Gaussians it draws
+        self._view_keep_lod: dict[int, np.ndarray] = {}  # per view step: the sources' rows over the drawn ones
+        self._lod_visible = False
         if keep is not None:
             k = np.asarray(keep)
-            if k.ndim != 1 or k.dtype != np.bool_:
-                raise InputError(f"keep: expected an (N,) bool mask of the Gaussians drawn, found {k.dtype} {k.shape}")
+            if k.dtype != np.bool_ or k.ndim not in (1, 2) or (k.ndim == 2 and k.shape[0] != len(cameras)):
+                raise InputError(f"keep: expected an (N,) or ({len(cameras)}, N) bool mask of the Gaussians drawn, "
+                                 f"found {k.dtype} {k.shape}")
+            if k.ndim == 2:
+                self._view_keep = k.copy()
+                k = k.any(axis=0)
             self._keep = k.copy()
         self._device = None
         self._zeta: np.ndarray | None = None
@@ -379,6 +389,7 @@ class NativeFrameRenderer:
             self._n_gaussians = None
             self._lod = None
             self._depth_cell = None
+            self._view_keep_lod = {}
         timings: dict[str, float] = {"validate": time.perf_counter() - t0}
         if row.incremental and self._n_gaussians is None:
             row = FRAME_MODE["full_quilt"]  # nothing to update yet: everything
@@ -436,7 +447,19 @@ class NativeFrameRenderer:
                 op = np.asarray(gaussians.numpy().opacity_logits, dtype=np.float64).reshape(-1)
                 self._depth_cell = auto_cell(int((op >= 0.0).sum()), self.cameras.height, self.cameras.width)
             self._lod = idx
+            self._lod_visible = visible  # keep applied (per-view rows too: _source_keep)
         return gaussians.subset(self._lod)
+
+    def _source_keep(self, step: int, src: np.ndarray, n: int) -> np.ndarray | None:
+        """(sources, n) bool: per source view of ``step``, which of the drawn Gaussians (``_lod``) it
+        draws (``keep``'s per-view rows), or None (every view draws every drawn Gaussian)."""
+        vk = self._view_keep
+        if vk is None or self._lod is None or not self._lod_visible:
+            return None
+        rows = self._view_keep_lod.get(step)
+        if rows is None or rows.shape != (src.size, n):
+            rows = self._view_keep_lod[step] = np.ascontiguousarray(vk[src][:, self._lod])
+        return rows
 
     def _synth_buffers(self, step: int) -> tuple:
         """(sources, their cameras, their images, their depth maps) of view step ``step``."""
@@ -460,9 +483,11 @@ class NativeFrameRenderer:
         from ..render import fast, view_synthesis
 
         t = time.perf_counter()
-        src, src_cams, images, wmaps = self._synth_buffers(self.view_step if step is None else int(step))
+        step = self.view_step if step is None else int(step)
+        src, src_cams, images, wmaps = self._synth_buffers(step)
         cfg = self.config.render
-        fast.render(g, src_cams, dataclasses.replace(cfg, t_min=max(cfg.t_min, LIVE_T_MIN)), out=images, slits=slits)
+        fast.render(g, src_cams, dataclasses.replace(cfg, t_min=max(cfg.t_min, LIVE_T_MIN)), out=images, slits=slits,
+                    view_keep=self._source_keep(step, src, len(g)))
         t1 = time.perf_counter()
         gn = g.numpy()
         opacity = 1.0 / (1.0 + np.exp(-np.asarray(gn.opacity_logits, dtype=np.float64)))

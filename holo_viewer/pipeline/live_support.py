@@ -230,7 +230,7 @@ VISIBILITY_POSES: tuple[dict, ...] = (
 
 
 def visible_mask(pipe: Any, threshold: float | None = None, poses: tuple[dict, ...] | None = None,
-                 cached_only: bool = False) -> np.ndarray | None:
+                 cached_only: bool = False, per_view: bool = False) -> np.ndarray | None:
     """(N,) bool: the Gaussians of ``pipe``'s avatar that anybody can see in its quilt views: largest
     blending weight (:func:`holo_viewer.render.visibility.max_weights`, float64) over ``pipe.cameras()`` at
     any of ``poses`` (default :data:`VISIBILITY_POSES`) above ``threshold`` (default
@@ -238,7 +238,12 @@ def visible_mask(pipe: Any, threshold: float | None = None, poses: tuple[dict, .
     (:func:`holo_viewer.display.table_cache.cached_tables`, kind ``visible_gaussians``), keyed by the avatar's
     neutral Gaussians, the cameras, the poses, the threshold and the visibility code: ~5-7 s of CPU per pose
     at 48 views of 420x560 the first time (~3 s at tile scale 0.5). ``pipe``'s face is restored afterwards.
-    ``cached_only``: None instead of building a mask that is not cached (:func:`build_visible_mask_later`)."""
+    ``cached_only``: None instead of building a mask that is not cached (:func:`build_visible_mask_later`).
+    ``per_view``: (V, N) bool instead, per quilt view the Gaussians above the threshold *in that view* at any
+    of the poses (its union over the views is the (N,) mask; the same build and cache entry), for
+    :class:`~holo_viewer.pipeline.live.NativeFrameRenderer`'s ``keep``: each rendered view then draws only its
+    own row (default avatar, 2026-11-28: 53.0-54.5k of the 66.2k kept per view over the 10 poses; 40-41k
+    at one pose)."""
     import hashlib
     from pathlib import Path
 
@@ -270,17 +275,20 @@ def visible_mask(pipe: Any, threshold: float | None = None, poses: tuple[dict, .
         return None
 
     def build() -> dict[str, np.ndarray]:
-        best = np.zeros(n)
+        best = np.zeros((len(cams), n))
         try:
             for kw in poses:
                 pipe.set_face(FaceControls(**{k: (np.asarray(v, dtype=np.float64) if k != "named" else v)
                                               for k, v in kw.items()}))
-                np.maximum(best, visibility.max_weights(pipe.gaussians(), cams), out=best)
+                np.maximum(best, visibility.max_weights(pipe.gaussians(), cams, per_view=True), out=best)
         finally:
             pipe.set_face(face0)
-        return {"keep": best > thr}
+        views = best > thr
+        return {"keep": views.any(axis=0), "keep_views": views}
 
-    return cached_tables("visible_gaussians", key, {"keep": ((n,), "bool")}, build)["keep"]
+    tables = cached_tables("visible_gaussians", key, {"keep": ((n,), "bool"), "keep_views": ((len(cams), n), "bool")},
+                           build)
+    return tables["keep_views"] if per_view else tables["keep"]
 
 
 _later: set = set()  # (avatar, tile_scale) whose mask this process has asked a background build of

@@ -420,7 +420,8 @@ def _check_region(cameras: Cameras, config: RenderConfig, tile_mask: np.ndarray 
 
 def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None = None, *,
            tile_mask: np.ndarray | None = None, out: np.ndarray | None = None,
-           passes: tuple[SplatPass, ...] | list[SplatPass] = (), slits: SlitViews | None = None) -> RenderResult:
+           passes: tuple[SplatPass, ...] | list[SplatPass] = (), slits: SlitViews | None = None,
+           view_keep: np.ndarray | None = None) -> RenderResult:
     """Render every camera with the fast backend (see the module docstring).
 
     Inputs are assumed validated (use :func:`holo_viewer.render.render_views`).
@@ -443,6 +444,12 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
         Crossed-slit views drawn in the same projection pass as the first chunk of cameras (their
         images into ``slits.out``); the cameras must share one rotation. A render whose mask
         leaves no view still draws them.
+    view_keep : numpy.ndarray or None
+        (V, N) bool: camera v draws only the Gaussians where ``view_keep[v]`` is set (the others'
+        boxes are empty in that view: never binned nor composited; still projected). The image is
+        that of rendering ``gaussians.subset(view_keep[v])`` alone in view v (tested); passes and
+        slits draw every Gaussian. Used by live frames to skip, per source view, the Gaussians no
+        pose shows there (:func:`holo_viewer.pipeline.live_support.visible_mask`).
 
     Returns
     -------
@@ -453,6 +460,12 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
     """
     config = config or RenderConfig()
     mask, rects = _check_region(cameras, config, tile_mask, out)
+    if view_keep is not None:
+        vk = np.asarray(view_keep)
+        if vk.dtype != np.bool_ or vk.shape != (len(cameras), len(gaussians)):
+            raise RenderError(f"fast backend: view_keep: expected a bool ({len(cameras)}, {len(gaussians)}) array "
+                              f"(cameras, Gaussians), found {vk.dtype} {vk.shape}")
+        view_keep = vk
     passes = tuple(passes)
     for p in passes:
         _check_pass(p, cameras)
@@ -463,7 +476,7 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
     shared = _SHARED_WORKSPACE.lock.acquire(blocking=False)
     try:
         return _render(gaussians, cameras, config, _SHARED_WORKSPACE if shared else _Workspace(),
-                       mask, rects, out, passes, slits)
+                       mask, rects, out, passes, slits, view_keep)
     finally:
         if shared:
             if _SHARED_WORKSPACE.nbytes() > _KEEP_AT_MOST:  # a huge scene: do not hold its buffers
@@ -603,7 +616,7 @@ def _runs(views: np.ndarray) -> list[np.ndarray]:
 def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, workspace: _Workspace,
             mask: np.ndarray | None = None, rects: np.ndarray | None = None,
             out_images: np.ndarray | None = None, passes: tuple[SplatPass, ...] = (),
-            slits: SlitViews | None = None) -> RenderResult:
+            slits: SlitViews | None = None, view_keep: np.ndarray | None = None) -> RenderResult:
     from . import fast_kernels as fk
 
     kernel = config.kernel
@@ -695,15 +708,18 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
             contiguous = views.size == 0 or bool(np.all(np.diff(views) == 1))  # always, with a mask
             out = (images[views[0]:views[-1] + 1] if views.size else images[:0]) if contiguous else \
                 np.empty((len(views), H, W, 3), np.float32)
+            # the chunk's per-view keep mask in depth order (None: every splat in every view)
+            vkeep = view_keep[views][:, order] if view_keep is not None and views.size else None
             if use_cpp:
                 seen = draw.cpp_views(sorted_in, m, degree, bool(config.shared_sh), cams, out, jobs,
-                                      slits=(slit_cams, slits.out, slits.t_min) if with_slits else None)
+                                      slits=(slit_cams, slits.out, slits.t_min) if with_slits else None,
+                                      view_keep=vkeep)
             else:
                 seen = np.zeros(m, dtype=np.uint8)
                 if views.size:
                     seen = draw.numba_views(order, pc, cov, means, opacity, sh, degree, shared_rgb,
                                             bool(config.shared_sh), cams, out,
-                                            mask[views] if mask is not None else None)
+                                            mask[views] if mask is not None else None, view_keep=vkeep)
                 if with_slits:
                     draw.numba_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, bool(config.shared_sh),
                                      slit_cams, slits.out, None, count_blends=False, t_min=slits.t_min)
@@ -771,11 +787,13 @@ class _Draw:
 
     def cpp_views(self, sorted_in: tuple, m: int, degree: int, shared: bool, cams: np.ndarray, out: np.ndarray,
                   jobs: np.ndarray | None, count_blends: bool = True,
-                  slits: tuple[np.ndarray, np.ndarray, float | None] | None = None) -> np.ndarray:
+                  slits: tuple[np.ndarray, np.ndarray, float | None] | None = None,
+                  view_keep: np.ndarray | None = None) -> np.ndarray:
         """One chunk of views through the C++ extension (projection and binning fused, buffers reused),
         with ``slits`` = (their camera parameters, their images, their t_min or None for the
-        config's) projected in the same pass and composited into their own images; returns which
-        of the m sorted splats any view drew."""
+        config's) projected in the same pass and composited into their own images; ``view_keep``
+        (n views, m) bool in depth order: the splats each (non-slit) view draws; returns which of
+        the m sorted splats any view drew."""
         c, n_main = self.config, len(cams)
         if slits is not None:
             cams = np.concatenate((cams, slits[0]))
@@ -786,13 +804,20 @@ class _Draw:
         off = np.empty((nv, n_tiles + 1), dtype=np.int64)
         base = np.empty(nv, dtype=np.int64)
         seen = np.empty(m, dtype=np.uint8)
+        mp = sorted_in[3].size
+        vm: tuple = ()
+        if view_keep is not None:  # (views, mp) uint8 rows with the sorted inputs' stride
+            vmask = self.workspace.buffer("view_keep", (n_main, mp), np.uint8)
+            vmask[:, :m] = view_keep
+            vmask[:, m:] = 0
+            vm = (vmask, n_main)
         while True:
             ids_buf = self.workspace.ids()
-            total, fill_s = self.cpp.project_bin(*sorted_in, cams, m, sorted_in[3].size, nv, self.W, self.H,
+            total, fill_s = self.cpp.project_bin(*sorted_in, cams, m, mp, nv, self.W, self.H,
                                                  degree, int(shared), self.tile, self.tiles_x, self.tiles_y,
                                                  self.near, float(c.dilation), float(c.radius_sigmas),
                                                  float(c.alpha_threshold), self.cull, rec, off, base, seen,
-                                                 ids_buf, self.threads)
+                                                 ids_buf, self.threads, *vm)
             if total <= ids_buf.size:
                 break
             self.workspace.grow_ids(total)
@@ -822,9 +847,11 @@ class _Draw:
     def numba_views(self, order: np.ndarray, pc: np.ndarray, cov: np.ndarray, means: np.ndarray,
                     opacity: np.ndarray, sh: np.ndarray, degree: int, shared_rgb: np.ndarray, shared: bool,
                     cams: np.ndarray, out: np.ndarray, mask: np.ndarray | None, count_blends: bool = True,
-                    t_min: float | None = None) -> np.ndarray:
+                    t_min: float | None = None, view_keep: np.ndarray | None = None) -> np.ndarray:
         """One chunk of views through the numba kernels (every tile composited; a mask keeps its
-        tiles); returns which of the ordered splats any view drew."""
+        tiles; ``view_keep`` (views, m) bool in depth order: the splats each view draws, the
+        others' boxes made empty as the C++ pass writes them); returns which of the ordered
+        splats any view drew."""
         from . import fast_kernels as fk
 
         c, nv = self.config, len(cams)
@@ -834,6 +861,11 @@ class _Draw:
         seen = fk.project_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, shared, cams, W, H,
                                 self.near, float(c.dilation), float(c.radius_sigmas), float(c.alpha_threshold),
                                 self.cull, rec, box)
+        if view_keep is not None:
+            drop = ~view_keep
+            box[..., 1][drop] = box[..., 0][drop]
+            drawn = (box[..., 0] < box[..., 1]) & (box[..., 2] < box[..., 3])
+            seen = drawn.any(axis=0).astype(seen.dtype)
         t4 = time.perf_counter()
         off = fk.count_tiles(rec, box, tile, self.tiles_x, self.tiles_y)
         base = np.zeros(nv, dtype=np.int64)

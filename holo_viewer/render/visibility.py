@@ -101,8 +101,11 @@ def _max_weight_views(rec, box, off, base, ids, tile, tiles_x, tiles_y, width, h
                     break
 
 
-def max_weights(gaussians, cameras: Cameras, config: RenderConfig | None = None, chunk: int = 8) -> np.ndarray:
-    """(N,) float64: each Gaussian's largest blending weight at any pixel of any of ``cameras``.
+def max_weights(gaussians, cameras: Cameras, config: RenderConfig | None = None, chunk: int = 8,
+                per_view: bool = False) -> np.ndarray:
+    """(N,) float64: each Gaussian's largest blending weight at any pixel of any of ``cameras``
+    (``per_view``: (V, N), its largest weight in each camera; their maximum over the cameras is the
+    (N,) result).
 
     Parameters
     ----------
@@ -131,6 +134,7 @@ def max_weights(gaussians, cameras: Cameras, config: RenderConfig | None = None,
     tiles_x, tiles_y = -(-W // tile), -(-H // tile)
     cull = -1.0 if config.cull_margin is None else float(config.cull_margin)
     out = np.zeros(n, dtype=np.float64)
+    views_out = np.zeros((len(cameras), n), dtype=np.float64) if per_view else None
     shared_rgb = np.zeros((1, 3), dtype=np.float32)
     for group in fast._groups(cameras):
         Wrot = np.ascontiguousarray(cameras.R[int(group[0])])
@@ -157,7 +161,9 @@ def max_weights(gaussians, cameras: Cameras, config: RenderConfig | None = None,
             _max_weight_views(rec, box, off, base, ids, tile, tiles_x, tiles_y, W, H, float(config.alpha_threshold),
                               float(config.alpha_cap), float(config.t_min), wmax)
             np.maximum.at(out, order, wmax.max(axis=0).astype(np.float64))
-    return out
+            if views_out is not None:  # order holds each Gaussian once: a plain scatter per view
+                views_out[views[:, None], order[None, :]] = wmax
+    return views_out if views_out is not None else out
 
 
 def visible_keep(weights, threshold: float = KEEP_WEIGHT) -> np.ndarray:

@@ -882,7 +882,16 @@ struct ProjJob {
     double near, dilation, radius_sigmas, alpha_threshold, cull_margin;
     float* rec;                 // (nv, m, REC)
     uint8_t* seen;              // (m,)
+    // optional (vmask_views, mp) per-view keep mask in depth order: splat k is not drawn in view
+    // v < vmask_views where vmask[v mp + k] is 0 (its box written empty, nothing binned)
+    const uint8_t* vmask;
+    int vmask_views;
 };
+
+// view v culls splat k (ProjJob::vmask)
+HV_ALWAYS_INLINE inline bool culled(const ProjJob& P, int v, int k) {
+    return P.vmask != nullptr && v < P.vmask_views && P.vmask[int64_t(v) * P.mp + k] == 0;
+}
 
 // Projection of 8 consecutive splats into one view, written as one loop over the lanes with no
 // branches so that the compiler vectorises it (8 doubles per AVX-512 register, 4 per AVX2).
@@ -1151,7 +1160,8 @@ struct Gathered {
 HV_ALWAYS_INLINE inline void emit(const ProjJob& P, const BinJob& B, int v, int k, const Block& o, int l,
                                   const int32_t* pre, int64_t* cnt, Entries& ent) {
     float* r = P.rec + (int64_t(v) * P.m + k) * REC;
-    const int32_t box[4] = {o.box[0][l], o.box[1][l], o.box[2][l], o.box[3][l]};
+    int32_t box[4] = {o.box[0][l], o.box[1][l], o.box[2][l], o.box[3][l]};
+    if (culled(P, v, k)) box[1] = box[0];
     std::memcpy(r + BOX_AT, box, sizeof(box));
     if (box[0] >= box[1] || box[2] >= box[3]) return;
     r[0] = float(o.u[l]); r[1] = float(o.vv[l]);
@@ -1276,7 +1286,8 @@ HV_ALWAYS_INLINE inline void project_count(const ProjJob& P, const BinJob& B, in
         const int n = std::min(LANES, k1 - k);
         for (int l = 0; l < n; ++l) {
             float* r = P.rec + (int64_t(v) * P.m + k + l) * REC;
-            const int32_t box[4] = {o.box[0][l], o.box[1][l], o.box[2][l], o.box[3][l]};
+            int32_t box[4] = {o.box[0][l], o.box[1][l], o.box[2][l], o.box[3][l]};
+            if (culled(P, v, k + l)) box[1] = box[0];
             std::memcpy(r + BOX_AT, box, sizeof(box));
             if (box[0] >= box[1] || box[2] >= box[3]) continue;
             r[0] = float(o.u[l]); r[1] = float(o.vv[l]);
@@ -1349,13 +1360,14 @@ BinScratch bin_scratch;
 constexpr size_t BIN_SCRATCH_KEEP = size_t(256) << 20;  // a larger scratch is freed after the call
 
 PyObject* project_bin(PyObject*, PyObject* args) {
-    Py_buffer pc{}, cov{}, means{}, op{}, q{}, sh{}, cams{}, rec{}, off{}, base{}, seen{}, ids{};
+    Py_buffer pc{}, cov{}, means{}, op{}, q{}, sh{}, cams{}, rec{}, off{}, base{}, seen{}, ids{}, vmask{};
     ProjJob P{};
     int n_threads;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*iiiiiiiiiidddddw*w*w*w*w*i", &pc, &cov, &means, &op, &q, &sh, &cams,
+    P.vmask_views = 0;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*iiiiiiiiiidddddw*w*w*w*w*i|y*i", &pc, &cov, &means, &op, &q, &sh, &cams,
                           &P.m, &P.mp, &P.nv, &P.width, &P.height, &P.degree, &P.use_shared, &P.tile, &P.tiles_x,
                           &P.tiles_y, &P.near, &P.dilation, &P.radius_sigmas, &P.alpha_threshold, &P.cull_margin,
-                          &rec, &off, &base, &seen, &ids, &n_threads))
+                          &rec, &off, &base, &seen, &ids, &n_threads, &vmask, &P.vmask_views))
         return nullptr;
     PyObject* result = nullptr;
     const int64_t nt = int64_t(P.tiles_x) * P.tiles_y;
@@ -1370,7 +1382,11 @@ PyObject* project_bin(PyObject*, PyObject* args) {
          need(cams, Py_ssize_t(P.nv) * CAM * 8, "cams") && need(rec, Py_ssize_t(P.nv) * m * REC * 4, "rec") &&
          need(off, Py_ssize_t(P.nv) * (nt + 1) * 8, "off") && need(base, Py_ssize_t(P.nv) * 8, "base") &&
          need(seen, m, "seen");
+    ok = ok && (P.vmask_views >= 0 && P.vmask_views <= P.nv);
+    if (!ok && !PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "_splat_cpp.project_bin: vmask_views outside 0 .. nv");
+    ok = ok && (P.vmask_views == 0 || need(vmask, Py_ssize_t(P.vmask_views) * mp, "vmask"));
     if (ok) {
+        P.vmask = P.vmask_views > 0 ? (const uint8_t*)vmask.buf : nullptr;
         P.pc = (const double*)pc.buf; P.cov = (const double*)cov.buf; P.means = (const double*)means.buf;
         P.op = (const double*)op.buf; P.q = (const double*)q.buf; P.cams = (const double*)cams.buf;
         P.sh = (const float*)sh.buf; P.rec = (float*)rec.buf; P.seen = (uint8_t*)seen.buf;
@@ -1458,6 +1474,7 @@ PyObject* project_bin(PyObject*, PyObject* args) {
     PyBuffer_Release(&pc); PyBuffer_Release(&cov); PyBuffer_Release(&means); PyBuffer_Release(&op);
     PyBuffer_Release(&q); PyBuffer_Release(&sh); PyBuffer_Release(&cams); PyBuffer_Release(&rec);
     PyBuffer_Release(&off); PyBuffer_Release(&base); PyBuffer_Release(&seen); PyBuffer_Release(&ids);
+    if (vmask.obj != nullptr) PyBuffer_Release(&vmask);
     return result;
 }
 
@@ -1655,7 +1672,9 @@ PyMethodDef methods[] = {
     {"project_bin", project_bin, METH_VARARGS,
      "project_bin(pc, cov, means, opacity, q, sh, cams, m, mp, nv, width, height, degree, use_shared, tile, "
      "tiles_x, tiles_y, near, dilation, radius_sigmas, alpha_threshold, cull_margin, rec, off, base, seen, ids, "
-     "n_threads) -> (total entries, seconds spent filling the lists)\n\n"
+     "n_threads[, vmask, vmask_views]) -> (total entries, seconds spent filling the lists)\n\n"
+     "vmask (vmask_views, mp) uint8, optional: per view v < vmask_views, the depth-ordered splats it draws "
+     "(0: its box written empty, nothing binned).\n"
      "cams (nv, 29) float64: fast_kernels.project_views' 14 parameters, then the pixel rectangle x0, x1, "
      "y0, y1 every box is clipped to (the image, or a region of it: splats that cannot reach it are "
      "skipped by a conservative test before projection), then a crossed-slit view's flag and its 10 "
