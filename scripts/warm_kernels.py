@@ -11,6 +11,10 @@ compiles on first use, as before); the script always exits 0 (tests/test_suite_t
 The differentiable-renderer, reaction-metrics, cached-binding and float/partial interleave steps cost about 30 s
 more of set-up CPU and save a fresh clone's make test their compilation (26 s of CPU for
 test_render_differentiable.py + test_reaction_metrics.py with an empty numba cache vs a full one, load 12).
+The visibility, one-splat render, viewer-normals, exact-JVP blend, strided to_uint8 and contiguous warp steps
+(about 27 s of CPU at load 15) compile the 13 specialisations a fresh clone's make test still compiled in its
+tests (found by diffing a full numba cache against this script's; left: the float64 binding and the numba
+eye-slice scatter, which only their own tests call).
 """
 
 from __future__ import annotations
@@ -48,8 +52,9 @@ def _interleave() -> None:
 
     from holo_viewer.images import to_uint8
 
-    for dtype in (np.float32, np.float64):  # its compiled pass, on both float types
+    for dtype in (np.float32, np.float64):  # its compiled pass, on both float types, into a new array and a tile
         to_uint8(np.zeros((4, 4, 3), dtype))
+        to_uint8(np.zeros((4, 4, 3), dtype), out=np.zeros((4, 8, 3), np.uint8)[:, :4])
     cal = DisplayCalibration.load(None)
     for dtype in (np.uint8, np.float32):
         quilt = np.zeros((cal.quilt_height, cal.quilt_width, 3), dtype)
@@ -97,9 +102,10 @@ def _live_frames() -> None:
 
     sources = view_synthesis.source_views(len(cams), 5)
     stack = np.zeros((sources.size, cams.height, cams.width, 4), np.float32)[..., :3]
-    view_synthesis.warp_views(stack, np.ones((sources.size, cams.height, cams.width), np.float32), sources,
-                              view_synthesis.rig_of(cams), iters=1,
-                              out=np.zeros((len(cams), cams.height, cams.width, 3), np.float32))
+    for st in (stack, np.ascontiguousarray(stack)):  # and on one block (the live renderer's)
+        view_synthesis.warp_views(st, np.ones((sources.size, cams.height, cams.width), np.float32), sources,
+                                  view_synthesis.rig_of(cams), iters=1,
+                                  out=np.zeros((len(cams), cams.height, cams.width, 3), np.float32))
     # the eye slices' numba scatter (the C++ one is used when built; tests compare the two)
     from holo_viewer.display import slices
 
@@ -125,6 +131,34 @@ def _avatars() -> None:
     rigged.deform(verts[0], cache=True, cache_tol=1e-4)
     rigged.deform(verts[0] + 0.01, cache=True, cache_tol=1e-4)
     BlendshapeAvatar.from_rigged(rigged).pose(torch.zeros(6))
+    BlendshapeAvatar.from_rigged(rigged, exact_jvp=True).pose(torch.zeros(6))  # its per-Gaussian kernel
+
+
+def _visibility() -> None:
+    """The visible-Gaussian mask's weight kernel, and the fast renderer's numba kernels on a one-splat view:
+    its splat boxes are then one contiguous block, a second specialisation of four kernels (~8 s of CPU,
+    which a fresh clone's make test paid in a test that renders a single splat)."""
+    from bench.scenes import random_scene
+    from holo_viewer.display.calibration import DisplayCalibration
+    from holo_viewer.display.cameras import make_quilt_cameras
+    from holo_viewer.render import fast, visibility
+    from holo_viewer.render.config import RenderConfig
+
+    cal = DisplayCalibration.load(None).with_quilt(8, 6, 840, 840)
+    cams = make_quilt_cameras(cal, focal_center=(0.0, 0.0, 0.0), size=0.12, near=0.01, far=10.0)
+    visibility.max_weights(random_scene(500, degree=1, seed=0, extent=(0.1, 0.13, 0.06), scale_range=(-6.0, -4.5)),
+                           cams)
+    one = random_scene(1, degree=1, seed=0, extent=(0.01, 0.01, 0.01), scale_range=(-4.0, -4.0))
+    fast.render(one, cams[[24]], RenderConfig(kernel="numba"))
+
+
+def _viewer_normals() -> None:
+    """The GUI viewer's vertex-normal kernel (needs the gui extra; skipped without it)."""
+    import numpy as np
+
+    from holo_viewer.gui.scene import live_vertex_normals
+
+    live_vertex_normals(np.random.default_rng(0).random((5, 3)), np.array([[0, 1, 2], [2, 3, 4]]))
 
 
 def _differentiable() -> None:
@@ -162,7 +196,8 @@ def _metrics() -> None:
 
 
 STEPS = (("default pipeline", _pipeline), ("interleaver", _interleave), ("live frames", _live_frames),
-         ("avatars", _avatars), ("differentiable renderer", _differentiable), ("reaction metrics", _metrics))
+         ("avatars", _avatars), ("differentiable renderer", _differentiable), ("reaction metrics", _metrics),
+         ("visibility", _visibility), ("viewer normals", _viewer_normals))
 
 
 def main() -> int:

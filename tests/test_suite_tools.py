@@ -146,7 +146,7 @@ def test_warm_kernels_steps_run(monkeypatch):
     spec.loader.exec_module(warm)
     steps = dict(warm.STEPS)
     assert {"default pipeline", "interleaver", "live frames", "avatars", "differentiable renderer",
-            "reaction metrics"} <= set(steps)
+            "reaction metrics", "visibility", "viewer normals"} <= set(steps)
     for name in ("avatars", "differentiable renderer", "reaction metrics"):
         steps[name]()
 
