@@ -4,7 +4,7 @@ Usage::
 
     python scripts/fit_patients.py [NAME ... | --all] [--iterations N] [--source assets/default_avatar.npz]
         [--out FILE (one patient)] [--no-eval] [--images DIR] [--json FILE] [--stage2 N] [--init FILE]
-        [--stage3 N] [--stage4 N] [--init-stage 2|3|4] [--dataset-cache FILE]
+        [--stage3 N] [--stage4 N] [--stage5 N] [--init-stage 2|3|4|5] [--dataset-cache FILE]
 
 Every patient shares the default head's ICT topology, so the default's fitted Gaussians keep their
 triangles and local offsets, rotations and scales on the patient's head (``fit_avatar.transfer_avatar``:
@@ -20,7 +20,9 @@ adds the D-SSIM term of 3DGS (0.2) beside L1 on the same detail-centred crops, w
 adaptive density control (split where the positional gradient is high, prune the faint); for
 ``STAGE4_PATIENTS`` a fourth, pain stage (``pain_stage_config``, ``--stage4 N``) draws its steps mostly from
 pain 1, pain 0.5 and neutral (the first three stages draw the seven poses alike, and pain 1 scored 2-3 dB
-below neutral on every patient). Writes ``assets/patients/<name>/avatar.npz`` with
+below neutral on every patient); for ``STAGE5_PATIENTS`` a fifth, limit stage (``limit_stage_config``,
+``--stage5 N``) draws the outermost cameras (|yaw| >= 25 deg) ``LIMIT_CAMERA_WEIGHT`` x as often (the viewer
+slider's limits were each failing patient's worst place). Writes ``assets/patients/<name>/avatar.npz`` with
 ``fit_angle_range_deg`` and, in its ``info``, ``psnr_min_db`` (worst of the 48 quilt views and the two
 slider-limit views, neutral). ``default`` as NAME fine-tunes the default avatar itself the same way
 (the second stage of ``scripts/fit_default_avatar.py``). Deterministic (seeded, one thread); fits run
@@ -82,6 +84,14 @@ PAIN_STAGE_WEIGHTS = {"neutral": 0.3, "pain_1": 0.35, "pain_0.5": 0.15}
 STAGE4_CONFIG = fa.replace_config(STAGE2_CONFIG, iterations=400, ssim_weight=0.2, seed=3)
 #: the patients whose shipped avatar has the pain stage
 STAGE4_PATIENTS = ("mei", "helen", "rafael", "james", "kwame")
+#: the limit stage (issue 35: every failing patient is worst at the viewer slider's -9.6 deg limit): the
+#: outermost training cameras (|yaw| >= 25 deg, the orbit's +-25 and +-30) drawn ``LIMIT_CAMERA_WEIGHT`` x as
+#: often as the others (a camera at the limit sees the side hair at a grazing angle, which only those cameras
+#: show), the poses weighted as the pain stage, the pain stage's D-SSIM crops, a fresh Adam, seed 4
+LIMIT_CAMERA_WEIGHT = 2.0
+LIMIT_STAGE_CONFIG = fa.replace_config(STAGE4_CONFIG, iterations=400, seed=4)
+#: the patients whose shipped avatar has the limit stage
+STAGE5_PATIENTS: tuple[str, ...] = ()
 N_LASH = 2000
 #: the cameras of the default avatar's own fit (scripts/fit_default_avatar.py): a transfer without a
 #: fine-tune (``--iterations 0``) records their range
@@ -93,6 +103,17 @@ def pain_stage_config(pose_names: list[str], iterations: int = STAGE4_CONFIG.ite
     poses weighted by ``PAIN_STAGE_WEIGHTS`` (0.05 for each pose it does not name)."""
     w = tuple(float(PAIN_STAGE_WEIGHTS.get(n, 0.05)) for n in pose_names)
     return fa.replace_config(STAGE4_CONFIG, iterations=iterations, pose_weights=w)
+
+
+def limit_stage_config(pose_names: list[str], cfg: fa.AvatarFitConfig,
+                       iterations: int = LIMIT_STAGE_CONFIG.iterations) -> fa.AvatarFitConfig:
+    """The limit stage's settings for a dataset of ``pose_names`` made with ``cfg``'s cameras (quilt views,
+    then the orbit): ``LIMIT_STAGE_CONFIG`` with the poses weighted as the pain stage and the orbit cameras
+    of |yaw| >= 25 deg weighted ``LIMIT_CAMERA_WEIGHT``."""
+    w = tuple(float(PAIN_STAGE_WEIGHTS.get(n, 0.05)) for n in pose_names)
+    cams = tuple(1.0 for _ in cfg.quilt_views) + tuple(
+        LIMIT_CAMERA_WEIGHT if abs(yaw) >= 25.0 else 1.0 for yaw, _ in cfg.orbit)
+    return fa.replace_config(LIMIT_STAGE_CONFIG, iterations=iterations, pose_weights=w, camera_weights=cams)
 
 
 def stage3_config(name: str) -> fa.AvatarFitConfig:
@@ -213,9 +234,12 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
     cfg = fa.replace_config(PATIENT_CONFIG, iterations=args.iterations)
     stage3 = (STAGE3_CONFIG.iterations if name in STAGE3_PATIENTS else 0) if args.stage3 is None else args.stage3
     stage4 = (STAGE4_CONFIG.iterations if name in STAGE4_PATIENTS else 0) if args.stage4 is None else args.stage4
+    stage5 = (LIMIT_STAGE_CONFIG.iterations if name in STAGE5_PATIENTS else 0) if args.stage5 is None else args.stage5
     stage2 = 0 if args.init and args.init_stage >= 3 else args.stage2
-    if args.init and args.init_stage == 4:
+    if args.init and args.init_stage >= 4:
         stage3 = 0
+    if args.init and args.init_stage == 5:
+        stage4 = 0
     if args.init:  # a saved earlier stage (e.g. --stage2 0): its Gaussians, as shipped (float16)
         init, binding, init_keys = load_fitted_avatar(Path(args.init))
         if init_keys["head_sha256"] != _sha256(head_path):
@@ -273,12 +297,18 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
             start = res4.local
             print(f"{name}: stage 4 (pain) {stage4} steps ({time.process_time() - c4:.0f} s CPU), first/last 50 "
                   f"{np.mean(res4.losses[:50]):.4f} / {np.mean(res4.losses[-50:]):.4f}", flush=True)
+        if stage5 > 0:
+            c5 = time.process_time()
+            res5 = fa.fit_gaussians(start, binding, data, limit_stage_config(data.names, cfg, stage5), progress=False)
+            start = res5.local
+            print(f"{name}: stage 5 (limits) {stage5} steps ({time.process_time() - c5:.0f} s CPU), first/last 50 "
+                  f"{np.mean(res5.losses[:50]):.4f} / {np.mean(res5.losses[-50:]):.4f}", flush=True)
         t3, c3 = time.perf_counter(), time.process_time()
         print(f"{name}: fit {t3 - t2:.0f} s ({c3 - c2:.0f} s CPU)", flush=True)
         fitted, angle_range, n_poses = start, data.angle_range_deg, len(data.names)
         record = {
             "name": name, "iterations": 0 if args.init else cfg.iterations, "stage2_iterations": stage2,
-            "stage3_iterations": stage3, "stage4_iterations": stage4,
+            "stage3_iterations": stage3, "stage4_iterations": stage4, "stage5_iterations": stage5,
             "poses": data.names, "skipped_poses": data.skipped,
             "cameras": int(data.images.shape[1]), "fit_angle_range_deg": list(data.angle_range_deg), **how,
             "loss_first_50": float(np.mean(losses[:50])), "loss_last_50": float(np.mean(losses[-50:]))}
@@ -304,6 +334,14 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
         info["stage4_iterations"] = stage4
         info["stage4"] = {"ssim_weight": s4.ssim_weight, "crop_detail": s4.crop_detail, "seed": s4.seed,
                           "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05}
+    if cfg.iterations and stage5:
+        s5 = LIMIT_STAGE_CONFIG
+        info["method"] = ("transfer of the default avatar + fine-tune in five stages, the fourth weighted to pain, "
+                          "the fifth to the outermost cameras (scripts/fit_patients.py)")
+        info["stage5_iterations"] = stage5
+        info["stage5"] = {"ssim_weight": s5.ssim_weight, "crop_detail": s5.crop_detail, "seed": s5.seed,
+                          "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05,
+                          "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT}
     if args.init:
         info["init_stage"] = args.init_stage
     path = save_fitted_avatar(out, fitted, binding, model, colour_source=source.name, head_path=head_path,
@@ -386,13 +424,16 @@ def main(argv: list[str] | None = None) -> int:
                     help="second-stage steps (detail-centred full-resolution crops; 0: the first stage only)")
     ap.add_argument("--init", default=None, help="start the second stage from this saved first stage (one name; "
                     "e.g. a file this script wrote with --stage2 0) instead of transfer + first stage")
-    ap.add_argument("--init-stage", type=int, default=2, choices=(2, 3, 4), help="the stage --init starts (3: the "
+    ap.add_argument("--init-stage", type=int, default=2, choices=(2, 3, 4, 5), help="the stage --init starts (3: the "
                     "file is a second stage, e.g. the avatar shipped before the third stage; 4: the stages before the pain stage, "
-                    "a third stage, or kwame's second)")
+                    "a third stage, or kwame's second; 5: the limit stage, from a file with the pain stage)")
     ap.add_argument("--stage3", type=int, default=None, help="third-stage steps (D-SSIM; default "
                     f"{STAGE3_CONFIG.iterations} for {', '.join(STAGE3_PATIENTS)}, 0 for the others)")
     ap.add_argument("--stage4", type=int, default=None, help="pain-stage steps (poses weighted to pain 1; default "
                     f"{STAGE4_CONFIG.iterations} for {', '.join(STAGE4_PATIENTS)}, 0 for the others)")
+    ap.add_argument("--stage5", type=int, default=None, help="limit-stage steps (the outermost cameras weighted "
+                    f"{LIMIT_CAMERA_WEIGHT:g}x; default {LIMIT_STAGE_CONFIG.iterations} for "
+                    f"{', '.join(STAGE5_PATIENTS) or 'none yet'}, 0 for the others)")
     ap.add_argument("--dataset-cache", default=None, help="keep the training renders in this pickle and reuse "
                     "them when they match (one name)")
     ap.add_argument("--threads", type=int, default=1, help="torch and numba threads (default 1)")
@@ -410,6 +451,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--init takes one name")
     if args.stage3 is not None and args.stage3 < 0:
         ap.error(f"--stage3: expected >= 0, found {args.stage3}")
+    if args.stage5 is not None and args.stage5 < 0:
+        ap.error(f"--stage5: expected >= 0, found {args.stage5}")
     if args.stage4 is not None and args.stage4 < 0:
         ap.error(f"--stage4: expected >= 0, found {args.stage4}")
     if args.dataset_cache and len(names) != 1:

@@ -286,6 +286,10 @@ def test_the_patients_third_stage_is_d_ssim_on_the_hard_three_only():
     s4 = fp.pain_stage_config(["neutral", "smile_1", "pain_0.5", "pain_1"])  # the pain stage: poses weighted
     assert s4.pose_weights == (0.3, 0.05, 0.15, 0.35) and s4.ssim_weight == 0.2 and s4.densify_every == 0
     assert set(fp.STAGE4_PATIENTS) == {"mei", "helen", "rafael", "james", "kwame"}  # amara, default: as shipped
+    s5 = fp.limit_stage_config(["neutral", "pain_1"], fa.replace_config(fp.PATIENT_CONFIG, quilt_views=(0, 47),
+                                                                        orbit=((-30.0, 0.0), (-20.0, 0.0), (0.0, 12.0))))
+    assert s5.pose_weights == (0.3, 0.35) and s5.camera_weights == (1.0, 1.0, fp.LIMIT_CAMERA_WEIGHT, 1.0, 1.0)
+    assert fp.LIMIT_CAMERA_WEIGHT > 1 and s5.ssim_weight == 0.2 and s5.densify_every == 0 and s5.seed != s4.seed
 
 
 def test_pose_weights_draw_only_the_weighted_poses(tiny_case):
@@ -306,3 +310,27 @@ def test_pose_weights_draw_only_the_weighted_poses(tiny_case):
                                                                        progress=False).losses
     with pytest.raises(ValueError, match="neutral, a, b"):
         fa.fit_gaussians(student, binding, data, fa.replace_config(cfg, pose_weights=(1.0, 2.0)), progress=False)
+
+
+def test_camera_weights_draw_only_the_weighted_cameras(tiny_case):
+    """``AvatarFitConfig.camera_weights`` (the limit stage): a camera of weight 0 is never drawn (blanking
+    its images changes nothing, while drawn alike they do), a wrong length or fewer positive weights than
+    ``views_per_step`` is an error."""
+    import dataclasses
+
+    student, binding, data, cfg = tiny_case
+    cfg = fa.replace_config(cfg, iterations=6, camera_weights=(1.0, 0.0, 2.0, 1.0))
+    blank = data.images.copy()
+    blank[:, 1] = 0
+    a = fa.fit_gaussians(student, binding, data, cfg, progress=False)
+    b = fa.fit_gaussians(student, binding, dataclasses.replace(data, images=blank), cfg, progress=False)
+    assert np.array_equal(a.local.sh, b.local.sh) and a.losses == b.losses
+    uniform = fa.replace_config(cfg, camera_weights=())
+    assert fa.fit_gaussians(student, binding, dataclasses.replace(data, images=blank), uniform,
+                            progress=False).losses != fa.fit_gaussians(student, binding, data, uniform,
+                                                                       progress=False).losses
+    with pytest.raises(ValueError, match="expected 4 weights"):
+        fa.fit_gaussians(student, binding, data, fa.replace_config(cfg, camera_weights=(1.0, 2.0)), progress=False)
+    with pytest.raises(ValueError, match="views_per_step"):
+        fa.fit_gaussians(student, binding, data, fa.replace_config(cfg, camera_weights=(1.0, 0.0, 0.0, 0.0)),
+                         progress=False)

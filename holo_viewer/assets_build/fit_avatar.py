@@ -117,6 +117,10 @@ class AvatarFitConfig:
     #: the share of the steps drawn from each pose of the dataset (its order; normalised); empty: uniform.
     #: The patients' pain stage weights pain 1 up (its deformed skin is where a static colour misses most)
     pose_weights: tuple[float, ...] = ()
+    #: the share of the steps drawn from each camera of the dataset (its order: ``quilt_views`` then
+    #: ``orbit``; normalised); empty: uniform. The limit stage weights the outermost cameras up (the viewer
+    #: slider's limits see the side hair at a grazing angle from those cameras only)
+    camera_weights: tuple[float, ...] = ()
     seed: int = 0
     dtype: str = "float32"
 
@@ -550,6 +554,15 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
             raise ValueError(f"AvatarFitConfig.pose_weights: expected non-negative weights with a positive sum, "
                              f"found {config.pose_weights}")
         pose_p = pose_p / pose_p.sum()
+    if config.camera_weights and len(config.camera_weights) != n_cam:
+        raise ValueError(f"AvatarFitConfig.camera_weights: expected {n_cam} weights (one per camera of the dataset), "
+                         f"found {len(config.camera_weights)}")
+    cam_p = np.asarray(config.camera_weights, np.float64) if config.camera_weights else None
+    if cam_p is not None:
+        if not np.all(np.isfinite(cam_p)) or np.any(cam_p < 0) or np.count_nonzero(cam_p) < config.views_per_step:
+            raise ValueError(f"AvatarFitConfig.camera_weights: expected non-negative weights, at least "
+                             f"views_per_step ({config.views_per_step}) of them positive, found {config.camera_weights}")
+        cam_p = cam_p / cam_p.sum()
     for it in bar:
         p = int(rng.integers(n_pose)) if pose_p is None else int(rng.choice(n_pose, p=pose_p))
         rot, scale, centre = data.frames[p]
@@ -559,7 +572,7 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
             means.retain_grad()
         sh = torch.cat([params["sh_dc"], params["sh_rest"]], dim=1)
         loss = torch.zeros((), dtype=dtype)
-        for c in rng.choice(n_cam, size=min(config.views_per_step, n_cam), replace=False):
+        for c in rng.choice(n_cam, size=min(config.views_per_step, n_cam), replace=False, p=cam_p):
             if it < crop_from:  # the whole image at train_scale (box-downsampled target)
                 w2c, K, W, H = small.world_to_cam[c], small.K[c], small.width, small.height
                 target = torch.from_numpy(_downsample(data.images[p, c][None].astype(np.float32), factor)[0])
