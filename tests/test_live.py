@@ -49,7 +49,7 @@ def test_live_headless_from_replayed_files(clip, tmp_path):
     """CI: replayed wav + mp4, no devices or display: runs end to end, ends when the files end."""
     out = tmp_path / "session"
     code = main(["live", "--audio", str(clip["wav"]), "--video", str(clip["video"]), "--headless", "--out", str(out),
-                 "--tile-scale", "0.2"])
+                 "--tile-scale", "0.1"])
     assert code == 0
     s = _check_session(out, n_frames=40)
     assert s["tracks"]["speaker_found"].mean() > 0.5  # the tracker saw the rendered head
