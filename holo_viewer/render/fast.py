@@ -708,18 +708,22 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
             contiguous = views.size == 0 or bool(np.all(np.diff(views) == 1))  # always, with a mask
             out = (images[views[0]:views[-1] + 1] if views.size else images[:0]) if contiguous else \
                 np.empty((len(views), H, W, 3), np.float32)
-            # the chunk's per-view keep mask in depth order (None: every splat in every view)
-            vkeep = view_keep[views][:, order] if view_keep is not None and views.size else None
+            # the chunk's rows of the per-view keep mask (None: every splat in every view), put in depth
+            # order by the kernels' callers
+            vkeep = None
+            if view_keep is not None and views.size:
+                vkeep = view_keep if views.size == V and bool(np.all(views == np.arange(V))) else view_keep[views]
             if use_cpp:
                 seen = draw.cpp_views(sorted_in, m, degree, bool(config.shared_sh), cams, out, jobs,
                                       slits=(slit_cams, slits.out, slits.t_min) if with_slits else None,
-                                      view_keep=vkeep)
+                                      view_keep=None if vkeep is None else (vkeep, order))
             else:
                 seen = np.zeros(m, dtype=np.uint8)
                 if views.size:
                     seen = draw.numba_views(order, pc, cov, means, opacity, sh, degree, shared_rgb,
                                             bool(config.shared_sh), cams, out,
-                                            mask[views] if mask is not None else None, view_keep=vkeep)
+                                            mask[views] if mask is not None else None,
+                                            view_keep=None if vkeep is None else vkeep[:, order])
                 if with_slits:
                     draw.numba_views(order, pc, cov, means, opacity, sh, degree, shared_rgb, bool(config.shared_sh),
                                      slit_cams, slits.out, None, count_blends=False, t_min=slits.t_min)
@@ -788,12 +792,12 @@ class _Draw:
     def cpp_views(self, sorted_in: tuple, m: int, degree: int, shared: bool, cams: np.ndarray, out: np.ndarray,
                   jobs: np.ndarray | None, count_blends: bool = True,
                   slits: tuple[np.ndarray, np.ndarray, float | None] | None = None,
-                  view_keep: np.ndarray | None = None) -> np.ndarray:
+                  view_keep: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """One chunk of views through the C++ extension (projection and binning fused, buffers reused),
         with ``slits`` = (their camera parameters, their images, their t_min or None for the
         config's) projected in the same pass and composited into their own images; ``view_keep``
-        (n views, m) bool in depth order: the splats each (non-slit) view draws; returns which of
-        the m sorted splats any view drew."""
+        ((n views, N) bool, the depth order (m,)): the Gaussians each (non-slit) view draws; returns
+        which of the m sorted splats any view drew."""
         c, n_main = self.config, len(cams)
         if slits is not None:
             cams = np.concatenate((cams, slits[0]))
@@ -806,9 +810,10 @@ class _Draw:
         seen = np.empty(m, dtype=np.uint8)
         mp = sorted_in[3].size
         vm: tuple = ()
-        if view_keep is not None:  # (views, mp) uint8 rows with the sorted inputs' stride
+        if view_keep is not None:  # (views, mp) uint8 rows in depth order, the sorted inputs' stride
+            rows, order = view_keep
             vmask = self.workspace.buffer("view_keep", (n_main, mp), np.uint8)
-            vmask[:, :m] = view_keep
+            np.take(rows.view(np.uint8), order, axis=1, out=vmask[:, :m])  # 0.4 ms against 1.2 (index, copy)
             vmask[:, m:] = 0
             vm = (vmask, n_main)
         while True:
