@@ -11,10 +11,11 @@ compiles on first use, as before); the script always exits 0 (tests/test_suite_t
 The differentiable-renderer, reaction-metrics, cached-binding and float/partial interleave steps cost about 30 s
 more of set-up CPU and save a fresh clone's make test their compilation (26 s of CPU for
 test_render_differentiable.py + test_reaction_metrics.py with an empty numba cache vs a full one, load 12).
-The visibility, one-splat render, viewer-normals, exact-JVP blend, strided to_uint8 and contiguous warp steps
-(about 27 s of CPU at load 15) compile the 13 specialisations a fresh clone's make test still compiled in its
-tests (found by diffing a full numba cache against this script's; left: the float64 binding and the numba
-eye-slice scatter, which only their own tests call).
+A full numba cache (after whole-suite runs) held 13 specialisations this script did not compile, so a fresh
+clone's make test compiled them in its tests. The visibility, one-splat render, viewer-normals, exact-JVP blend,
+strided to_uint8 and contiguous warp lines (about 27 s of CPU at load 15) compile 9 of them, the live-frames
+step's numba eye-slice scatter a 10th (it had compiled nothing since group frames stopped drawing slices by
+default); left: the three float64 binding kernels.
 """
 
 from __future__ import annotations
@@ -112,7 +113,9 @@ def _live_frames() -> None:
     cpp = slices._cpp
     slices._cpp = lambda: None  # noqa: E731 - for this step only
     try:
-        NativeFrameRenderer(cal, cams, NativeFrameConfig()).frame(g, eyes.TrackedViewer(0.0, 0.6))
+        # group frames draw eye slices only with group_slices > 0 (the default draws none since d087ac6, so this
+        # step compiled nothing until the setting was given here)
+        NativeFrameRenderer(cal, cams, NativeFrameConfig(group_slices=1)).frame(g, eyes.TrackedViewer(0.0, 0.6))
     finally:
         slices._cpp = cpp
 
