@@ -160,9 +160,10 @@ def test_breathing_rate_and_sway_amplitude():
     br = BreathingLayer(2)
     y = np.array([br.step() for _ in range(FPS * 600)])
     assert 12 <= len(_runs(y > 0.5)) / 10 <= 20 and y.min() >= 0 and y.max() <= 1
-    sw = SwayLayer(2, std_deg=(0.5, 0.7, 0.35), std_mm=2.0)
+    sw = SwayLayer(2)  # the defaults: pitch 0.25 deg (small: it blurs the nods), yaw 0.7, roll 0.35, x/z 2 mm
     a = np.array([sw.step() for _ in range(FPS * 1800)])
-    assert np.allclose(a.std(axis=0), [0.5, 0.7, 0.35, 2.0, 2.0], rtol=0.25)
+    assert np.allclose(a.std(axis=0), [0.25, 0.7, 0.35, 2.0, 2.0], rtol=0.25)
+    assert BehaviourConfig().sway_deg == (0.25, 0.7, 0.35)
     assert np.abs(np.diff(a[:, :3], axis=0)).max() < 0.15  # smooth: < 4 deg/s
 
 

@@ -90,7 +90,7 @@ class BehaviourConfig:
     head_share: float = 0.25
     breath_mm: float = 1.5
     breath_deg: float = 0.4
-    sway_deg: tuple[float, float, float] = (0.5, 0.7, 0.35)
+    sway_deg: tuple[float, float, float] = (0.25, 0.7, 0.35)  # pitch small: it blurs the nods (docs/behaviour.md)
     sway_mm: float = 2.0
     flare_rate_per_min: float = 3.0
 
