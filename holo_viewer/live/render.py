@@ -57,16 +57,30 @@ def resolve_backend(backend: str) -> str:
 
 def visible_record(keep: np.ndarray | None, gaussians: int) -> dict:
     """``{"used", "gaussians", "kept", "digest"}`` of a visible-Gaussian mask (None: every Gaussian drawn,
-    ``kept`` = ``gaussians``, digest None); the digest is the first 32 hex digits of the sha256 of the
-    mask's length and its packed bits."""
+    ``kept`` = ``gaussians``, digest None).
+
+    An (N,) mask (sessions before 2026-11-28 19:30 drew one): ``kept`` its count, the digest the first 32
+    hex digits of the sha256 of ``"N:"`` and its packed bits (as recorded then), and ``"per_view": False``.
+    A (V, N) per-view mask (each source view draws its own row): ``kept`` the union's count,
+    ``"per_view": True``, ``"shape": [V, N]``, ``"kept_per_view": [min, max]`` over the rows, and the digest
+    of ``"VxN:"`` and the whole mask's packed bits (row-major), so that another per-view mask with the same
+    union is told apart."""
     import hashlib
 
     if keep is None:
         return {"used": False, "gaussians": int(gaussians), "kept": int(gaussians), "digest": None}
     k = np.asarray(keep, dtype=bool)
+    if k.ndim == 2:
+        h = hashlib.sha256(f"{k.shape[0]}x{k.shape[1]}:".encode())
+        h.update(np.packbits(np.ascontiguousarray(k)).tobytes())
+        rows = k.sum(axis=1)
+        return {"used": True, "gaussians": int(k.shape[1]), "kept": int(k.any(axis=0).sum()),
+                "digest": h.hexdigest()[:32], "per_view": True, "shape": [int(k.shape[0]), int(k.shape[1])],
+                "kept_per_view": [int(rows.min(initial=0)), int(rows.max(initial=0))]}
     h = hashlib.sha256(f"{k.size}:".encode())
     h.update(np.packbits(k).tobytes())
-    return {"used": True, "gaussians": int(k.size), "kept": int(k.sum()), "digest": h.hexdigest()[:32]}
+    return {"used": True, "gaussians": int(k.size), "kept": int(k.sum()), "digest": h.hexdigest()[:32],
+            "per_view": False}
 
 
 @dataclass
@@ -108,7 +122,8 @@ class LiveAvatarRenderer:
         (:class:`holo_viewer.pipeline.live.NativeFrameConfig`; None: the live default, 5; 1: every view).
     visible_only : bool
         CPU frames that redraw every view (``auto``/``group``, ``all_views``) skip the Gaussians nobody
-        sees (:func:`holo_viewer.pipeline.live_support.visible_mask`: largest blending weight over the
+        sees, each rendered source view those nobody sees in that view (``visible_per_view``)
+        (:func:`holo_viewer.pipeline.live_support.visible_mask`: largest blending weight over the
         quilt views at a set of poses <= 1/255; the default avatar keeps ~65 % at full size, the cone
         error unchanged, docs/live_frame.md). Loaded from the cache; where it is not there yet this session
         draws every Gaussian and a process at nice 19 builds it for the next ones (~30 s of CPU at tile
@@ -116,15 +131,21 @@ class LiveAvatarRenderer:
         calibration only). ``holo-viewer live`` turns it on. ``"build"``: loaded, or built now in this
         process (replay --quality live of a session that used it). The mask used is
         :attr:`visible_keep`, recorded by :meth:`visible_record` (session.json ``render.visible``).
+    visible_per_view : bool
+        With ``visible_only``: the (V, N) per-view mask (``visible_mask(per_view=True)``: each source view
+        draws only the Gaussians seen in it, the eye slices the union; the same cache entry as the (N,) mask,
+        which a background build writes both of), as ``bench/live_frame.py``'s default rows; False: the (N,)
+        union for every view (sessions recorded before 2026-11-28 19:30; replay --quality live of those).
     visible_keep : numpy.ndarray, optional
-        The (N,) bool mask itself, instead of looking it up (:meth:`twin` passes its renderer's, so
-        frames in flight draw the same Gaussians even when a background build lands in between).
+        The (N,) or (V, N) bool mask itself, instead of looking it up (:meth:`twin` passes its renderer's,
+        so frames in flight draw the same Gaussians even when a background build lands in between). A mask
+        of another shape (another avatar, other cameras) is ignored: every Gaussian drawn, as uncached.
     """
 
     def __init__(self, tile_scale: float = 1.0, native: bool = True, preview: bool = False, backend: str = "auto",
                  calibration: Any = None, render_threads: int | None = None, mode: str = "auto",
                  view_step: int | None = None, avatar: str = "default", visible_only: bool | str = False,
-                 visible_keep: np.ndarray | None = None) -> None:
+                 visible_keep: np.ndarray | None = None, visible_per_view: bool = True) -> None:
         import os
 
         from ..pipeline.live_modes import SESSION_MODE
@@ -136,8 +157,10 @@ class LiveAvatarRenderer:
         #: the arguments, for :meth:`twin`
         self._args = {"tile_scale": tile_scale, "native": native, "preview": preview, "backend": backend,
                       "calibration": calibration, "render_threads": render_threads, "mode": mode,
-                      "view_step": view_step, "avatar": avatar, "visible_only": visible_only}
+                      "view_step": view_step, "avatar": avatar, "visible_only": visible_only,
+                      "visible_per_view": bool(visible_per_view)}
         self.visible_only = visible_only
+        self.visible_per_view = bool(visible_per_view)
         self._visible_given = None if visible_keep is None else np.asarray(visible_keep, dtype=bool)
         #: the visible-Gaussian mask the frames draw (None: every Gaussian)
         self.visible_keep: np.ndarray | None = None
@@ -200,13 +223,17 @@ class LiveAvatarRenderer:
         elif self.visible_only and self.backend == "fast":
             from ..pipeline.live_support import build_visible_mask_later, visible_mask
 
-            keep = visible_mask(self.pipeline, cached_only=self.visible_only != "build")
+            # (V, N) and (N,) are one cache entry, which the background build writes whole
+            keep = visible_mask(self.pipeline, cached_only=self.visible_only != "build",
+                                per_view=self.visible_per_view)
             if keep is None and calibration is None:  # not cached yet: built beside this session, used next time
                 build_visible_mask_later(self.avatar_name, tile_scale)
-        self._live = NativeFrameRenderer(self.pipeline.calibration, self.pipeline.cameras(), config, keep=keep)
-        # what the frames draw: NativeFrameRenderer ignores a mask of another length (another avatar)
-        self.visible_keep = self._live._keep if self._live._keep is not None \
-            and self._live._keep.size == len(self.pipeline.gaussians()) else None
+        cams, n = self.pipeline.cameras(), len(self.pipeline.gaussians())
+        if keep is not None and keep.shape not in ((n,), (len(cams), n)):
+            keep = None  # another avatar's or other cameras' mask: every Gaussian drawn, as uncached
+        self._live = NativeFrameRenderer(self.pipeline.calibration, cams, config, keep=keep)
+        # what the frames draw: the per-view rows (each source view its own), else the (N,) mask
+        self.visible_keep = keep
         if self.backend == "gsplat":
             self._live.frame(self.pipeline.gaussians(), None, "all_views")
         else:
@@ -233,15 +260,16 @@ class LiveAvatarRenderer:
         """A new renderer with this one's settings (its own pipeline and frame buffers: safe to run in
         another thread beside this one); ``render_threads`` replaces the thread count (the frames are the
         same for any count: tested). The backend is the one this renderer resolved to."""
+        # the same mask object (read only; NativeFrameRenderer keeps its own copy): the same Gaussians drawn
         args = {**self._args, "backend": self.backend, "visible_only": False, "visible_keep": self.visible_keep}
         if render_threads is not None:
             args["render_threads"] = int(render_threads)
         return LiveAvatarRenderer(**args)
 
     def visible_record(self) -> dict:
-        """session.json ``render.visible``: whether the frames skip the Gaussians nobody sees, how many
-        they draw of how many, and a digest of the mask (sha256 of its length and packed bits, 32 hex
-        digits), so that replay --quality live draws the same ones (:mod:`holo_viewer.live.replay`)."""
+        """session.json ``render.visible`` (:func:`visible_record`): whether the frames skip the Gaussians
+        nobody sees, how many they draw of how many, per view or the union, and a digest of the mask drawn
+        (32 hex digits), so that replay --quality live draws the same ones (:mod:`holo_viewer.live.replay`)."""
         return visible_record(self.visible_keep, len(self.pipeline.gaussians()))
 
     @property

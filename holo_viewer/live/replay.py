@@ -6,7 +6,8 @@ Two qualities:
     The live renderer as the session used it (mode, tile scale, the fast CPU backend, the
     visible-Gaussian mask when session.json ``render.visible`` says the frames skipped the Gaussians
     nobody sees: loaded from the cache or built again, deterministic, and refused when its digest is
-    not the recorded one; sessions without the field draw every Gaussian, as they did), called
+    not the recorded one; the per-view (V, N) mask when it says ``per_view``, else the (N,) union every
+    view drew before 2026-11-28 19:30; sessions without the field draw every Gaussian, as they did), called
     exactly as the live loop called it (its warm-up, then each displayed frame with the recorded
     listener parameters, pain, named expressions and viewer pose): the frames of ``native.mkv``
     again, bit-exact on the same build, from any working folder; written at the times they were
@@ -63,6 +64,8 @@ def _visible(session: Path, render: dict) -> dict | None:
         raise InputError(f"{where}: expected an object with a boolean 'used', found {visible!r:.80}")
     if visible["used"] and not (isinstance(visible.get("digest"), str) and len(visible["digest"]) == 32):
         raise InputError(f"{where}.digest: expected the mask's digest (32 hex digits), found {visible.get('digest')!r:.80}")
+    if not isinstance(visible.get("per_view", False), bool):  # absent: the (N,) mask of sessions before it
+        raise InputError(f"{where}.per_view: expected true or false, found {visible.get('per_view')!r:.80}")
     return visible
 
 
@@ -84,12 +87,14 @@ def _renderer(session: Path, meta: dict, quality: str, tile_scale: float | None,
         visible = _visible(session, render)
         renderer = LiveAvatarRenderer(tile_scale=scale, native=True, preview=False, backend="fast", mode=mode,
                                       avatar=avatar, render_threads=render_threads,
-                                      visible_only="build" if visible and visible["used"] else False)
+                                      visible_only="build" if visible and visible["used"] else False,
+                                      visible_per_view=bool(visible and visible.get("per_view", False)))
         if visible and visible["used"] and scale == float(render.get("tile_scale", scale)):
             mine = renderer.visible_record()
             if mine["digest"] != visible["digest"]:
+                what = "per-view visible-Gaussian mask" if visible.get("per_view") else "visible-Gaussian mask"
                 raise InputError(f"{session / 'session.json'}: render.visible.digest: the session's frames drew the "
-                                 f"visible-Gaussian mask {visible['digest']} ({visible.get('kept')} of "
+                                 f"{what} {visible['digest']} ({visible.get('kept')} of "
                                  f"{visible.get('gaussians')} Gaussians), this build's mask is {mine['digest']} "
                                  f"({mine['kept']} of {mine['gaussians']}): replay would not show what the trainees "
                                  f"saw; use --quality full (every Gaussian)")
