@@ -149,20 +149,37 @@ def _zbuffer(means: np.ndarray, keep: np.ndarray, R: np.ndarray, tx: np.ndarray,
              out: np.ndarray) -> None:
     # (the rotation is done here, not by numpy: a BLAS matmul leaves OpenBLAS threads spinning,
     # which took a core from the next stages of a live frame: measured 2x slower warp)
+    # The sources share the rotation, z and v (the rig's views differ in tx and cx only): computed once
+    # per centre, the centres in front kept in order, then per source u alone. The same float64
+    # expressions in the same order as computing them per source (no fastmath): the same depth maps bit
+    # for bit (tests/test_view_synthesis.py); default avatar, 9 sources: 8.0 -> 6.4 ms of CPU.
     S = tx.size
     h, w = (H + cell - 1) // cell, (W + cell - 1) // cell
+    n = means.shape[0]
+    ok = np.zeros(n, dtype=np.bool_)
+    rx, zs, vs = np.empty(n), np.empty(n), np.empty(n)
+    for i in numba.prange(n):
+        if not keep[i]:
+            continue
+        mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
+        z = R[2, 0] * mx + R[2, 1] * my + R[2, 2] * mz + tz
+        if not z > near:
+            continue
+        ok[i] = True
+        zs[i] = z
+        rx[i] = R[0, 0] * mx + R[0, 1] * my + R[0, 2] * mz
+        vs[i] = fy * (R[1, 0] * mx + R[1, 1] * my + R[1, 2] * mz + ty) / z + cy
+    m = 0
+    for i in range(n):  # in order: the first of equal depths wins, as before
+        if ok[i]:
+            rx[m], zs[m], vs[m] = rx[i], zs[i], vs[i]
+            m += 1
     for s in numba.prange(S):
         zb = np.full((h, w), np.inf)
-        for i in range(means.shape[0]):
-            if not keep[i]:
-                continue
-            mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
-            z = R[2, 0] * mx + R[2, 1] * my + R[2, 2] * mz + tz
-            if not z > near:
-                continue
-            u = fx * (R[0, 0] * mx + R[0, 1] * my + R[0, 2] * mz + tx[s]) / z + cx[s]
-            v = fy * (R[1, 0] * mx + R[1, 1] * my + R[1, 2] * mz + ty) / z + cy
-            _keep_nearest(zb, u, v, z, cell, h, w)
+        for i in range(m):
+            z = zs[i]
+            u = fx * (rx[i] + tx[s]) / z + cx[s]
+            _keep_nearest(zb, u, vs[i], z, cell, h, w)
         _cells_to_pixels(zb, h, w, cell, H, W, w_zero, out[s])
 
 
