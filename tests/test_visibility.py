@@ -128,6 +128,32 @@ def test_per_view_keep_renders_each_views_own_subset(quarter, kernel):
         fast.render(g, cams, config, view_keep=vk[:2])
 
 
+@pytest.mark.parametrize("kernel", ["numba", "cpp"])
+def test_index_renders_the_subset_without_copying_it(quarter, kernel):
+    """fast.render(index=) (live frames' level of detail): the images of rendering the subset, bit for bit,
+    in any index order, with a per-view keep over the indexed Gaussians too; a bad index is refused."""
+    if kernel == "cpp" and not fast.cpp_available():
+        pytest.skip("C++ extension not built")
+    from holo_viewer.errors import RenderError
+
+    cams = quarter["cams"][[0, 23, 47]]
+    g = _scene(300, seed=6)
+    rng = np.random.default_rng(2)
+    config = RenderConfig(kernel=kernel)
+    for idx in (np.sort(rng.choice(len(g), 190, replace=False)), rng.permutation(len(g))[:120]):
+        sub = g.subset(idx)
+        vk = rng.random((len(cams), idx.size)) < 0.7
+        for keep in (None, vk):
+            want = fast.render(sub, cams, config, view_keep=keep).images.copy()
+            got = fast.render(g, cams, config, view_keep=keep, index=idx)
+            assert np.array_equal(got.images, want) and got.stats["n_input"] == idx.size
+    assert not np.array_equal(want, fast.render(g, cams, config).images)  # the subset is another picture
+    with pytest.raises(RenderError, match=r"index: expected \(n,\) integers in \[0, 300\)"):
+        fast.render(g, cams, config, index=np.array([0, 300]))
+    with pytest.raises(RenderError, match="view_keep: expected"):
+        fast.render(g, cams, config, index=idx, view_keep=np.ones((3, len(g)), bool))
+
+
 def test_group_frames_skip_what_nobody_sees(quarter):
     from holo_viewer.display.eyes import ConeSweep
     from holo_viewer.display.simulate import VirtualDisplay
@@ -156,6 +182,11 @@ def test_group_frames_skip_what_nobody_sees(quarter):
     assert per_view[src].sum(axis=1).max() < mask.sum()
     views = live.frame(g, None, "group").native.copy()
     assert not np.array_equal(views, kept)
+    render = fast.render  # the frame draws its Gaussians by index (fast.render(index=)): as the subset drawn
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(fast, "render", lambda gs, *a, index=None, **k: render(gs if index is None else gs.subset(index),
+                                                                           *a, **k))
+        assert np.array_equal(NativeFrameRenderer(cal, cams, keep=per_view).frame(g, None, "group").native, views)
     assert cone.psnr(full, views).min() >= 45.0
     same = NativeFrameRenderer(cal, cams, keep=np.ones((len(cams), len(g)), dtype=bool)).frame(g, None, "group")
     assert np.array_equal(same.native, full)

@@ -421,7 +421,7 @@ def _check_region(cameras: Cameras, config: RenderConfig, tile_mask: np.ndarray 
 def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None = None, *,
            tile_mask: np.ndarray | None = None, out: np.ndarray | None = None,
            passes: tuple[SplatPass, ...] | list[SplatPass] = (), slits: SlitViews | None = None,
-           view_keep: np.ndarray | None = None) -> RenderResult:
+           view_keep: np.ndarray | None = None, index: np.ndarray | None = None) -> RenderResult:
     """Render every camera with the fast backend (see the module docstring).
 
     Inputs are assumed validated (use :func:`holo_viewer.render.render_views`).
@@ -449,7 +449,13 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
         boxes are empty in that view: never binned nor composited; still projected). The image is
         that of rendering ``gaussians.subset(view_keep[v])`` alone in view v (tested); passes and
         slits draw every Gaussian. Used by live frames to skip, per source view, the Gaussians no
-        pose shows there (:func:`holo_viewer.pipeline.live_support.visible_mask`).
+        pose shows there (:func:`holo_viewer.pipeline.live_support.visible_mask`). With ``index``: (V, len(index)),
+        over the indexed Gaussians.
+    index : numpy.ndarray or None
+        (n,) int64 indices of ``gaussians``: render ``gaussians.subset(index)`` without copying the subset
+        (the C++ path reads the indexed Gaussians straight into its depth-ordered copies; the numba path,
+        passes and shared colours take the subset). The images are those of the subset bit for bit (tested);
+        ``stats["n_input"]`` counts the indexed ones. Live frames draw their level of detail so.
 
     Returns
     -------
@@ -460,10 +466,23 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
     """
     config = config or RenderConfig()
     mask, rects = _check_region(cameras, config, tile_mask, out)
+    n = len(gaussians)
+    if index is not None:
+        ix = np.asarray(index)
+        ints = ix.ndim == 1 and ix.dtype.kind in "iu"
+        if not ints or (ix.size and (int(ix.min()) < 0 or int(ix.max()) >= n)):
+            span = f" from {int(ix.min())} to {int(ix.max())}" if ints and ix.size else ""
+            raise RenderError(f"fast backend: index: expected (n,) integers in [0, {n}), found {ix.dtype} {ix.shape}"
+                              f"{span}")
+        index = np.ascontiguousarray(ix, dtype=np.int64)
+        n = index.size
+        cpp_ok = _cpp() is not None and config.kernel in ("auto", "cpp")
+        if passes or config.shared_sh or not cpp_ok:  # those read the inputs in their own order: the subset
+            gaussians, index = gaussians.subset(index), None
     if view_keep is not None:
         vk = np.asarray(view_keep)
-        if vk.dtype != np.bool_ or vk.shape != (len(cameras), len(gaussians)):
-            raise RenderError(f"fast backend: view_keep: expected a bool ({len(cameras)}, {len(gaussians)}) array "
+        if vk.dtype != np.bool_ or vk.shape != (len(cameras), n):
+            raise RenderError(f"fast backend: view_keep: expected a bool ({len(cameras)}, {n}) array "
                               f"(cameras, Gaussians), found {vk.dtype} {vk.shape}")
         view_keep = vk
     passes = tuple(passes)
@@ -476,7 +495,7 @@ def render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig | None =
     shared = _SHARED_WORKSPACE.lock.acquire(blocking=False)
     try:
         return _render(gaussians, cameras, config, _SHARED_WORKSPACE if shared else _Workspace(),
-                       mask, rects, out, passes, slits, view_keep)
+                       mask, rects, out, passes, slits, view_keep, index)
     finally:
         if shared:
             if _SHARED_WORKSPACE.nbytes() > _KEEP_AT_MOST:  # a huge scene: do not hold its buffers
@@ -616,7 +635,8 @@ def _runs(views: np.ndarray) -> list[np.ndarray]:
 def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, workspace: _Workspace,
             mask: np.ndarray | None = None, rects: np.ndarray | None = None,
             out_images: np.ndarray | None = None, passes: tuple[SplatPass, ...] = (),
-            slits: SlitViews | None = None, view_keep: np.ndarray | None = None) -> RenderResult:
+            slits: SlitViews | None = None, view_keep: np.ndarray | None = None,
+            index: np.ndarray | None = None) -> RenderResult:
     from . import fast_kernels as fk
 
     kernel = config.kernel
@@ -639,6 +659,11 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
     if not (use_cpp and all(a.dtype == np.float32 for a in raw)):
         raw = [np.ascontiguousarray(a, dtype=np.float64) for a in raw]
     means, quats, log_scales = raw
+    # index (C++ path only, render()): the depth sort over the indexed centres (the subset's z, bit for bit),
+    # its order mapped to the whole arrays for the depth-ordered copies; n the indexed count
+    # (opacity stays whole: read through that order alone; elementwise, so the indexed ones are the subset's)
+    n = len(g) if index is None else index.size
+    zmeans = means if index is None else means[index]
     opacity = (1.0 / (1.0 + np.exp(-np.asarray(g.opacity_logits, dtype=np.float64))))
     degree = g.sh_degree if config.sh_degree is None else min(g.sh_degree, int(config.sh_degree))
     sh = np.ascontiguousarray(np.asarray(g.sh)[:, : (degree + 1) ** 2], dtype=np.float32)
@@ -658,7 +683,7 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
         shared_rgb = view_colors(means, sh.astype(np.float64), degree, positions.mean(axis=0)).astype(np.float32)
     else:
         shared_rgb = np.zeros((1, 3), dtype=np.float32)
-    draw = _Draw(config, workspace, cpp if use_cpp else None, threads, W, H, near, len(g), timings)
+    draw = _Draw(config, workspace, cpp if use_cpp else None, threads, W, H, near, n, timings)
     timings["preprocess"] += time.perf_counter() - t_start
 
     for gi, group in enumerate(_groups(cameras)):
@@ -670,7 +695,7 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
         sorted_path = use_cpp or bool(passes)  # depth-ordered copies: the C++ pass reads every input in order
         pc = cov = None
         if sorted_path:
-            z = fk.depth_z(means, Wrot)  # (float32 centres widen exactly: the same z)
+            z = fk.depth_z(zmeans, Wrot)  # (float32 centres widen exactly: the same z)
         else:
             pc, cov = fk.prep_3d(means, quats, log_scales, Wrot)
             z = pc[:, 2]
@@ -679,13 +704,14 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
             tz = np.concatenate((tz, p.cameras.t[:, 2]))
         if slits is not None:  # so do crossed-slit views
             tz = np.concatenate((tz, slits.cameras.t[:, 2]))
-        front = (z + tz.max()) > near if tz.size else np.zeros(len(g), dtype=bool)
+        front = (z + tz.max()) > near if tz.size else np.zeros(n, dtype=bool)
         t1 = time.perf_counter()
         order, workspace.depth_hints[gi] = depth_order(z, front, workspace.depth_hints.get(gi))
         m = order.size
         sorted_in = None
         if sorted_path:
-            sorted_in = _sorted_inputs(order, means, quats, log_scales, opacity,
+            # with index: the whole arrays read in the indexed depth order
+            sorted_in = _sorted_inputs(order if index is None else index[order], means, quats, log_scales, opacity,
                                        shared_rgb if config.shared_sh else sh, Wrot, float(config.alpha_threshold),
                                        workspace)
             if not use_cpp:  # the numba kernels read the inputs through the order instead (float64 here)
@@ -749,7 +775,7 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
                                  means[order], opacity[order], sh[order], 0, np.ascontiguousarray(pcol[:, :m].T), True,
                                  pcams, p.out, None, count_blends=False)
     timings["total"] = time.perf_counter() - t_start
-    stats = {"n_input": len(g), "n_visible": int(draw.visible.sum()),
+    stats = {"n_input": n, "n_visible": int(draw.visible.sum()),
              "mean_blends_per_pixel": draw.blends / float(V * H * W), "threads": threads,
              "cpu_seconds": time.process_time() - cpu_start, "tile_entries": draw.entries,
              "rendered_tiles": draw.tiles}
