@@ -152,8 +152,14 @@ def test_frames_limit_counts_frames_in_flight(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def renderers():
     from holo_viewer.live.render import LiveAvatarRenderer
+    from holo_viewer.pipeline import Pipeline, ViewSettings
 
-    a = LiveAvatarRenderer(tile_scale=0.1, native=True, preview=False, mode="auto", render_threads=2)
+    # a per-view visible mask, as `holo-viewer live` draws (each source view its own row; random here: the
+    # frames' independence must not depend on which), shared by the twin
+    pipe = Pipeline(view=ViewSettings(tile_scale=0.1))
+    keep = np.random.default_rng(11).random((len(pipe.cameras()), len(pipe.gaussians()))) < 0.9
+    a = LiveAvatarRenderer(tile_scale=0.1, native=True, preview=False, mode="auto", render_threads=2,
+                           visible_keep=keep)
     return a, a.twin(render_threads=1)
 
 
@@ -163,6 +169,8 @@ def test_group_frames_do_not_depend_on_earlier_frames_or_the_thread_count(render
     faces), so a frame rendered by a twin equals replay's render of it on one renderer."""
     a, b = renderers
     assert a.frames_independent and b.frames_independent and b.mode == a.mode == "auto"
+    assert a.visible_keep.ndim == 2 and b.visible_keep is a.visible_keep  # the twin draws the same per-view mask
+    np.testing.assert_array_equal(b._live._view_keep, a._live._view_keep)
     rng = np.random.default_rng(3)
     calls = []
     for i in range(5):
