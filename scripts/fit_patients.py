@@ -91,7 +91,7 @@ STAGE4_PATIENTS = ("mei", "helen", "rafael", "james", "kwame")
 LIMIT_CAMERA_WEIGHT = 2.0
 LIMIT_STAGE_CONFIG = fa.replace_config(STAGE4_CONFIG, iterations=400, seed=4)
 #: the patients whose shipped avatar has the limit stage
-STAGE5_PATIENTS: tuple[str, ...] = ()
+STAGE5_PATIENTS: tuple[str, ...] = ("mei", "helen", "rafael")
 N_LASH = 2000
 #: the cameras of the default avatar's own fit (scripts/fit_default_avatar.py): a transfer without a
 #: fine-tune (``--iterations 0``) records their range

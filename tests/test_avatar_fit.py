@@ -290,6 +290,7 @@ def test_the_patients_third_stage_is_d_ssim_on_the_hard_three_only():
                                                                         orbit=((-30.0, 0.0), (-20.0, 0.0), (0.0, 12.0))))
     assert s5.pose_weights == (0.3, 0.35) and s5.camera_weights == (1.0, 1.0, fp.LIMIT_CAMERA_WEIGHT, 1.0, 1.0)
     assert fp.LIMIT_CAMERA_WEIGHT > 1 and s5.ssim_weight == 0.2 and s5.densify_every == 0 and s5.seed != s4.seed
+    assert set(fp.STAGE5_PATIENTS) == {"mei", "helen", "rafael"}  # the limit stage: the three that failed there
 
 
 def test_pose_weights_draw_only_the_weighted_poses(tiny_case):
