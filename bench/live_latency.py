@@ -89,7 +89,9 @@ class ThreadCPU:
     (Linux), so the CPU spent between two moments of a session can be split by who spent it: the main
     thread (the render's serial part and the loop), the render's native workers (OpenMP / numba: threads
     that are not Python threads), the tracker, the reaction thread, the video writer; children by their
-    role (the session video's encoder, the replayed webcam's decoder)."""
+    role (the session video's encoder, the replayed webcam's decoder); ``ended threads``: the process's own
+    CPU (``/proc/self/stat``) that no sampled thread holds, i.e. the C++ kernels' workers, started per call
+    and gone within milliseconds (until 2026-11-28 20:05 uncounted: ~40 ms a frame, "1.5 cores busy")."""
 
     def __init__(self, period: float = 0.2) -> None:
         self.period = period
@@ -133,6 +135,11 @@ class ThreadCPU:
             if t.native_id is not None:
                 self._names[t.native_id] = t.name
         snap, children = {}, set()
+        # the whole process (its threads, also those that ended: the C++ kernels start their workers per call,
+        # threads that live a few ms and are never in a sample); between() names what the tasks miss
+        proc = self._stat("/proc/self/stat")
+        if proc is not None:
+            snap[0] = (PROCESS, proc[1] / self._tck)
         for tid in os.listdir("/proc/self/task"):
             st = self._stat(f"/proc/self/task/{tid}/stat")
             if st is None:
@@ -173,11 +180,25 @@ class ThreadCPU:
         last: dict = {}
         for _, snap in self.snaps[a:b + 1]:
             last.update(snap)
-        first = self.snaps[a][1]
-        out: dict[str, float] = {}
-        for key, (name, cpu) in last.items():
-            out[name] = out.get(name, 0.0) + cpu - (first[key][1] if key in first else 0.0)
-        return self.snaps[b][0] - self.snaps[a][0], out
+        return self.snaps[b][0] - self.snaps[a][0], _with_ended(self.snaps[a][1], last)
+
+
+PROCESS = "_process"  # the sampler's key 0: the process's own CPU (every thread it ran, ended ones too)
+ENDED = "ended threads"  # the process's CPU that no sampled thread holds: threads born and ended between samples
+
+
+def _with_ended(a: dict, b: dict) -> dict[str, float]:
+    """CPU seconds per name from snapshot ``a`` to ``b`` (a thread new in ``b`` counts from 0), and
+    :data:`ENDED`: the process's own CPU over the same span less its sampled threads' (the C++ kernels'
+    per-call workers, which live a few ms, are seen in no sample)."""
+    out: dict[str, float] = {}
+    for key, (name, cpu) in b.items():
+        if key != 0:
+            out[name] = out.get(name, 0.0) + cpu - (a[key][1] if key in a else 0.0)
+    if 0 in a and 0 in b:
+        threads = sum(cpu - (a[key][1] if key in a else 0.0) for key, (_, cpu) in b.items() if key > 0)
+        out[ENDED] = max(0.0, b[0][1] - a[0][1] - threads)
+    return out
 
 
 def busy_timeline(sampler: "ThreadCPU", done: list[float], render_s: list[float], t0: float, t1: float,
@@ -198,8 +219,7 @@ def busy_timeline(sampler: "ThreadCPU", done: list[float], render_s: list[float]
         inside = bool(((starts <= mid) & (mid <= ends)).any())
         part = parts["in_render" if inside else "between_renders"]
         part[0] += tb - ta
-        for key, (name, cpu) in b.items():
-            d = cpu - (a[key][1] if key in a else 0.0)
+        for name, d in _with_ended(a, b).items():
             if d > 0:
                 part[1][name] = part[1].get(name, 0.0) + d
     out = {}
