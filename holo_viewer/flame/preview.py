@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import InputError, MissingDependencyError, RenderError
 from ..validation import check_array
 
-__all__ = ["render_mesh", "render_mesh_cameras", "region_colors", "smooth_vertex_colors", "REGION_COLORS", "contact_sheet", "write_head_renders",
+__all__ = ["render_mesh", "render_mesh_cameras", "box_downsample", "region_colors", "smooth_vertex_colors", "REGION_COLORS", "contact_sheet", "write_head_renders",
            "HEAD_POSES"]
 
 _VIEWS = {"front": (0.0, 0.0), "three_quarter": (40.0, 5.0), "side": (90.0, 0.0), "back": (180.0, 0.0),
@@ -209,7 +209,8 @@ def render_mesh(
 def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, indices: Sequence[int] | None = None,
                         colors: np.ndarray | None = None,
                         background: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                        appearance: Any = None) -> tuple[np.ndarray, np.ndarray]:
+                        appearance: Any = None, supersample: int = 1, coverage: bool = False
+                        ) -> tuple[np.ndarray, np.ndarray]:
     """Render a vertex-coloured mesh through pinhole cameras with their exact OpenCV intrinsics (VTK).
 
     Lighting, material and normals are those of :func:`render_mesh`; the camera is the given
@@ -232,11 +233,25 @@ def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, i
         Background RGB.
     appearance : HeadAppearance, optional
         Draw the textured head instead of ``colors`` (as :func:`render_mesh`).
+    supersample : int
+        ``s`` > 1 renders each camera at ``s W x s H`` (the same frustum: view angle and window centre
+        are unchanged, so sub-pixel ``(j, k)`` of pixel ``(x, y)`` samples the point
+        ``(x + (j + 0.5) / s, y + (k + 0.5) / s)`` of the ``W x H`` image plane) and box-filters each
+        ``s x s`` block (:func:`box_downsample`, float64, in the 8-bit buffer's sRGB code values): the
+        pixel-area average of the picture, as a camera integrates a pixel, instead of one sample at
+        the pixel centre (aliased silhouettes). The mask is then ``coverage >= 0.5`` (coverage: the
+        fraction of a pixel's sub-samples with depth < 1). Default 1: one sample per pixel (unchanged).
+        VTK picks the texture's mipmap level per sub-pixel, so the interior is sharper than at ``s = 1``
+        (where the mipmap already averages the texture over the pixel), not only the silhouette.
+    coverage : bool
+        Return each pixel's coverage (float32 in [0, 1], the fraction of its sub-samples with depth < 1)
+        instead of the bool mask.
 
     Returns
     -------
     (numpy.ndarray, numpy.ndarray)
-        (n, H, W, 3) float32 images in [0, 1] and (n, H, W) bool masks (depth buffer < 1).
+        (n, H, W, 3) float32 images in [0, 1] and (n, H, W) bool masks (depth buffer < 1), or float32
+        coverages (``coverage=True``).
     """
     v = np.asarray(check_array(vertices, "vertices", ("V", 3)), dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -247,12 +262,15 @@ def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, i
     for i in idx:
         if not 0 <= i < len(cameras):
             raise InputError(f"indices: expected camera indices in [0, {len(cameras)}), found {i}")
+    if isinstance(supersample, bool) or not isinstance(supersample, (int, np.integer)) or not 1 <= supersample <= 8:
+        raise InputError(f"supersample: expected an integer in [1, 8], found {supersample!r}")
+    ss = int(supersample)
     vtk, nps = _import_vtk()
     from ..offscreen import new_offscreen_window
 
     W, H = int(cameras.width), int(cameras.height)
     ren = mesh_renderer(vtk, nps, v, f, colors, background, appearance=appearance)
-    win = new_offscreen_window(vtk.vtkRenderWindow, W, H, multisamples=None, what="render_mesh_cameras")
+    win = new_offscreen_window(vtk.vtkRenderWindow, W * ss, H * ss, multisamples=None, what="render_mesh_cameras")
     win.AddRenderer(ren)
     images, masks = [], []
     try:
@@ -270,15 +288,30 @@ def render_mesh_cameras(vertices: np.ndarray, faces: np.ndarray, cameras: Any, i
             cam.SetClippingRange(cameras.near, cameras.far)
             add_key_lights(vtk, ren, centre, 1.0, -fwd, up)
             win.Render()
-            images.append(_grab(vtk, nps, win, "rgb").astype(np.float32) / 255.0)
-            masks.append(_grab(vtk, nps, win, "z")[..., 0] < 1.0)
+            if ss == 1:
+                images.append(_grab(vtk, nps, win, "rgb").astype(np.float32) / 255.0)
+                cov = (_grab(vtk, nps, win, "z")[..., 0] < 1.0).astype(np.float64)
+            else:
+                images.append(box_downsample(_grab(vtk, nps, win, "rgb") / 255.0, ss).astype(np.float32))
+                cov = box_downsample(_grab(vtk, nps, win, "z")[..., 0] < 1.0, ss)
+            masks.append(cov.astype(np.float32) if coverage else cov >= 0.5)
     except (RuntimeError, ValueError, TypeError, AttributeError) as exc:  # VTK/GL failures
         raise RenderError(f"render_mesh_cameras: offscreen VTK rendering failed ({exc})") from exc
     finally:
         win.Finalize()
     if not images:
-        return np.zeros((0, H, W, 3), np.float32), np.zeros((0, H, W), bool)
+        return np.zeros((0, H, W, 3), np.float32), np.zeros((0, H, W), np.float32 if coverage else bool)
     return np.stack(images), np.stack(masks)
+
+
+def box_downsample(image: np.ndarray, factor: int) -> np.ndarray:
+    """The float64 mean of each ``factor x factor`` block of ``image`` ((H f, W f) or (H f, W f, C)):
+    the (H, W[, C]) pixel-area average of a picture sampled ``factor`` times finer on each axis."""
+    a = np.asarray(image, dtype=np.float64)
+    f = int(factor)
+    if f < 1 or a.ndim not in (2, 3) or a.shape[0] % f or a.shape[1] % f:
+        raise InputError(f"box_downsample: expected an (H*{f}, W*{f}[, C]) array, found shape {a.shape}")
+    return a.reshape(a.shape[0] // f, f, a.shape[1] // f, f, *a.shape[2:]).mean(axis=(1, 3))
 
 
 def _grab(vtk: Any, nps: Any, win: Any, kind: str) -> np.ndarray:
