@@ -290,3 +290,33 @@ def test_supersampled_mesh_render_matches_the_analytic_coverage_of_an_edge():
     assert err_d4.max() <= 0.25 and err_d4[edge].mean() < 0.07
     assert np.abs(img1[0][inner] - img4[0][inner]).max() < 3 / 255  # an untextured interior is unchanged
     assert not img4[0][exact == 0].any()
+
+
+def test_the_fidelity_bench_replaces_only_partly_covered_pixels_by_their_area_average():
+    """bench/patient_fidelity.py's references side by side: ``ss4rim`` is the 1x render except where the 4x4
+    coverage is strictly between 0 and 1; ``ss4`` the 4x4 render; ``aliased`` the 1x one; one (1x) mask."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "patient_fidelity.py"
+    spec = importlib.util.spec_from_file_location("patient_fidelity_bench", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    rng = np.random.default_rng(1)
+    im1, ims = rng.random((2, 3, 4, 3)), rng.random((2, 3, 4, 3))
+    m1 = rng.random((2, 3, 4)) > 0.5
+    cov = np.array([0.0, 1.0, 0.25, 0.5] * 6).reshape(2, 3, 4)
+
+    def one(v, f, c, i):
+        return im1, m1
+
+    def ss(v, f, c, i):
+        return ims, cov
+
+    img, mask = bench.mesh_references(one, ss)(None, None, None, [0, 1])
+    assert bench.REFERENCES == ("ss4rim", "ss4", "aliased") and img.shape == (2, 3, 12, 3)
+    part = ((cov > 0) & (cov < 1))[..., None]
+    np.testing.assert_array_equal(img[:, :, :4], np.where(part, ims, im1))
+    np.testing.assert_array_equal(img[:, :, 4:8], ims)
+    np.testing.assert_array_equal(img[:, :, 8:], im1)
+    assert mask.dtype == bool and all((mask[:, :, 4 * k:4 * k + 4] == m1).all() for k in range(3))
