@@ -61,7 +61,8 @@ def load_avatar(name: str, asset: Path | None = None) -> tuple[Any, Any, dict[st
 
 
 #: The textured-mesh references the Gaussians are scored against (issue 35, "is the reference right?").
-#: ``aliased``: one VTK sample per pixel centre (the fit's own targets; a hard, aliased silhouette).
+#: ``aliased``: the 1x render (the fit's own targets; VTK's default 8x MSAA: a coarsely anti-aliased edge,
+#: a depth mask sampled per pixel).
 #: ``ss4``: 4x4 sub-samples per pixel box-filtered in sRGB code values (``render_mesh_cameras(...,
 #: supersample=4)``): the pixel-area average; VTK then picks a finer texture mipmap, so the interior
 #: is sharper too. ``ss4rim``: the aliased render with only its partly covered pixels (0 < coverage < 1)
