@@ -400,8 +400,8 @@ class VideoWriter:
     def close(self, end_s: float | None = None) -> Path:
         """Finish the file, check ffmpeg's exit status and the decoded frame count, rename it into place.
 
-        ``end_s``: a timed writer's end time (s): its last frame lasts until then (default: one
-        frame at ``fps``).
+        ``end_s``: a timed writer's end time (s): its last frame lasts until then, at least 2 ms
+        (default: one frame at ``fps``).
 
         Raises
         ------
@@ -416,7 +416,10 @@ class VideoWriter:
             self._held = None
             default = int(round(1000 / self.fps))
             end_ms = t_ms + default if end_s is None or not np.isfinite(end_s) else int(round(1000 * float(end_s)))
-            self._pipe(data, t_ms, max(1, end_ms - t_ms))
+            # >= 2 ms: ffmpeg's decoder takes a last frame lasting 1 time-base unit (1 ms) for a duration the
+            # demuxer made up and holds it for the previous frame's gap instead (fftools' duration estimate):
+            # a session that ended 1 ms after its last frame decoded up to a gap too long (0.1 s under load)
+            self._pipe(data, t_ms, max(2, end_ms - t_ms))
         with _signals_held():
             try:
                 if self._proc is None:

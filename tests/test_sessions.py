@@ -53,6 +53,21 @@ def test_timed_video_holds_each_frame_for_its_time(tmp_path: Path) -> None:
     assert shown == [0, 1, 1, 1, 1, 2, 3, 3, 3, 3]
 
 
+@pytest.mark.parametrize("end_ms", [501, 502, 560])
+def test_timed_video_ends_at_its_end_time_however_short_the_last_frame(tmp_path: Path, end_ms: int) -> None:
+    """A session can end 1 ms after its last frame: ffmpeg's decoder takes a 1 ms last duration (one time-base
+    unit) for a made-up one and holds the frame for the previous gap (0.3 s here) instead. Decoded at 25 fps
+    the video lasts round(end * 25) frames (the fps filter rounds to the nearest frame), +1 ms at most."""
+    f0, f1 = _frames(2, 8, 8)
+    with media.VideoWriter(tmp_path / "e.mkv", 25, timed=True) as w:
+        w.write(f0, t=0.2)
+        w.write(f1, t=0.5)
+        w.close(end_s=end_ms / 1000)
+    at25 = list(media.read_frames(tmp_path / "e.mkv", fps=25))
+    assert len(at25) == round((max(end_ms, 502)) / 40)  # 13 (0.52 s), 14 (0.56 s); not 20 (0.8 s)
+    assert all(np.array_equal(g, f0) for g in at25[:12])  # 0.0-0.48 s (f1, from 0.5 s, is frame 13 on)
+
+
 def test_timed_video_refuses_times_that_do_not_advance(tmp_path: Path) -> None:
     w = media.VideoWriter(tmp_path / "s.mkv", 25, timed=True)
     f = _frames(1)[0]
@@ -154,7 +169,9 @@ def test_live_native_video_is_lossless_and_timed(tmp_path: Path) -> None:
 
     end_s = json.loads((out / "session.json").read_text())["end_s"]  # the session time when it ended
     assert end_s >= max(len(tr["time_s"]) / 25, tr["display_time_s"][-1])
-    assert abs(len(at25) / 25 - end_s) <= 0.04  # the video lasts the session
+    # the video lasts the session: the fps filter rounds its end to the nearest 1/25 s, and the writer's last
+    # frame lasts >= 2 ms (a session ends ~1 ms after its last frame; 1 ms read back as the gap before it)
+    assert abs(len(at25) - 25 * end_s) <= 0.5 + 25 * 0.001 + 1e-9
     t = tr["display_time_s"]
     for i in range(len(t) - 1):
         k = int(round(t[i] * 25))
