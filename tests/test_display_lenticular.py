@@ -99,6 +99,35 @@ def test_nearest_row_kernel_reads_the_index_tables_texels(flags):
             np.testing.assert_array_equal(il(q), want)
 
 
+
+@pytest.mark.parametrize("kernel", ["cpp-scalar", "auto"])
+def test_compiled_row_gather_equals_the_numba_kernel(kernel):
+    """The C++ row gather (AVX-512 where the CPU has it: two permutes for the row's texel offsets, one
+    32-bit gather; rows whose gather could read past the quilt's end run the scalar loop) writes the
+    numba kernel's bytes for every subpixel, random calibrations and the Portrait's, including the
+    rows that read the quilt's last texels; tables pointing outside the quilt are refused."""
+    from holo_viewer.display import lenticular
+
+    cpp = lenticular._gather_cpp()
+    if cpp is None:
+        pytest.skip("the C++ extension holo_viewer.display._slices_cpp is not built")
+    rng = np.random.default_rng(23)
+    for cal in (_random_cal(rng, **FLAGS[1]), _random_cal(rng, **FLAGS[2]), FIX):
+        shape = (cal.quilt_height, cal.quilt_width, 3)
+        il = Interleaver(cal, shape, backend="numba")
+        q = rng.integers(0, 256, shape, dtype=np.uint8)
+        il.row_kernel = "numba"
+        want = il(q).copy()
+        il.row_kernel = kernel
+        np.testing.assert_array_equal(il(q), want)
+        np.testing.assert_array_equal(want, np.take(q.reshape(-1), il._idx0).reshape(il.shape))
+    view8, rowpart, colpart = il._rows
+    src = q.reshape(-1)
+    bad = rowpart.copy()
+    bad[5, :] = src.size  # every view of row 5 past the quilt's end
+    with pytest.raises(ValueError, match="outside src"):
+        cpp.gather_rows(src, view8, bad, colpart, np.empty(il.shape, np.uint8), *view8.shape, rowpart.shape[1], 1, 0)
+
 def test_fixture_full_size_every_subpixel():
     rng = np.random.default_rng(0)
     q = rng.integers(0, 256, (3360, 3360, 3), dtype=np.uint8)

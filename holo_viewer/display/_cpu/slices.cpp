@@ -1,4 +1,5 @@
-// Eye slices -> the native subpixels a tracked viewer's eyes receive (holo_viewer/display/slices.py):
+// Eye slices -> the native subpixels a tracked viewer's eyes receive (holo_viewer/display/slices.py), and the
+// nearest-mode interleave's row gather (holo_viewer/display/lenticular.py, gather_rows below):
 // the same float32 expressions, in the same order, as its numba kernel (the build has
 // -ffp-contract=off, and every clamp is a select with the AVX-512 max/min semantics, NaN -> the
 // bound), so the two agree bit for bit (tested). Nearest mode runs 16 subpixels at a time with
@@ -495,6 +496,98 @@ PyObject* scatter_slices(PyObject*, PyObject* args) {
 }
 
 
+// ---- the nearest-mode interleave (holo_viewer.display.lenticular.Interleaver, "rows" tables) -----
+// out[y, s] = src[rowpart[y, view[y, s]] + colpart[s]]: a byte copy, so any order of reads gives the
+// numba kernel's result bit for bit. AVX-512: 16 subpixels at a time, the row's texel offsets
+// (<= 64 views) looked up in registers (two permutes) instead of memory, then one 32-bit gather of
+// the quilt bytes; a row whose gather could read past the quilt's last byte runs the scalar loop.
+void gather_row_scalar(const uint8_t* src, const uint8_t* vw, const int32_t* rp, const int32_t* colpart,
+                       uint8_t* o, int L, int nv) {
+    for (int s = 0; s < L; ++s) o[s] = src[rp[vw[s] < nv ? vw[s] : 0] + colpart[s]];
+}
+
+#if HV_HAVE_AVX2_PATH
+HV_TARGET_AVX512 void gather_row_avx512(const uint8_t* src, const uint8_t* vw, const int32_t* rp,
+                                        const int32_t* colpart, uint8_t* o, int L, int nv) {
+    alignas(64) int32_t tab[64] = {};
+    for (int i = 0; i < nv; ++i) tab[i] = rp[i];
+    const __m512i t0 = _mm512_load_si512(tab), t1 = _mm512_load_si512(tab + 16);
+    const __m512i t2 = _mm512_load_si512(tab + 32), t3 = _mm512_load_si512(tab + 48);
+    const __m512i bit5 = _mm512_set1_epi32(32);
+    int s = 0;
+    for (; s + 16 <= L; s += 16) {
+        const __m512i v = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(vw + s)));
+        const __m512i lo = _mm512_permutex2var_epi32(t0, v, t1);   // views 0..31 (index bits 0-4)
+        const __m512i hi = _mm512_permutex2var_epi32(t2, v, t3);   // views 32..63
+        const __m512i r = _mm512_mask_mov_epi32(lo, _mm512_test_epi32_mask(v, bit5), hi);
+        const __m512i idx = _mm512_add_epi32(r, _mm512_loadu_si512(colpart + s));
+        const __m512i b = _mm512_i32gather_epi32(idx, reinterpret_cast<const int*>(src), 1);
+        _mm_storeu_si128(reinterpret_cast<__m128i*>(o + s), _mm512_cvtepi32_epi8(b));
+    }
+    gather_row_scalar(src, vw + s, rp, colpart + s, o + s, L - s, nv);
+}
+#endif
+
+PyObject* gather_rows(PyObject*, PyObject* args) {
+    Py_buffer src{}, view{}, rowpart{}, colpart{}, out{};
+    int H, L, nv, n_threads, mode = 0;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*w*iiii|i", &src, &view, &rowpart, &colpart, &out, &H, &L, &nv,
+                          &n_threads, &mode))
+        return nullptr;
+    bool ok = H >= 0 && L >= 0 && nv > 0 && nv <= 256;
+    if (!ok) PyErr_SetString(PyExc_ValueError, "_slices_cpp.gather_rows: expected H, L >= 0 and 0 < views <= 256");
+    ok = ok && need(view, int64_t(H) * L, "view") && need(rowpart, int64_t(H) * nv * 4, "rowpart") &&
+         need(colpart, int64_t(L) * 4, "colpart") && need(out, int64_t(H) * L, "out");
+    const int64_t n_src = src.len;
+    const int32_t* rp_all = (const int32_t*)rowpart.buf;
+    const int32_t* cp = (const int32_t*)colpart.buf;
+    int64_t cmin = 0, cmax = 0;
+    if (ok && L > 0) {
+        cmin = *std::min_element(cp, cp + L);
+        cmax = *std::max_element(cp, cp + L);
+    }
+    // every texel read lies inside src (the tables are the interleaver's own: checked, not trusted)
+    std::vector<uint8_t> wide(size_t(ok ? H : 0), 0);
+#if HV_HAVE_AVX2_PATH
+    const bool avx512 = mode == 0 && nv <= 64 && cpu_has_avx512();
+#else
+    const bool avx512 = false;
+#endif
+    for (int y = 0; ok && y < H && L > 0; ++y) {
+        const int32_t* rp = rp_all + int64_t(y) * nv;
+        const int64_t rmin = *std::min_element(rp, rp + nv), rmax = *std::max_element(rp, rp + nv);
+        ok = rmin + cmin >= 0 && rmax + cmax < n_src;
+        wide[size_t(y)] = avx512 && rmax + cmax + 3 < n_src;  // a 4-byte gather at the last texel
+    }
+    if (!ok && !PyErr_Occurred())
+        PyErr_SetString(PyExc_ValueError, "_slices_cpp.gather_rows: a texel index lies outside src");
+    if (ok && H > 0 && L > 0) {
+        const uint8_t* sp = (const uint8_t*)src.buf;
+        const uint8_t* vp = (const uint8_t*)view.buf;
+        uint8_t* op = (uint8_t*)out.buf;
+        const int chunk = 16;  // rows per work item
+        Py_BEGIN_ALLOW_THREADS
+        parallel_for((H + chunk - 1) / chunk, std::max(1, n_threads), [&](int c) {
+            for (int y = c * chunk; y < std::min(H, c * chunk + chunk); ++y) {
+                const int64_t b = int64_t(y) * L;
+#if HV_HAVE_AVX2_PATH
+                if (wide[size_t(y)]) {
+                    gather_row_avx512(sp, vp + b, rp_all + int64_t(y) * nv, cp, op + b, L, nv);
+                    continue;
+                }
+#endif
+                gather_row_scalar(sp, vp + b, rp_all + int64_t(y) * nv, cp, op + b, L, nv);
+            }
+        });
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&src); PyBuffer_Release(&view); PyBuffer_Release(&rowpart); PyBuffer_Release(&colpart);
+    PyBuffer_Release(&out);
+    if (!ok) return nullptr;
+    Py_RETURN_NONE;
+}
+
+
 PyMethodDef methods[] = {
     {"scatter_slices", scatter_slices, METH_VARARGS,
      "scatter_slices(native, positions, zeta, offsets, tex_row, tex_col, view1, w8, blend, segments, bounds, "
@@ -502,6 +595,10 @@ PyMethodDef methods[] = {
      "holo_viewer.display.slices' numba kernel (the same float32 expressions): the subpixels of the "
      "segments that an eye can receive, warped out of the eyes' slices into native. mode 1: scalar only. "
      "inner < reach: feathered over the fill."},
+    {"gather_rows", gather_rows, METH_VARARGS,
+     "gather_rows(src, view, rowpart, colpart, out, H, L, n_views, n_threads[, mode]) -> None\n\n"
+     "out[y, s] = src[rowpart[y, view[y, s]] + colpart[s]] (uint8; holo_viewer.display.lenticular's numba "
+     "kernel, bit for bit). mode 1: scalar only."},
     {"has_avx512", [](PyObject*, PyObject*) -> PyObject* { return PyBool_FromLong(cpu_has_avx512()); }, METH_NOARGS,
      "True when the CPU runs the AVX-512 path."},
     {nullptr, nullptr, 0, nullptr}};
