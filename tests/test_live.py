@@ -551,3 +551,61 @@ def test_stream_speech_gate_equals_speech_gate():
             want.append((*ref.step(b), ref._prob))
         assert got == want
         assert sum(o for _, o, _ in got) >= 2 and sum(s for s, _, _ in got) > len(got) // 3
+
+
+def test_tracker_sleeps_until_the_next_video_frame(tmp_path, monkeypatch):
+    """Issue 37: between webcam frames the tracker thread sleeps until the next one (a replayed file's next
+    frame time, a webcam's next frame) instead of waking every 3 ms; at most 20 ms (pause, stop). Also
+    VideoReplay.next_time on a real file: the next frame's media time, None after the last."""
+    import imageio.v2 as imageio
+
+    from holo_viewer.live import loop, sources
+    from holo_viewer.live.loop import LiveSession, LiveSessionConfig
+
+    slept, waited = [], []
+    monkeypatch.setattr(loop.time, "sleep", slept.append)
+
+    class Replay:
+        t = None
+
+        def next_time(self):
+            return self.t
+
+    class Cam:
+        def wait_frame(self, timeout):
+            waited.append(timeout)
+
+    s = LiveSession(LiveSessionConfig(out=str(tmp_path / "s")), None, Replay(), clock=lambda: 1.0)
+    for t in (1.015, 5.0, 0.5, None):  # the session clock reads 1.0 s
+        s.video.t = t
+        s._wait_video()
+    s.video = Cam()
+    s._wait_video()
+    s.video = object()  # a source with neither: polled as before
+    s._wait_video()
+    assert slept == pytest.approx([0.015, 0.02, 0.0005, 0.003, 0.003]) and waited == [0.02]
+    monkeypatch.undo()
+    video = tmp_path / "v.mp4"
+    imageio.mimwrite(video, [np.full((32, 32, 3), 40 * i, np.uint8) for i in range(3)], fps=25, macro_block_size=1)
+    v = sources.VideoReplay(video)
+    assert v.next_time() == 0.0
+    assert v.latest(0.05)[0] == pytest.approx(0.04) and v.next_time() == pytest.approx(0.08)
+    assert v.latest(1.0)[0] == pytest.approx(0.08) and v.next_time() is None and v.finished
+
+
+def test_speech_tracker_keeps_only_the_vad_chunks_it_still_reads():
+    """Issue 37: the streamed speech channels forget the silero chunks no later frame reads (the whole list
+    was converted at every pitch block, a cost that grew with the session); the probability and the rows
+    are unchanged (the rows against the offline features: tests/test_reaction_speech.py)."""
+    from holo_viewer.reaction.speech import CHUNK, SpeechTracker, vad_probabilities
+
+    x = (np.random.default_rng(3).normal(0, 0.1, 16000 * 4)).astype(np.float32)
+    tr = SpeechTracker()
+    longest = 0
+    for i in range(0, x.shape[0], 640):
+        tr.push(x[i:i + 640])
+        if (i // 640) % 4 == 3:
+            tr.frames()
+        longest = max(longest, len(tr._chunks))
+    assert longest <= 8 and tr._chunk0 > 100
+    assert tr.vad_probability == pytest.approx(float(vad_probabilities(x[:x.shape[0] // CHUNK * CHUNK])[-1]), abs=1e-6)

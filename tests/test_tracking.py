@@ -49,6 +49,9 @@ def test_head_model_matches_flame_lbs(head, au_map):
     fast = head.points_flame(p)
     ref = head.points_flame_reference(p)
     np.testing.assert_allclose(fast, ref, atol=1e-9)
+    # the model folded into the 68 landmarks (issue 37) = the per-vertex jaw LBS, to rounding
+    for a, b in zip(head._local(p), head._local_vertices(p)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-14)
     m = load_default_model(dtype=torch.float64)
     expr = (p[:, :head.n_au] * au_scales(au_map.names)) @ au_map.matrix
     jaw = np.zeros((6, 3))

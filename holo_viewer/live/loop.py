@@ -253,10 +253,27 @@ class LiveSession:
             d = media_t - self.now()
             if d <= 0:
                 return True
-            time.sleep(min(d, 0.01))
+            # one sleep to the frame (25 fps: <= 40 ms; 50 ms at most, for a pause or stop) instead of 10 ms
+            # steps: each wake-up takes the GIL from the render's thread (issue 37)
+            time.sleep(min(d, 0.05))
         return False
 
     # ------------------------------------------------------------------ tracker thread
+    def _wait_video(self) -> None:
+        """Until the video source may have a new frame: a replayed file's next frame time (``next_time``),
+        a webcam's next frame (``wait_frame``), at most 20 ms (pause, stop); other sources: 3 ms. The
+        tracker thread polled every 3 ms before, ~10 wake-ups a 25 fps frame, each taking the GIL from the
+        render's thread (issue 37)."""
+        nxt = getattr(self.video, "next_time", None)
+        if nxt is not None:
+            t = nxt()
+            d = 0.003 if t is None else t - self.now()
+            time.sleep(min(max(d, 0.0005), 0.02))
+        elif hasattr(self.video, "wait_frame"):
+            self.video.wait_frame(0.02)
+        else:
+            time.sleep(0.003)
+
     def _tracker_loop(self) -> None:
         from ..tracking.viewer import ViewerTracker, ViewerTrackerConfig
 
@@ -275,7 +292,7 @@ class LiveSession:
                 if item is None or item[0] == last_t:
                     if self.video.finished and item is not None and item[0] == last_t:
                         break
-                    time.sleep(0.003)
+                    self._wait_video()
                     continue
                 last_t, frame = item
                 if last_tracked is not None and last_t - last_tracked < min_dt - 1e-6:  # track_fps

@@ -186,6 +186,11 @@ class VideoReplay:
                 self.status = f"video ended: {exc}"
         return self._cur
 
+    def next_time(self) -> float | None:
+        """Media time of the next frame (None: no more frames): the tracker sleeps until then instead of
+        polling ``latest`` (issue 37)."""
+        return None if self._next is None else self._next[0]
+
     def stop(self) -> None:
         self._it = None
 
@@ -211,6 +216,7 @@ class Webcam:
         self._lock = threading.Lock()
         self._cur: tuple[float, np.ndarray] | None = None
         self._stop = threading.Event()
+        self._new = threading.Event()  # set by each frame read: wait_frame() returns then
         self._thread = threading.Thread(target=self._run, name="webcam", daemon=True)
         self._t0 = time.perf_counter()
         self.status = "ok"
@@ -231,6 +237,7 @@ class Webcam:
             rgb = self._cv2.cvtColor(frame, self._cv2.COLOR_BGR2RGB)
             with self._lock:
                 self._cur = (time.perf_counter() - self._t0, rgb)
+            self._new.set()
 
     def start(self) -> None:
         self._t0 = time.perf_counter()
@@ -238,7 +245,13 @@ class Webcam:
 
     def latest(self, t: float) -> tuple[float, np.ndarray] | None:
         with self._lock:
+            self._new.clear()
             return self._cur
+
+    def wait_frame(self, timeout: float) -> None:
+        """Return when a frame newer than the last ``latest`` arrives, or after ``timeout`` seconds (the
+        tracker waits here instead of polling ``latest``; issue 37)."""
+        self._new.wait(timeout)
 
     def stop(self) -> None:
         self._stop.set()

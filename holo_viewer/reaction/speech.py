@@ -370,7 +370,8 @@ class SpeechTracker:
         self._vad_model.reset_states()
         self._audio = np.zeros(0, np.float32)
         self._start = 0  # global index of self._audio[0]
-        self._chunks: list[float] = []
+        self._chunks: list[float] = []  # VAD probabilities of chunks self._chunk0, self._chunk0 + 1, ...
+        self._chunk0 = 0
         self._chunk_done = 0  # samples fed to the VAD
         self.state = SpeechState()
 
@@ -403,7 +404,13 @@ class SpeechTracker:
             return np.zeros((0, N_SPEECH_FEATURES), np.float32)
         keep = int(STREAM_PITCH_S * SAMPLE_RATE) + ENERGY_WINDOW
         end = HOP * (first + n)
-        vad = _frame_vad(np.asarray(self._chunks, np.float32), n, first)
+        vad = _frame_vad(np.asarray(self._chunks, np.float32), n, first, self._chunk0)
+        # forget the chunks before the first one the next block reads (the last one stays: vad_probability);
+        # the whole list was converted at every block before, a cost that grew with the session (issue 37)
+        need = min((HOP * (first + n + 1)) // CHUNK - 1, self._chunk0 + len(self._chunks) - 1)
+        if need > self._chunk0:
+            del self._chunks[:need - self._chunk0]
+            self._chunk0 = need
         energy = self._energy(first, n)
         f0 = block_pitch(self._audio, n, first, self._start)
         rows = _recurrences(vad, energy, f0, self.state)

@@ -35,7 +35,9 @@ def iter_video_frames(path: str | os.PathLike) -> Iterator[tuple[float, np.ndarr
     if not p.is_file():
         raise TrackingError(f"{p}: video file not found")
     try:
-        reader = imageio.get_reader(os.fspath(p), format="FFMPEG")
+        # one decoder thread: ffmpeg's default frame threads cost ~25 % more CPU on a 480x360 clip (the live
+        # loop's replayed webcam beside the render; issue 37); the frames are the same
+        reader = imageio.get_reader(os.fspath(p), format="FFMPEG", input_params=["-threads", "1"])
     except (OSError, ValueError, RuntimeError) as exc:
         raise TrackingError(f"{p}: cannot open the video ({exc})") from exc
     try:
