@@ -23,10 +23,7 @@ decoder) from the second displayed frame to the last, start-up excluded (:class:
 ``timeline``: the cores each kept busy during the render calls and between them, and the idle ones
 (:func:`busy_timeline`); ``render_call_main_thread``: each render call's wall time on the main thread
 split into on a CPU, waiting for one and blocked (the GIL, the render's workers; :class:`SchedTimes`).
-``--ab`` runs one frame in flight (``ab_before``), the same with ``--sched-b``'s scheduling (``ab_sched``:
-the session video's encoder and the tracker nicer, Python's switch interval), the same with the next
-frame's deformation done ahead (``ab_deform_ahead``, ``LiveSessionConfig.deform_ahead``; its
-``render_ms`` is the drawing alone) and two in flight (``ab_after``).
+``--ab`` runs one frame in flight (``ab_before``) and two in flight (``ab_after``), one after the other.
 
 Reported per run: speech-onset -> display latency (median, p95; an onset is the first 25 fps frame
 whose RMS exceeds -35 dBFS after >= 0.3 s below it; a displayed frame reflects it when the reaction
@@ -355,9 +352,7 @@ def pct(x, q):
 
 def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: str = "auto",
                 record: bool = False, in_flight: int | None = None, render_threads: int | None = None,
-                threads_in_flight: int | None = None, visible_only: bool = True,
-                recording_nice: int | None = None, tracker_nice: int | None = None,
-                switch_interval_s: float | None = None, deform_ahead: bool | None = None) -> dict:
+                threads_in_flight: int | None = None, visible_only: bool = True) -> dict:
     """One replayed session; ``record``: the session writes its native video too (as ``live`` does);
     ``in_flight``: ``LiveSessionConfig.frames_in_flight`` (None: the default), ``render_threads``: the
     renderer's threads (None: all cores), ``threads_in_flight``: each renderer's threads once frames are in
@@ -373,11 +368,7 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     t_start = time.perf_counter()
     cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=record, flush_s=60.0,
                             render_threads_in_flight=threads_in_flight,
-                            **({"frames_in_flight": int(in_flight)} if in_flight is not None else {}),
-                            **({"recording_nice": int(recording_nice)} if recording_nice is not None else {}),
-                            **({"tracker_nice": int(tracker_nice)} if tracker_nice is not None else {}),
-                            **({"switch_interval_s": switch_interval_s} if switch_interval_s is not None else {}),
-                            **({"deform_ahead": bool(deform_ahead)} if deform_ahead is not None else {}))
+                            **({"frames_in_flight": int(in_flight)} if in_flight is not None else {}))
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
     renderer = LiveAvatarRenderer(tile_scale=tile_scale, mode=mode, render_threads=render_threads,
                                   visible_only=visible_only) if render else None  # True: as `holo-viewer live`
@@ -444,9 +435,6 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     return {**timing,
         "render": render, "tile_scale": tile_scale, "render_mode": mode, "wall_s": round(wall, 2), "frames": n,
         "viewer_fps": cfg.viewer_fps, "shared_vad": session._speech_gate.shares_vad,
-        "recording_nice": cfg.recording_nice, "tracker_nice": cfg.tracker_nice,
-        "switch_interval_s": cfg.switch_interval_s, "deform_ahead": cfg.deform_ahead,
-        "deformed_ahead": summary.get("deformed_ahead"),
         "frames_in_flight_asked": cfg.frames_in_flight,
         "viewer_updates": session.viewer_updates,
         "tracker_cpu_ms_median": pct(session.tracker_cpu_ms, 50),
@@ -579,11 +567,6 @@ def main() -> int:
                     "in flight instead of the cores over the frames in flight (row ab_threads_all)")
     ap.add_argument("--ab-visible", action="store_true", help="also every Gaussian drawn (A) against the "
                     "visible ones only (B, the default), one after the other (rows ab_visible)")
-    ap.add_argument("--sched-b", type=float, nargs=3, default=(19, 5, 1.0),
-                    metavar=("RECORDING_NICE", "TRACKER_NICE", "SWITCH_MS"),
-                    help="--ab's scheduling row (ab_sched, one frame in flight, run between A and B): the session "
-                    "video's encoder and the tracker thread this much nicer than the session, Python's switch "
-                    "interval in ms (default 19 5 1.0; A has the loop's defaults)")
     ap.add_argument("--startup-only", action="store_true", help="only the start-up runs: the live command's first "
                     "frame cold (empty kernel cache) and warm, and its quit time")
     args = ap.parse_args()
@@ -629,16 +612,11 @@ def main() -> int:
                                     record=render, **kw))
         # the same again in this process: the renderer's tables and kernels are warm (first frame, warm)
         warm = run_session(files, Path(tmp) / "s2", True, args.tile_scale, args.render_mode, record=True, **kw)
-        # --ab, paired, one after the other: one frame in flight (A, ab_before), the same with --sched-b's
-        # scheduling (ab_sched), the same with the next frame deformed ahead (ab_deform_ahead), then
-        # --in-flight frames (B, ab_after, default 2)
-        sb = args.sched_b
-        extra = [{}, {"recording_nice": int(sb[0]), "tracker_nice": int(sb[1]), "switch_interval_s": sb[2] / 1000.0},
-                 {"deform_ahead": True}, {}]
+        # --ab, paired, one after the other: one frame in flight (A, ab_before), then --in-flight frames (B,
+        # ab_after, default 2)
         ab = [run_session(files, Path(tmp) / f"ab{i}", True, args.tile_scale, args.render_mode, record=True,
-                          in_flight=n, render_threads=args.render_threads, **extra[i])
-              for i, n in enumerate((1, 1, 1, args.in_flight or 2))] if args.ab else None
-        ab_sched, ab_ahead = (ab.pop(1), ab.pop(1)) if ab else (None, None)
+                          in_flight=n, render_threads=args.render_threads)
+              for i, n in enumerate((1, args.in_flight or 2))] if args.ab else None
         ab_threads = run_session(files, Path(tmp) / "abt", True, args.tile_scale, args.render_mode, record=True,
                                  in_flight=args.in_flight, render_threads=args.render_threads,
                                  threads_in_flight=os.cpu_count()) if args.ab_threads else None
@@ -658,11 +636,7 @@ def main() -> int:
     print(f"reaction ms/window, render vs no-render: x{ratio:.2f}")
     named = [("cold", full), ("warm", warm)] + ([("1 in flight (A)", ab[0]), (f"{args.in_flight or 2} in flight (B)", ab[1])] if ab else []) + \
         ([("all cores per renderer in flight", ab_threads)] if ab_threads else []) + \
-        ([("every Gaussian (A)", abv[0]), ("visible Gaussians (B)", abv[1])] if abv else []) + \
-        ([(f"1 in flight, recording nice {ab_sched['recording_nice']}, tracker nice {ab_sched['tracker_nice']}, "
-           f"switch interval {ab_sched['switch_interval_s']} s (ab_sched)", ab_sched),
-          (f"1 in flight, the next frame deformed ahead (ab_deform_ahead; used / discarded "
-           f"{ab_ahead['deformed_ahead']})", ab_ahead)] if ab_sched else [])
+        ([("every Gaussian (A)", abv[0]), ("visible Gaussians (B)", abv[1])] if abv else [])
     for name, row in named:
         print(f"{name}: {row['displayed_fps']} displayed fps with recording (load {row['load_1min_start']} -> "
               f"{row['load_1min_end']}), render {row['render_ms_median']} ms, visible change "
@@ -694,7 +668,7 @@ def main() -> int:
               f"(growth {rss['rss_growth_mb']} MB), late windows {rss['late_reaction_windows']}/{rss['reaction_windows']}")
     result = {"config": vars(args), "load_average": load, "cores": os.cpu_count(), "no_render": base, "render": full,
               "render_warm": warm, "ab_before": ab[0] if ab else None, "ab_after": ab[1] if ab else None,
-              "ab_threads_all": ab_threads, "ab_visible": abv, "ab_sched": ab_sched, "ab_deform_ahead": ab_ahead,
+              "ab_threads_all": ab_threads, "ab_visible": abv,
               "startup": startup,
               "reaction_window_ratio_render_vs_baseline": round(ratio, 2), "fit": fit, "rss": rss}
     if args.json:

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DeformAhead", "FramesInFlight", "RenderJob"]
+__all__ = ["FramesInFlight", "RenderJob"]
 
 
 class RenderJob:
@@ -247,96 +247,3 @@ class FramesInFlight:
         for w in workers:
             w.thread.join(max(0.0, deadline - time.perf_counter()))
         self._pending.clear()
-
-
-class DeformAhead:
-    """With one frame in flight, the next frame's deformation (``renderer.deform``: FLAME, the Gaussians
-    bound to it; ~10 ms of mostly serial CPU) runs in a thread of its own near the end of this frame's
-    render, on the core the render's serial steps leave idle (issue 37).
-
-    The caller (the live loop's thread) :meth:`arm` s it when it starts a frame with ``due``: when to take the
-    newest listener item (``newest()``) and deform it: about the median render time less the median
-    deformation after the start, so it finishes as the render does and the item is at most a few ms older
-    than one taken after the render. :meth:`collect` before the next frame: a deformation not yet begun is
-    cancelled, one under way waited for; it gives ``(item, deformed)`` or None. Only one thread uses the
-    renderer's pipeline at a time: the caller deforms itself only between :meth:`collect` and :meth:`arm`,
-    and the renderer draws without touching it (:attr:`~holo_viewer.live.render.LiveAvatarRenderer.deforms_apart`).
-    """
-
-    def __init__(self, renderer: Any, newest: Any, args: Any = lambda item: item[1:4]) -> None:
-        self.renderer = renderer
-        self._newest = newest
-        #: the item -> ``renderer.deform``'s arguments (listener, pain, named) the caller renders it with
-        self._args = args
-        self._cv = threading.Condition()
-        self._due: float | None = None  # perf_counter time to start at; None: not armed
-        self._after: Any = None  # only items newer than this frame index
-        self._busy = False
-        self._result: tuple[Any, Any] | None = None
-        self._error: BaseException | None = None
-        self._stop = False
-        #: wall seconds of the last deformations (here and the caller's)
-        self.seconds: deque[float] = deque(maxlen=9)
-        self.used = self.discarded = 0
-        self._thread = threading.Thread(target=self._run, name="deform-ahead", daemon=True)
-        self._thread.start()
-
-    def deform(self, item: Any) -> Any:
-        """``renderer.deform`` of a listener item ``(frame, listener, pain, named, ...)``, timed."""
-        t0 = time.perf_counter()
-        g = self.renderer.deform(*self._args(item))
-        self.seconds.append(time.perf_counter() - t0)
-        return g
-
-    def arm(self, due: float, after: Any) -> None:
-        """Deform the newest item whose frame index is greater than ``after`` from ``due`` (perf_counter) on."""
-        with self._cv:
-            self._due, self._after, self._result = due, after, None
-            self._cv.notify_all()
-
-    def collect(self) -> tuple[Any, Any] | None:
-        """``(item, deformed)`` of the armed deformation if it ran (waited for if under way; cancelled if not
-        begun: None); its error raised here."""
-        with self._cv:
-            self._due = None
-            while self._busy:
-                self._cv.wait()
-            res, self._result = self._result, None
-            err, self._error = self._error, None
-        if err is not None:
-            raise err
-        return res
-
-    def close(self) -> None:
-        with self._cv:
-            self._stop = True
-            self._due = None
-            self._cv.notify_all()
-        self._thread.join(5.0)
-
-    def _run(self) -> None:
-        while True:
-            with self._cv:
-                while not self._stop and self._due is None:
-                    self._cv.wait()
-                if self._stop:
-                    return
-                wait = self._due - time.perf_counter()
-                if wait > 0:
-                    self._cv.wait(min(wait, 0.005))
-                    continue  # re-check: cancelled, re-armed or due
-                item = self._newest()
-                if item is None or (self._after is not None and item[0] <= self._after):
-                    self._cv.wait(0.003)  # no newer listener frame yet
-                    continue
-                self._due = None
-                self._busy = True
-            try:
-                res = (item, self.deform(item))
-                err = None
-            except BaseException as exc:  # noqa: BLE001 - raised by collect() in the caller's thread
-                res, err = None, exc
-            with self._cv:
-                self._result, self._error = res, err
-                self._busy = False
-                self._cv.notify_all()

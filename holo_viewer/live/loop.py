@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import signal
 import threading
 import time
@@ -95,23 +94,6 @@ class LiveSessionConfig:
     frames_in_flight: int = 1
     #: each renderer's threads while frames are in flight (None: the cores over frames_in_flight, at least 1)
     render_threads_in_flight: int | None = None
-    #: how much nicer than the session the session video's encoder (x264, an ffmpeg child) runs: it should
-    #: fill the cores' idle gaps (the render's serial steps) instead of taking a core from the render's
-    #: threads (issue 37, docs/live.md "Measured latency"); 0..19
-    recording_nice: int = SESSION_VIDEO_NICE
-    #: how much nicer than the session the tracker thread runs (Linux: a thread's own nice value; 0: as the
-    #: session). The reaction thread's 25 fps clock always keeps the session's priority
-    tracker_nice: int = 0
-    #: Python's thread switch interval during the session (``sys.setswitchinterval``; None: left as it is,
-    #: 5 ms by default). The render's thread gives up the GIL for each native kernel and waits for it back
-    #: after each; while the tracker or reaction thread runs Python it waits up to the interval (issue 37,
-    #: docs/live.md "Measured latency"). Restored when the session ends
-    switch_interval_s: float | None = None
-    #: with one frame in flight, deform the next frame's avatar in a thread of its own near the end of this
-    #: frame's render (holo_viewer.live.inflight.DeformAhead: off the render's critical path, on the core its
-    #: serial steps leave idle); the frame shown is then at most one listener frame (40 ms) older than the
-    #: newest. CPU group / all_views frames without a preview only (LiveAvatarRenderer.deforms_apart)
-    deform_ahead: bool = False
     scenario: Any = None
     #: the no-data behaviour layers (a holo_viewer.behaviour.BehaviourConfig; "default": all on, seeded
     #: by ``seed``; None: the reaction model alone, conditioned on the pain level)
@@ -124,14 +106,6 @@ class LiveSessionConfig:
         if isinstance(self.frames_in_flight, bool) or not isinstance(self.frames_in_flight, int) or \
                 self.frames_in_flight < 1:
             raise InputError(f"frames_in_flight: expected an integer >= 1, found {self.frames_in_flight!r}")
-        for name in ("recording_nice", "tracker_nice"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 19:
-                raise InputError(f"{name}: expected an integer 0..19, found {v!r}")
-        si = self.switch_interval_s
-        if si is not None and not (isinstance(si, (int, float)) and not isinstance(si, bool) and math.isfinite(si)
-                                   and 1e-5 <= si <= 0.1):
-            raise InputError(f"switch_interval_s: expected seconds in 1e-5..0.1 or None, found {si!r}")
         for name in ("track_fps", "viewer_fps"):
             f = getattr(self, name)
             if f is not None and not (isinstance(f, (int, float)) and math.isfinite(f) and f > 0):
@@ -147,17 +121,6 @@ def speech_gate(stream: Any) -> Any:
 
     tracker = getattr(stream, "_speech", None)
     return SpeechGate(vad=tracker if isinstance(tracker, SpeechTracker) else None)
-
-
-def _nice_this_thread(n: int) -> None:
-    """Make the calling thread ``n`` nicer than it is (Linux: each thread has its own nice value; elsewhere,
-    or where it is not permitted, nothing)."""
-    if n and hasattr(os, "setpriority"):
-        import contextlib
-
-        tid = threading.get_native_id()
-        with contextlib.suppress(OSError):
-            os.setpriority(os.PRIO_PROCESS, tid, min(19, os.getpriority(os.PRIO_PROCESS, tid) + int(n)))
 
 
 class _Slot:
@@ -227,8 +190,6 @@ class LiveSession:
         self._speech_gate = None
         #: the renderers of run() (holo_viewer.live.inflight.FramesInFlight; None without a renderer)
         self.frames_in_flight = None
-        #: run()'s holo_viewer.live.inflight.DeformAhead (None: the render deforms each frame itself)
-        self.deform_ahead = None
         #: called with a line for each start-up step (the live command prints it and shows it on the preview)
         self.progress: Callable[[str], None] = lambda line: None
 
@@ -283,7 +244,6 @@ class LiveSession:
         min_dt = 0.0 if self.config.track_fps is None else 1.0 / float(self.config.track_fps)
         full_dt = 0.0 if self.config.viewer_fps is None else 1.0 / float(self.config.viewer_fps)
         faces_seen = 0  # faces of the last frame that looked at every face
-        _nice_this_thread(self.config.tracker_nice)
         try:
             while not self._stop.is_set():
                 if self.controls.take_recentre():
@@ -449,9 +409,7 @@ class LiveSession:
                 "late_reaction_window_max_ms": round(self.late_ms_max, 1),
                 "late_reaction_ticks": self.late_ticks, "reaction_windows": len(self.window_ms),
                 "displayed_frames": len(self.render_ms), "status": dict(self.status),
-                **({"frames_in_flight": self.frames_in_flight.n} if self.frames_in_flight is not None else {}),
-                **({"deformed_ahead": {"used": self.deform_ahead.used, "discarded": self.deform_ahead.discarded}}
-                   if self.deform_ahead is not None else {})}
+                **({"frames_in_flight": self.frames_in_flight.n} if self.frames_in_flight is not None else {})}
 
     def _log_pain(self, t: float, level: float) -> None:
         """Record an instructor level change (the session report's pain timeline, the shared schema)."""
@@ -523,14 +481,6 @@ class LiveSession:
             if "render" in header:
                 header["render"]["frames_in_flight"] = frames.n  # the frames are the same for any n (tested)
         self.frames_in_flight = frames
-        ahead = None
-        if cfg.deform_ahead and frames is not None and not frames.threaded and getattr(renderer, "deforms_apart", False):
-            from .inflight import DeformAhead
-
-            # the pain the frames render with: the behaviour layers put it in the expressions already
-            ahead = DeformAhead(renderer, self._listener.get,
-                                lambda it: (it[1], it[2] if self._behaviour is None else 0.0, it[3]))
-        self.deform_ahead = ahead
         if self.video is not None and self.synthetic is None:
             from ..tracking.tracker import FaceTracker, TrackerConfig
             from ..tracking.viewer import WebcamMount
@@ -562,11 +512,6 @@ class LiveSession:
         old_sigint = None
         if threading.current_thread() is threading.main_thread():
             old_sigint = signal.signal(signal.SIGINT, lambda signum, frame: interrupted.set())
-        import sys
-
-        old_switch = sys.getswitchinterval()
-        if cfg.switch_interval_s is not None:
-            sys.setswitchinterval(float(cfg.switch_interval_s))
         try:
             while not self._stop.is_set():
                 if interrupted.is_set():
@@ -587,17 +532,6 @@ class LiveSession:
                 if new and (frames is None or (frames.can_submit() and (
                         cfg.frames is None or frames_shown + frames.in_flight < cfg.frames))):
                     kwargs: dict = {}
-                    if ahead is not None:  # the deformation done ahead, if its listener frame is new enough
-                        pre = ahead.collect()
-                        if pre is not None and submitted < pre[0][0] and pre[0][0] >= item[0] - 1:
-                            item, kwargs["deformed"] = pre
-                            ahead.used += 1
-                        else:
-                            ahead.discarded += pre is not None
-                            kwargs["deformed"] = ahead.deform(item)
-                        draw = float(np.median(self.render_ms[-9:])) / 1000.0 if self.render_ms else 0.0
-                        lead = float(np.median(ahead.seconds)) + 0.005
-                        ahead.arm(time.perf_counter() + max(0.0, draw - lead), after=item[0])
                     frame, lf, pain, named, _ready = item
                     ang, dist, tracked = self._render_pose()
                     submitted = frame
@@ -635,7 +569,7 @@ class LiveSession:
                     if writer is None:  # lossless RGB, timed Matroska; verified and renamed on close
                         writer = ThreadedWriter(VideoWriter(
                             out / NATIVE_VIDEO, cfg.video_fps, content="lossless", timed=True,
-                            output_params=SESSION_VIDEO_PARAMS, what="session video", nice=cfg.recording_nice))
+                            output_params=SESSION_VIDEO_PARAMS, what="session video", nice=SESSION_VIDEO_NICE))
                     # handed to the writer's thread (RenderedFrame.native is the frame's own array):
                     # piping it to ffmpeg overlaps the next render
                     writer.write(res.native, t=t_shown)
@@ -660,10 +594,7 @@ class LiveSession:
         finally:
             if old_sigint is not None:
                 signal.signal(signal.SIGINT, old_sigint)
-            sys.setswitchinterval(old_switch)
             self._stop.set()
-            if ahead is not None:
-                ahead.close()
             if frames is not None:
                 frames.close()  # the render threads finish the frame they render; it is not shown
                 if frames.twin_error is not None:  # the session ran on the renderers it had: say why

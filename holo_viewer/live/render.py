@@ -292,18 +292,9 @@ class LiveAvatarRenderer:
             c = self._live.config
             self._live.config = dataclasses.replace(c, render=dataclasses.replace(c.render, num_threads=n))
 
-    @property
-    def deforms_apart(self) -> bool:
-        """The frame's deformation may run in another thread ahead of :meth:`render` (:meth:`deform`, then
-        ``render(..., deformed=...)``): frames that read nothing of the pipeline but its Gaussians (a CPU
-        frame mode, no preview). The live loop deforms the next frame while this one renders
-        (``LiveSessionConfig.deform_ahead``)."""
-        return self._live is not None and not self.preview_enabled and self.backend == "fast"
-
     def deform(self, listener: Mapping[str, np.ndarray], pain: float, named: tuple[tuple[str, float], ...]) -> Any:
-        """The deformed Gaussians of one listener frame (the first step of :meth:`render`), for
-        ``render(..., deformed=...)``: the same frame, bit-identical, as ``render`` deforming it itself
-        (tested). Not at the same time as :meth:`render` without ``deformed`` (one pipeline)."""
+        """The deformed Gaussians of one listener frame (the first step of :meth:`render`; its own stage in
+        ``bench/live_stages.py``). Not at the same time as :meth:`render` (one pipeline)."""
         from ..pipeline import FaceControls
 
         p = self.pipeline
@@ -316,24 +307,16 @@ class LiveAvatarRenderer:
 
     def render(self, listener: Mapping[str, np.ndarray], pain: float, named: tuple[tuple[str, float], ...],
                viewer_angle_deg: float, viewer_distance_m: float, viewer_tracked: bool = True,
-               others: tuple[tuple[float, float], ...] = (), deformed: Any = None) -> RenderedFrame:
+               others: tuple[tuple[float, float], ...] = ()) -> RenderedFrame:
         """One frame: FLAME arrays of one listener frame (``expr``, ``jaw_pose``, ``rotation``, ...).
         ``viewer_tracked``: a face is tracked (mode ``auto`` adds exact images for its eyes to every
         view); ``others``: the (angle, distance) of the other faces seen
-        (:attr:`holo_viewer.tracking.viewer.ViewerPose.others`), served too by group frames (up to 6 in all).
-        ``deformed``: :meth:`deform` of these ``listener``, ``pain`` and ``named``, done ahead (only where
-        :attr:`deforms_apart`); ``seconds`` then counts the drawing alone."""
+        (:attr:`holo_viewer.tracking.viewer.ViewerPose.others`), served too by group frames (up to 6 in all)."""
         import time
 
         t0 = time.perf_counter()
         p = self.pipeline
-        if deformed is None:
-            deformed = self.deform(listener, pain, named)
-        elif not self.deforms_apart:
-            from ..errors import InputError
-
-            raise InputError("deformed: this renderer reads the pipeline's face (preview, cone or gsplat); "
-                             "expected None, found Gaussians deformed ahead")
+        deformed = self.deform(listener, pain, named)
         angle = float(np.clip(viewer_angle_deg, -60, 60))
         distance = float(np.clip(viewer_distance_m, 0.05, 20.0))
         native = None
