@@ -27,10 +27,16 @@ Codec policy (:data:`CODECS`, one ``content`` per writer):
   multiple of ``macro_block_size`` 8.
 * ``"watchable"``: quilt videos of batch renders (what players and Looking Glass tools expect):
   libx264 yuv420p, crf 18, veryfast; odd sides padded by an edge row / column.
+* ``"lossless-fast"``: bit-exact like ``"lossless"`` for ~50-70 % of its encoder CPU and 2-2.8x its disk: FFVHuff
+  (Huffman-coded left prediction, every frame on its own), packed RGB. The live session's video with
+  ``live --native-codec ffvhuff`` (issue 37: ~12-16 ms less CPU a displayed frame expected on 2 quiet cores).
 
 The lossless preset is ``ultrafast``: on 2048x1536 session frames slower presets save 16 % of the
 size for 3x the encoder's CPU and FFV1 3 % for 1.7x (``bench/session_codecs.py``, docs/live.md),
-and on a 2-core machine the live render needs that CPU. :func:`encoder_flags` gives the policy's
+and on a 2-core machine the live render needs that CPU. Re-laying a native image's subpixels by view
+before encoding (each view's together, from the calibration's lens model: quilt-like content) was
+measured too and does not pay: 1-2 % smaller, the same encoder CPU, plus ~10 ms of CPU a frame for the
+permutation (issue 37, docs/live.md). :func:`encoder_flags` gives the policy's
 flags to the one writer that drives ffmpeg itself (``batch/video.py``'s in-memory segments).
 
 **Timed** writers (``timed=True``; live session videos, ``.mkv``) record each frame once with its
@@ -73,6 +79,8 @@ CODECS: dict[str, dict[str, Any]] = {
                 "output_params": ()},
     "watchable": {"codec": "libx264", "pixelformat": "yuv420p", "quality": None, "macro_block_size": 1,
                   "output_params": ("-preset", "veryfast", "-crf", "18")},
+    "lossless-fast": {"codec": "ffvhuff", "pixelformat": "rgb24", "quality": None, "macro_block_size": 1,
+                      "output_params": ("-pred", "left")},
 }
 
 
@@ -230,7 +238,7 @@ class VideoWriter:
         Target file (``.mkv``, ``.mp4``, ``.mov``).
     fps : float
         Frames per second (> 0, finite); a timed writer's nominal rate (its frames carry their times).
-    content : {"lossless", "preview"}
+    content : {"lossless", "lossless-fast", "preview", "watchable"}
         The codec policy (:data:`CODECS`): its codec, pixel format, quality, macro block size and
         flags, each overridden by the keyword of that name when given.
     codec : str, optional

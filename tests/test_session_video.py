@@ -33,3 +33,42 @@ def test_timed_writer_holds_handed_over_frames_and_copies_the_others(tmp_path: P
     for name in ("kept.mkv", "copied.mkv"):
         got = list(media.read_frames(tmp_path / name))
         assert len(got) == 3 and all(np.array_equal(a, b) for a, b in zip(got, frames)), name
+
+
+def _video_codec(path: Path) -> str:
+    """The codec ffmpeg names for the file's video stream."""
+    import re
+    import subprocess
+
+    err = subprocess.run([media.ffmpeg_exe(), "-hide_banner", "-i", str(path)], capture_output=True, text=True).stderr
+    return re.search(r"Video: (\w+)", err).group(1)
+
+
+def test_lossless_fast_timed_video_is_bit_exact_and_timed(tmp_path: Path) -> None:
+    """``content="lossless-fast"`` (FFVHuff, ``live --native-codec ffvhuff``): every frame back bit-exact, odd
+    sides included, held for its time like the x264 session video (frame round(t * 25) at 25 fps)."""
+    rng = np.random.default_rng(5)
+    frames = [rng.integers(0, 256, (23, 37, 3), dtype=np.uint8) for _ in range(3)]
+    with media.VideoWriter(tmp_path / "f.mkv", 10, content="lossless-fast", timed=True,
+                           output_params=(*media.CODECS["lossless-fast"]["output_params"], "-threads", "1")) as w:
+        for f, t in zip(frames, (0.0, 0.12, 0.2)):
+            w.write(f, t=t)
+        w.close(end_s=0.4)
+    assert _video_codec(tmp_path / "f.mkv") == "ffvhuff"
+    got = list(media.read_frames(tmp_path / "f.mkv"))
+    assert len(got) == 3 and all(np.array_equal(a, b) for a, b in zip(got, frames))
+    at25 = list(media.read_frames(tmp_path / "f.mkv", fps=25))
+    assert len(at25) == 10
+    shown = [next(i for i, f in enumerate(frames) if np.array_equal(g, f)) for g in at25]
+    assert shown == [0, 0, 0, 1, 1, 2, 2, 2, 2, 2]
+
+
+def test_native_codec_is_checked() -> None:
+    import pytest
+
+    from holo_viewer.errors import InputError
+    from holo_viewer.live.loop import SESSION_VIDEO_CODECS, LiveSessionConfig
+
+    assert set(SESSION_VIDEO_CODECS) == {"x264", "ffvhuff"} and LiveSessionConfig().native_codec == "x264"
+    with pytest.raises(InputError, match="native_codec: expected one of .*'ffvhuff'.*found 'h265'"):
+        LiveSessionConfig(native_codec="h265")

@@ -153,13 +153,20 @@ def _tracks(folder: Path) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
-def test_live_native_video_is_lossless_and_timed(tmp_path: Path) -> None:
+@pytest.mark.parametrize("codec", ["x264", "ffvhuff"])
+def test_live_native_video_is_lossless_and_timed(tmp_path: Path, codec: str) -> None:
     """Every displayed native frame decodes bit-exact from native.mkv, held on screen until the next one:
-    decoded at 25 fps, frame round(t * 25) is the one displayed at session time t."""
+    decoded at 25 fps, frame round(t * 25) is the one displayed at session time t; with either
+    ``--native-codec``."""
     renderer = _NoiseRenderer()
-    session = _session(tmp_path, 1.0)
+    session = _session(tmp_path, 1.0, native_codec=codec)
     session.run(renderer)
     out = tmp_path / "s"
+    import subprocess
+
+    err = subprocess.run([media.ffmpeg_exe(), "-hide_banner", "-i", str(out / "native.mkv")], capture_output=True,
+                         text=True).stderr
+    assert f"Video: {'h264' if codec == 'x264' else 'ffvhuff'} " in err  # the codec asked for
     tr = _tracks(out)
     stored = list(media.read_frames(out / "native.mkv"))
     assert len(stored) == len(renderer.natives) - 1 == len(tr["display_time_s"]) >= 2  # -1: the warm-up call

@@ -68,6 +68,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      "frame is stored once with the time it was shown; default 10)")
     out.add_argument("--record-video", action="store_true", help="also keep the webcam video (off by default: "
                      "trainees' faces are private)")
+    out.add_argument("--native-codec", choices=("x264", "ffvhuff"), default="x264",
+                     help="native.mkv's lossless codec: x264 (default, the smallest file) or ffvhuff (bit-exact too, "
+                     "~50-70%% of x264's encoder CPU for 2-2.8x the disk: CPU the 2-core live render can use)")
     ctl = parser.add_argument_group("patient")
     from .avatar_args import add_avatar_argument
 
@@ -182,7 +185,7 @@ def _run(args: argparse.Namespace, mount: object, scenario: object, precompile: 
                                predict_viewer=not args.no_viewer_prediction, track_fps=args.track_fps,
                                frames_in_flight=args.frames_in_flight,
                                scenario=scenario,
-                               max_seconds=args.seconds, settings=settings,
+                               max_seconds=args.seconds, settings=settings, native_codec=args.native_codec,
                                behaviour=behaviour_from_args(args, seed=args.seed))
     progress("loading the avatar and compiling the render kernels (cached after the first use"
              + ("; compiling the view-synthesis kernels in a second process" if getattr(precompile, "started", False)

@@ -46,6 +46,10 @@ FPS = 25
 #: frame threads cost 57 instead of 36 ms of CPU a 2048x1536 native frame (the same file size; issue
 #: 37, docs/live.md), CPU the live render needs on 2 cores
 SESSION_VIDEO_PARAMS = (*CODECS["lossless"]["output_params"], "-threads", "1")
+#: the session video's codec (``live --native-codec``) -> its media.CODECS policy, each on one encoder thread:
+#: x264 (the default: the smallest file) or FFVHuff (bit-exact too, ~50-70 % of x264's encoder CPU for 2-2.8x
+#: the disk; issue 37, docs/live.md "The session video's CPU")
+SESSION_VIDEO_CODECS = {"x264": "lossless", "ffvhuff": "lossless-fast"}
 #: and it runs this much nicer than the session: in the render's gaps, its frames queued meanwhile
 SESSION_VIDEO_NICE = 5
 #: seconds without a new tracked frame after which the speaker face decays to neutral
@@ -99,10 +103,14 @@ class LiveSessionConfig:
     #: by ``seed``; None: the reaction model alone, conditioned on the pain level)
     behaviour: Any = "default"
     max_seconds: float | None = None
+    #: native.mkv's lossless codec, a key of SESSION_VIDEO_CODECS ("x264" or "ffvhuff")
+    native_codec: str = "x264"
     settings: dict = field(default_factory=dict)
 
 
     def __post_init__(self) -> None:
+        if self.native_codec not in SESSION_VIDEO_CODECS:
+            raise InputError(f"native_codec: expected one of {sorted(SESSION_VIDEO_CODECS)}, found {self.native_codec!r}")
         if isinstance(self.frames_in_flight, bool) or not isinstance(self.frames_in_flight, int) or \
                 self.frames_in_flight < 1:
             raise InputError(f"frames_in_flight: expected an integer >= 1, found {self.frames_in_flight!r}")
@@ -568,8 +576,9 @@ class LiveSession:
                 if res.native is not None and cfg.write_native_video:
                     if writer is None:  # lossless RGB, timed Matroska; verified and renamed on close
                         writer = ThreadedWriter(VideoWriter(
-                            out / NATIVE_VIDEO, cfg.video_fps, content="lossless", timed=True,
-                            output_params=SESSION_VIDEO_PARAMS, what="session video", nice=SESSION_VIDEO_NICE))
+                            out / NATIVE_VIDEO, cfg.video_fps, content=SESSION_VIDEO_CODECS[cfg.native_codec],
+                            timed=True, output_params=(*CODECS[SESSION_VIDEO_CODECS[cfg.native_codec]]["output_params"],
+                                                       "-threads", "1"), what="session video", nice=SESSION_VIDEO_NICE))
                     # handed to the writer's thread (RenderedFrame.native is the frame's own array):
                     # piping it to ffmpeg overlaps the next render
                     writer.write(res.native, t=t_shown)

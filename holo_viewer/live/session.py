@@ -12,7 +12,8 @@
                      render_angle_deg, render_distance_m, render_tracked, render_others ((MAX_OTHERS, 2) the
                      other faces' angle and distance, NaN-padded) (replay --quality live)
       audio.wav      the input audio (16 kHz mono; appended at each flush, valid up to the last one)
-      native.mkv     the native images shown: each displayed frame once, lossless RGB (libx264rgb crf 0),
+      native.mkv     the native images shown: each displayed frame once, lossless RGB (libx264rgb crf 0;
+                     FFVHuff with live --native-codec ffvhuff),
                      at the session time it was shown (variable frame rate, plays in step with audio.wav;
                      decode at 25 fps with holo_viewer.media.read_frames(path, fps=25))
       webcam.mkv     only with --record-video (faces are private by default; lossy preview)
