@@ -553,17 +553,16 @@ def test_stream_speech_gate_equals_speech_gate():
         assert sum(o for _, o, _ in got) >= 2 and sum(s for s, _, _ in got) > len(got) // 3
 
 
-def test_tracker_sleeps_until_the_next_video_frame(tmp_path, monkeypatch):
+def test_tracker_sleeps_until_the_next_video_frame(tmp_path):
     """Issue 37: between webcam frames the tracker thread sleeps until the next one (a replayed file's next
     frame time, a webcam's next frame) instead of waking every 3 ms; at most 20 ms (pause, stop). Also
     VideoReplay.next_time on a real file: the next frame's media time, None after the last."""
     import imageio.v2 as imageio
 
-    from holo_viewer.live import loop, sources
+    from holo_viewer.live import sources
     from holo_viewer.live.loop import LiveSession, LiveSessionConfig
 
     slept, waited = [], []
-    monkeypatch.setattr(loop.time, "sleep", slept.append)
 
     class Replay:
         t = None
@@ -576,6 +575,7 @@ def test_tracker_sleeps_until_the_next_video_frame(tmp_path, monkeypatch):
             waited.append(timeout)
 
     s = LiveSession(LiveSessionConfig(out=str(tmp_path / "s")), None, Replay(), clock=lambda: 1.0)
+    s._stop = type("Stop", (), {"wait": lambda self, timeout: slept.append(timeout)})()  # a stop would end it
     for t in (1.015, 5.0, 0.5, None):  # the session clock reads 1.0 s
         s.video.t = t
         s._wait_video()
@@ -584,7 +584,10 @@ def test_tracker_sleeps_until_the_next_video_frame(tmp_path, monkeypatch):
     s.video = object()  # a source with neither: polled as before
     s._wait_video()
     assert slept == pytest.approx([0.015, 0.02, 0.0005, 0.003, 0.003]) and waited == [0.02]
-    monkeypatch.undo()
+    s2 = LiveSession(LiveSessionConfig(out=str(tmp_path / "s2")), None, None, clock=lambda: 1.0)
+    assert s2._sleep_until(0.5) is True  # due: no wait
+    s2._stop.set()
+    assert s2._sleep_until(100.0) is False  # stopped: the reaction thread's wait ends
     video = tmp_path / "v.mp4"
     imageio.mimwrite(video, [np.full((32, 32, 3), 40 * i, np.uint8) for i in range(3)], fps=25, macro_block_size=1)
     v = sources.VideoReplay(video)

@@ -222,9 +222,9 @@ class LiveSession:
             d = media_t - self.now()
             if d <= 0:
                 return True
-            # one sleep to the frame (25 fps: <= 40 ms; 50 ms at most, for a pause or stop) instead of 10 ms
-            # steps: each wake-up takes the GIL from the render's thread (issue 37)
-            time.sleep(min(d, 0.05))
+            # one wait to the frame (25 fps: <= 40 ms; 50 ms at most, for a pause) instead of 10 ms sleeps: each
+            # wake-up takes the GIL from the render's thread (issue 37); a stop ends it at once
+            self._stop.wait(min(d, 0.05))
         return False
 
     # ------------------------------------------------------------------ tracker thread
@@ -237,11 +237,11 @@ class LiveSession:
         if nxt is not None:
             t = nxt()
             d = 0.003 if t is None else t - self.now()
-            time.sleep(min(max(d, 0.0005), 0.02))
+            self._stop.wait(min(max(d, 0.0005), 0.02))  # a stop ends it at once
         elif hasattr(self.video, "wait_frame"):
             self.video.wait_frame(0.02)
         else:
-            time.sleep(0.003)
+            self._stop.wait(0.003)
 
     def _tracker_loop(self) -> None:
         from ..tracking.viewer import ViewerTracker, ViewerTrackerConfig
