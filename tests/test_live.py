@@ -612,3 +612,35 @@ def test_speech_tracker_keeps_only_the_vad_chunks_it_still_reads():
         longest = max(longest, len(tr._chunks))
     assert longest <= 8 and tr._chunk0 > 100
     assert tr.vad_probability == pytest.approx(float(vad_probabilities(x[:x.shape[0] // CHUNK * CHUNK])[-1]), abs=1e-6)
+
+
+def test_traced_reaction_stream_equals_the_model(monkeypatch):
+    """Issue 37: the live loop's stream runs a TorchScript trace of the model (half its CPU a step): over 4 s of
+    speech at the default (sampled, seeded) decoding, every listener frame equals the eager stream's, bit for
+    bit; a model that cannot be traced runs as it is and the stream says why."""
+    import torch
+
+    from holo_viewer.pipeline.live_support import SyntheticSpeaker
+    from holo_viewer.reaction.api import load_default_bundle
+    from holo_viewer.reaction.decoding import DEFAULT_TEMPERATURE, DEFAULT_TOP_K
+    from holo_viewer.reaction.stream import ReactionStream
+
+    syn = SyntheticSpeaker(4.0, seed=5)
+    bundle = load_default_bundle()
+    kw = {"temperature": DEFAULT_TEMPERATURE, "top_k": DEFAULT_TOP_K, "seed": 2}
+    eager, traced = ReactionStream(bundle, **kw), ReactionStream(bundle, trace=True, **kw)
+    assert traced.trace_error is None and traced._run is not traced.model and eager._run is eager.model
+    outs = ([], [])
+    for t in range(len(syn.states)):
+        for stream, out in zip((eager, traced), outs):
+            stream.push_audio(syn.waveform[t * 640:(t + 1) * 640])
+            out.append(stream.push_frame(syn.states[t], 0.4)[0])
+    assert len(traced.windows) >= 20 and np.array_equal(np.array(outs[0]), np.array(outs[1]))
+    assert np.ptp(np.array(outs[0]), axis=0).max() > 0.05  # the listener moves: the comparison means something
+
+    def no_trace(*a, **k):
+        raise RuntimeError("cannot trace this")
+
+    monkeypatch.setattr(torch.jit, "trace", no_trace)
+    s = ReactionStream(bundle, trace=True, **kw)
+    assert s._run is s.model and s.trace_error == "RuntimeError: cannot trace this"

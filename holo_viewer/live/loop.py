@@ -457,7 +457,7 @@ class LiveSession:
 
         self.progress("warming the reaction model")
         self._stream = ReactionStream(load_default_bundle(), temperature=cfg.temperature,
-                                      top_k=DEFAULT_TOP_K if cfg.temperature else None, seed=cfg.seed)
+                                      top_k=DEFAULT_TOP_K if cfg.temperature else None, seed=cfg.seed, trace=True)
         from ..behaviour import BehaviourConfig, ListenerBehaviour
 
         self._speech_gate = speech_gate(self._stream)  # the model's speech channels' VAD, if it has them
