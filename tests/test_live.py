@@ -178,7 +178,7 @@ from holo_viewer.live.render import LiveAvatarRenderer
 from holo_viewer.live.windows import open_preview
 from holo_viewer.pipeline.live_support import SyntheticSpeaker
 
-syn = SyntheticSpeaker(4.0)
+syn = SyntheticSpeaker(10.0)  # as cheap as 4 s (10 s are synthesized): the session outlasts the keys; q ends it
 preview = open_preview(210, 280)
 session = LiveSession(LiveSessionConfig(out=sys.argv[1], tile_scale=0.1, preview=True, pain=0.2),
                       sources.ArrayAudio(syn.waveform), None, syn)
@@ -189,9 +189,10 @@ def press(keys):
     while preview.shown < 1 and time.time() < end:
         time.sleep(0.02)
     subprocess.run(["xdotool", "mousemove", "60", "60"], check=False)
-    for k in keys:
+    for i, k in enumerate(keys):  # each key once the loop has acted on the one before, not after a fixed 0.3 s
         subprocess.run(["xdotool", "key", k], check=True)
-        time.sleep(0.3)
+        while len(session.controls.log) <= i and time.time() < end:
+            time.sleep(0.02)
     pressed.append(True)
 th = threading.Thread(target=press, args=(["Up", "Up", "r", "q"],), daemon=True)
 th.start()
