@@ -41,20 +41,21 @@ class _HashRenderer:
 
 
 def test_jobs_are_taken_in_the_order_started_even_when_a_later_one_finishes_first() -> None:
-    class Slow:
+    class Slow:  # render i returns once gates[i] is set: the test says when each job finishes, no sleeps
         frames_independent = True
 
-        def __init__(self, delays):
-            self.delays = delays
+        def __init__(self, gates):
+            self.gates = gates
 
         def twin(self, render_threads=None):
-            return Slow(self.delays)
+            return Slow(self.gates)
 
         def render(self, i):
-            time.sleep(self.delays[i])
+            self.gates[i].wait(60)
             return RenderedFrame(native=None, preview=None, seconds=0.0)
 
-    pool = FramesInFlight(Slow({0: 0.3, 1: 0.0}), 2, warmup=None)
+    gates = {0: threading.Event(), 1: threading.Event()}
+    pool = FramesInFlight(Slow(gates), 2, warmup=None)
     deadline = time.perf_counter() + 10
     while pool.renderers < 2 and time.perf_counter() < deadline:  # the twin joins from its thread
         pool.wait(0.01)
@@ -63,10 +64,12 @@ def test_jobs_are_taken_in_the_order_started_even_when_a_later_one_finishes_firs
     assert pool.can_submit()  # no render time known yet: no spacing
     b = pool.submit((1,), tag="b")
     assert not pool.can_submit()  # both renderers busy
-    b.done.wait(5)
+    gates[1].set()  # the later job finishes first
+    b.done.wait(60)
     assert b.done.is_set() and not a.done.is_set()
     assert pool.take() is None  # the newer frame waits for the older one
-    a.done.wait(5)
+    gates[0].set()
+    a.done.wait(60)
     assert [pool.take().tag, pool.take().tag] == ["a", "b"]
     assert a.renderer is not b.renderer
     pool.close()

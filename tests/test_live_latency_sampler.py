@@ -30,7 +30,9 @@ def test_short_lived_threads_are_counted():
             th.start()
             th.join()
         done = time.perf_counter()
-        time.sleep(0.45)  # a sample after the last thread ended, whatever the load
+        deadline = done + 60  # a sample after the last thread ended (the period is 0.2 s; under load, later)
+        while s.snaps[-1][0] <= done and time.perf_counter() < deadline:
+            time.sleep(0.01)
     assert s.snaps[-1][0] > done
     _, cpu = s.between(s.snaps[0][0], s.snaps[-1][0])
     # 4 x 30 ms of CPU; a sample may catch one thread alive (its share seen is then its own name's), and
