@@ -186,6 +186,35 @@ def test_warp_into_the_quilt_writes_only_the_listed_pixels(cams):
     assert diff.max() <= 1 and (diff > 0).mean() < 1e-3, (diff > 0).mean()
 
 
+
+@pytest.mark.parametrize("kernel", ["auto", "cpp-scalar"])
+def test_compiled_warp_writes_the_numba_kernels_bytes(cams, monkeypatch, kernel):
+    """The C++ float32 warp into the quilt (AVX-512: depth and image rows read by permutes from windows
+    where the 16 columns' reads fit, gathers elsewhere; scalar) writes the numba kernel's bytes: smooth
+    depths (the windows), rough ones (shifts of many pixels: the gathers), every column and a sparse list
+    (consecutive and scattered stores), background columns skipped; a 1-off fusion fails this."""
+    if vs._warp_cpp() is None:
+        pytest.skip("the C++ extension holo_viewer.render._splat_cpp (with warp_u8) is not built")
+    rig = vs.rig_of(cams)
+    V, H, W = len(cams), cams.height, cams.width
+    rng = np.random.default_rng(29)
+    sources = vs.source_views(V, 6)
+    tiles = np.array([[(5 - k // 8) * H, (k % 8) * W] for k in range(V)])
+    yy, xx = np.mgrid[0:H, 0:W]
+    smooth = (0.7 + 0.25 * np.sin(xx / 17.0) * np.cos(yy / 23.0)).astype(np.float32)
+    for wmaps in (np.stack([smooth + 0.01 * i for i in range(sources.size)]).astype(np.float32),
+                  rng.uniform(0.3, 1.2, size=(sources.size, H, W)).astype(np.float32)):
+        images = rng.uniform(size=(sources.size, H, W, 3)).astype(np.float32)
+        images[:, :, : W // 5] = 0.0  # background at the left: columns skipped
+        for pixels in (None, vs.sampled_columns(rng.uniform(size=(V, H, W)) < 0.4)):
+            out = {}
+            for k in ("numba", kernel):
+                monkeypatch.setattr(vs, "WARP_KERNEL", k)
+                out[k] = np.full((6 * H, 8 * W, 3), 7, np.uint8)
+                vs.warp_views(images, wmaps, sources, rig, quilt=out[k], tiles=tiles, pixels=pixels)
+            np.testing.assert_array_equal(out[kernel], out["numba"])
+            assert (out["numba"] != 7).mean() > 0.3
+
 def test_zbuffer_depth_of_an_opaque_plane(cams):
     z_plane = 0.02  # world z of the plane (the cameras look down -z from ~1.6 m)
     g = np.stack(np.meshgrid(np.linspace(-0.05, 0.05, 200), np.linspace(-0.05, 0.05, 200)), -1).reshape(-1, 2)
