@@ -320,3 +320,104 @@ def test_the_fidelity_bench_replaces_only_partly_covered_pixels_by_their_area_av
     np.testing.assert_array_equal(img[:, :, 4:8], ims)
     np.testing.assert_array_equal(img[:, :, 8:], im1)
     assert mask.dtype == bool and all((mask[:, :, 4 * k:4 * k + 4] == m1).all() for k in range(3))
+
+
+# ---------------------------------------------------------------- the silhouette terms (helen's outline)
+
+
+def test_rim_map_is_the_band_within_its_width_of_the_outline_on_either_side():
+    """``fit_avatar.rim_map``: a disc of radius 20 px; the rim is every pixel whose centre lies within
+    ``width_px`` of the other side (checked against the exact distance to the disc's pixels); empty and
+    full masks have none."""
+    h, w, r = 64, 80, 20.0
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    disc = (xx - 40.0) ** 2 + (yy - 30.0) ** 2 <= r * r
+    rim = fa.rim_map(disc, 4.0)
+    pts_in, pts_out = np.argwhere(disc), np.argwhere(~disc)
+    for (i, j) in [(30, 60), (30, 58), (30, 56), (30, 63), (30, 64), (30, 65), (30, 40), (5, 5), (30, 66)]:
+        other = pts_out if disc[i, j] else pts_in
+        d = np.sqrt(((other - (i, j)) ** 2).sum(1)).min()
+        assert rim[i, j] == (d <= 4.0), (i, j, d)
+    assert rim[disc].sum() > 0 and rim[~disc].sum() > 0 and not rim[30, 40] and not rim[5, 5]
+    assert not fa.rim_map(np.zeros((8, 8), bool)).any() and not fa.rim_map(np.ones((8, 8), bool)).any()
+
+
+def test_silhouette_alpha_is_the_float64_reference_coverage_and_has_gradients():
+    """``fit_avatar._render_rgba`` (the ``w_alpha`` term): its image is ``render_view``'s, its alpha the
+    float64 reference renderer's composite of white Gaussians on black (1 - transmittance) within 1e-9,
+    and alpha is differentiable in the opacities and positions."""
+    from holo_viewer.camera import Cameras
+    from holo_viewer.render.config import RenderConfig
+    from holo_viewer.render.differentiable import covariance, render_view
+    from holo_viewer.render.reference import render_view as ref_view
+
+    g = random_gaussians(60, sh_degree=1, seed=4, scale=0.05)
+    w2c = np.eye(4)
+    w2c[2, 3] = 0.5
+    K = np.array([[60.0, 0, 24.0], [0, 60.0, 18.0], [0, 0, 1]])
+    t = {k: torch.tensor(np.asarray(getattr(g, k), np.float64), requires_grad=True)
+         for k in ("means", "quats", "log_scales", "opacity_logits", "sh")}
+    q = t["quats"] / torch.linalg.norm(t["quats"], dim=-1, keepdim=True)
+    rc = RenderConfig(background=(0.2, 0.3, 0.4))
+    img, alpha = fa._render_rgba(t["means"], q, t["log_scales"], t["opacity_logits"], t["sh"], w2c, K, 48, 36,
+                                 0.01, rc)
+    img0 = render_view(t["means"], q, t["log_scales"], t["opacity_logits"], t["sh"], w2c, K, 48, 36, 0.01, rc)
+    assert torch.equal(img, img0)
+    with torch.no_grad():
+        cov = covariance(q, t["log_scales"]).numpy()
+        ref, _ = ref_view(t["means"].numpy(), cov, torch.sigmoid(t["opacity_logits"]).numpy(), np.ones((60, 3)),
+                          w2c, K, 48, 36, 0.01, RenderConfig(background=(0.0, 0.0, 0.0), clip_output=False))
+    assert 0.05 < alpha.detach().numpy().mean() < 0.95
+    np.testing.assert_allclose(alpha.detach().numpy(), ref[..., 0], atol=1e-9)
+    alpha.sum().backward()
+    assert t["opacity_logits"].grad.abs().sum() > 0 and t["means"].grad.abs().sum() > 0
+
+
+
+# ---------------------------------------------------------------- the pain-limit stage (mei's and rafael's limit)
+
+
+def test_the_pain_limit_stage_draws_pain_1_half_the_time_at_the_limit_cameras_weights():
+    """``scripts/fit_patients.py``'s seventh stage (mei, rafael): pain 1 0.5, neutral 0.25, pain 0.5 0.15, the
+    other poses 0.05 each; the orbit cameras at |yaw| >= 25 deg ``LIMIT_CAMERA_WEIGHT`` x (as the limit stage);
+    its own seed; a negative step count is refused, and ``--init-stage 7`` runs it alone."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "fit_patients.py"
+    spec = importlib.util.spec_from_file_location("fit_patients_script_s7", path)
+    fp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fp)
+    cfg = fa.replace_config(fp.PATIENT_CONFIG, quilt_views=(0, 47), orbit=((-30.0, 0.0), (-20.0, 0.0), (25.0, 12.0)))
+    s7 = fp.pain_limit_stage_config(["neutral", "smile_1", "pain_0.5", "pain_1"], cfg)
+    w = fp.LIMIT_CAMERA_WEIGHT
+    assert s7.pose_weights == (0.25, 0.05, 0.15, 0.5) and s7.camera_weights == (1.0, 1.0, w, 1.0, w)
+    s5 = fp.limit_stage_config(["neutral", "smile_1", "pain_0.5", "pain_1"], cfg)
+    assert s7.camera_weights == s5.camera_weights and s7.pose_weights[3] > s5.pose_weights[3]
+    assert s7.seed not in {fp.LIMIT_STAGE_CONFIG.seed, fp.STAGE4_CONFIG.seed} and s7.iterations == 200
+    assert fa.replace_config(s7, seed=s5.seed, iterations=s5.iterations, pose_weights=s5.pose_weights) == s5
+    assert set(fp.STAGE7_PATIENTS) == {"mei", "rafael"}
+    with pytest.raises(SystemExit):
+        fp.main(["mei", "--stage7", "-1"])
+
+
+def test_the_silhouette_stage_is_the_limit_stage_with_the_rim_terms():
+    """``scripts/fit_patients.py``'s stage 6: the limit stage's pose and camera weights, its own seed, and
+    the rim terms of ``SILHOUETTE_TERMS`` (the stages before it keep theirs off); a negative count is a
+    usage error."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "fit_patients.py"
+    spec = importlib.util.spec_from_file_location("fit_patients_script_s6", path)
+    fp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fp)
+    cfg = fa.replace_config(fp.PATIENT_CONFIG, quilt_views=(0, 47), orbit=((-30.0, 0.0), (0.0, 12.0)))
+    s5 = fp.limit_stage_config(["neutral", "pain_1"], cfg, 50)
+    s6 = fp.silhouette_stage_config(["neutral", "pain_1"], cfg, 50)
+    assert s6.rim_weight > 0 and s6.crop_rim > 0 and s6.seed not in (s5.seed, fp.STAGE4_CONFIG.seed)
+    assert fa.replace_config(s6, seed=s5.seed, rim_weight=0.0, rim_px=4, crop_rim=0.0, w_alpha=0.0) == s5
+    for s in (fp.STAGE2_CONFIG, fp.STAGE3_CONFIG, fp.STAGE4_CONFIG, fp.LIMIT_STAGE_CONFIG):
+        assert s.rim_weight == 0 and s.crop_rim == 0 and s.w_alpha == 0
+    with pytest.raises(SystemExit):
+        fp.main(["helen", "--stage6", "-1"])

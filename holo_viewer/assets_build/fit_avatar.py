@@ -53,7 +53,7 @@ from ..pipeline.settings import FaceControls
 __all__ = ["AvatarFitConfig", "AvatarFit", "TrainingPose", "TargetSource", "surface_points", "Dataset", "initial_with_surface_colors", "training_poses", "surface_colors",
            "orbit_cameras", "sheared_cameras", "camera_yaws", "camera_yaws_range", "training_cameras", "scaled_cameras", "build_dataset", "fit_gaussians", "fidelity",
            "transfer_avatar", "add_gaussians_on_faces", "prune_faintest", "slider_limit_deg", "quilt_fidelity",
-           "detail_map"]
+           "detail_map", "rim_map"]
 
 #: (mesh vertices, faces, cameras, indices) -> ((n, H, W, 3) float images in [0, 1], (n, H, W) bool masks)
 TargetRenderer = Callable[[np.ndarray, np.ndarray, Cameras, Sequence[int]], "tuple[np.ndarray, np.ndarray]"]
@@ -121,6 +121,19 @@ class AvatarFitConfig:
     #: ``orbit``; normalised); empty: uniform. The limit stage weights the outermost cameras up (the viewer
     #: slider's limits see the side hair at a grazing angle from those cameras only)
     camera_weights: tuple[float, ...] = ()
+    #: silhouette terms (issue 35: helen's white hair against the black background puts 30-56 % of her
+    #: squared error on the 4 px inside the mesh's outline; docs/avatar_fit.md "Silhouette stage"). The rim
+    #: of a target is its pixels within ``rim_px`` of the mesh mask's outline, on either side
+    #: (:func:`rim_map`). ``rim_weight``: those pixels' photometric loss weighted ``1 + rim_weight`` (the
+    #: rest 1); ``crop_rim``: the share of the full-resolution crops centred on a rim pixel inside the mask
+    #: (drawn before ``crop_detail``); ``w_alpha``: ``w_alpha`` x the mean |alpha - mask| over the image
+    #: (alpha: the Gaussians' accumulated opacity, a second composite of the same projection with white
+    #: colours; the mask the target's 1x depth mask), weighted as the photometric term. All 0: off (the
+    #: random draws and the loss of the stages before are unchanged)
+    rim_weight: float = 0.0
+    rim_px: int = 4
+    crop_rim: float = 0.0
+    w_alpha: float = 0.0
     seed: int = 0
     dtype: str = "float32"
 
@@ -494,6 +507,44 @@ def detail_map(image: np.ndarray, sigma: float = 1.5, floor: float = 0.1) -> np.
     return hp + floor * max(float(hp.mean()), 1e-6)
 
 
+def rim_map(mask: np.ndarray, width_px: float = 4.0) -> np.ndarray:
+    """(H, W) bool: the pixels of a (H, W) bool mesh mask within ``width_px`` (Euclidean, pixel centres) of
+    its outline on either side: mask pixels whose distance to the nearest background pixel is <= ``width_px``
+    and background pixels as near to the mask (an empty or full mask has no rim; the image border is not an
+    outline)."""
+    from scipy import ndimage
+
+    m = np.asarray(mask, bool)
+    if not m.any() or m.all():
+        return np.zeros(m.shape, bool)
+    inside = ndimage.distance_transform_edt(m) <= float(width_px)
+    outside = ndimage.distance_transform_edt(~m) <= float(width_px)
+    return (m & inside) | (~m & outside)
+
+
+def _render_rgba(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor, opacity_logits: torch.Tensor,
+                 sh: torch.Tensor, world_to_cam: np.ndarray, K: np.ndarray, width: int, height: int, near: float,
+                 config: RenderConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """(H, W, 3) image and (H, W) alpha of one view: ``render.differentiable.render_view``'s projection
+    composited twice, with the SH colours and with white (alpha = the white composite on a black
+    background: 1 - the transmittance left), both differentiable."""
+    from ..render.differentiable import covariance, project, rasterize, sh_rgb
+
+    degree = int(round(math.sqrt(sh.shape[1]))) - 1
+    if config.sh_degree is not None:
+        degree = min(degree, int(config.sh_degree))
+    w2c = np.asarray(world_to_cam, np.float64)
+    cam_pos = torch.tensor(-w2c[:3, :3].T @ w2c[:3, 3], dtype=means.dtype)
+    uv, conic, depth, radius, valid = project(means, covariance(quats, log_scales), w2c, K, width, height, near,
+                                              config.dilation, config.radius_sigmas)
+    op = torch.sigmoid(opacity_logits)
+    img = rasterize(uv, conic, op, sh_rgb(means, sh, degree, cam_pos), depth, radius, valid, width, height, config)
+    black = dataclasses.replace(config, background=(0.0, 0.0, 0.0))
+    white = torch.ones((means.shape[0], 3), dtype=means.dtype)
+    alpha = rasterize(uv, conic, op, white, depth, radius, valid, width, height, black)[..., 0]
+    return img, alpha
+
+
 def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
                   config: AvatarFitConfig = AvatarFitConfig(), progress: bool = True,
                   render_config: RenderConfig | None = None) -> AvatarFit:
@@ -536,6 +587,13 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
     n_pose, n_cam = data.images.shape[:2]
     losses: list[float] = []
     detail_cdf: dict[tuple[int, int], np.ndarray] = {}
+    rims: dict[tuple[int, int], np.ndarray] = {}
+    silhouette = config.rim_weight > 0 or config.crop_rim > 0 or config.w_alpha > 0
+
+    def rim_of(p: int, c: int) -> np.ndarray:
+        if (p, c) not in rims:
+            rims[(p, c)] = rim_map(data.masks[p, c], config.rim_px)
+        return rims[(p, c)]
     src = np.arange(len(local))  # each current Gaussian's index in ``local`` (for ``extra``)
     densify_until = config.densify_until or int(config.iterations * 0.75)
     dens = config.densify_every > 0 and (config.densify_split > 0 or config.prune_opacity > 0
@@ -576,9 +634,16 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
             if it < crop_from:  # the whole image at train_scale (box-downsampled target)
                 w2c, K, W, H = small.world_to_cam[c], small.K[c], small.width, small.height
                 target = torch.from_numpy(_downsample(data.images[p, c][None].astype(np.float32), factor)[0])
+                if silhouette:
+                    rim_t = _downsample(rim_of(p, int(c))[None].astype(np.float32), factor)[0]
+                    mask_t = _downsample(data.masks[p, c][None].astype(np.float32), factor)[0]
             else:  # a full-resolution crop of the same pixel count, centred on a random mesh pixel
                 ys, xs = np.nonzero(data.masks[p, c])
-                if config.crop_detail > 0 and len(ys) and rng.random() < config.crop_detail:
+                if config.crop_rim > 0 and len(ys) and rng.random() < config.crop_rim:  # on the outline
+                    ry, rx = np.nonzero(rim_of(p, int(c)) & data.masks[p, c])
+                    ys, xs = (ry, rx) if len(ry) else (ys, xs)
+                    k = int(rng.integers(len(ys)))
+                elif config.crop_detail > 0 and len(ys) and rng.random() < config.crop_detail:
                     key = (p, int(c))
                     if key not in detail_cdf:
                         w = detail_map(data.images[p, c])[ys, xs]
@@ -595,11 +660,25 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
                 K[1, 2] -= y0
                 w2c, W, H = full.world_to_cam[c], crop_w, crop_h
                 target = torch.from_numpy(data.images[p, c, y0:y0 + H, x0:x0 + W].astype(np.float32))
-            img = render_view(means[0], quats[0], log_scales[0], params["opacity"], sh, w2c, K, W, H, full.near, rc)
+                if silhouette:
+                    rim_t = rim_of(p, int(c))[y0:y0 + H, x0:x0 + W].astype(np.float32)
+                    mask_t = data.masks[p, c, y0:y0 + H, x0:x0 + W].astype(np.float32)
+            if config.w_alpha > 0:
+                img, alpha = _render_rgba(means[0], quats[0], log_scales[0], params["opacity"], sh, w2c, K, W, H,
+                                          full.near, rc)
+            else:
+                img = render_view(means[0], quats[0], log_scales[0], params["opacity"], sh, w2c, K, W, H, full.near,
+                                  rc)
             target = target.to(dtype) / 255.0
-            l1 = (img - target).abs().mean()
+            if silhouette:
+                wpix = 1.0 + config.rim_weight * torch.from_numpy(rim_t).to(dtype)
+                l1 = ((img - target).abs().mean(dim=2) * wpix).mean()
+            else:
+                l1 = (img - target).abs().mean()
             if config.ssim_weight > 0:
                 l1 = (1 - config.ssim_weight) * l1 + config.ssim_weight * (1 - _ssim(img, target))
+            if config.w_alpha > 0:
+                l1 = l1 + config.w_alpha * ((alpha - torch.from_numpy(mask_t).to(dtype)).abs() * wpix).mean()
             loss = loss + l1 / config.views_per_step
         reg = (config.w_pos * torch.relu(torch.linalg.norm(params["means"], dim=-1) - config.eps_pos).mean()
                + config.w_scale * torch.relu(torch.exp(params["log_scales"]) - config.eps_scale).mean())
