@@ -78,6 +78,7 @@ from holo_viewer.pipeline.live import NativeFrameConfig, NativeFrameRenderer  # 
 from holo_viewer.pipeline import Pipeline  # noqa: E402
 from holo_viewer.pipeline import FaceControls  # noqa: E402
 from holo_viewer.render import RenderConfig, render_views  # noqa: E402
+from holo_viewer.render import view_synthesis  # noqa: E402
 from holo_viewer.render.api import validate_inputs  # noqa: E402
 
 
@@ -191,15 +192,16 @@ GROUP_VIEWERS = ((6.0, 0.6), (-15.0, 0.5), (-4.0, 0.75), (16.0, 0.9))
 #: eye slices replacing the fill instead of feathered into it (group_feather None: comfort); group and
 #: all_views rows skip the Gaussians nobody sees (live_support.visible_mask), each rendered source view only those
 #: seen in that view (per_view=True, since 2026-11-28 19:00), except "union_keep" (every source view draws the
-#: union over the views, as `holo-viewer live` did until then) and the last ("all_gaussians": every Gaussian
-#: drawn, as before 2026-11-28 16:00)
+#: union over the views, as `holo-viewer live` did until then), "all_gaussians" (every Gaussian drawn, as before
+#: 2026-11-28 16:00) and the last ("numba_kernels": the float32 warp and the interleave's row gather in numba, as
+#: before 2026-11-28 21:50; the C++ kernels write the same bytes)
 GROUP_RUNS = (("group", 0, {}), ("group", 1, {}), ("group", 4, {}), ("tracked", 1, {}), ("tracked", 4, {}),
               ("all_views", 0, {}), ("group", 0, {"group_view_step": 5}), ("group", 0, {"group_view_step": 8}),
               ("group", 1, {"group_view_step": 5}), ("group", 1, {"group_view_step": 8}),
               ("group", 1, {"group_view_step": 12}), ("group", 1, {"group_slices": 1}),
               ("group", 4, {"group_slices": 1}), ("group", 4, {"group_slices": 4}),
               ("group", 1, {"group_slices": 1, "group_feather": None}), ("group", 0, {"union_keep": True}),
-              ("group", 0, {"all_gaussians": True}))
+              ("group", 0, {"all_gaussians": True}), ("group", 0, {"numba_kernels": True}))
 #: comfort: a tracked viewer walks past fixed single-eye positions (deg, m), 1.5 deg a frame, face still
 COMFORT_POSITIONS = ((0.0, 0.6), (-3.0, 0.6))
 COMFORT_WALK_DEG = tuple(float(a) for a in np.arange(-6.0, 4.6, 1.5))
@@ -280,11 +282,14 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
     del warm
     for mode, n, knobs in GROUP_RUNS:
         viewers = all_viewers[:n]
-        config = {k: v for k, v in knobs.items() if k not in ("all_gaussians", "union_keep")}
+        config = {k: v for k, v in knobs.items() if k not in ("all_gaussians", "union_keep", "numba_kernels")}
         live = NativeFrameRenderer(cal, cams, NativeFrameConfig(**config),  # all_gaussians: every one, as before
                                    keep=None if knobs.get("all_gaussians") else keep if knobs.get("union_keep")
                                    else keep_views)
         arg = (viewers[0] if viewers else None) if mode == "tracked" else (viewers or None)
+        numba_kernels = bool(knobs.get("numba_kernels"))  # the A/B of the compiled warp and row gather
+        view_synthesis.WARP_KERNEL = "numba" if numba_kernels else "auto"
+        live.interleaver.row_kernel = "numba" if numba_kernels else "auto"
         live.frame(frames[0], arg, mode)  # everything once (the kept state of incremental modes)
         live.prepare_tracked()
         live.prepare_all_views()
@@ -322,6 +327,7 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
                "viewer_positions": [list(v) for v in GROUP_VIEWERS[:n]]}
         if mode == "group" and n <= 1:
             rec.update(comfort(live, frames[0], fixed))
+        view_synthesis.WARP_KERNEL = "auto"
         records.append(rec)
         step = live.group_view_step if mode == "group" else live.view_step
         print(f"{mode:9s} viewers {n} step {step:2d}{f' {knobs}' if knobs else ' (default)'}  {s:.3f} s/frame "
