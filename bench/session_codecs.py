@@ -22,7 +22,7 @@ permutation (a serial numba gather, as a live process would run it) and inverts 
 
 ``--live PAIRS`` instead runs live sessions as ``bench/live_latency.py`` does (its ``run_session``: replayed speech
 + webcam, group frames at tile scale 0.5, recording on), alternating the ``--live-candidates`` (the session video's
-codec swapped in for the run: ``media.CODECS["lossless"]`` and ``loop.SESSION_VIDEO_PARAMS``), and reports per run
+codec and flags swapped in for the run: ``media.CODECS["lossless"]``), and reports per run
 the displayed fps, the session's CPU ms per displayed frame, the encoder's (``ffmpeg encoder``) and MB per frame.
 
     python bench/session_codecs.py [--seconds 12] [--session DIR] [--repeats 2] [--json bench/results/session_codecs.json]
@@ -44,6 +44,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from holo_viewer.media import CODECS as _POLICY  # noqa: E402
+
+_FAST = _POLICY["lossless-fast"]  # live --native-codec ffvhuff
 _X264 = ["-preset", "ultrafast", "-crf", "0", "-threads", "1"]
 _HUFF = ["-threads", "1", "-pred"]
 #: name -> VideoWriter keywords (codec, pixel format, output flags) and whether the frames are re-laid
@@ -52,6 +55,8 @@ CANDIDATES = {
     "x264rgb superfast": {"codec": "libx264rgb", "pixelformat": "rgb24",
                           "output_params": ["-preset", "superfast", "-crf", "0", "-threads", "1"]},
     "ffvhuff left": {"codec": "ffvhuff", "pixelformat": "rgb24", "output_params": [*_HUFF, "left"]},
+    "ffvhuff plane (--native-codec ffvhuff)": {"codec": _FAST["codec"], "pixelformat": _FAST["pixelformat"],
+                                               "output_params": ["-threads", "1", *_FAST["output_params"]]},
     "ffvhuff plane + frame tables": {"codec": "ffvhuff", "pixelformat": "rgb24",
                                         "output_params": [*_HUFF, "plane", "-context", "1"]},
     "utvideo median": {"codec": "utvideo", "pixelformat": "gbrp", "output_params": [*_HUFF, "median"]},
@@ -59,8 +64,8 @@ CANDIDATES = {
                      "output_params": ["-level", "3", "-g", "1", "-slices", "4", "-threads", "1"]},
     "re-laid views + x264rgb ultrafast": {"codec": "libx264rgb", "pixelformat": "rgb24", "output_params": _X264,
                                           "relaid": True},
-    "re-laid views + ffvhuff plane + tables": {"codec": "ffvhuff", "pixelformat": "rgb24",
-                                              "output_params": [*_HUFF, "plane", "-context", "1"], "relaid": True},
+    "re-laid views + ffvhuff plane": {"codec": "ffvhuff", "pixelformat": "rgb24", "output_params": [*_HUFF, "plane"],
+                                      "relaid": True},
     "re-laid views + utvideo median": {"codec": "utvideo", "pixelformat": "gbrp",
                                        "output_params": [*_HUFF, "median"], "relaid": True},
 }
@@ -124,14 +129,22 @@ def live_pairs(pairs: int, names: list[str], clip_seconds: float, cache: str) ->
                 kw = CANDIDATES[name]
                 if kw.get("relaid"):
                     raise SystemExit(f"--live-candidates: {name!r} is a re-layout (not a session codec)")
+                # the session video's writer takes the codec, pixel format and flags of media.CODECS["lossless"]
+                # (+ "-threads 1", which the candidates have already)
                 media.CODECS["lossless"] = {"codec": kw["codec"], "pixelformat": kw["pixelformat"], "quality": None,
-                                            "macro_block_size": 1, "output_params": ()}
+                                            "macro_block_size": 1, "output_params": tuple(kw["output_params"])}
                 loop.SESSION_VIDEO_PARAMS = tuple(kw["output_params"])
                 out = Path(tmp) / f"s{rep}_{len(runs)}"
                 try:
                     r = bench_live.run_session(files, out, render=True, tile_scale=0.5, record=True)
                 finally:
                     media.CODECS["lossless"], loop.SESSION_VIDEO_PARAMS = saved
+                if kw["codec"] == "libx264rgb":  # x264 states its settings in the stream: lossless (qp 0), as asked
+                    import re
+
+                    with open(out / "native.mkv", "rb") as fh:
+                        head = fh.read(1 << 20)
+                    assert b"rc=cqp" in head and re.search(rb" qp=0\b", head), f"{name}: the session video is not lossless"
                 ins = r.get("in_session", {})
                 by = ins.get("cpu_ms_per_displayed_frame_by_thread", {})
                 row = {"candidate": name, "round": rep, "displayed_fps": r.get("displayed_fps"),
@@ -171,7 +184,7 @@ def main() -> int:
     ap.add_argument("--png", default=None, help="write the first re-laid frame's first 4 views here")
     ap.add_argument("--live", type=int, default=0, metavar="PAIRS",
                     help="instead: PAIRS rounds of live sessions alternating --live-candidates (recording on)")
-    ap.add_argument("--live-candidates", default=f"{BASELINE};ffvhuff left", help="';'-separated candidate names")
+    ap.add_argument("--live-candidates", default=f"{BASELINE};ffvhuff plane (--native-codec ffvhuff)", help="';'-separated candidate names")
     ap.add_argument("--clip-seconds", type=float, default=8.0, help="--live: the replayed clip (bench/live_latency.py's)")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "holo_viewer_live_bench"),
                     help="--live: bench/live_latency.py's clip cache")

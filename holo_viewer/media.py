@@ -27,9 +27,9 @@ Codec policy (:data:`CODECS`, one ``content`` per writer):
   multiple of ``macro_block_size`` 8.
 * ``"watchable"``: quilt videos of batch renders (what players and Looking Glass tools expect):
   libx264 yuv420p, crf 18, veryfast; odd sides padded by an edge row / column.
-* ``"lossless-fast"``: bit-exact like ``"lossless"`` for ~50-70 % of its encoder CPU and 2-2.8x its disk: FFVHuff
-  (Huffman-coded left prediction, every frame on its own), packed RGB. The live session's video with
-  ``live --native-codec ffvhuff`` (issue 37: ~12-16 ms less CPU a displayed frame expected on 2 quiet cores).
+* ``"lossless-fast"``: bit-exact like ``"lossless"`` for ~50-60 % of its encoder CPU and ~2.2x its disk: FFVHuff
+  (Huffman-coded plane prediction, every frame on its own), packed RGB. The live session's video with
+  ``live --native-codec ffvhuff`` (issue 37: ~14-17 ms less CPU a displayed frame expected on 2 quiet cores).
 
 The lossless preset is ``ultrafast``: on 2048x1536 session frames slower presets save 16 % of the
 size for 3x the encoder's CPU and FFV1 3 % for 1.7x (``bench/session_codecs.py``, docs/live.md),
@@ -84,7 +84,7 @@ CODECS: dict[str, dict[str, Any]] = {
     "watchable": {"codec": "libx264", "pixelformat": "yuv420p", "quality": None, "macro_block_size": 1,
                   "output_params": ("-preset", "veryfast", "-crf", "18")},
     "lossless-fast": {"codec": "ffvhuff", "pixelformat": "rgb24", "quality": None, "macro_block_size": 1,
-                      "output_params": ("-pred", "left")},
+                      "output_params": ("-pred", "plane")},
 }
 
 

@@ -70,7 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      "trainees' faces are private)")
     out.add_argument("--native-codec", choices=("x264", "ffvhuff"), default="x264",
                      help="native.mkv's lossless codec: x264 (default, the smallest file) or ffvhuff (bit-exact too, "
-                     "~50-70%% of x264's encoder CPU for 2-2.8x the disk: CPU the 2-core live render can use)")
+                     "~50-60%% of x264's encoder CPU for ~2.2x the disk: CPU the 2-core live render can use)")
     ctl = parser.add_argument_group("patient")
     from .avatar_args import add_avatar_argument
 

@@ -47,7 +47,7 @@ FPS = 25
 #: 37, docs/live.md), CPU the live render needs on 2 cores
 SESSION_VIDEO_PARAMS = (*CODECS["lossless"]["output_params"], "-threads", "1")
 #: the session video's codec (``live --native-codec``) -> its media.CODECS policy, each on one encoder thread:
-#: x264 (the default: the smallest file) or FFVHuff (bit-exact too, ~50-70 % of x264's encoder CPU for 2-2.8x
+#: x264 (the default: the smallest file) or FFVHuff (bit-exact too, ~50-60 % of x264's encoder CPU for ~2.2x
 #: the disk; issue 37, docs/live.md "The session video's CPU")
 SESSION_VIDEO_CODECS = {"x264": "lossless", "ffvhuff": "lossless-fast"}
 #: and it runs this much nicer than the session: in the render's gaps, its frames queued meanwhile
