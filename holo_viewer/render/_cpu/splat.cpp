@@ -1696,39 +1696,46 @@ inline void warp_live_range(const int64_t* span, const double* wr, double d0, do
     hi = std::max(hi, int64_t(std::ceil(double(span[1]) + 2.0 - smin)));
 }
 
-// numba's int(np.floor(v)) clamped to [0, W - 2], for any finite v (v clamped first: the same result)
-inline int warp_floor_clamp(float v, int W) {
-    const float c = std::min(std::max(v, -1.0f), float(W));
-    return std::min(std::max(int(std::floor(c)), 0), W - 2);
-}
-
-template <bool IA>
-inline void warp_columns_scalar(const float* wrow, const int32_t* xl, int n, float d0, float d1, int iters, int W,
-                                int32_t* i0, float* f) {
-    for (int i = 0; i < n; ++i) {
-        const float xf = float(xl[i]);
-        float xs = std::fma(d1, wrow[xl[i]], xf + d0);
-        for (int it = 0;; ++it) {
-            const int p = warp_floor_clamp(xs, W);
-            const float fr = std::min(std::max(xs - float(p), 0.0f), 1.0f);
-            i0[i] = p; f[i] = fr;
-            if (it == iters) break;
-            const float a = (1.0f - fr), w0 = wrow[p], w1 = wrow[p + 1];
-            const float inner = IA ? std::fma(a, w0, fr * w1) : std::fma(fr, w1, a * w0);
-            xs = std::fma(d1, inner, xf + d0);
-        }
+// The scalar helpers, defined twice: plain (other CPUs, mode 1) and with the AVX-512 target (the vector
+// kernels' tails: std::fma inlines to one instruction there instead of a libm call)
+#define HV_WARP_SCALAR(ATTR, SFX)                                                                              \
+    /* numba's int(np.floor(v)) clamped to [0, W - 2], for any finite v (v clamped first: the same result) */ \
+    ATTR inline int warp_floor_clamp##SFX(float v, int W) {                                                   \
+        const float c = std::min(std::max(v, -1.0f), float(W));                                               \
+        return std::min(std::max(int(std::floor(c)), 0), W - 2);                                              \
+    }                                                                                                         \
+    template <bool IA>                                                                                        \
+    ATTR inline void warp_columns_scalar##SFX(const float* wrow, const int32_t* xl, int n, float d0, float d1, \
+                                              int iters, int W, int32_t* i0, float* f) {                      \
+        for (int i = 0; i < n; ++i) {                                                                         \
+            const float xf = float(xl[i]);                                                                    \
+            float xs = std::fma(d1, wrow[xl[i]], xf + d0);                                                    \
+            for (int it = 0;; ++it) {                                                                         \
+                const int p = warp_floor_clamp##SFX(xs, W);                                                   \
+                const float fr = std::min(std::max(xs - float(p), 0.0f), 1.0f);                               \
+                i0[i] = p; f[i] = fr;                                                                         \
+                if (it == iters) break;                                                                       \
+                const float a = (1.0f - fr), w0 = wrow[p], w1 = wrow[p + 1];                                  \
+                const float inner = IA ? std::fma(a, w0, fr * w1) : std::fma(fr, w1, a * w0);                 \
+                xs = std::fma(d1, inner, xf + d0);                                                            \
+            }                                                                                                 \
+        }                                                                                                     \
+    }                                                                                                         \
+    /* int() of the clamped value: the same after the clamp */                                                \
+    template <bool BA>                                                                                        \
+    ATTR inline uint8_t warp_blend_scalar##SFX(float ca0, float ca1, float cb0, float cb1, float A, float B,   \
+                                               float C, float D) {                                            \
+        float v = BA ? std::fma(ca0, A, ca1 * B) : std::fma(ca1, B, ca0 * A);                                 \
+        v = std::fma(cb0, C, v);                                                                              \
+        v = std::fma(cb1, D, v);                                                                              \
+        const float s = std::fma(v, 255.0f, 0.5f);                                                            \
+        const float c = std::min(std::max(s, -1.0f), 256.0f);                                                 \
+        return uint8_t(std::min(std::max(int(c), 0), 255));                                                   \
     }
-}
-
-template <bool BA>
-inline uint8_t warp_blend_scalar(float ca0, float ca1, float cb0, float cb1, float A, float B, float C, float D) {
-    float v = BA ? std::fma(ca0, A, ca1 * B) : std::fma(ca1, B, ca0 * A);
-    v = std::fma(cb0, C, v);
-    v = std::fma(cb1, D, v);
-    const float s = std::fma(v, 255.0f, 0.5f);
-    const float c = std::min(std::max(s, -1.0f), 256.0f);  // int() of the clamped value: the same after the clamp
-    return uint8_t(std::min(std::max(int(c), 0), 255));
-}
+HV_WARP_SCALAR(, )
+#if HV_HAVE_AVX2_PATH
+HV_WARP_SCALAR(HV_TARGET_AVX512, _v)
+#endif
 
 #if HV_HAVE_AVX2_PATH
 // wrow[x] of 16 listed columns: one load where they are consecutive, else a gather
@@ -1780,7 +1787,7 @@ HV_TARGET_AVX512 void warp_columns16(const float* wrow, const int32_t* xl, int n
             xs = _mm512_fmadd_ps(vd1, inner, base);
         }
     }
-    warp_columns_scalar<IA>(wrow, xl + i, n - i, d0, d1, iters, W, i0 + i, f + i);
+    warp_columns_scalar_v<IA>(wrow, xl + i, n - i, d0, d1, iters, W, i0 + i, f + i);
 }
 
 // element t of the 64 floats r0 | r1 | r2 | r3 for each lane (t < 64)
@@ -1842,7 +1849,7 @@ HV_TARGET_AVX512 void warp_blend16(const float* ia, const float* ib, const int32
         const float* a = ia + 3 * pa[i];
         const float* b = ib + 3 * pb[i];
         for (int c = 0; c < 3; ++c)
-            rgb[3 * i + c] = warp_blend_scalar<BA>(ca0, ca1, cb0, cb1, a[c], a[3 + c], b[c], b[3 + c]);
+            rgb[3 * i + c] = warp_blend_scalar_v<BA>(ca0, ca1, cb0, cb1, a[c], a[3 + c], b[c], b[3 + c]);
     }
 }
 #endif
