@@ -184,7 +184,7 @@ def main() -> int:
     ap.add_argument("--png", default=None, help="write the first re-laid frame's first 4 views here")
     ap.add_argument("--live", type=int, default=0, metavar="PAIRS",
                     help="instead: PAIRS rounds of live sessions alternating --live-candidates (recording on)")
-    ap.add_argument("--live-candidates", default=f"{BASELINE};ffvhuff plane (--native-codec ffvhuff)", help="';'-separated candidate names")
+    ap.add_argument("--live-candidates", default=f"{BASELINE};ffvhuff plane (--native-codec ffvhuff);ffvhuff left", help="';'-separated candidate names")
     ap.add_argument("--clip-seconds", type=float, default=8.0, help="--live: the replayed clip (bench/live_latency.py's)")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "holo_viewer_live_bench"),
                     help="--live: bench/live_latency.py's clip cache")
