@@ -46,12 +46,18 @@ frame is **deformed Gaussians -> native image** (``NativeFrameRenderer.frame``).
   ``--gpu-only`` runs only the full-quality reference on the CPU before them (a lent GPU's time
   is short).
 
+``--kernels-ab`` (alone): live-sized group frames (``holo-viewer live``'s renderer: tile scale 0.5, the per-view
+visible mask, no face, a changing expression) with the float32 warp and the interleave's row gather in numba
+against the C++ kernels (the same bytes: asserted), rounds alternating in one process; CPU ms per frame
+(``bench/results/live_frame_kernels_ab.json``).
+
 Wall clock on a shared machine: the load average (1 min) before and after is recorded with the
 CPU seconds of every mode; compare ratios from one run.
 
 Usage::
 
     python bench/live_frame.py [--quick] [--device cpu|cuda [--gpu-only]] [--json bench/results/live_frame.json]
+    python bench/live_frame.py --group-only [--quick]     python bench/live_frame.py --kernels-ab
 """
 
 from __future__ import annotations
@@ -347,6 +353,45 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
     return records
 
 
+def kernels_ab(rounds: int = 5, n_frames: int = 6) -> list[dict]:
+    """``--kernels-ab``: CPU per live-sized group frame with the numba warp and row gather, then the C++ ones,
+    ``rounds`` times alternating over the same ``n_frames`` deformed faces; every native image compared."""
+    from holo_viewer.live.render import LiveAvatarRenderer
+
+    r = LiveAvatarRenderer(tile_scale=0.5, visible_only=True, mode="auto")
+    live = r._live
+    n_expr = int(r.pipeline.model.n_expr)
+    faces = [r.deform({"expr": 0.3 * np.sin(0.3 * i + np.arange(n_expr)),
+                       "jaw_pose": np.array([0.1 * np.sin(0.2 * i), 0.0, 0.0])}, 0.2, ()) for i in range(n_frames)]
+    for g in faces:  # warm-up, untimed
+        live.frame(g, None, "auto")
+    cpu: dict[str, list[float]] = {"numba": [], "cpp": []}
+    first: dict[tuple[str, int], np.ndarray] = {}
+    load0 = load()
+    for rnd in range(rounds):
+        for k in ("numba", "cpp"):
+            view_synthesis.WARP_KERNEL = "numba" if k == "numba" else "auto"
+            live.interleaver.row_kernel = "numba" if k == "numba" else "auto"
+            for i, g in enumerate(faces):
+                c0 = time.process_time()
+                f = live.frame(g, None, "auto")
+                cpu[k].append(time.process_time() - c0)
+                if rnd == 0:
+                    first[(k, i)] = f.native.copy()
+    view_synthesis.WARP_KERNEL = "auto"
+    same = all(np.array_equal(first[("numba", i)], first[("cpp", i)]) for i in range(n_frames))
+    rec = {"mode": "group", "viewers": 0, "tile_scale": 0.5, "rounds": rounds, "frames": n_frames,
+           "cpu_ms_per_frame_numba": 1e3 * float(np.median(cpu["numba"])),
+           "cpu_ms_per_frame_cpp": 1e3 * float(np.median(cpu["cpp"])),
+           "native_identical": same, "load_1min": [load0, load()]}
+    print(f"live-size group frames, CPU ms a frame (median of {rounds} x {n_frames}): numba warp + row gather "
+          f"{rec['cpu_ms_per_frame_numba']:.1f}, C++ {rec['cpu_ms_per_frame_cpp']:.1f}; native images identical: "
+          f"{same}; load {load0:.2f} -> {load():.2f}", flush=True)
+    if not same:
+        raise HoloViewerError("kernels A/B: the C++ kernels' native images differ from the numba ones")
+    return [rec]
+
+
 def write_sheet(path: str, display: VirtualDisplay, shown: dict, viewer, moments: tuple, refs: list) -> None:
     """'tracked eye | bystander 0 | -15 | +15 deg' (0.6 m) per moment and mode, each labelled with its
     PSNR against the present frame seen from there; the head region of each perceived image."""
@@ -409,11 +454,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=None,
                     help="frames per mode (default 6 quick, 10 full; the median of 4 was carried by one cold frame)")
     ap.add_argument("--ref-views", type=int, default=None, help="views checked against float64 (1 quick, 2)")
+    ap.add_argument("--kernels-ab", action="store_true",
+                    help="only the live-size A/B of the numba warp + row gather against the C++ kernels")
     ap.add_argument("--vtk-views", type=int, default=None,
                     help="VTK views timed one call each and extrapolated; default: the whole pass")
     args = ap.parse_args(argv)
     if args.json is None:
-        args.json = "bench/results/live_frame_group.json" if args.group_only else "bench/results/live_frame.json"
+        args.json = ("bench/results/live_frame_kernels_ab.json" if args.kernels_ab else
+                     "bench/results/live_frame_group.json" if args.group_only else "bench/results/live_frame.json")
     n_frames = args.frames or (6 if args.quick else 10)
     ref_views = args.ref_views if args.ref_views is not None else (1 if args.quick else 2)
     vtk_views = args.vtk_views if args.vtk_views is not None else 10**6  # default: the whole pass
@@ -423,6 +471,8 @@ def main(argv: list[str] | None = None) -> int:
         cal = DisplayCalibration.load(None)
         pipe = Pipeline(calibration=cal)
         cams = pipe.cameras()
+        if args.kernels_ab:
+            raise _GroupOnly(kernels_ab())
         if args.group_only:
             raise _GroupOnly(group_sweep(cal, pipe, args.quick, args.sheet))
         params: list = []
