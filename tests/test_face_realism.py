@@ -247,3 +247,39 @@ def test_patients_all_expands_and_merge_keeps_other_avatars(tmp_path, monkeypatc
     monkeypatch.undo()
     with pytest.raises(ValueError, match="renderer: expected"):
         fr.run_patient("ann", renderer="splats")
+
+
+def test_monotone_tolerance_and_eye_positions():
+    """A rise within the repeatability passes, one beyond it fails; eye windows are symmetric grids."""
+    from bench.face_realism import eye_positions
+
+    assert monotone([0.10, 0.0726, 0.0727, 0.05], -1, tol=0.005)
+    assert not monotone([0.10, 0.0726, 0.0727, 0.05], -1)
+    assert not monotone([0.10, 0.070, 0.0760, 0.05], -1, tol=0.005)
+    assert monotone([1.0, 1.2, 1.19], +1, tol=0.02) and not monotone([1.0, 1.2, 1.17], +1, tol=0.02)
+    with pytest.raises(ValueError, match="tol"):
+        monotone([1, 2], 0, tol=-1.0)
+    assert eye_positions(-15.0) == [-17.0, -16.0, -15.0, -14.0, -13.0]
+    assert eye_positions(0.0, 1.0, 0.5) == [-1.0, -0.5, 0.0, 0.5, 1.0]
+    assert eye_positions(15.0, 0.0) == [15.0]
+    with pytest.raises(ValueError, match="eye window"):
+        eye_positions(0.0, 2.0, 0.0)
+
+
+def test_evaluate_patient_rows_use_the_repeatability():
+    """40 rows per avatar; a rise of a window median within MONOTONE_TOL is not a reversal, beyond it is."""
+    from bench.face_realism import MONOTONE_TOL, evaluate_patient
+
+    def m(eye, brow, nose):
+        return {"eye_aperture": eye, "brow_eye_gap": brow, "nose_lip_gap": nose, "mouth_width": 0.8}
+
+    tol = MONOTONE_TOL["eye_aperture"]
+    levels = {"neutral": m(0.10, 0.34, 0.26), "pain_025": m(0.08, 0.32, 0.25),
+              "pain_05": m(0.08 + 0.5 * tol, 0.30, 0.23), "pain_1": m(0.05, 0.28, 0.15)}
+    per = {e: {"found": 48, "quilt": {"+0 deg": v}, "eye": {"+0 deg": v}} for e, v in levels.items()}
+    per["smile"] = per["mouth_open"] = {"found": 47}
+    rows = evaluate_patient({"per_expression": per})
+    assert len(rows) == 4 + 2 * 3 * 2 and all(r["pass"] for r in rows)
+    per["pain_05"]["eye"]["+0 deg"] = m(0.08 + 2 * tol, 0.30, 0.23)
+    bad = [r for r in evaluate_patient({"per_expression": per}) if not r["pass"]]
+    assert [(r["measure"], r["where"]) for r in bad] == [("eye_aperture monotone over pain", "eye +0 deg")]
