@@ -398,3 +398,23 @@ def test_float32_inputs_render_as_their_exact_float64_widening():
     np.testing.assert_array_equal(a, b)
     c = render_views(g64, cams, "fast", RenderConfig(kernel="numba")).images
     np.testing.assert_allclose(a, c, atol=1e-4)
+
+
+def test_sigmoid_cached_equals_the_formula_and_follows_the_logits():
+    """fast.sigmoid_cached (live frames' opacities): the formula's values bit for bit on the first call, from the
+    cache and after the logits change in place (same shape); the array returned is the caller's own."""
+    from holo_viewer.render.fast import sigmoid_cached
+
+    rng = np.random.default_rng(41)
+    logits = rng.normal(0.0, 3.0, 1001).astype(np.float32)
+
+    def want() -> np.ndarray:
+        return 1.0 / (1.0 + np.exp(-np.asarray(logits, dtype=np.float64)))
+
+    a = sigmoid_cached(logits)
+    np.testing.assert_array_equal(a, want())
+    a[:] = -1.0  # the caller's copy: the cache keeps its own
+    np.testing.assert_array_equal(sigmoid_cached(logits), want())
+    logits[7] += 1.0  # changed in place: recomputed
+    np.testing.assert_array_equal(sigmoid_cached(logits), want())
+    np.testing.assert_array_equal(sigmoid_cached(logits[:500]), 1.0 / (1.0 + np.exp(-logits[:500].astype(np.float64))))

@@ -501,7 +501,7 @@ class NativeFrameRenderer:
         means, logits = np.asarray(gn.means), np.asarray(gn.opacity_logits, dtype=np.float64)
         if index is not None:
             means, logits = means[index], logits[index]
-        opacity = 1.0 / (1.0 + np.exp(-logits))
+        opacity = fast.sigmoid_cached(logits)  # the same values; cached while the logits stay
         view_synthesis.inverse_depth(means, opacity, self.cameras, src, rig=self._rig, out=wmaps,
                                      cell=self._depth_cell)
         t2 = time.perf_counter()

@@ -35,7 +35,7 @@ import os
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -217,6 +217,26 @@ def release_buffers() -> None:
     cpp = _cpp()
     if cpp is not None:
         cpp.release_scratch()
+
+
+#: sigmoid_cached's last results by shape: (logits float64 copy, opacities); one tuple per key, replaced
+#: whole (renderers in several threads read it)
+_SIGMOID_CACHE: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def sigmoid_cached(logits: Any) -> np.ndarray:
+    """``1 / (1 + exp(-logits))`` in float64, a new array; the same values as computing it, taken from the last
+    call with equal logits of that shape (an avatar's opacities do not change between live frames: 0.08 ms
+    against 0.79 for 102k, measured)."""
+    lg = np.asarray(logits, dtype=np.float64)
+    hit = _SIGMOID_CACHE.get(lg.shape)
+    if hit is not None and np.array_equal(hit[0], lg):
+        return hit[1].copy()
+    op = 1.0 / (1.0 + np.exp(-lg))
+    if len(_SIGMOID_CACHE) >= 4 and lg.shape not in _SIGMOID_CACHE:
+        _SIGMOID_CACHE.clear()
+    _SIGMOID_CACHE[lg.shape] = (lg.copy(), op.copy())
+    return op
 
 
 def _cpp():  # noqa: ANN202
@@ -664,7 +684,7 @@ def _render(gaussians: Gaussians, cameras: Cameras, config: RenderConfig, worksp
     # (opacity stays whole: read through that order alone; elementwise, so the indexed ones are the subset's)
     n = len(g) if index is None else index.size
     zmeans = means if index is None else means[index]
-    opacity = (1.0 / (1.0 + np.exp(-np.asarray(g.opacity_logits, dtype=np.float64))))
+    opacity = sigmoid_cached(g.opacity_logits)
     degree = g.sh_degree if config.sh_degree is None else min(g.sh_degree, int(config.sh_degree))
     sh = np.ascontiguousarray(np.asarray(g.sh)[:, : (degree + 1) ** 2], dtype=np.float32)
     near = cameras.near if config.near is None else float(config.near)
