@@ -109,9 +109,14 @@ STAGE7_PATIENTS: tuple[str, ...] = ("mei", "rafael")
 #: docs/avatar_fit.md "Silhouette stage"): the limit stage's recipe (poses weighted as the pain stage, the outer
 #: cameras x 2, D-SSIM crops) with ``fit_avatar``'s rim terms (``SILHOUETTE_TERMS``: the pixels within
 #: ``rim_px`` of the target's outline weighted ``1 + rim_weight`` in the loss, ``crop_rim`` of the crops
-#: centred on the outline), a fresh Adam, seed 6
+#: centred on the outline), every learning rate x ``SILHOUETTE_LR_SCALE`` (a fresh Adam's first steps at the
+#: full rates cost a converged file up to 1 dB in some views: docs/avatar_fit.md), a fresh Adam, seed 6
 SILHOUETTE_TERMS: dict[str, float] = {"rim_weight": 4.0, "rim_px": 4, "crop_rim": 0.3, "w_alpha": 0.0}
-SILHOUETTE_STAGE_CONFIG = fa.replace_config(LIMIT_STAGE_CONFIG, iterations=200, seed=6, **SILHOUETTE_TERMS)
+SILHOUETTE_LR_SCALE = 0.3
+_LR_FIELDS = ("lr_means", "lr_means_final", "lr_log_scales", "lr_quats", "lr_opacity", "lr_sh_dc", "lr_sh_rest")
+SILHOUETTE_STAGE_CONFIG = fa.replace_config(
+    LIMIT_STAGE_CONFIG, iterations=200, seed=6, **SILHOUETTE_TERMS,
+    **{k: getattr(LIMIT_STAGE_CONFIG, k) * SILHOUETTE_LR_SCALE for k in _LR_FIELDS})
 #: the patients whose shipped avatar has the silhouette stage
 STAGE6_PATIENTS: tuple[str, ...] = ()
 N_LASH = 2000
@@ -152,9 +157,9 @@ def pain_limit_stage_config(pose_names: list[str], cfg: fa.AvatarFitConfig,
 def silhouette_stage_config(pose_names: list[str], cfg: fa.AvatarFitConfig,
                             iterations: int = SILHOUETTE_STAGE_CONFIG.iterations) -> fa.AvatarFitConfig:
     """The silhouette stage's settings (stage 6): :func:`limit_stage_config`'s pose and camera weights with
-    ``SILHOUETTE_STAGE_CONFIG``'s seed and rim terms (``SILHOUETTE_TERMS``)."""
+    ``SILHOUETTE_STAGE_CONFIG``'s seed, rim terms (``SILHOUETTE_TERMS``) and learning rates."""
     return fa.replace_config(limit_stage_config(pose_names, cfg, iterations), seed=SILHOUETTE_STAGE_CONFIG.seed,
-                             **SILHOUETTE_TERMS)
+                             **SILHOUETTE_TERMS, **{k: getattr(SILHOUETTE_STAGE_CONFIG, k) for k in _LR_FIELDS})
 
 
 def stage3_config(name: str) -> fa.AvatarFitConfig:
@@ -412,7 +417,8 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
         info["stage6_iterations"] = stage6
         info["stage6"] = {"ssim_weight": s6.ssim_weight, "crop_detail": s6.crop_detail, "seed": s6.seed,
                           "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05,
-                          "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT, **SILHOUETTE_TERMS}
+                          "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT, "lr_scale": SILHOUETTE_LR_SCALE,
+                          **SILHOUETTE_TERMS}
     if cfg.iterations and stage7:
         s7 = PAIN_LIMIT_STAGE_CONFIG
         info["method"] = ("transfer of the default avatar + fine-tune in six stages: the fourth weighted to pain, "

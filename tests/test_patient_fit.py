@@ -402,9 +402,9 @@ def test_the_pain_limit_stage_draws_pain_1_half_the_time_at_the_limit_cameras_we
 
 
 def test_the_silhouette_stage_is_the_limit_stage_with_the_rim_terms():
-    """``scripts/fit_patients.py``'s stage 6: the limit stage's pose and camera weights, its own seed, and
-    the rim terms of ``SILHOUETTE_TERMS`` (the stages before it keep theirs off); a negative count is a
-    usage error."""
+    """``scripts/fit_patients.py``'s stage 6: the limit stage's pose and camera weights, its own seed, the
+    rim terms of ``SILHOUETTE_TERMS`` and its learning rates x ``SILHOUETTE_LR_SCALE`` (the stages before it
+    keep the rim terms off); a negative count is a usage error."""
     import importlib.util
     from pathlib import Path
 
@@ -416,8 +416,86 @@ def test_the_silhouette_stage_is_the_limit_stage_with_the_rim_terms():
     s5 = fp.limit_stage_config(["neutral", "pain_1"], cfg, 50)
     s6 = fp.silhouette_stage_config(["neutral", "pain_1"], cfg, 50)
     assert s6.rim_weight > 0 and s6.crop_rim > 0 and s6.seed not in (s5.seed, fp.STAGE4_CONFIG.seed)
-    assert fa.replace_config(s6, seed=s5.seed, rim_weight=0.0, rim_px=4, crop_rim=0.0, w_alpha=0.0) == s5
+    assert s6.lr_opacity == pytest.approx(s5.lr_opacity * fp.SILHOUETTE_LR_SCALE) and fp.SILHOUETTE_LR_SCALE < 1
+    assert fa.replace_config(s6, seed=s5.seed, rim_weight=0.0, rim_px=4, crop_rim=0.0, w_alpha=0.0,
+                             **{k: getattr(s5, k) for k in fp._LR_FIELDS}) == s5
     for s in (fp.STAGE2_CONFIG, fp.STAGE3_CONFIG, fp.STAGE4_CONFIG, fp.LIMIT_STAGE_CONFIG):
         assert s.rim_weight == 0 and s.crop_rim == 0 and s.w_alpha == 0
     with pytest.raises(SystemExit):
         fp.main(["helen", "--stage6", "-1"])
+
+
+def test_the_silhouette_loss_weights_the_rim_and_adds_the_alpha_term():
+    """``AvatarFitConfig.rim_weight`` / ``w_alpha`` (the silhouette stage): the first step's loss of a fit
+    on one pose and one camera (no learning) equals the float64 formula computed here, mean(|G - T| (1 +
+    rim_weight rim)) + w_alpha mean(|alpha - mask| (1 + rim_weight rim)), and differs from plain L1;
+    ``crop_rim`` 1 centres every crop on a rim pixel inside the mask (a target blank outside the rim's
+    crops gives the same losses)."""
+    import dataclasses
+
+    from holo_viewer.avatar import RiggedAvatar
+    from holo_viewer.pipeline import FaceControls
+    from holo_viewer.render.config import RenderConfig
+    from holo_viewer.render.differentiable import render_view
+
+    model = random_flame_model(n_vertices=120, n_expr=4, seed=3)
+    n = 300
+    binding = np.random.default_rng(0).integers(0, int(model.faces.shape[0]), size=n)
+    teacher = random_gaussians(n, sh_degree=1, seed=1, scale=0.2)
+    teacher = teacher.replace(means=teacher.means * 0.05, log_scales=teacher.log_scales * 0 + np.log(0.4))
+    student = teacher.replace(log_scales=teacher.log_scales - 0.4, sh=teacher.sh * 0.5)
+    t_av = RiggedAvatar(model, teacher.replace(extra={}), binding=binding)
+
+    def render(vertices, faces, cameras, indices):
+        g = t_av.deform(torch.as_tensor(vertices, dtype=torch.float32))
+        with torch.no_grad():
+            ims = [render_view(g.means, g.quats, g.log_scales, g.opacity_logits, g.sh, cameras.world_to_cam[i],
+                               cameras.K[i], cameras.width, cameras.height, cameras.near).numpy() for i in indices]
+        ims = np.clip(np.stack(ims), 0, 1)
+        yy, xx = np.mgrid[0:cameras.height, 0:cameras.width] + 0.5  # a 'mesh mask': an ellipse in the tile
+        ell = (((xx - cameras.width / 2) / (0.35 * cameras.width)) ** 2
+               + ((yy - cameras.height / 2) / (0.4 * cameras.height)) ** 2) <= 1
+        return ims * ell[None, ..., None], np.repeat(ell[None], len(ims), 0)
+
+    pipe = Pipeline(model=model, avatar=False, view=ViewSettings(tile_scale=0.1))
+    zero = dict(lr_means=1e-30, lr_means_final=1e-30, lr_log_scales=0.0, lr_quats=0.0, lr_opacity=0.0, lr_sh_dc=0.0,
+                lr_sh_rest=0.0, w_pos=0.0, w_scale=0.0)
+    cfg = fa.AvatarFitConfig(iterations=1, train_scale=1.0, crop_fraction=0.0, quilt_views=(24,), orbit=(),
+                             render_timeout_s=None, dtype="float64", **zero)
+    data = fa.build_dataset(pipe, [fa.TrainingPose("neutral", FaceControls())], render, cfg, progress=False)
+    g = RiggedAvatar(model, student.replace(extra={}), binding=binding).deform(
+        torch.as_tensor(data.vertices[0], dtype=torch.float64))
+    cams = data.cameras
+    img, alpha = fa._render_rgba(g.means.double(), g.quats.double(), g.log_scales.double(),
+                                 g.opacity_logits.double(), g.sh.double(), cams.world_to_cam[0], cams.K[0],
+                                 cams.width, cams.height, cams.near, RenderConfig())
+    img, alpha = img.detach().numpy(), alpha.detach().numpy()
+    t = data.images[0, 0].astype(np.float64) / 255.0
+    m = data.masks[0, 0]
+    rim = fa.rim_map(m, 2)
+    assert 0 < rim.sum() < rim.size, m.mean()
+    w = 1.0 + 3.0 * rim
+    want = (np.abs(img - t).mean(2) * w).mean() + 0.5 * (np.abs(alpha - m) * w).mean()
+    got = fa.fit_gaussians(student, binding, data, fa.replace_config(cfg, rim_weight=3.0, rim_px=2, w_alpha=0.5),
+                           progress=False).losses[0]
+    assert got == pytest.approx(want, rel=1e-6)
+    plain = fa.fit_gaussians(student, binding, data, cfg, progress=False).losses[0]
+    assert plain == pytest.approx(np.abs(img - t).mean(), rel=1e-6) and abs(plain - got) > 0.1 * plain
+    # crop_rim 1: every crop is centred on a rim pixel inside the mask (the crop is 1/4 of the tile)
+    crops = fa.replace_config(cfg, iterations=8, crop_fraction=1.0, train_scale=0.5, crop_rim=1.0, rim_px=2)
+    seen = np.zeros(m.shape, bool)
+    ch, cw = cams.height // 2, cams.width // 2
+    rng = np.random.default_rng(crops.seed)
+    ry, rx = np.nonzero(rim & m)
+    for _ in range(8):  # the draws of fit_gaussians: pose, camera, crop_rim's coin, the rim pixel
+        rng.integers(1), rng.choice(1, size=1, replace=False, p=None), rng.random()
+        k = int(rng.integers(len(ry)))
+        y0 = int(np.clip(ry[k] - ch // 2, 0, cams.height - ch))
+        x0 = int(np.clip(rx[k] - cw // 2, 0, cams.width - cw))
+        seen[y0:y0 + ch, x0:x0 + cw] = True
+    assert not seen.all()
+    blank = data.images.copy()
+    blank[0, 0][~seen] = 0
+    a = fa.fit_gaussians(student, binding, data, crops, progress=False).losses
+    b = fa.fit_gaussians(student, binding, dataclasses.replace(data, images=blank), crops, progress=False).losses
+    assert a == b
