@@ -43,6 +43,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "live": ("live", "live session: microphone + webcam (or replayed files) -> reacting, viewer-tracked hologram"),
     "replay": ("replay", "re-render a recorded live session to a native-image video, deterministically"),
     "report": ("report", "debrief a recorded live session: report.png, a text summary, a review video with audio"),
+    "compact": ("compact", "re-encode finished sessions' FFVHuff native.mkv to x264 (lossless), verified bit-exact"),
     "patients": ("patients", "list the shipped patients, one a line, name first (--sheet F.png: thumbnails)"),
 }
 
