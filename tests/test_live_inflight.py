@@ -216,3 +216,25 @@ def test_live_command_takes_frames_in_flight(capsys) -> None:
     assert "--frames-in-flight: expected an integer >= 1, found '0'" in capsys.readouterr().err
     with pytest.raises(InputError, match="frames_in_flight: expected an integer >= 1, found 1.5"):
         LiveSessionConfig(frames_in_flight=1.5)
+
+
+def test_deforming_only_the_drawn_gaussians_changes_no_frame(renderers) -> None:
+    """With a visible mask the live renderer deforms only the Gaussians its frames draw (the union of the
+    per-view rows, and the faces they sit on): those rows equal the whole avatar's deform bit for bit, and
+    so do the frames against a renderer that deforms everything (what replay --quality live compares)."""
+    keep = renderers[0].visible_keep.copy()
+    keep[:, np.random.default_rng(6).random(keep.shape[1]) < 0.4] = False  # ~40 % drawn by no view
+    a = type(renderers[0])(**{**renderers[0]._args, "visible_keep": keep})
+    full = a.twin()
+    full._drawn = None  # deform the whole avatar, as before
+    assert a._drawn is not None and 0.5 * keep.shape[1] < a._drawn["index"].size < 0.7 * keep.shape[1]
+    idx = a._drawn["index"]
+    rng = np.random.default_rng(5)
+    for i in range(3):
+        lf = {"expr": rng.normal(0, 0.6, 50), "jaw_pose": np.array([0.2 * rng.random(), 0.0, 0.0]),
+              "rotation": np.array([0.0, 0.1 * rng.normal(), 0.0])}
+        g, ref = a.deform(lf, 0.3 * i, ()), full.deform(lf, 0.3 * i, ())
+        for f in ("means", "quats", "log_scales"):
+            assert np.array_equal(getattr(g, f).numpy()[idx], getattr(ref, f).numpy()[idx]), (i, f)
+        args = (lf, 0.3 * i, (), -5.0 + 5 * i, 0.6, i != 1)
+        assert np.array_equal(a.render(*args).native, full.render(*args).native), i

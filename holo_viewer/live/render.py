@@ -210,6 +210,7 @@ class LiveAvatarRenderer:
         self.pipeline = Pipeline(calibration=calibration, view=ViewSettings(tile_scale=tile_scale),
                                  backend=self.backend, render_config=RenderConfig(num_threads=threads), **who)
         self._live = None
+        self._drawn = None  # _drawn_setup's tables
         if self.session_mode.tracked is None:  # cone: the pipeline renders the viewer's whole quilt
             if self.backend == "gsplat":
                 self.pipeline.render_view(0)
@@ -234,11 +235,62 @@ class LiveAvatarRenderer:
         self._live = NativeFrameRenderer(self.pipeline.calibration, cams, config, keep=keep)
         # what the frames draw: the per-view rows (each source view its own), else the (N,) mask
         self.visible_keep = keep
+        self._drawn = self._drawn_setup(keep)
         if self.backend == "gsplat":
             self._live.frame(self.pipeline.gaussians(), None, "all_views")
         else:
             for prepare in self.session_mode.prepare:
                 getattr(self._live, prepare)()
+
+    def _drawn_setup(self, keep: np.ndarray | None) -> dict | None:
+        """The tables of :meth:`_deform_drawn` (None: every frame deforms the whole avatar): a CPU renderer
+        with a visible mask, a rigged avatar on the numba path, frame modes that draw the mask's Gaussians
+        alone (``group``, ``all_views``) and no preview (it renders every Gaussian)."""
+        from ..pipeline.avatars import RiggedStage
+
+        stage = getattr(self.pipeline, "_avatar", None)
+        s = self.session_mode
+        if (keep is None or self.backend != "fast" or self.preview_enabled or not isinstance(stage, RiggedStage)
+                or any(m not in ("group", "all_views") for m in (s.tracked, s.untracked))):
+            return None
+        from ..avatar import rigged
+
+        av, k = stage.avatar, rigged._kernels()
+        if not isinstance(av, rigged.RiggedAvatar) or k is None or av.backend == "torch" \
+                or av.flame_model.device.type != "cpu":
+            return None
+        faces, binding, mu, ql, ls = av._np_local()
+        index = np.flatnonzero(keep.any(axis=0) if keep.ndim == 2 else keep).astype(np.int64)
+        face_mask = np.zeros(faces.shape[0], dtype=bool)
+        face_mask[binding[index]] = True
+        return {"avatar": av, "kernels": k, "index": index, "face_mask": face_mask, "gaussians": None,
+                "eps": rigged.DEGENERATE_EPS}
+
+    def _deform_drawn(self) -> Any:
+        """The pipeline's posed mesh bound to the Gaussians the frames draw, written in place into this
+        renderer's own (N,) Gaussians (the first frame deforms all of them, through the pipeline): the same
+        numba kernels as ``RiggedAvatar.deform`` restricted to those Gaussians (``bind_subset_nb``) and the
+        faces they sit on (``face_frames_nb``'s mask), so those rows are the full deform's bit for bit
+        (tested); the others keep an earlier frame's values, which no group / all_views frame reads."""
+        import torch
+
+        d = self._drawn
+        p = self.pipeline
+        if d["gaussians"] is None:  # the first frame: all of them, copied into buffers of our own
+            g = p.gaussians()
+            d["gaussians"] = g.replace(means=g.means.clone(), quats=g.quats.clone(), log_scales=g.log_scales.clone())
+            return d["gaussians"]
+        from ..validation import check_array
+
+        av, k, g = d["avatar"], d["kernels"], d["gaussians"]
+        faces, binding, mu, ql, ls = av._np_local()
+        verts = np.asarray(p.mesh())
+        check_array(verts[None], "vertices", ("B", int(av.flame_model.n_vertices), 3), finite=True)
+        v = torch.as_tensor(verts).to(dtype=av.flame_model.dtype).contiguous().numpy()  # as RiggedAvatar.deform
+        frame, _ = k.frames(v, faces, d["eps"], d["face_mask"])
+        k.bind_subset_nb(frame, binding, mu, ql, ls, d["index"], g.means.numpy(), g.quats.numpy(),
+                         g.log_scales.numpy())
+        return g
 
     @property
     def frames_independent(self) -> bool:
@@ -294,7 +346,10 @@ class LiveAvatarRenderer:
 
     def deform(self, listener: Mapping[str, np.ndarray], pain: float, named: tuple[tuple[str, float], ...]) -> Any:
         """The deformed Gaussians of one listener frame (the first step of :meth:`render`; its own stage in
-        ``bench/live_stages.py``). Not at the same time as :meth:`render` (one pipeline)."""
+        ``bench/live_stages.py``). Not at the same time as :meth:`render` (one pipeline). With a visible mask
+        on the CPU (``group`` / ``all_views`` sessions, no preview) only the Gaussians the frames draw are
+        deformed (:meth:`_deform_drawn`; the others hold an earlier frame's values) in a buffer this
+        renderer overwrites each frame."""
         from ..pipeline import FaceControls
 
         p = self.pipeline
@@ -303,7 +358,7 @@ class LiveAvatarRenderer:
         p.set_face(FaceControls(expr=expr, jaw_pose=listener.get("jaw_pose"), rotation=listener.get("rotation"),
                                 neck_pose=listener.get("neck_pose"), eyes_pose=listener.get("eyes_pose"),
                                 translation=listener.get("translation"), named=named, pain=float(pain)))
-        return p.gaussians()
+        return p.gaussians() if self._drawn is None else self._deform_drawn()
 
     def render(self, listener: Mapping[str, np.ndarray], pain: float, named: tuple[tuple[str, float], ...],
                viewer_angle_deg: float, viewer_distance_m: float, viewer_tracked: bool = True,
