@@ -133,6 +133,8 @@ def check_array(
         if isinstance(sizes, dict):
             sizes.update(bound)
     if finite:
+        if _all_finite(x):  # the hot path: one reduction, no temporaries kept; the messages below as before
+            return x
         if is_torch(x):
             import torch
 
@@ -151,6 +153,22 @@ def check_array(
                     f"{prefix}{name}: expected finite values, found {int(bad.sum())} NaN/inf "
                     f"(flat indices {idx}{'...' if bad.sum() > 5 else ''})")
     return x
+
+
+def _all_finite(x: Any) -> bool:
+    """True when ``x`` is known to hold no NaN/inf (then :func:`check_array` returns at once); False: not
+    known, the full test runs (and names the bad indices). A CPU torch tensor of a numpy dtype is tested
+    through its numpy view: torch.isfinite on the mesh's 15k values took 35 us of CPU (94 us wall at
+    load 16) against 5 us (2026-11-28, issue 37's live frames)."""
+    if isinstance(x, np.ndarray):
+        return x.dtype.kind not in "fc" or bool(np.isfinite(x).all())
+    try:
+        if x.device.type != "cpu" or x.is_conj() or x.is_neg():
+            return False
+        a = x.detach().numpy()
+    except (AttributeError, TypeError, RuntimeError):  # bfloat16 and other dtypes numpy lacks: the torch test
+        return False
+    return a.dtype.kind not in "fc" or bool(np.isfinite(a).all())
 
 
 def check_finite_scalar(value: Any, name: str, *, low: float | None = None, high: float | None = None,

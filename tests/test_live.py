@@ -645,3 +645,27 @@ def test_traced_reaction_stream_equals_the_model(monkeypatch):
     monkeypatch.setattr(torch.jit, "trace", no_trace)
     s = ReactionStream(bundle, trace=True, **kw)
     assert s._run is s.model and s.trace_error == "RuntimeError: cannot trace this"
+
+
+def test_check_array_fast_path_keeps_every_message() -> None:
+    """check_array's one-reduction hot path (numpy, and CPU torch through its numpy view; issue 37's live
+    frames) returns clean arrays unchanged and raises the same message as before on NaN/inf, for every kind
+    of array it takes (float16/32/64, complex, a tensor that needs grad, bfloat16, a conjugate view)."""
+    import torch
+
+    from holo_viewer.errors import InputError
+    from holo_viewer.validation import check_array
+
+    msg = "ctx: v: expected finite values, found 6 NaN/inf (flat indices [1, 2, 3, 4, 5]...)"
+    base = np.zeros(9)
+    base[1:7] = [np.nan, np.inf, -np.inf, np.nan, np.nan, np.inf]
+    for x in (base, base.astype(np.float32), base.astype(np.float16), base.astype(np.complex128),
+              torch.tensor(base), torch.tensor(base, dtype=torch.float32, requires_grad=True),
+              torch.tensor(base, dtype=torch.bfloat16), torch.tensor(base, dtype=torch.complex64).conj()):
+        with pytest.raises(InputError) as err:
+            check_array(x, "v", ("N",), context="ctx")
+        assert str(err.value) == msg, (type(x), x.dtype)
+        clean = x[:1] if isinstance(x, np.ndarray) else x.detach()[:1]
+        assert check_array(clean, "v", ("N",), context="ctx") is clean
+    ints = np.arange(4)
+    assert check_array(ints, "i", ("N",)) is ints and check_array(torch.arange(4), "i").shape == (4,)
