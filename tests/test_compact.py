@@ -110,6 +110,12 @@ def test_compact_errors_name_the_folder(recorded, tmp_path) -> None:
     finally:
         os.close(fd)
     tmp.unlink()
+    meta = json.loads((folder / "session.json").read_text())
+    (folder / "session.json").write_text(json.dumps({k: v for k, v in meta.items() if k != "end_s"}))
+    with pytest.raises(InputError, match=r"session.json: end_s: expected the session's end, found none \(the session "
+                       r"is still being written\)"):
+        compact.compact_session(folder)
     (folder / "native.mkv").unlink()
-    with pytest.raises(InputError, match=r"native.mkv: expected the session video, found no file"):
+    with pytest.raises(InputError, match=r"native.mkv: expected the session video, found no file \(session.json has "
+                       r"no end_s: the session is still starting or was killed before its end\)"):
         compact.compact_session(folder)

@@ -63,7 +63,9 @@ def run(args: argparse.Namespace) -> int:
         else:
             print(f"{folder}: native.mkv {rec['codec_before']} -> {rec['codec_after']}: {rec['bytes_before'] / 1e6:.1f} "
                   f"-> {rec['bytes_after'] / 1e6:.1f} MB ({rec['bytes_after'] / rec['bytes_before']:.2f}x), "
-                  f"{rec['frames']} frames verified bit-exact, {rec['cpu_s']:.1f} s CPU")
+                  f"{rec['frames']} frames verified bit-exact, {rec['cpu_s']:.1f} s CPU"
+                  + (f" ({rec['cpu_s_per_session_minute']:.0f} s a session minute)"
+                     if rec["cpu_s_per_session_minute"] is not None else ""))
     return 1 if failed else 0
 
 
@@ -154,16 +156,21 @@ def compact_session(folder: str | os.PathLike, *, threads: int = 0, progress: bo
     if busy:
         raise InputError(f"{p}: the session is still being written ({busy[0].name} is held by its writer); "
                          f"compact it after the session has ended")
-    load_session(p)  # a session folder (session.json, tracks.npz), readable
+    meta, _ = load_session(p)  # a session folder (session.json, tracks.npz), readable
+    ended = meta.get("end_s") is not None  # set when the live loop ends, before the video is closed
     video = p / NATIVE_VIDEO
     if not video.is_file():
-        raise InputError(f"{video}: expected the session video, found no file (recorded without it, or the session "
-                         f"was killed before its end)")
+        raise InputError(f"{video}: expected the session video, found no file (" + (
+            "recorded without it)" if ended else "session.json has no end_s: the session is still starting or was "
+            "killed before its end)"))
     codec = video_codec(video)
     if codec == "h264":
         return {"skipped": "native.mkv is already x264 (lossless, the small one)"}
     if codec != "ffvhuff":
         raise InputError(f"{video}: expected an FFVHuff (or x264) session video, found {codec}")
+    if not ended:  # the live loop writes session.json once more after it renames native.mkv into place
+        raise InputError(f"{p / 'session.json'}: end_s: expected the session's end, found none (the session is "
+                         f"still being written); compact it after the session has ended")
     tb, times = packet_times(video)
     n = len(times)
     before = video.stat().st_size
@@ -231,10 +238,13 @@ def compact_session(folder: str | os.PathLike, *, threads: int = 0, progress: bo
     cpu1 = os.times()
     cpu_s = (time.process_time() - t0) + (cpu1.children_user - cpu0.children_user) + (
         cpu1.children_system - cpu0.children_system)
+    meta = read_json(p / "session.json", InputError, "session metadata")
+    end_s = meta.get("end_s")
     rec = {"codec_before": _CODEC_NAMES[codec], "codec_after": _CODEC_NAMES["h264"], "bytes_before": int(before),
            "bytes_after": int(after), "frames": n, "verified": "bit-exact, same packet times",
-           "cpu_s": round(cpu_s, 2), "at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    meta = read_json(p / "session.json", InputError, "session metadata")
+           "cpu_s": round(cpu_s, 2),
+           "cpu_s_per_session_minute": round(60 * cpu_s / end_s, 1) if isinstance(end_s, (int, float)) and end_s > 0
+           else None, "at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     meta["compacted"] = rec
     with atomic_write(p / "session.json", "w") as fh:
         json.dump(meta, fh, indent=2)
