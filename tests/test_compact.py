@@ -119,3 +119,11 @@ def test_compact_errors_name_the_folder(recorded, tmp_path) -> None:
     with pytest.raises(InputError, match=r"native.mkv: expected the session video, found no file \(session.json has "
                        r"no end_s: the session is still starting or was killed before its end\)"):
         compact.compact_session(folder)
+
+
+def test_report_compact_compacts_after_the_report(recorded, tmp_path, capsys) -> None:
+    folder = _copy(recorded, tmp_path)
+    assert main(["report", str(folder), "--out", str(tmp_path / "r.png"), "--compact"]) == 0
+    assert (tmp_path / "r.png").is_file() and "ffvhuff -> libx264rgb crf 0" in capsys.readouterr().out
+    assert compact.video_codec(folder / "native.mkv") == "h264"
+    assert json.loads((folder / "session.json").read_text())["compacted"]["frames"] == len(recorded[1])

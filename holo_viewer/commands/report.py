@@ -16,10 +16,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "CSV with columns t (session seconds), trainee, rating (0-10)")
     parser.add_argument("--video", metavar="REVIEW.mp4", help="also write the review video: the native video at "
                         "25 fps with the session's audio")
+    parser.add_argument("--compact", action="store_true", help="then compact the session's video as `holo-viewer "
+                        "compact` does (an FFVHuff native.mkv to x264rgb crf 0, verified bit-exact)")
 
 
 def run(args: argparse.Namespace) -> int:
-    """Write the report (and the review video); returns 0."""
+    """Write the report (and the review video; then compact the session with ``--compact``); returns 0, or 1 if
+    the compaction failed (the original video stays)."""
     from pathlib import Path
 
     from ..fileio import atomic_write
@@ -38,4 +41,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {out} and {Path(out).with_suffix('.txt')}")
     if args.video:
         print(f"wrote {review_video(args.session, args.video)}")
+    if args.compact:
+        from types import SimpleNamespace
+
+        from .compact import run as compact
+
+        return compact(SimpleNamespace(sessions=[args.session], threads=0, no_progress=False))
     return 0
