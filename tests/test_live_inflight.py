@@ -238,3 +238,25 @@ def test_deforming_only_the_drawn_gaussians_changes_no_frame(renderers) -> None:
             assert np.array_equal(getattr(g, f).numpy()[idx], getattr(ref, f).numpy()[idx]), (i, f)
         args = (lf, 0.3 * i, (), -5.0 + 5 * i, 0.6, i != 1)
         assert np.array_equal(a.render(*args).native, full.render(*args).native), i
+
+
+def test_the_background_compile_names_the_kernels_live_frames_call(renderers, monkeypatch) -> None:
+    """live/precompile.py's KERNELS are the view-synthesis numba kernels a live frame calls, and every one
+    of them: a name no frame calls (``_warp`` until 2026-11-28, with the C++ warp built) is never cached by a
+    session, so the children started at every start."""
+    from numba.core.registry import CPUDispatcher
+
+    from holo_viewer.live import precompile
+    from holo_viewer.render import view_synthesis as vs
+
+    called = set()
+    for name, fn in list(vars(vs).items()):
+        if isinstance(fn, CPUDispatcher):
+            monkeypatch.setattr(vs, name, lambda *a, _f=fn, _n=name, **k: (called.add(_n), _f(*a, **k))[1])
+    a, _ = renderers
+    a.render({"expr": np.zeros(50)}, 0.0, (), 5.0, 0.6, True, others=((10.0, 0.7),))
+    a.render({"expr": np.zeros(50)}, 0.0, (), 5.0, 0.6, False)
+    assert {"_zbuffer", "_row_extents"} <= called <= set(precompile.KERNELS), called
+    assert ("_warp_u8" in precompile.KERNELS) == (vs._warp_cpp() is None)
+    assert "_warp" not in precompile.KERNELS and set(precompile.KERNELS) == {
+        k for g in precompile.GROUPS.values() for k in g}

@@ -4,7 +4,8 @@ With an empty numba cache (a clone used without ``scripts/setup.sh``, or a new `
 the live command compiled every kernel of a group frame one after the other on one core before
 its first frame: 30-41 s on 2 quiet cores, of which the four kernels of
 :mod:`holo_viewer.render.view_synthesis` (the z-buffer depth of the rendered views and of the eye
-slices, the row extents and the warp) were about two thirds of the compile time (measured with
+slices, the row extents and the warp; where the C++ warp is built, since c86ff49, that one needs no compile:
+:data:`KERNELS`) were about two thirds of the compile time (measured with
 numba's compile events, docs/live.md). :class:`BackgroundCompile` starts ``python -m
 holo_viewer.live.precompile`` twice (the depth kernels, the warp kernels: about equal halves)
 when those kernels are not cached: each child calls the module's public functions on a tiny rig, with the argument types the live renderer passes, so numba
@@ -27,11 +28,24 @@ from typing import Any, Callable
 
 __all__ = ["KERNELS", "BackgroundCompile", "kernels_cached", "compile_kernels"]
 
-#: the view_synthesis dispatchers the child compiles (module attribute names)
-KERNELS = ("_zbuffer_coef", "_zbuffer", "_row_extents", "_warp")
+def _warp_kernels() -> tuple[str, ...]:
+    """The numba warp the live quilt path calls: ``_warp_u8`` where the C++ warp is not built (or
+    ``view_synthesis.WARP_KERNEL`` is ``"numba"``), else none (the C++ ``warp_u8`` needs no compile).
+    Until 2026-11-28 this list named ``_warp`` (the float views' and exact path's kernel), which no live
+    frame calls: it was never cached by a live session, so :func:`kernels_cached` stayed False and both
+    children started at every ``live`` start (~1 s of CPU each on a warm cache, beside the parent's
+    start-up on 2 cores)."""
+    from ..render import view_synthesis as vs
 
-#: the children: each compiles one group (about equal halves of the compile time)
-GROUPS = {"depth": ("_zbuffer_coef", "_zbuffer"), "warp": ("_row_extents", "_warp")}
+    return ("_warp_u8",) if vs.WARP_KERNEL == "numba" or vs._warp_cpp() is None else ()
+
+
+#: the children: each compiles one group (about equal halves of the compile time without the C++ warp)
+GROUPS = {"depth": ("_zbuffer_coef", "_zbuffer"), "warp": ("_row_extents",) + _warp_kernels()}
+
+#: the view_synthesis dispatchers the children compile (module attribute names): those the default live
+#: frames call (the numba ``_warp`` and ``_warp_u8`` stay reachable: they compile on their first call)
+KERNELS = GROUPS["depth"] + GROUPS["warp"]
 
 #: set to 0 to never start the children
 ENV_VAR = "HOLO_VIEWER_PRECOMPILE"
@@ -83,8 +97,9 @@ def compile_kernels(groups: tuple[str, ...] = tuple(GROUPS), report: Callable[[s
         quilt = np.zeros((cal.quilt_height, cal.quilt_width, 3), np.uint8)
         tiles = np.array([[0, k * W] for k in range(V)], dtype=np.int64)
         pixels = vs.sampled_columns(np.ones((V, H, W), dtype=bool))
-        vs.warp_views(images, wmaps, src, rig, quilt=quilt, tiles=tiles, pixels=pixels)  # the quilt path of live
-        report("_warp")
+        if "_warp_u8" in GROUPS["warp"]:  # the numba warp of the quilt path (else the C++ one: nothing to compile)
+            vs.warp_views(images, wmaps, src, rig, quilt=quilt, tiles=tiles, pixels=pixels)  # as live calls it
+            report("_warp_u8")
 
 
 class BackgroundCompile:
