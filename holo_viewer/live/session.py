@@ -13,7 +13,7 @@
                      other faces' angle and distance, NaN-padded) (replay --quality live)
       audio.wav      the input audio (16 kHz mono; appended at each flush, valid up to the last one)
       native.mkv     the native images shown: each displayed frame once, lossless RGB (libx264rgb crf 0;
-                     FFVHuff with live --native-codec ffvhuff),
+                     FFVHuff with live --native-codec ffvhuff; ``holo-viewer compact`` re-encodes that to x264 later),
                      at the session time it was shown (variable frame rate, plays in step with audio.wav;
                      decode at 25 fps with holo_viewer.media.read_frames(path, fps=25))
       webcam.mkv     only with --record-video (faces are private by default; lossy preview)
