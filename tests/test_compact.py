@@ -47,8 +47,10 @@ def test_compact_replaces_ffvhuff_by_bit_exact_x264_with_the_same_times(recorded
     before = video.stat().st_size
     times = compact.packet_times(video)
     at25 = list(media.read_frames(video, fps=25))
-    assert main(["compact", "--no-progress", str(folder)]) == 0
-    assert "ffvhuff -> libx264rgb crf 0" in capsys.readouterr().out
+    # a folder that fails does not stop the next one; the exit status says one failed
+    assert main(["compact", "--no-progress", str(tmp_path / "nope"), str(folder)]) == 1
+    out = capsys.readouterr()
+    assert "nope: no such session folder" in out.err and "ffvhuff -> libx264rgb crf 0" in out.out
     assert compact.video_codec(video) == "h264"
     stored = list(media.read_frames(video))
     assert len(stored) == len(recorded[1]) >= 2 and all(np.array_equal(a, b) for a, b in zip(stored, recorded[1]))
