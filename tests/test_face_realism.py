@@ -283,3 +283,71 @@ def test_evaluate_patient_rows_use_the_repeatability():
     per["pain_05"]["eye"]["+0 deg"] = m(0.08 + 2 * tol, 0.30, 0.23)
     bad = [r for r in evaluate_patient({"per_expression": per}) if not r["pass"]]
     assert [(r["measure"], r["where"]) for r in bad] == [("eye_aperture monotone over pain", "eye +0 deg")]
+
+
+def test_run_patient_eye_rows_are_medians_over_the_eye_positions(monkeypatch):
+    """Through the panel, each angle's measures are the median over :func:`eye_positions` (fakes for the
+    pipeline, the panel and the detector: the eye aperture read = 10 px + (position - angle)^2 px, so
+    one position would read 10, the median of five 11)."""
+    import bench.face_realism as fr
+    import holo_viewer.display.simulate as sim
+    import holo_viewer.pipeline as pl
+
+    angles = np.linspace(-20.0, 20.0, 48)
+    w2c = np.tile(np.eye(4), (48, 1, 1))
+    w2c[:, 0, 3] = -np.sin(np.radians(angles))  # camera centre x = sin(angle), z = cos(angle)
+    w2c[:, 2, 3] = -np.cos(np.radians(angles))
+
+    class FakePipe:
+        calibration = None
+
+        def __init__(self, avatar=None):
+            pass
+
+        def cameras(self):
+            return _Cams()
+
+        def compute(self, what):
+            return ([np.zeros((1, 3))],), None
+
+        def set_face(self, face):
+            pass
+
+        def views(self):
+            return np.zeros((48, 4, 4, 3), np.float32)
+
+        def native(self):
+            return np.zeros((4, 4, 3), np.float32)
+
+    class _Cams:
+        world_to_cam = w2c
+
+        def __len__(self):
+            return 48
+
+    class FakeEye:
+        def __init__(self, calibration, downsample=1):
+            pass
+
+        def see_many(self, natives, pos):
+            return [np.full((4, 4, 3), 0.5 + pos / 100.0, np.float32) for _ in natives]
+
+    def fake_det(img):
+        v = float(np.asarray(img)[0, 0, 0])
+        if v == 0.0:  # a quilt view
+            return synthetic_face(aperture=10.0), 1.0
+        pos = (v - 0.5) * 100.0
+        base = min(fr.EYE_ANGLES, key=lambda a: abs(a - pos))
+        return synthetic_face(aperture=10.0 + (pos - base) ** 2), 1.0
+
+    monkeypatch.setattr(pl, "Pipeline", FakePipe)
+    monkeypatch.setattr(sim, "VirtualDisplay", FakeEye)
+    monkeypatch.setattr(fr, "Detector", lambda: fake_det)
+    monkeypatch.setattr(fr, "load_patient_avatar", lambda name: None)
+    res = fr.run_patient("fake")
+    per = res["per_expression"]
+    assert set(per["neutral"]["eye"]) == {"+0 deg", "-15 deg", "+15 deg"} and "eye" not in per["smile"]
+    for label in per["neutral"]["eye"]:
+        assert len(per["pain_1"]["eye_positions"][label]) == len(fr.eye_positions(0.0)) == 5
+        assert per["pain_1"]["eye"][label]["eye_aperture"] == pytest.approx(11.0 / 60.0, rel=1e-3)
+    assert per["neutral"]["quilt"]["+0 deg"]["eye_aperture"] == pytest.approx(10.0 / 60.0)
