@@ -243,9 +243,10 @@ class LiveAvatarRenderer:
                 getattr(self._live, prepare)()
 
     def _drawn_setup(self, keep: np.ndarray | None) -> dict | None:
-        """The tables of :meth:`_deform_drawn` (None: every frame deforms the whole avatar): a CPU renderer
-        with a visible mask, a rigged avatar on the numba path, frame modes that draw the mask's Gaussians
-        alone (``group``, ``all_views``) and no preview (it renders every Gaussian)."""
+        """The state of :meth:`_deform_drawn` (None: every frame deforms the whole avatar): a CPU renderer
+        with a visible mask, a rigged avatar on the numba path (``RiggedStage.drawn_deform``), frame modes
+        that draw the mask's Gaussians alone (``group``, ``all_views``) and no preview (it renders every
+        Gaussian)."""
         from ..pipeline.avatars import RiggedStage
 
         stage = getattr(self.pipeline, "_avatar", None)
@@ -253,44 +254,23 @@ class LiveAvatarRenderer:
         if (keep is None or self.backend != "fast" or self.preview_enabled or not isinstance(stage, RiggedStage)
                 or any(m not in ("group", "all_views") for m in (s.tracked, s.untracked))):
             return None
-        from ..avatar import rigged
-
-        av, k = stage.avatar, rigged._kernels()
-        if not isinstance(av, rigged.RiggedAvatar) or k is None or av.backend == "torch" \
-                or av.flame_model.device.type != "cpu":
+        deform = stage.drawn_deform(np.flatnonzero(keep.any(axis=0) if keep.ndim == 2 else keep))
+        if deform is None:
             return None
-        faces, binding, mu, ql, ls = av._np_local()
-        index = np.flatnonzero(keep.any(axis=0) if keep.ndim == 2 else keep).astype(np.int64)
-        face_mask = np.zeros(faces.shape[0], dtype=bool)
-        face_mask[binding[index]] = True
-        return {"avatar": av, "kernels": k, "index": index, "face_mask": face_mask, "gaussians": None,
-                "eps": rigged.DEGENERATE_EPS}
+        return {"deform": deform, "index": deform.index, "face_mask": deform.face_mask, "gaussians": None}
 
     def _deform_drawn(self) -> Any:
         """The pipeline's posed mesh bound to the Gaussians the frames draw, written in place into this
-        renderer's own (N,) Gaussians (the first frame deforms all of them, through the pipeline): the same
-        numba kernels as ``RiggedAvatar.deform`` restricted to those Gaussians (``bind_subset_nb``) and the
-        faces they sit on (``face_frames_nb``'s mask), so those rows are the full deform's bit for bit
-        (tested); the others keep an earlier frame's values, which no group / all_views frame reads."""
-        import torch
-
+        renderer's own (N,) Gaussians (the first frame deforms all of them, through the pipeline): those rows
+        are the full deform's bit for bit (tested); the others keep an earlier frame's values, which no group /
+        all_views frame reads."""
         d = self._drawn
         p = self.pipeline
         if d["gaussians"] is None:  # the first frame: all of them, copied into buffers of our own
             g = p.gaussians()
             d["gaussians"] = g.replace(means=g.means.clone(), quats=g.quats.clone(), log_scales=g.log_scales.clone())
             return d["gaussians"]
-        from ..validation import check_array
-
-        av, k, g = d["avatar"], d["kernels"], d["gaussians"]
-        faces, binding, mu, ql, ls = av._np_local()
-        verts = np.asarray(p.mesh())
-        check_array(verts[None], "vertices", ("B", int(av.flame_model.n_vertices), 3), finite=True)
-        v = torch.as_tensor(verts).to(dtype=av.flame_model.dtype).contiguous().numpy()  # as RiggedAvatar.deform
-        frame, _ = k.frames(v, faces, d["eps"], d["face_mask"])
-        k.bind_subset_nb(frame, binding, mu, ql, ls, d["index"], g.means.numpy(), g.quats.numpy(),
-                         g.log_scales.numpy())
-        return g
+        return d["deform"](p.mesh(), d["gaussians"])
 
     @property
     def frames_independent(self) -> bool:
