@@ -260,3 +260,23 @@ def test_the_background_compile_names_the_kernels_live_frames_call(renderers, mo
     assert ("_warp_u8" in precompile.KERNELS) == (vs._warp_cpp() is None)
     assert "_warp" not in precompile.KERNELS and set(precompile.KERNELS) == {
         k for g in precompile.GROUPS.values() for k in g}
+
+
+def test_frames_are_handed_out_without_a_copy_and_never_overwritten(renderers) -> None:
+    """Group frames render straight into a native buffer nobody holds any more (no 9.4 MB copy): a frame
+    still held is never written again, a released buffer is reused (its old bytes fully overwritten), and
+    the bytes equal the copying path's (NATIVE_BUFFERS 0)."""
+    a, b = renderers
+    b.NATIVE_BUFFERS, b._natives = 0, []  # this renderer copies every frame, as before
+    calls = [({"expr": np.full(50, 0.1 * i)}, 0.2 * i, (), -6.0 + 4 * i, 0.6, i != 1) for i in range(6)]
+    held = [a.render(*c).native for c in calls[:5]]  # 4 buffers handed out, then copies
+    assert len(a._natives) == a.NATIVE_BUFFERS and len({id(x) for x in held}) == 5
+    kept = [x.copy() for x in held]
+    for buf in a._natives:
+        buf[:] = 0xAB  # what a consumer could have left there: the next frame must write every byte
+    del held, buf
+    out = a.render(*calls[5]).native
+    assert any(out is x for x in a._natives) and len(a._natives) == a.NATIVE_BUFFERS  # reused, not a new one
+    for c, k in zip(calls[:5] + calls[5:], kept + [out]):
+        assert np.array_equal(b.render(*c).native, k)
+    assert not any(b.render(*calls[0]).native is x for x in b._natives) and not b._natives

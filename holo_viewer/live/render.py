@@ -211,6 +211,7 @@ class LiveAvatarRenderer:
                                  backend=self.backend, render_config=RenderConfig(num_threads=threads), **who)
         self._live = None
         self._drawn = None  # _drawn_setup's tables
+        self._native_own = None  # _frame_native's: this frame renderer's own native buffer
         if self.session_mode.tracked is None:  # cone: the pipeline renders the viewer's whole quilt
             if self.backend == "gsplat":
                 self.pipeline.render_view(0)
@@ -271,6 +272,33 @@ class LiveAvatarRenderer:
             d["gaussians"] = g.replace(means=g.means.clone(), quats=g.quats.clone(), log_scales=g.log_scales.clone())
             return d["gaussians"]
         return d["deform"](p.mesh(), d["gaussians"])
+
+    #: native images the frames hand out before one is copied instead (each 9.4 MB at the panel's size)
+    NATIVE_BUFFERS = 4
+
+    def _frame_native(self, deformed: Any, viewer: Any, mode: str) -> np.ndarray:
+        """The frame's native image as an array of its own. Frames that rewrite every subpixel
+        (:attr:`frames_independent`) are rendered straight into a buffer nobody else holds any more (CPython's
+        reference count: the video writer's queue, the panel or a caller still holding an earlier frame keep
+        theirs), so no 9.4 MB copy; with all :data:`NATIVE_BUFFERS` held, or for frames that update the last one,
+        into the renderer's own buffer and copied, as before. The same bytes either way (tested)."""
+        import sys
+
+        live = self._live
+        if getattr(self, "_native_own", None) is None:
+            self._native_own, self._natives = live.native, []  # the renderer's buffer: never handed out
+        buf = None
+        if self.frames_independent:
+            for b in self._natives:  # held by the list, b, getrefcount's argument (and live.native)
+                if sys.getrefcount(b) - (b is live.native) <= 3:
+                    buf = b
+                    break
+            if buf is None and len(self._natives) < self.NATIVE_BUFFERS:
+                buf = np.empty_like(self._native_own)
+                self._natives.append(buf)
+        live.native = self._native_own if buf is None else buf
+        out = live.frame(deformed, viewer, mode).native
+        return out.copy() if buf is None else out
 
     @property
     def frames_independent(self) -> bool:
@@ -366,7 +394,7 @@ class LiveAvatarRenderer:
                 if mode == "group" and viewer is not None and others:
                     viewer = [viewer] + [TrackedViewer(angle_deg=float(np.clip(a, -60, 60)),
                                                        distance_m=float(np.clip(d, 0.05, 20.0))) for a, d in others]
-                native = self._live.frame(deformed, viewer, mode).native.copy()
+                native = self._frame_native(deformed, viewer, mode)
         else:
             p.set_view(viewer_angle=angle, viewer_distance=distance)
             native = p.native().copy() if self.native_enabled else None
