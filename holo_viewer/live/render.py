@@ -85,8 +85,9 @@ def visible_record(keep: np.ndarray | None, gaussians: int) -> dict:
 
 @dataclass
 class RenderedFrame:
-    """``native`` (H, W, 3) uint8 or None (the frame's own array: the loop hands it to the video
-    writer's thread), ``preview`` (h, w, 3) float32 or None, ``seconds``."""
+    """``native`` (H, W, 3) uint8 or None (the frame's own array while anything holds it: the loop hands it
+    to the video writer's thread; once nobody does, a later frame may be rendered into it), ``preview``
+    (h, w, 3) float32 or None, ``seconds``."""
 
     native: np.ndarray | None
     preview: np.ndarray | None
