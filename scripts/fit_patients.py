@@ -118,8 +118,10 @@ _LR_FIELDS = ("lr_means", "lr_means_final", "lr_log_scales", "lr_quats", "lr_opa
 SILHOUETTE_STAGE_CONFIG = fa.replace_config(
     LIMIT_STAGE_CONFIG, iterations=200, seed=6, **SILHOUETTE_TERMS,
     **{k: getattr(LIMIT_STAGE_CONFIG, k) * SILHOUETTE_LR_SCALE for k in _LR_FIELDS})
-#: the patients whose shipped avatar has the silhouette stage
-STAGE6_PATIENTS: tuple[str, ...] = ()
+#: the patients whose shipped avatar has the silhouette stage: helen (every neutral view +0.01..+1.56 dB, the
+#: worst view and both slider limits up at neutral and pain 1; views 18-23 at pain 1 -0.10..-0.14 dB, under 35 dB
+#: either way: shipped by the coordinator's decision, docs/avatar_fit.md "Silhouette stage")
+STAGE6_PATIENTS: tuple[str, ...] = ("helen",)
 N_LASH = 2000
 #: the cameras of the default avatar's own fit (scripts/fit_default_avatar.py): a transfer without a
 #: fine-tune (``--iterations 0``) records their range

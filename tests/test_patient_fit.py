@@ -421,6 +421,7 @@ def test_the_silhouette_stage_is_the_limit_stage_with_the_rim_terms():
                              **{k: getattr(s5, k) for k in fp._LR_FIELDS}) == s5
     for s in (fp.STAGE2_CONFIG, fp.STAGE3_CONFIG, fp.STAGE4_CONFIG, fp.LIMIT_STAGE_CONFIG):
         assert s.rim_weight == 0 and s.crop_rim == 0 and s.w_alpha == 0
+    assert set(fp.STAGE6_PATIENTS) == {"helen"}  # shipped for helen only (docs/avatar_fit.md)
     with pytest.raises(SystemExit):
         fp.main(["helen", "--stage6", "-1"])
 
