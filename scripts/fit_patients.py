@@ -23,7 +23,9 @@ adaptive density control (split where the positional gradient is high, prune the
 pain 1, pain 0.5 and neutral (the first three stages draw the seven poses alike, and pain 1 scored 2-3 dB
 below neutral on every patient); for ``STAGE5_PATIENTS`` a fifth, limit stage (``limit_stage_config``,
 ``--stage5 N``) draws the outermost cameras (|yaw| >= 25 deg) ``LIMIT_CAMERA_WEIGHT`` x as often (the viewer
-slider's limits were each failing patient's worst place); for ``STAGE7_PATIENTS`` a pain-limit stage
+slider's limits were each failing patient's worst place); for ``STAGE6_PATIENTS`` (helen) a silhouette
+stage (``silhouette_stage_config``, ``--stage6 N``) weights the pixels along the mesh's outline at 0.3 x the
+rates; for ``STAGE7_PATIENTS`` a pain-limit stage
 (``pain_limit_stage_config``, ``--stage7 N``) draws pain 1 half the time at the limit stage's camera
 weights. Writes ``assets/patients/<name>/avatar.npz`` with
 ``fit_angle_range_deg`` and, in its ``info``, ``psnr_min_db`` (worst of the 48 quilt views and the two
