@@ -93,7 +93,7 @@ def test_the_live_renderer_poses_eyes_neck_and_translation():
     seen = []
     pipe = SimpleNamespace(model=SimpleNamespace(n_expr=24), set_face=seen.append, set_view=lambda **kw: None,
                            gaussians=lambda: None)
-    stub = SimpleNamespace(pipeline=pipe, _live=None, native_enabled=False, preview_enabled=False)
+    stub = SimpleNamespace(pipeline=pipe, _live=None, _drawn=None, native_enabled=False, preview_enabled=False)
     stub.deform = lambda *a: LiveAvatarRenderer.deform(stub, *a)  # render() poses the face through deform()
     frame = {"expr": np.zeros(24), "jaw_pose": np.zeros(3), "rotation": np.zeros(3),
              "neck_pose": np.array([0.01, 0.02, 0.0]), "eyes_pose": np.arange(6) / 100.0,
