@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from holo_viewer import media
 
@@ -64,11 +65,23 @@ def test_lossless_fast_timed_video_is_bit_exact_and_timed(tmp_path: Path) -> Non
 
 
 def test_native_codec_is_checked() -> None:
-    import pytest
-
     from holo_viewer.errors import InputError
     from holo_viewer.live.loop import SESSION_VIDEO_CODECS, LiveSessionConfig
 
-    assert set(SESSION_VIDEO_CODECS) == {"x264", "ffvhuff"} and LiveSessionConfig().native_codec == "x264"
+    assert set(SESSION_VIDEO_CODECS) == {"x264", "ffvhuff"} and LiveSessionConfig().native_codec == "ffvhuff"
     with pytest.raises(InputError, match="native_codec: expected one of .*'ffvhuff'.*found 'h265'"):
         LiveSessionConfig(native_codec="h265")
+
+
+def test_recording_minutes_is_the_measured_rate_over_the_free_space() -> None:
+    """live's disk estimate: MB a frame x 12 fps x 60 s, and the minutes the free bytes hold at that rate."""
+    from holo_viewer.errors import InputError
+    from holo_viewer.live.loop import SESSION_VIDEO_MB_PER_FRAME, recording_minutes
+
+    for codec, mb in SESSION_VIDEO_MB_PER_FRAME.items():
+        gb, minutes = recording_minutes(100e9, codec)
+        assert gb == pytest.approx(mb * 12 * 60 / 1000) and minutes == pytest.approx(100 / gb)
+    assert recording_minutes(1e9, "ffvhuff")[0] > recording_minutes(1e9, "x264")[0]  # the faster codec's disk
+    assert recording_minutes(-5, "x264")[1] == 0.0
+    with pytest.raises(InputError, match="native_codec: expected one of .*found 'h265'"):
+        recording_minutes(1e9, "h265")

@@ -68,9 +68,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      "frame is stored once with the time it was shown; default 10)")
     out.add_argument("--record-video", action="store_true", help="also keep the webcam video (off by default: "
                      "trainees' faces are private)")
-    out.add_argument("--native-codec", choices=("x264", "ffvhuff"), default="x264",
-                     help="native.mkv's lossless codec: x264 (default, the smallest file) or ffvhuff (bit-exact too, "
-                     "~50-60%% of x264's encoder CPU for ~2.2x the disk: CPU the 2-core live render can use)")
+    out.add_argument("--native-codec", choices=("ffvhuff", "x264"), default="ffvhuff",
+                     help="native.mkv's lossless codec: ffvhuff (default: the least CPU, ~2.4x x264's disk; "
+                     "`holo-viewer compact` re-encodes it to x264 after the session) or x264 (the smallest file)")
     ctl = parser.add_argument_group("patient")
     from .avatar_args import add_avatar_argument
 
@@ -117,6 +117,27 @@ def check_session_out(out: str | None) -> str:
         raise InputError(f"--out {p}: {what} already exists there and would be overwritten; choose another with "
                          f"--out DIR, or leave --out out for a new timestamped folder")
     return str(p)
+
+
+def _say_disk(out: str, codec: str) -> None:
+    """Print the session video's disk rate and the minutes the output's file system holds at it (a
+    warning on stderr under 30 minutes: a full disk stops the recording, not the session)."""
+    import shutil
+    import sys
+    from pathlib import Path
+
+    from ..live.loop import recording_minutes
+
+    folder = Path(out).resolve()
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    gb_per_min, minutes = recording_minutes(shutil.disk_usage(folder).free, codec)
+    msg = (f"live: the session video ({codec}) takes ~{gb_per_min:.1f} GB a minute at 12 displayed fps; "
+           f"{folder} has room for ~{minutes:.0f} minutes")
+    print(msg, flush=True)
+    if minutes < 30:
+        print(f"live: warning: under 30 minutes of recording fit on {folder}; free space, or "
+              f"--native-codec x264 (~{recording_minutes(1, 'x264')[0]:.1f} GB a minute)", file=sys.stderr, flush=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -198,6 +219,7 @@ def _run(args: argparse.Namespace, mount: object, scenario: object, precompile: 
     reaction.join()  # loaded and cached: the session's "warming the reaction model" finds it
     session = LiveSession(config, audio, video, synthetic)
     session.progress = progress
+    _say_disk(args.out, config.native_codec)
     panel = None
     if config.panel:
         from ..live.windows import open_panel

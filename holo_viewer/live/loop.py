@@ -47,13 +47,26 @@ FPS = 25
 #: 37, docs/live.md), CPU the live render needs on 2 cores
 SESSION_VIDEO_PARAMS = (*CODECS["lossless"]["output_params"], "-threads", "1")
 #: the session video's codec (``live --native-codec``) -> its media.CODECS policy, each on one encoder thread:
-#: x264 (the default: the smallest file) or FFVHuff (bit-exact too, ~50-60 % of x264's encoder CPU for ~2.2x
-#: the disk; issue 37, docs/live.md "The session video's CPU")
+#: FFVHuff (the default: bit-exact, ~9 ms less CPU a displayed frame than x264 in the live session, +0.5
+#: displayed fps on 2 cores, for ~2.4x the disk; ``holo-viewer compact`` re-encodes it to x264 afterwards)
+#: or x264 (the smallest file); issue 37, docs/live.md "The session video's CPU"
 SESSION_VIDEO_CODECS = {"x264": "lossless", "ffvhuff": "lossless-fast"}
+#: MB a displayed 2048x1536 native frame, measured in live sessions (bench/session_codecs.py --live,
+#: bench/results/session_codecs_live.json): for the disk estimate ``live`` prints before it starts
+SESSION_VIDEO_MB_PER_FRAME = {"x264": 1.8, "ffvhuff": 4.3}
 #: and it runs this much nicer than the session: in the render's gaps, its frames queued meanwhile
 SESSION_VIDEO_NICE = 5
 #: seconds without a new tracked frame after which the speaker face decays to neutral
 STALE_S = 0.5
+
+
+def recording_minutes(free_bytes: float, codec: str, displayed_fps: float = 12.0) -> tuple[float, float]:
+    """The session video's disk rate (GB a minute at ``displayed_fps``, one native frame each) with
+    ``codec`` (a key of :data:`SESSION_VIDEO_CODECS`) and the minutes ``free_bytes`` hold at that rate."""
+    if codec not in SESSION_VIDEO_MB_PER_FRAME:
+        raise InputError(f"native_codec: expected one of {sorted(SESSION_VIDEO_MB_PER_FRAME)}, found {codec!r}")
+    gb_per_min = SESSION_VIDEO_MB_PER_FRAME[codec] * 1e6 * displayed_fps * 60 / 1e9
+    return gb_per_min, max(0.0, float(free_bytes)) / 1e9 / gb_per_min
 
 
 @dataclass(frozen=True)
@@ -103,8 +116,8 @@ class LiveSessionConfig:
     #: by ``seed``; None: the reaction model alone, conditioned on the pain level)
     behaviour: Any = "default"
     max_seconds: float | None = None
-    #: native.mkv's lossless codec, a key of SESSION_VIDEO_CODECS ("x264" or "ffvhuff")
-    native_codec: str = "x264"
+    #: native.mkv's lossless codec, a key of SESSION_VIDEO_CODECS ("ffvhuff" or "x264")
+    native_codec: str = "ffvhuff"
     settings: dict = field(default_factory=dict)
 
 
