@@ -401,6 +401,30 @@ def test_the_pain_limit_stage_draws_pain_1_half_the_time_at_the_limit_cameras_we
         fp.main(["mei", "--stage7", "-1"])
 
 
+def test_the_cameras_alike_stage_is_the_pain_limit_stage_with_every_camera_weighted_1():
+    """``scripts/fit_patients.py``'s stage 8 (rafael): pain 1 0.45, neutral 0.35, pain 0.5 0.15, the other
+    poses 0.05 each; every camera 1 (the outer ones too); the pain-limit stage's seed and crops, 400 steps; a
+    negative step count is refused."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "fit_patients.py"
+    spec = importlib.util.spec_from_file_location("fit_patients_script_s8", path)
+    fp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fp)
+    cfg = fa.replace_config(fp.PATIENT_CONFIG, quilt_views=(0, 47), orbit=((-30.0, 0.0), (-20.0, 0.0), (25.0, 12.0)))
+    names = ["neutral", "smile_1", "pain_0.5", "pain_1"]
+    s8 = fp.cameras_alike_stage_config(names, cfg)
+    assert s8.pose_weights == (0.35, 0.05, 0.15, 0.45) and s8.camera_weights == (1.0,) * 5
+    assert s8.iterations == 400 and fp.cameras_alike_stage_config(names, cfg, 30).iterations == 30
+    s7 = fp.pain_limit_stage_config(names, cfg)
+    assert fa.replace_config(s8, iterations=s7.iterations, pose_weights=s7.pose_weights,
+                             camera_weights=s7.camera_weights) == s7
+    assert set(fp.STAGE8_PATIENTS) == {"rafael"} and not set(fp.STAGE8_PATIENTS) & set(fp.STAGE7_PATIENTS)
+    with pytest.raises(SystemExit):
+        fp.main(["rafael", "--stage8", "-1"])
+
+
 def test_the_silhouette_stage_is_the_limit_stage_with_the_rim_terms():
     """``scripts/fit_patients.py``'s stage 6: the limit stage's pose and camera weights, its own seed, the
     rim terms of ``SILHOUETTE_TERMS`` and its learning rates x ``SILHOUETTE_LR_SCALE`` (the stages before it
