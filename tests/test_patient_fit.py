@@ -346,7 +346,6 @@ def test_silhouette_alpha_is_the_float64_reference_coverage_and_has_gradients():
     """``fit_avatar._render_rgba`` (the ``w_alpha`` term): its image is ``render_view``'s, its alpha the
     float64 reference renderer's composite of white Gaussians on black (1 - transmittance) within 1e-9,
     and alpha is differentiable in the opacities and positions."""
-    from holo_viewer.camera import Cameras
     from holo_viewer.render.config import RenderConfig
     from holo_viewer.render.differentiable import covariance, render_view
     from holo_viewer.render.reference import render_view as ref_view
