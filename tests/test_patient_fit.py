@@ -159,6 +159,18 @@ def test_added_lash_gaussians_lie_on_their_faces_and_are_seeded():
     assert set(np.round(kept.opacity_logits[:20], 5)) == set(np.round(np.sort(o)[30:], 5))
 
 
+def _teacher_images(t_av, vertices, cameras, indices) -> np.ndarray:
+    """A rigged teacher's renders (float, clipped to [0, 1]) of ``cameras[indices]`` posed at ``vertices``:
+    the 'mesh renders' the fit tests train toward."""
+    from holo_viewer.render.differentiable import render_view
+
+    g = t_av.deform(torch.as_tensor(vertices, dtype=torch.float32))
+    with torch.no_grad():
+        ims = [render_view(g.means, g.quats, g.log_scales, g.opacity_logits, g.sh, cameras.world_to_cam[i],
+                           cameras.K[i], cameras.width, cameras.height, cameras.near).numpy() for i in indices]
+    return np.clip(np.stack(ims), 0, 1)
+
+
 def test_a_short_fine_tune_of_a_transferred_avatar_lowers_its_loss():
     """The patient recipe in miniature: a 'default' teacher's Gaussians transferred to a second identity
     with its albedo only ("albedo" mode: the fitted shading lost), then fine-tuned on renders of the
@@ -166,7 +178,6 @@ def test_a_short_fine_tune_of_a_transferred_avatar_lowers_its_loss():
     the dataset records the cameras' angle range."""
     from holo_viewer.avatar import RiggedAvatar
     from holo_viewer.pipeline import FaceControls
-    from holo_viewer.render.differentiable import render_view
 
     src, dst = _two_identities(n_vertices=120, seed=3)
     vs, f = src.v_template.double().numpy(), src.faces.numpy()
@@ -178,11 +189,7 @@ def test_a_short_fine_tune_of_a_transferred_avatar_lowers_its_loss():
     student = fa.transfer_avatar(teacher, binding, vs, f, _albedo(1), _albedo(2), mode="albedo")
 
     def render(vertices, faces, cameras, indices):
-        g = t_av.deform(torch.as_tensor(vertices, dtype=torch.float32))
-        with torch.no_grad():
-            ims = [render_view(g.means, g.quats, g.log_scales, g.opacity_logits, g.sh, cameras.world_to_cam[i],
-                               cameras.K[i], cameras.width, cameras.height, cameras.near).numpy() for i in indices]
-        ims = np.clip(np.stack(ims), 0, 1)
+        ims = _teacher_images(t_av, vertices, cameras, indices)
         return ims, ims.sum(-1) > 0
 
     pipe = Pipeline(model=dst, avatar=False, view=ViewSettings(tile_scale=0.06))
@@ -460,7 +467,6 @@ def test_the_silhouette_loss_weights_the_rim_and_adds_the_alpha_term():
     from holo_viewer.avatar import RiggedAvatar
     from holo_viewer.pipeline import FaceControls
     from holo_viewer.render.config import RenderConfig
-    from holo_viewer.render.differentiable import render_view
 
     model = random_flame_model(n_vertices=120, n_expr=4, seed=3)
     n = 300
@@ -471,11 +477,7 @@ def test_the_silhouette_loss_weights_the_rim_and_adds_the_alpha_term():
     t_av = RiggedAvatar(model, teacher.replace(extra={}), binding=binding)
 
     def render(vertices, faces, cameras, indices):
-        g = t_av.deform(torch.as_tensor(vertices, dtype=torch.float32))
-        with torch.no_grad():
-            ims = [render_view(g.means, g.quats, g.log_scales, g.opacity_logits, g.sh, cameras.world_to_cam[i],
-                               cameras.K[i], cameras.width, cameras.height, cameras.near).numpy() for i in indices]
-        ims = np.clip(np.stack(ims), 0, 1)
+        ims = _teacher_images(t_av, vertices, cameras, indices)
         yy, xx = np.mgrid[0:cameras.height, 0:cameras.width] + 0.5  # a 'mesh mask': an ellipse in the tile
         ell = (((xx - cameras.width / 2) / (0.35 * cameras.width)) ** 2
                + ((yy - cameras.height / 2) / (0.4 * cameras.height)) ** 2) <= 1
