@@ -645,8 +645,6 @@ def sheet_views(name: str) -> dict[str, Any]:
 
 def main_patients(names: Sequence[str], json_path: str, images: str | None, sheet: str | None = None,
                   sheet_only: bool = False, merge: bool = False, renderer: str = "gaussians") -> int:
-    from holo_viewer.fileio import atomic_write
-
     if "all" in names:  # every fitted patient, in place of "all" (``all default`` adds the default avatar)
         from holo_viewer.avatar.patients import list_patients
 
@@ -691,8 +689,7 @@ def main_patients(names: Sequence[str], json_path: str, images: str | None, shee
                              "eye_distance": "infinity", "pain": list(PAIN_LEVELS), "window_half_width_deg": WINDOW_DEG,
                              "detector": "dlib HOG (upsample 1) + shape_predictor_68_face_landmarks",
                              "renderer": renderer, "host": platform.node()}, "patients": out}
-        with atomic_write(json_path, "w") as fh:
-            json.dump(record, fh, indent=1)
+        write_json(json_path, record)
     print(f"wrote {json_path}")
     if sheet:
         from holo_viewer.fileio import save_image
@@ -782,6 +779,15 @@ def repeatability(names: Sequence[str]) -> dict[str, Any]:
             "load_1min": [load0, os.getloadavg()[0]]}
 
 
+
+def write_json(path: str | os.PathLike, record: dict) -> str:
+    """Write ``record`` to ``path`` atomically (temp file + rename), indented; return the path."""
+    from holo_viewer.fileio import atomic_write
+
+    with atomic_write(path, "w") as fh:
+        json.dump(record, fh, indent=1)
+    return str(path)
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "face_realism.json"))
@@ -804,38 +810,29 @@ def main(argv: list[str] | None = None) -> int:
                     help="how much the window medians move on the same face (eye moved, window moved by one view): "
                          "writes bench/results/face_realism_repeatability.json unless --json is given; ~100 s CPU each")
     args = ap.parse_args(argv)
-    if args.repeatability:
-        from holo_viewer.fileio import atomic_write
 
+    def out(name: str) -> str:  # --json if given (even the default's value), else bench/results/NAME
+        return args.json if "--json" in (argv or sys.argv) else str(Path(__file__).parent / "results" / name)
+
+    if args.repeatability:
         rep = repeatability(args.repeatability)
         for m, st in rep["window_pooled"].items():
             print(f"{m:<14} window medians of one face: |diff| median {st['median']:.4f}, p95 {st['p95']:.4f} IOD "
                   f"(n {st['n']}; MONOTONE_TOL {MONOTONE_TOL[m]})")
-        path = args.json if "--json" in (argv or sys.argv) else str(Path(__file__).parent / "results" /
-                                                                    "face_realism_repeatability.json")
-        with atomic_write(path, "w") as fh:
-            json.dump({**rep, "host": platform.node()}, fh, indent=1)
-        print(f"{rep['cpu_seconds']:.0f} s CPU; wrote {path}")
+        print(f"{rep['cpu_seconds']:.0f} s CPU; wrote {write_json(out('face_realism_repeatability.json'), {**rep, 'host': platform.node()})}")
         return 0
     if args.patients:
         default = "face_realism_patients_mesh.json" if args.mesh else "face_realism_patients.json"
-        path = args.json if "--json" in (argv or sys.argv) else str(Path(__file__).parent / "results" / default)
-        return main_patients(args.patients, path, args.images, args.sheet, args.sheet_only, args.merge,
+        return main_patients(args.patients, out(default), args.images, args.sheet, args.sheet_only, args.merge,
                              "mesh" if args.mesh else "gaussians")
     if args.quick:
-        from holo_viewer.fileio import atomic_write
-
         q = run_quick()
         print(f"{'measure (ratio to neutral, centre views)':<42} " + " ".join(f"{p:>6g}" for p in q["levels"][1:])
               + "  monotone")
         for m in MEASURES:
             print(f"{m:<42} " + " ".join("     -" if x is None else f"{x:6.3f}" for x in q["ratios_to_neutral"][m][1:])
                   + f"  {q['monotone_from_0.2'][m]}")
-        path = args.json if "--json" in (argv or sys.argv) else str(Path(__file__).parent / "results" /
-                                                                    "face_realism_quick.json")
-        with atomic_write(path, "w") as fh:
-            json.dump({**q, "host": platform.node()}, fh, indent=1)
-        print(f"{q['seconds']:.0f} s; wrote {path}")
+        print(f"{q['seconds']:.0f} s; wrote {write_json(out('face_realism_quick.json'), {**q, 'host': platform.node()})}")
         return 0
     res = run(Path(args.images) if args.images else None)
     if args.sheet:
@@ -849,8 +846,6 @@ def main(argv: list[str] | None = None) -> int:
               f"{_fmt(r['value']):<34} {r['target']:<15} {'PASS' if r['pass'] else 'fail'}")
     n_pass = sum(r["pass"] for r in rows)
     print(f"\n{n_pass}/{len(rows)} pass; {res['seconds']:.0f} s, load {res['load_before']:.1f} -> {res['load_after']:.1f}")
-    from holo_viewer.fileio import atomic_write
-
     record = {
         "config": {"expressions": {"smile": 1.0, "pain": list(PAIN_LEVELS), "mouth_open": 1.0},
                    "n_gaussians": res["n_gaussians"], "tile": res["tile"],
@@ -864,9 +859,7 @@ def main(argv: list[str] | None = None) -> int:
         "rows": rows, "passed": n_pass, "total": len(rows),
         "raw": res["per_expression"],
     }
-    with atomic_write(args.json, "w") as fh:
-        json.dump(record, fh, indent=1)
-    print(f"wrote {args.json}")
+    print(f"wrote {write_json(args.json, record)}")
     return 0
 
 
