@@ -192,6 +192,12 @@ def silhouette_stage_config(pose_names: list[str], cfg: fa.AvatarFitConfig,
                              **SILHOUETTE_TERMS, **{k: getattr(SILHOUETTE_STAGE_CONFIG, k) for k in _LR_FIELDS})
 
 
+def _stage_record(cfg: fa.AvatarFitConfig, extra: dict | None = None) -> dict:
+    """A fine-tune stage's record in the fitted file's ``info``: its D-SSIM weight, detail crops and seed,
+    then ``extra`` (the stage's pose / camera weights and terms)."""
+    return {"ssim_weight": cfg.ssim_weight, "crop_detail": cfg.crop_detail, "seed": cfg.seed, **(extra or {})}
+
+
 def stage3_config(name: str) -> fa.AvatarFitConfig:
     """The third stage's settings for ``name`` (``STAGE3_SSIM_CONFIG`` for ``default``, else ``STAGE3_CONFIG``)."""
     return STAGE3_SSIM_CONFIG if name == "default" else STAGE3_CONFIG
@@ -426,7 +432,7 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
         info["method"] = "transfer of the default avatar + fine-tune in three stages (scripts/fit_patients.py)"
         info["stage3_iterations"] = stage3
         s3 = stage3_config(name)  # (c3 is the fit's CPU clock above)
-        info["stage3"] = {"ssim_weight": s3.ssim_weight, "crop_detail": s3.crop_detail, "seed": s3.seed}
+        info["stage3"] = _stage_record(s3)
         if s3.densify_every:
             info["stage3"].update(densify_split=s3.densify_split, split_mode=s3.split_mode,
                                   prune_opacity=s3.prune_opacity, n_gaussians=len(fitted))
@@ -435,41 +441,41 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
         info["method"] = ("transfer of the default avatar + fine-tune in four stages, the last weighted to pain "
                           "(scripts/fit_patients.py)")
         info["stage4_iterations"] = stage4
-        info["stage4"] = {"ssim_weight": s4.ssim_weight, "crop_detail": s4.crop_detail, "seed": s4.seed,
-                          "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05}
+        info["stage4"] = _stage_record(s4, {
+            "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05})
     if cfg.iterations and stage5:
         s5 = LIMIT_STAGE_CONFIG
         info["method"] = ("transfer of the default avatar + fine-tune in five stages, the fourth weighted to pain, "
                           "the fifth to the outermost cameras (scripts/fit_patients.py)")
         info["stage5_iterations"] = stage5
-        info["stage5"] = {"ssim_weight": s5.ssim_weight, "crop_detail": s5.crop_detail, "seed": s5.seed,
-                          "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05,
-                          "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT}
+        info["stage5"] = _stage_record(s5, {
+            "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05,
+            "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT})
     if cfg.iterations and stage6:
         s6 = SILHOUETTE_STAGE_CONFIG
         info["method"] = ("transfer of the default avatar + fine-tune in six stages, the fourth weighted to pain, "
                           "the fifth to the outermost cameras, the sixth to the silhouette (scripts/fit_patients.py)")
         info["stage6_iterations"] = stage6
-        info["stage6"] = {"ssim_weight": s6.ssim_weight, "crop_detail": s6.crop_detail, "seed": s6.seed,
-                          "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05,
-                          "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT, "lr_scale": SILHOUETTE_LR_SCALE,
-                          **SILHOUETTE_TERMS}
+        info["stage6"] = _stage_record(s6, {
+            "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05,
+            "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT, "lr_scale": SILHOUETTE_LR_SCALE,
+            **SILHOUETTE_TERMS})
     if cfg.iterations and stage7:
         s7 = PAIN_LIMIT_STAGE_CONFIG
         info["method"] = ("transfer of the default avatar + fine-tune in six stages: the fourth weighted to pain, "
                           "the fifth to the outermost cameras, the last to both (scripts/fit_patients.py)")
         info["stage7_iterations"] = stage7
-        info["stage7"] = {"ssim_weight": s7.ssim_weight, "crop_detail": s7.crop_detail, "seed": s7.seed,
-                          "pose_weights": PAIN_LIMIT_WEIGHTS, "other_poses": 0.05,
-                          "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT}
+        info["stage7"] = _stage_record(s7, {
+            "pose_weights": PAIN_LIMIT_WEIGHTS, "other_poses": 0.05,
+            "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT})
     if cfg.iterations and stage8:
         s8 = CAMERAS_ALIKE_STAGE_CONFIG
         info["method"] = ("transfer of the default avatar + fine-tune in six stages: the fourth weighted to pain, "
                           "the fifth to the outermost cameras, the last to pain 1 with the cameras alike "
                           "(scripts/fit_patients.py)")
         info["stage8_iterations"] = stage8
-        info["stage8"] = {"ssim_weight": s8.ssim_weight, "crop_detail": s8.crop_detail, "seed": s8.seed,
-                          "pose_weights": CAMERAS_ALIKE_WEIGHTS, "other_poses": 0.05, "camera_weights": 1.0}
+        info["stage8"] = _stage_record(s8, {
+            "pose_weights": CAMERAS_ALIKE_WEIGHTS, "other_poses": 0.05, "camera_weights": 1.0})
     if args.init:
         info["init_stage"] = args.init_stage
     path = save_fitted_avatar(out, fitted, binding, model, colour_source=source.name, head_path=head_path,
