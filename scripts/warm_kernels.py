@@ -198,9 +198,17 @@ def _metrics() -> None:
         M.frsyn_robust(p, s)
 
 
+def _tracker_fit() -> None:
+    """The live tracker's compiled landmark fit (holo_viewer.tracking.fit_fast, ~6 s of CPU): without it cached a
+    live session fits with the numpy reference and compiles it in a background child for the next one."""
+    from holo_viewer.tracking.fit_fast import compile_kernel
+
+    compile_kernel()
+
+
 STEPS = (("default pipeline", _pipeline), ("interleaver", _interleave), ("live frames", _live_frames),
          ("avatars", _avatars), ("differentiable renderer", _differentiable), ("reaction metrics", _metrics),
-         ("visibility", _visibility), ("viewer normals", _viewer_normals))
+         ("visibility", _visibility), ("viewer normals", _viewer_normals), ("tracker fit", _tracker_fit))
 
 
 def main() -> int:

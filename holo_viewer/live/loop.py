@@ -133,6 +133,29 @@ class LiveSessionConfig:
                 raise InputError(f"{name}: expected frames a second > 0 or None, found {f!r}")
 
 
+def _fast_fit_ready() -> bool:
+    """Whether the live tracker fits with the compiled steps (:mod:`holo_viewer.tracking.fit_fast`, ~0.85 ms of
+    CPU less a tracked frame, issue 37): yes when numba has them cached (scripts/setup.sh compiles them;
+    loading takes milliseconds). On a cold cache the session fits with the numpy reference (compiling would
+    stall the first tracked face ~6 s of CPU) and a child compiles them at nice 19 for the next session
+    (none with ``HOLO_VIEWER_BACKGROUND_BUILDS=0`` or ``HOLO_VIEWER_PRECOMPILE=0``)."""
+    import os
+    import subprocess
+    import sys
+
+    from ..tracking.fit_fast import kernel_cached
+
+    if kernel_cached():
+        return True
+    if os.environ.get("HOLO_VIEWER_BACKGROUND_BUILDS", "1") != "0" and os.environ.get("HOLO_VIEWER_PRECOMPILE", "1") != "0":
+        try:
+            subprocess.Popen(["nice", "-n", "19", sys.executable, "-m", "holo_viewer.tracking.fit_fast"],
+                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        except OSError:
+            pass
+    return False
+
+
 def speech_gate(stream: Any) -> Any:
     """The behaviour layers' pause gate (:class:`~holo_viewer.reaction.speech.SpeechGate`) for a session
     whose reaction stream is ``stream``: reading that stream's silero probabilities when it keeps speech
@@ -508,8 +531,13 @@ class LiveSession:
 
             self._mount = cfg.mount or WebcamMount(hfov_deg=cfg.hfov_deg)
             self.progress("warming the face tracker")
-            self._face_tracker = FaceTracker(TrackerConfig(hfov_deg=self._mount.hfov_deg))
+            fast_fit = _fast_fit_ready()
+            self._face_tracker = FaceTracker(TrackerConfig(hfov_deg=self._mount.hfov_deg, fast_fit=fast_fit))
             self._face_tracker(np.zeros((64, 64, 3), np.uint8), 0.0)  # warm up (first calls are slow)
+            if fast_fit:  # the fit's compiled steps loaded now, not at the first face
+                from ..tracking.fit_fast import compile_kernel
+
+                compile_kernel(self._face_tracker.head)
             self._face_tracker.reset()
         self.progress("starting the session")
         self.audio.start()

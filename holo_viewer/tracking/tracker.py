@@ -36,7 +36,8 @@ class TrackerConfig:
 
     ``hfov_deg``: the camera's horizontal field of view (intrinsics); ``smoothing``: One-Euro
     settings of the state (None = raw fits); ``hold_s``/``decay_s``: behaviour when the face is
-    lost; ``redetect_every``: HOG detector period in frames (boxes are tracked in between).
+    lost; ``redetect_every``: HOG detector period in frames (boxes are tracked in between); ``fast_fit``:
+    the fit's compiled steps (:mod:`.fit_fast`) or its numpy reference.
     """
 
     hfov_deg: float = 60.0
@@ -46,6 +47,8 @@ class TrackerConfig:
     decay_s: float = 0.5
     redetect_every: int = 10
     detect_width: int = 640
+    #: the landmark fit's compiled steps (holo_viewer.tracking.fit_fast; False: the numpy reference)
+    fast_fit: bool = True
 
     def __post_init__(self) -> None:
         check_finite_scalar(self.hfov_deg, "hfov_deg", low=1.0, high=170.0)
@@ -146,7 +149,8 @@ class FaceTracker:
         rms = math.nan
         found = bool(faces)
         if found:
-            fit = fit_landmarks(self.head, faces[0].landmarks, K, prev=self._prev, config=self.config.fit)
+            fit = fit_landmarks(self.head, faces[0].landmarks, K, prev=self._prev, config=self.config.fit,
+                               fast=self.config.fast_fit)
             params, rms = fit.params, fit.rms_px
             self._prev = params
             raw = self.state_from_params(params)
