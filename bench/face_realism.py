@@ -780,6 +780,50 @@ def repeatability(names: Sequence[str]) -> dict[str, Any]:
 
 
 
+GEOMETRY_LEVELS = (0.25, 0.5, 0.75, 1.0)
+
+
+def pain_geometry(names: Sequence[str]) -> dict[str, Any]:
+    """Pain on each head's own 68 landmark vertices (float64; no renderer, no detector): neutral eye
+    aperture and brow-to-upper-lid gap (IOD; vertical, ``flame.expressions.landmark_pain_measures``)
+    and pain p / neutral at :data:`GEOMETRY_LEVELS`, with the shared deltas and with the head's identity
+    normalisation (``identity_pain_gains``), plus the gains; also this bench's Euclidean eye / brow /
+    nose-lip measures (:func:`face_measures` on the vertices' front projection) with the gains."""
+    import torch
+
+    from holo_viewer.flame import expressions as ex
+
+    c0, load0 = time.process_time(), os.getloadavg()[0]
+    heads: dict[str, Any] = {}
+    for name in names:
+        if name == "default":
+            from holo_viewer.flame.default_head import load_default_model
+
+            model = load_default_model()
+        else:
+            from holo_viewer.avatar.patients import load_patient_model
+
+            model = load_patient_model(name)
+        am = ex.au_map_for(model)
+        shared = am.with_pain_gains(None)
+        basis = ex._landmark_basis(model)
+        entry: dict[str, Any] = {"gains": dict(am.pain_gains or {}),
+                                 "neutral": ex.landmark_pain_measures(basis[0])}
+        for label, m in (("shared", shared), ("normalised", am)):
+            fr = ex.landmark_pain_fractions(basis, m, levels=GEOMETRY_LEVELS)
+            entry[label] = {k: [float(x) for x in v] for k, v in fr.items()}
+        idx = np.asarray(model.metadata["landmark_vertices"]).reshape(-1)
+        expr = torch.as_tensor(ex.pain_expression(np.array((0.0,) + GEOMETRY_LEVELS), am), dtype=model.dtype)
+        with torch.no_grad():
+            lm = model(expr=expr).vertices.numpy()[:, idx].astype(np.float64)
+        fm = [face_measures(f[:, :2] * [1.0, -1.0]) for f in lm]
+        entry["euclidean_normalised"] = {k: [fm[i][k] / fm[0][k] for i in range(1, len(fm))]
+                                         for k in ("eye_aperture", "brow_eye_gap", "nose_lip_gap")}
+        heads[name] = entry
+    return {"levels": list(GEOMETRY_LEVELS), "reference": dict(ex.PAIN_REFERENCE_FRACTIONS), "heads": heads,
+            "cpu_seconds": time.process_time() - c0, "load_1min": [load0, os.getloadavg()[0]]}
+
+
 def write_json(path: str | os.PathLike, record: dict) -> str:
     """Write ``record`` to ``path`` atomically (temp file + rename), indented; return the path."""
     from holo_viewer.fileio import atomic_write
@@ -809,11 +853,34 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeatability", nargs="+", default=None, metavar="NAME",
                     help="how much the window medians move on the same face (eye moved, window moved by one view): "
                          "writes bench/results/face_realism_repeatability.json unless --json is given; ~100 s CPU each")
+    ap.add_argument("--pain-geometry", nargs="+", default=None, metavar="NAME",
+                    help="pain on each head's landmark vertices (no renderer, no detector), shared deltas and "
+                         "identity-normalised, and the gains (writes bench/results/pain_geometry.json unless "
+                         "--json is given; 'all' = default and every patient; ~3 s CPU)")
     args = ap.parse_args(argv)
 
     def out(name: str) -> str:  # --json if given (even the default's value), else bench/results/NAME
         return args.json if "--json" in (argv or sys.argv) else str(Path(__file__).parent / "results" / name)
 
+    if args.pain_geometry:
+        names = list(args.pain_geometry)
+        if names == ["all"]:
+            from holo_viewer.avatar.patients import list_patients
+
+            names = ["default"] + [p.name for p in list_patients()]
+        geo = pain_geometry(names)
+        lv = " ".join(f"{p:g}" for p in geo["levels"])
+        print(f"pain p / neutral at p = {lv} on the landmark vertices (vertical); shared deltas -> normalised")
+        for name, h in geo["heads"].items():
+            g = h["gains"]
+            print(f"{name:<8} gains eye {g.get('AU6', 1.0):.3f} brow {g.get('AU4', 1.0):.3f} | eye "
+                  f"{h['neutral']['eye_aperture']:.3f} IOD: " + " ".join(f"{x:.3f}" for x in h["shared"]["eye_aperture"])
+                  + " -> " + " ".join(f"{x:.3f}" for x in h["normalised"]["eye_aperture"])
+                  + f" | brow {h['neutral']['brow_eye_gap']:.3f} IOD: "
+                  + " ".join(f"{x:.3f}" for x in h["shared"]["brow_eye_gap"]) + " -> "
+                  + " ".join(f"{x:.3f}" for x in h["normalised"]["brow_eye_gap"]))
+        print(f"{geo['cpu_seconds']:.1f} s CPU; wrote {write_json(out('pain_geometry.json'), {**geo, 'host': platform.node()})}")
+        return 0
     if args.repeatability:
         rep = repeatability(args.repeatability)
         for m, st in rep["window_pooled"].items():

@@ -237,8 +237,8 @@ class ListenerBehaviour:
     def _pain_vector(self, p: float) -> np.ndarray:
         from ..flame.expressions import _pain_aus
 
-        aus = _pain_aus(p)
-        return np.array([aus.get(n, 0.0) for n in self.au_map.names])
+        aus, gains = _pain_aus(p), self.au_map.pain_gains or {}  # a patient's identity normalisation
+        return np.array([aus.get(n, 0.0) * gains.get(n, 1.0) for n in self.au_map.names])
 
     def step(self, frame: Mapping[str, Any], pain_level: float = 0.0, target: Any = None,
              speaking: bool = True, pause_onset: bool = False) -> dict[str, np.ndarray]:

@@ -42,6 +42,20 @@ intensity, the most reliable pain sign: the lower lids rise) rather than shuttin
 sleep, an independent landmark detector reads a squeezed slit as narrower than closed lids, and a
 lowered upper lid (AU43) widens the brow-to-lid gap that the brow lowerer narrows, so that with AU43 at
 0.3 p^3 the gap turned back up between pain 0.8 and 1 on every head (docs/face_realism.md).
+
+Identity normalisation (issue 35)
+---------------------------------
+ICT's expression deltas are shared by every identity, so the same lid displacement closes a large eye
+by a smaller *fraction* than a small one. :func:`identity_pain_gains` measures, on a head's own 68
+landmark vertices (float64, the neutral head and the canonical pain face at p = 1, no renderer and no
+detector), the two fractions PSPI's orbital tightening and brow lowering are about: eye aperture and
+brow-to-upper-lid gap at pain 1 over neutral (:func:`landmark_pain_fractions`). It then finds gains on
+the AU groups of :data:`PAIN_GAIN_GROUPS` (AU6/AU7/AU43 for the eyes, AU4 for the brows) that bring
+both fractions to the reference head's (:data:`PAIN_REFERENCE_FRACTIONS`, the default head with the
+shared deltas). Gains only lift: a head whose geometry already closes or descends by more than the
+reference keeps gain 1 (the shared deltas), and no gain exceeds :data:`PAIN_GAIN_MAX`.
+:func:`au_map_for` attaches the gains to a head's :class:`AUMap` (``pain_gains``), which
+:func:`pain_expression` applies; the AU intensities (:func:`pain_aus`, PSPI) are unchanged.
 """
 
 from __future__ import annotations
@@ -49,7 +63,8 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -62,7 +77,8 @@ from .params import EXPR_LIMIT
 __all__ = ["AU_NAMES", "AU_MAX", "REACT_AUS", "AUMap", "default_au_map", "au_map_for", "expression_from_aus",
            "pain_aus", "pain_expression", "estimate_aus", "pspi", "pspi_from_aus", "named_expression",
            "jaw_for_expression", "EXPRESSION_NAMES_KNOWN", "NAMED_EXPRESSIONS", "PAIN_PEAK", "PAIN_EXPONENT",
-           "PAIN_RANGE"]
+           "PAIN_RANGE", "PAIN_GAIN_GROUPS", "PAIN_REFERENCE_FRACTIONS", "PAIN_GAIN_MAX",
+           "landmark_pain_measures", "landmark_pain_fractions", "identity_pain_gains"]
 
 AU_NAMES: tuple[str, ...] = ("AU1", "AU2", "AU4", "AU5", "AU6", "AU7", "AU9", "AU10", "AU12", "AU14", "AU15",
                              "AU16", "AU17", "AU18", "AU20", "AU23", "AU24", "AU25", "AU26", "AU43")
@@ -108,6 +124,14 @@ EXPRESSION_NAMES_KNOWN: tuple[str, ...] = tuple(NAMED_EXPRESSIONS)
 #: pain intensities are in [PAIN_RANGE[0], PAIN_RANGE[1]]; named-expression intensities too
 PAIN_RANGE = (0.0, 1.0)
 
+#: identity normalisation of pain (module docstring): measure -> the AUs whose gain sets it
+PAIN_GAIN_GROUPS: dict[str, tuple[str, ...]] = {"eye_aperture": ("AU6", "AU7", "AU43"), "brow_eye_gap": ("AU4",)}
+#: pain 1 / neutral of the two measures on the reference head (the default head, shared deltas, its 68
+#: landmark vertices; tests/test_pain_identity.py recomputes them from assets/default_head.npz)
+PAIN_REFERENCE_FRACTIONS: dict[str, float] = {"eye_aperture": 0.2938124758067685, "brow_eye_gap": 0.7869665808599443}
+#: no AU group's pain gain exceeds this (beyond it ICT's deltas extrapolate far past their data)
+PAIN_GAIN_MAX = 1.5
+
 
 @dataclass(frozen=True)
 class AUMap:
@@ -123,6 +147,8 @@ class AUMap:
 
     names: tuple[str, ...]
     matrix: np.ndarray
+    #: per-AU gains of this head's pain face (:func:`identity_pain_gains`); None = the shared face
+    pain_gains: Mapping[str, float] | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         m = np.asarray(self.matrix, dtype=np.float64)
@@ -140,6 +166,22 @@ class AUMap:
             raise InputError(f"AUMap: aus.{names[i]}[{j}]: expected a finite number, found {m[i, j]}")
         object.__setattr__(self, "names", names)
         object.__setattr__(self, "matrix", m)
+        if self.pain_gains is not None:
+            gains = {}
+            for k, v in dict(self.pain_gains).items():
+                if k not in names:
+                    raise InputError(f"AUMap: pain_gains: {k!r} is not an AU of this map ({', '.join(names)})")
+                g = float(v)
+                if not math.isfinite(g) or g < 1.0 or g > PAIN_GAIN_MAX:
+                    raise InputError(f"AUMap: pain_gains[{k!r}]: expected a gain in [1, {PAIN_GAIN_MAX:g}], "
+                                     f"found {v!r}")
+                gains[k] = g
+            object.__setattr__(self, "pain_gains", MappingProxyType(gains) if gains else None)
+
+    def with_pain_gains(self, gains: Mapping[str, float] | None) -> "AUMap":
+        """The same map with ``pain_gains`` (None or all 1: the shared pain face)."""
+        kept = {k: float(v) for k, v in (gains or {}).items() if float(v) != 1.0}
+        return replace(self, pain_gains=kept or None)
 
     @property
     def n_expr(self) -> int:
@@ -274,13 +316,165 @@ def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None) -> AUMa
             raise FlameError(f"{getattr(model, 'source', 'model')}: expression_names do not match this version "
                              f"of the default head ({names[:4]}... vs {list(EXPRESSION_NAMES[:4])}...); "
                              f"rebuild it with scripts/build_default_head.py")
-        return default_au_map(n_expr)
+        base = default_au_map(n_expr)
+        return base.with_pain_gains(identity_pain_gains(model, base))
     raise FlameError(
         f"{getattr(model, 'source', 'model')}: this FLAME model has no AU map, so action units and pain "
         f"cannot be turned into its {n_expr} expression coefficients. Supply a JSON file with --au-map FILE "
         f"(or au_map_path=FILE), format: {{\"n_expr\": {n_expr}, \"aus\": {{\"AU4\": [{n_expr} numbers], "
         f"\"AU12\": [...], ...}}}} giving the expression coefficients per unit AU intensity (0..5 scale; "
         f"AU43 0..1); see holo_viewer/flame/expressions.py and docs/default_head.md.")
+
+
+# --------------------------------------------------------------------- identity normalisation of pain
+_EYE_LID_PAIRS = ((37, 41), (38, 40), (43, 47), (44, 46))  # iBUG 300-W, 0-based (bench/face_realism.py)
+_BROW_LID = ((tuple(range(17, 22)), (37, 38)), (tuple(range(22, 27)), (43, 44)))
+
+
+def landmark_pain_measures(points: Any) -> dict[str, float]:
+    """Eye aperture and brow-to-upper-lid gap of 68 landmark points (iBUG 300-W order), in the head's
+    frame (y up, the face toward +z), divided by the inter-ocular distance (eye centre to eye centre,
+    x and y). Both are *vertical* (y) distances, the openings themselves: ``eye_aperture`` the mean of
+    y(upper lid) - y(lower lid) over the four lid pairs 37-41, 38-40, 43-47, 44-46 (negative if the lids
+    cross), ``brow_eye_gap`` the mean over the sides of y(brow centroid 17-21 / 22-26) - y(upper-lid
+    centroid 37-38 / 43-44). (``bench/face_realism.py`` measures the same pairs on the detector's 2-D
+    points as Euclidean distances, which keep the lid pairs' sideways offset when the eye is shut.)"""
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[0] != 68 or pts.shape[1] not in (2, 3) or not np.all(np.isfinite(pts)):
+        raise InputError(f"landmarks: expected finite (68, 2) or (68, 3) points, found shape {pts.shape}")
+    xy = pts[:, :2]
+    iod = float(np.linalg.norm(xy[36:42].mean(0) - xy[42:48].mean(0)))
+    if not iod > 0:
+        raise InputError("landmarks: the two eye centres coincide (inter-ocular distance 0)")
+    y = xy[:, 1]
+    eye = float(np.mean([y[a] - y[b] for a, b in _EYE_LID_PAIRS]))
+    brow = float(np.mean([y[list(b)].mean() - y[list(lid)].mean() for b, lid in _BROW_LID]))
+    return {"eye_aperture": eye / iod, "brow_eye_gap": brow / iod}
+
+
+def _landmark_basis(model: Any) -> tuple[np.ndarray, np.ndarray] | None:
+    """(68, 3) neutral landmark vertices and (n_expr, 68, 3) their expression deltas, float64, of a
+    head with ``metadata["landmark_vertices"]`` (None without them). Rest pose: the expression deltas
+    add to the template before skinning and every joint rotation is 0, so the points are linear in expr."""
+    meta = getattr(model, "metadata", None) or {}
+    idx = meta.get("landmark_vertices")
+    if idx is None:
+        return None
+    idx = np.asarray(idx).reshape(-1).astype(np.int64)
+    if idx.shape != (68,):
+        return None
+    vt = model.v_template.detach().cpu().numpy().astype(np.float64)
+    dirs = model.expr_dirs.detach().cpu().numpy().astype(np.float64).reshape(-1, vt.shape[0], 3)
+    return vt[idx], dirs[:, idx]
+
+
+def _pain_points(basis: tuple[np.ndarray, np.ndarray], au_map: "AUMap", p: float,
+                 gains: Mapping[str, float] | None) -> np.ndarray:
+    neutral, dirs = basis
+    coef = np.zeros(au_map.n_expr)
+    for k, v in _pain_aus(p).items():
+        if k in au_map.names:
+            coef += v * (gains or {}).get(k, 1.0) * au_map.row(k)
+    n = min(len(coef), dirs.shape[0])
+    return neutral + np.tensordot(coef[:n], dirs[:n], axes=1)
+
+
+def landmark_pain_fractions(model: Any, au_map: "AUMap | None" = None,
+                            levels: Any = (0.25, 0.5, 0.75, 1.0)) -> dict[str, np.ndarray]:
+    """Pain p / neutral of :func:`landmark_pain_measures` on a head's own landmark vertices (float64),
+    for each of ``levels``, with ``au_map``'s pain gains (default: :func:`au_map_for`'s map). ``model``:
+    a FLAME-format head with ``metadata["landmark_vertices"]``, or a (neutral (68, 3), deltas
+    (n_expr, 68, 3)) pair."""
+    basis = model if isinstance(model, tuple) else _landmark_basis(model)
+    if basis is None:
+        raise InputError(f"{getattr(model, 'source', 'model')}: no landmark_vertices (68) in the model's "
+                         f"metadata: the pain fractions are measured on them")
+    if au_map is None:
+        au_map = au_map_for(model)
+    lv = np.atleast_1d(_check_p(levels))
+    base = landmark_pain_measures(basis[0])
+    out = {k: np.empty(len(lv)) for k in PAIN_GAIN_GROUPS}
+    for i, p in enumerate(lv):
+        m = landmark_pain_measures(_pain_points(basis, au_map, float(p), au_map.pain_gains))
+        for k in out:
+            out[k][i] = m[k] / base[k]
+    return out
+
+
+def _fractions_at(basis: tuple[np.ndarray, np.ndarray], au_map: "AUMap", g: np.ndarray) -> np.ndarray:
+    gains = {au: float(gk) for gk, aus in zip(g, PAIN_GAIN_GROUPS.values()) for au in aus}
+    base = landmark_pain_measures(basis[0])
+    m = landmark_pain_measures(_pain_points(basis, au_map, 1.0, gains))
+    return np.array([m[k] / base[k] for k in PAIN_GAIN_GROUPS])
+
+
+def _solve_gains(basis: tuple[np.ndarray, np.ndarray], au_map: "AUMap", free: tuple[bool, ...],
+                 target: np.ndarray) -> np.ndarray | None:
+    """Newton on the free gains (fixed ones at 1) for fractions == target; None if it does not converge."""
+    g = np.ones(len(free))
+    idx = [i for i, f in enumerate(free) if f]
+    if not idx:
+        return g
+    for _ in range(50):
+        r = (_fractions_at(basis, au_map, g) - target)[idx]
+        if np.max(np.abs(r)) < 1e-12:
+            return g
+        J = np.empty((len(idx), len(idx)))
+        for c, j in enumerate(idx):
+            h = np.zeros_like(g)
+            h[j] = 1e-6
+            J[:, c] = ((_fractions_at(basis, au_map, g + h) - _fractions_at(basis, au_map, g - h)) / 2e-6)[idx]
+        try:
+            step = np.linalg.solve(J, r)
+        except np.linalg.LinAlgError:
+            return None
+        g[idx] -= step
+        if not np.all(np.isfinite(g)) or np.any(g[idx] <= 0) or np.any(g[idx] > 10):
+            return None
+    return g if np.max(np.abs((_fractions_at(basis, au_map, g) - target)[idx])) < 1e-9 else None
+
+
+def identity_pain_gains(model: Any, au_map: "AUMap | None" = None,
+                        reference: Mapping[str, float] | None = None) -> dict[str, float]:
+    """Per-AU gains that bring a head's pain fractions (:func:`landmark_pain_fractions` at p = 1) to
+    the reference's (default :data:`PAIN_REFERENCE_FRACTIONS`), only lifting.
+
+    For each measure of :data:`PAIN_GAIN_GROUPS` either its gain is 1 and the head's fraction is
+    already at or below the reference's, or its gain is > 1 and the fraction equals the reference's
+    (both measures solved together: the orbital tightening also moves the upper lid, hence the brow
+    gap). Gains are capped at :data:`PAIN_GAIN_MAX`. ``{}`` for a head without landmark vertices.
+
+    Parameters
+    ----------
+    model : FlameModel or (neutral (68, 3), deltas (n_expr, 68, 3))
+    au_map : AUMap, optional
+        The head's map without gains (default: :func:`default_au_map` sized to the model).
+    reference : mapping, optional
+        Target fractions per measure (default :data:`PAIN_REFERENCE_FRACTIONS`).
+    """
+    basis = model if isinstance(model, tuple) else _landmark_basis(model)
+    if basis is None:
+        return {}
+    if au_map is None:
+        au_map = default_au_map(basis[1].shape[0])
+    au_map = au_map.with_pain_gains(None)
+    ref = dict(PAIN_REFERENCE_FRACTIONS if reference is None else reference)
+    target = np.array([float(ref[k]) for k in PAIN_GAIN_GROUPS])
+    tol = 1e-9
+    g = None
+    for free in ((True, True), (True, False), (False, True), (False, False)):
+        cand = _solve_gains(basis, au_map, free, target)
+        if cand is None:
+            continue
+        f = _fractions_at(basis, au_map, cand)
+        if all((cand[i] >= 1.0 - tol) if fr else (f[i] <= target[i] + tol) for i, fr in enumerate(free)):
+            g = cand
+            break
+    if g is None:  # no consistent active set (a degenerate head): the shared face
+        return {}
+    g = np.clip(g, 1.0, PAIN_GAIN_MAX)
+    return {au: float(gk) for gk, aus in zip(g, PAIN_GAIN_GROUPS.values()) for au in aus
+            if au in au_map.names and gk > 1.0 + 1e-9}
 
 
 def _check_intensity(name: str, value: Any) -> float:
@@ -335,7 +529,10 @@ def _pain_aus(x: float) -> dict[str, float]:
 
 
 def pain_expression(p: Any, au_map: AUMap) -> np.ndarray:
-    """Expression coefficients of the pain face: p scalar -> (n_expr,), p (T,) -> (T, n_expr)."""
+    """Expression coefficients of the pain face: p scalar -> (n_expr,), p (T,) -> (T, n_expr).
+
+    With ``au_map.pain_gains`` (a patient's identity normalisation, :func:`identity_pain_gains`) each
+    AU's coefficients are scaled by its gain; the AU intensities are :func:`pain_aus`'s."""
     arr = _check_p(p)
     missing = [a for a in _PSPI_CORE if a not in au_map.names]
     if not any(a in au_map.names for a in ("AU6", "AU7")):
@@ -345,8 +542,17 @@ def pain_expression(p: Any, au_map: AUMap) -> np.ndarray:
     if missing:
         raise InputError(f"AU map: pain needs {', '.join(missing)} (PSPI action units), which the map lacks")
 
+    gains = au_map.pain_gains
+
     def one(x: float) -> np.ndarray:  # x was validated above, once
-        return expression_from_aus({k: v for k, v in _pain_aus(x).items() if k in au_map.names}, au_map)
+        aus = {k: v for k, v in _pain_aus(x).items() if k in au_map.names}
+        if not gains:
+            return expression_from_aus(aus, au_map)
+        expr = np.zeros(au_map.n_expr)  # this head's gains (identity normalisation) on the shared face
+        for k, v in aus.items():
+            if v:
+                expr += v * gains.get(k, 1.0) * au_map.row(k)
+        return expr
 
     if arr.ndim == 0:
         return one(float(arr))

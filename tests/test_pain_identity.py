@@ -1,0 +1,112 @@
+"""Pain's identity normalisation (issue 35, flame.expressions.identity_pain_gains): per-head gains on the
+shared pain face, computed from the head's own landmark vertices, bring the eye's and the brow gap's
+relative change at pain 1 to the reference head's; they only lift, the default head is the reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from holo_viewer.errors import InputError
+from holo_viewer.flame import expressions as ex
+
+
+@pytest.fixture(scope="module")
+def default_basis():
+    from holo_viewer.flame.default_head import load_default_model
+
+    model = load_default_model()
+    return model, ex._landmark_basis(model)
+
+
+def _scaled(basis, eye: float = 1.0, brow: float = 1.0):
+    """The basis with every lid point moved from its eye's mid line by ``eye`` x and the brows lifted
+    from the upper lids by ``brow`` x (the same expression deltas: a bigger eye, a higher brow)."""
+    neutral, dirs = basis
+    pts = neutral.copy()
+    for lids in ((36, 37, 38, 39, 40, 41), (42, 43, 44, 45, 46, 47)):
+        mid = pts[list(lids), 1].mean()
+        pts[list(lids), 1] = mid + eye * (pts[list(lids), 1] - mid)
+    for brows, upper in ((range(17, 22), (37, 38)), (range(22, 27), (43, 44))):
+        top = pts[list(upper), 1].mean()
+        pts[list(brows), 1] = top + brow * (pts[list(brows), 1] - top)
+    return pts, dirs
+
+
+def test_the_reference_is_the_default_head_and_gets_no_gain(default_basis):
+    model, basis = default_basis
+    f = ex.landmark_pain_fractions(basis, ex.default_au_map(model.n_expr), levels=1.0)
+    assert f["eye_aperture"][0] == ex.PAIN_REFERENCE_FRACTIONS["eye_aperture"]  # recomputed, not a table
+    assert f["brow_eye_gap"][0] == ex.PAIN_REFERENCE_FRACTIONS["brow_eye_gap"]
+    am = ex.au_map_for(model)
+    assert am.pain_gains is None
+    assert np.array_equal(ex.pain_expression(0.7, am), ex.pain_expression(0.7, ex.default_au_map(model.n_expr)))
+
+
+@pytest.mark.parametrize("eye, brow", [(1.3, 1.0), (1.0, 1.12), (1.25, 1.1)])
+def test_a_bigger_eye_or_higher_brow_gets_the_reference_fractions(default_basis, eye, brow):
+    model, basis = default_basis
+    head = _scaled(basis, eye, brow)
+    base = ex.default_au_map(model.n_expr)
+    shared = ex.landmark_pain_fractions(head, base, levels=1.0)
+    ref = ex.PAIN_REFERENCE_FRACTIONS
+    # the same deltas close a bigger eye / lower a higher brow by a smaller fraction ...
+    if eye > 1:
+        assert shared["eye_aperture"][0] > ref["eye_aperture"] + 0.05
+    if brow > 1:
+        assert shared["brow_eye_gap"][0] > ref["brow_eye_gap"] + 0.005
+    gains = ex.identity_pain_gains(head, base)
+    am = base.with_pain_gains(gains)
+    levels = (0.25, 0.5, 0.75, 1.0)
+    got = ex.landmark_pain_fractions(head, am, levels=levels)
+    want = ex.landmark_pain_fractions(basis, base, levels=levels)
+    for key in ("eye_aperture", "brow_eye_gap"):  # ... the gains bring it to the reference's at pain 1
+        if (key == "eye_aperture" and eye > 1) or (key == "brow_eye_gap" and brow > 1):
+            assert abs(got[key][-1] - ref[key]) < 1e-9, key
+        else:
+            assert got[key][-1] <= ref[key] + 1e-9, key
+        assert np.all(np.abs(got[key] - want[key]) < 0.03), (key, got[key], want[key])  # and along the curve
+        assert np.all(np.diff(got[key]) < 0), key  # monotone
+    if eye > 1:
+        assert gains["AU6"] == gains["AU7"] == gains["AU43"] > 1.05
+    if brow > 1:
+        assert gains["AU4"] > 1.02
+
+
+def test_gains_only_lift_and_are_capped(default_basis):
+    model, basis = default_basis
+    base = ex.default_au_map(model.n_expr)
+    assert ex.identity_pain_gains(_scaled(basis, 0.8, 0.9), base) == {}  # already closes more: shared face
+    huge = ex.identity_pain_gains(_scaled(basis, 4.0, 1.0), base)
+    assert huge["AU6"] == ex.PAIN_GAIN_MAX
+
+
+def test_a_patient_is_normalised_and_listener_pain_uses_the_gains():
+    from holo_viewer.avatar.patients import load_patient_model
+    from holo_viewer.behaviour import BehaviourConfig, ListenerBehaviour
+
+    model = load_patient_model("amara")  # the widest eye of the ward (0.15 IOD)
+    am = ex.au_map_for(model)
+    assert am.pain_gains is not None and 1.1 < am.pain_gains["AU6"] < ex.PAIN_GAIN_MAX
+    f = ex.landmark_pain_fractions(model, am, levels=np.linspace(0, 1, 11))
+    assert abs(f["eye_aperture"][-1] - ex.PAIN_REFERENCE_FRACTIONS["eye_aperture"]) < 1e-6
+    assert np.all(np.diff(f["eye_aperture"]) < 0) and np.all(np.diff(f["brow_eye_gap"]) < 0)
+    # PSPI is the AU intensities' and unchanged; the display's coefficients carry the gains
+    assert ex.pspi_from_aus(ex.pain_aus(1.0)) == pytest.approx(14.05)
+    shared = ex.pain_expression(1.0, am.with_pain_gains(None))
+    i6 = list(model.expression_names).index("AU6")
+    assert ex.pain_expression(1.0, am)[i6] == pytest.approx(shared[i6] * am.pain_gains["AU6"])
+    beh = ListenerBehaviour(BehaviourConfig(seed=0, flares=False), au_map=am)
+    vec = beh._pain_vector(1.0)
+    assert vec[am.names.index("AU7")] == pytest.approx(5.0 * am.pain_gains["AU7"])
+
+
+def test_pain_gains_are_checked():
+    base = ex.default_au_map()
+    with pytest.raises(InputError, match=r"pain_gains\['AU6'\].*\[1, 1.5\].*0.5"):
+        base.with_pain_gains({"AU6": 0.5})
+    with pytest.raises(InputError, match="pain_gains: 'AU99'"):
+        ex.AUMap(names=base.names, matrix=base.matrix, pain_gains={"AU99": 1.2})
+    assert base.with_pain_gains({"AU6": 1.0}).pain_gains is None
+    with pytest.raises(InputError, match=r"landmarks: expected finite \(68, 2\)"):
+        ex.landmark_pain_measures(np.zeros((67, 3)))
