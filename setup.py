@@ -29,9 +29,12 @@ else:
     # the projection rounds exactly as the numba kernel (a test compares them); SIMD kernels are
     # chosen at run time by CPU feature, so the baseline stays generic, except SSE4.1 (inline
     # ceil/floor in the projection, 20% of its time) when the building CPU has it (every x86-64
-    # CPU since 2011; the extension is compiled where it is installed)
+    # CPU since 2011; the extension is compiled where it is installed); -fno-wrapv: undoes the
+    # -fwrapv of Python's own CFLAGS (which come first), so signed index arithmetic may be assumed
+    # not to overflow (the kernels never rely on wrapping): same bytes, 5-6 % less CPU in the tile
+    # compositor and the interleave's row gather (measured A/B on live frames)
     args = ["-O3", "-std=c++17", "-pthread", "-fvisibility=hidden", "-fno-math-errno", "-fno-trapping-math",
-            "-ffp-contract=off"]
+            "-ffp-contract=off", "-fno-wrapv"]
     if platform.machine() in ("x86_64", "AMD64") and _cpu_has("sse4_1"):
         args.append("-msse4.1")
     link = ["-pthread"]
