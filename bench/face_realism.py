@@ -497,7 +497,8 @@ def load_patient_avatar(name: str) -> Any:
     return load(name)
 
 
-def run_patient(name: str, images_dir: Path | None = None, renderer: str = "gaussians") -> dict[str, Any]:
+def run_patient(name: str, images_dir: Path | None = None, renderer: str = "gaussians",
+                normalise_pain: bool = False) -> dict[str, Any]:
     """The issue's detector targets for one avatar, on its Gaussians: faces found in the 48 quilt views
     (neutral, smile, pain 1, mouth open), the landmark ratios and monotonicity over pain 0 / 0.25 / 0.5 / 1
     in the three view windows, and the same on what an eye receives through the panel (the native image
@@ -506,7 +507,8 @@ def run_patient(name: str, images_dir: Path | None = None, renderer: str = "gaus
 
     ``renderer="mesh"``: the same, with every quilt view rendered as the avatar's textured mesh (the
     posed head the Gaussians are rigged to, its textures, the quilt cameras; interleaved into the native
-    image as the pipeline does): a texture change read before the avatar is refitted to it."""
+    image as the pipeline does): a texture change read before the avatar is refitted to it.
+    ``normalise_pain``: pain with the head's identity gains (``au_map_for(normalise_pain=True)``)."""
     from holo_viewer.display.simulate import VirtualDisplay
     from holo_viewer.fileio import save_image
     from holo_viewer.pipeline import Pipeline
@@ -518,6 +520,10 @@ def run_patient(name: str, images_dir: Path | None = None, renderer: str = "gaus
     det = Detector()
     t0, c0, load0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
     pipe = Pipeline(avatar=load_patient_avatar(name))
+    if normalise_pain:  # the pain face with the head's identity normalisation (flame.expressions)
+        from holo_viewer.flame.expressions import au_map_for
+
+        pipe.set_au_map(au_map_for(pipe.model, normalise_pain=True))
     cams = pipe.cameras()
     (framing,), _ = pipe.compute("framing")
     angles = camera_angles(cams, np.asarray(framing[0]))
@@ -569,7 +575,8 @@ def run_patient(name: str, images_dir: Path | None = None, renderer: str = "gaus
         for ename, vals in got.items():
             per[ename].setdefault("eye", {})[label] = median_measures(vals)
             per[ename].setdefault("eye_positions", {})[label] = vals
-    return {"name": name, "renderer": renderer, "per_expression": per, "windows": windows,
+    return {"name": name, "renderer": renderer, "normalise_pain": normalise_pain, "per_expression": per,
+            "windows": windows,
             "seconds": time.perf_counter() - t0,
             "cpu_seconds": time.process_time() - c0, "load_1min": [load0, os.getloadavg()[0]]}
 
@@ -644,7 +651,8 @@ def sheet_views(name: str) -> dict[str, Any]:
 
 
 def main_patients(names: Sequence[str], json_path: str, images: str | None, sheet: str | None = None,
-                  sheet_only: bool = False, merge: bool = False, renderer: str = "gaussians") -> int:
+                  sheet_only: bool = False, merge: bool = False, renderer: str = "gaussians",
+                  normalise_pain: bool = False) -> int:
     if "all" in names:  # every fitted patient, in place of "all" (``all default`` adds the default avatar)
         from holo_viewer.avatar.patients import list_patients
 
@@ -670,7 +678,8 @@ def main_patients(names: Sequence[str], json_path: str, images: str | None, shee
     results: dict[str, Any] = {}
     for name in names:
         res = run_patient(name, Path(images) if images else None,
-                          **({"renderer": renderer} if renderer != "gaussians" else {}))
+                          **({"renderer": renderer} if renderer != "gaussians" else {}),
+                          **({"normalise_pain": True} if normalise_pain else {}))
         rows = evaluate_patient(res)
         n_pass = sum(r["pass"] for r in rows)
         print(f"\n{name}: {n_pass}/{len(rows)} pass ({res['seconds']:.0f} s, {res['cpu_seconds']:.0f} s CPU, load "
@@ -688,7 +697,8 @@ def main_patients(names: Sequence[str], json_path: str, images: str | None, shee
                              "monotone_tolerance_iod": MONOTONE_TOL,
                              "eye_distance": "infinity", "pain": list(PAIN_LEVELS), "window_half_width_deg": WINDOW_DEG,
                              "detector": "dlib HOG (upsample 1) + shape_predictor_68_face_landmarks",
-                             "renderer": renderer, "host": platform.node()}, "patients": out}
+                             "renderer": renderer, "normalise_pain": normalise_pain, "host": platform.node()},
+                  "patients": out}
         write_json(json_path, record)
     print(f"wrote {json_path}")
     if sheet:
@@ -804,7 +814,7 @@ def pain_geometry(names: Sequence[str]) -> dict[str, Any]:
             from holo_viewer.avatar.patients import load_patient_model
 
             model = load_patient_model(name)
-        am = ex.au_map_for(model)
+        am = ex.au_map_for(model, normalise_pain=True)
         shared = am.with_pain_gains(None)
         basis = ex._landmark_basis(model)
         entry: dict[str, Any] = {"gains": dict(am.pain_gains or {}),
@@ -853,6 +863,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeatability", nargs="+", default=None, metavar="NAME",
                     help="how much the window medians move on the same face (eye moved, window moved by one view): "
                          "writes bench/results/face_realism_repeatability.json unless --json is given; ~100 s CPU each")
+    ap.add_argument("--normalise-pain", action="store_true", help="with --patients: pain with each head's "
+                    "identity normalisation (flame.expressions.identity_pain_gains; writes "
+                    "bench/results/face_realism_patients_normalised.json unless --json is given)")
     ap.add_argument("--pain-geometry", nargs="+", default=None, metavar="NAME",
                     help="pain on each head's landmark vertices (no renderer, no detector), shared deltas and "
                          "identity-normalised, and the gains (writes bench/results/pain_geometry.json unless "
@@ -890,8 +903,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.patients:
         default = "face_realism_patients_mesh.json" if args.mesh else "face_realism_patients.json"
+        if args.normalise_pain:
+            default = default.replace(".json", "_normalised.json")
         return main_patients(args.patients, out(default), args.images, args.sheet, args.sheet_only, args.merge,
-                             "mesh" if args.mesh else "gaussians")
+                             "mesh" if args.mesh else "gaussians", args.normalise_pain)
     if args.quick:
         q = run_quick()
         print(f"{'measure (ratio to neutral, centre views)':<42} " + " ".join(f"{p:>6g}" for p in q["levels"][1:])

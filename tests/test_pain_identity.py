@@ -1,6 +1,7 @@
 """Pain's identity normalisation (issue 35, flame.expressions.identity_pain_gains): per-head gains on the
 shared pain face, computed from the head's own landmark vertices, bring the eye's and the brow gap's
-relative change at pain 1 to the reference head's; they only lift, the default head is the reference."""
+relative change at pain 1 to the reference head's; they only lift, the default head is the reference;
+off unless asked (``au_map_for(model, normalise_pain=True)``)."""
 
 from __future__ import annotations
 
@@ -38,7 +39,7 @@ def test_the_reference_is_the_default_head_and_gets_no_gain(default_basis):
     f = ex.landmark_pain_fractions(basis, ex.default_au_map(model.n_expr), levels=1.0)
     assert f["eye_aperture"][0] == ex.PAIN_REFERENCE_FRACTIONS["eye_aperture"]  # recomputed, not a table
     assert f["brow_eye_gap"][0] == ex.PAIN_REFERENCE_FRACTIONS["brow_eye_gap"]
-    am = ex.au_map_for(model)
+    am = ex.au_map_for(model, normalise_pain=True)
     assert am.pain_gains is None
     assert np.array_equal(ex.pain_expression(0.7, am), ex.pain_expression(0.7, ex.default_au_map(model.n_expr)))
 
@@ -86,7 +87,8 @@ def test_a_patient_is_normalised_and_listener_pain_uses_the_gains():
     from holo_viewer.behaviour import BehaviourConfig, ListenerBehaviour
 
     model = load_patient_model("amara")  # the widest eye of the ward (0.15 IOD)
-    am = ex.au_map_for(model)
+    assert ex.au_map_for(model).pain_gains is None  # off unless asked (PAIN_NORMALISE_IDENTITY)
+    am = ex.au_map_for(model, normalise_pain=True)
     assert am.pain_gains is not None and 1.1 < am.pain_gains["AU6"] < ex.PAIN_GAIN_MAX
     f = ex.landmark_pain_fractions(model, am, levels=np.linspace(0, 1, 11))
     assert abs(f["eye_aperture"][-1] - ex.PAIN_REFERENCE_FRACTIONS["eye_aperture"]) < 1e-6

@@ -54,8 +54,11 @@ the AU groups of :data:`PAIN_GAIN_GROUPS` (AU6/AU7/AU43 for the eyes, AU4 for th
 both fractions to the reference head's (:data:`PAIN_REFERENCE_FRACTIONS`, the default head with the
 shared deltas). Gains only lift: a head whose geometry already closes or descends by more than the
 reference keeps gain 1 (the shared deltas), and no gain exceeds :data:`PAIN_GAIN_MAX`.
-:func:`au_map_for` attaches the gains to a head's :class:`AUMap` (``pain_gains``), which
-:func:`pain_expression` applies; the AU intensities (:func:`pain_aus`, PSPI) are unchanged.
+``au_map_for(model, normalise_pain=True)`` attaches the gains to a head's :class:`AUMap`
+(``pain_gains``), which :func:`pain_expression` and the listener's behaviour layers apply; the AU
+intensities (:func:`pain_aus`, PSPI) are unchanged. Off by default (:data:`PAIN_NORMALISE_IDENTITY`):
+on amara, the widest eye, the detector of ``bench/face_realism.py`` reads the eye squeezed to the
+reference's fraction as more open than the shared face's (docs/face_realism.md).
 """
 
 from __future__ import annotations
@@ -77,7 +80,7 @@ from .params import EXPR_LIMIT
 __all__ = ["AU_NAMES", "AU_MAX", "REACT_AUS", "AUMap", "default_au_map", "au_map_for", "expression_from_aus",
            "pain_aus", "pain_expression", "estimate_aus", "pspi", "pspi_from_aus", "named_expression",
            "jaw_for_expression", "EXPRESSION_NAMES_KNOWN", "NAMED_EXPRESSIONS", "PAIN_PEAK", "PAIN_EXPONENT",
-           "PAIN_RANGE", "PAIN_GAIN_GROUPS", "PAIN_REFERENCE_FRACTIONS", "PAIN_GAIN_MAX",
+           "PAIN_RANGE", "PAIN_GAIN_GROUPS", "PAIN_REFERENCE_FRACTIONS", "PAIN_GAIN_MAX", "PAIN_NORMALISE_IDENTITY",
            "landmark_pain_measures", "landmark_pain_fractions", "identity_pain_gains"]
 
 AU_NAMES: tuple[str, ...] = ("AU1", "AU2", "AU4", "AU5", "AU6", "AU7", "AU9", "AU10", "AU12", "AU14", "AU15",
@@ -131,6 +134,10 @@ PAIN_GAIN_GROUPS: dict[str, tuple[str, ...]] = {"eye_aperture": ("AU6", "AU7", "
 PAIN_REFERENCE_FRACTIONS: dict[str, float] = {"eye_aperture": 0.2938124758067685, "brow_eye_gap": 0.7869665808599443}
 #: no AU group's pain gain exceeds this (beyond it ICT's deltas extrapolate far past their data)
 PAIN_GAIN_MAX = 1.5
+#: :func:`au_map_for` attaches the gains only when asked (``normalise_pain=True``): measured on amara
+#: (docs/face_realism.md, "Identity normalisation of pain"), the landmark detector reads her eyes squeezed
+#: to the reference's fraction as *more* open (33 of 40 rows against 38 with the shared face)
+PAIN_NORMALISE_IDENTITY = False
 
 
 @dataclass(frozen=True)
@@ -297,8 +304,12 @@ def default_au_map(n_expr: int | None = None) -> AUMap:
     return AUMap(names=AU_NAMES, matrix=m)
 
 
-def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None) -> AUMap:
+def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None, *,
+               normalise_pain: bool | None = None) -> AUMap:
     """The AU map for a loaded model: a JSON file if given, the default map for the default head.
+
+    ``normalise_pain`` (default :data:`PAIN_NORMALISE_IDENTITY`, off): attach the head's
+    :func:`identity_pain_gains` (a head of the default head's format: the default and the patients).
 
     Raises
     ------
@@ -317,6 +328,8 @@ def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None) -> AUMa
                              f"of the default head ({names[:4]}... vs {list(EXPRESSION_NAMES[:4])}...); "
                              f"rebuild it with scripts/build_default_head.py")
         base = default_au_map(n_expr)
+        if not (PAIN_NORMALISE_IDENTITY if normalise_pain is None else normalise_pain):
+            return base
         return base.with_pain_gains(identity_pain_gains(model, base))
     raise FlameError(
         f"{getattr(model, 'source', 'model')}: this FLAME model has no AU map, so action units and pain "
