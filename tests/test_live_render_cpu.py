@@ -1,0 +1,105 @@
+"""The live group frame's per-frame CPU savings (issue 37) give the same bytes as the work they replace:
+the fused drawn-Gaussian deform, the warp's plan kept between frames, and the pixel table the warp trusts."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from holo_viewer.display.calibration import DisplayCalibration
+from holo_viewer.display.cameras import make_quilt_cameras
+from holo_viewer.errors import InputError
+from holo_viewer.render import view_synthesis as vs
+
+bk = pytest.importorskip("holo_viewer.avatar._bind_kernels")
+
+
+def _mesh(rng: np.random.Generator, n_verts: int = 60, n_faces: int = 90, n_gauss: int = 400):
+    verts = rng.normal(0.0, 0.05, (n_verts, 3)).astype(np.float32)
+    faces = rng.integers(0, n_verts, (n_faces, 3)).astype(np.int64)
+    faces[3] = (7, 7, 9)  # degenerate: two corners in one vertex
+    faces[4] = (11, 12, 13)
+    verts[13] = verts[11] + 2.0 * (verts[12] - verts[11])  # degenerate: collinear
+    binding = rng.integers(0, n_faces, n_gauss).astype(np.int64)  # not ordered by face, as the avatar's
+    binding[:2] = (3, 4)  # Gaussians on the degenerate faces
+    mu = rng.normal(0.0, 0.3, (n_gauss, 3)).astype(np.float32)
+    ql = rng.normal(0.0, 1.0, (n_gauss, 4)).astype(np.float32)
+    ls = rng.normal(-4.0, 0.5, (n_gauss, 3)).astype(np.float32)
+    return verts, faces, binding, mu, ql, ls
+
+
+def test_fused_drawn_deform_writes_the_frames_then_bind_subset_rows_bit_for_bit() -> None:
+    """bind_faces_nb (each face's frame applied at once to its Gaussians, the live renderer's drawn deform)
+    against face_frames_nb over the drawn faces then bind_subset_nb: the same rows, degenerate faces
+    included, and the Gaussians not drawn untouched."""
+    rng = np.random.default_rng(4)
+    verts, faces, binding, mu, ql, ls = _mesh(rng)
+    n = binding.size
+    index = np.union1d(rng.choice(n, 250, replace=False), [0, 1])
+    mask = np.zeros(len(faces), dtype=bool)
+    mask[binding[index]] = True
+    frame, deg = bk.frames(verts, faces, 1e-12, mask)
+    assert deg[3] and deg[4] and deg.sum() < 10
+    ref = [np.full((n, c), 7.0, np.float32) for c in (3, 4, 3)]
+    bk.bind_subset_nb(frame, binding, mu, ql, ls, index, *ref)
+    tables = bk.face_order(binding, index, mu, ql, ls)
+    face_list, starts, by_face = tables[:3]
+    np.testing.assert_array_equal(face_list, np.unique(binding[index]))
+    np.testing.assert_array_equal(np.sort(by_face), index)
+    assert (np.diff(binding[by_face]) >= 0).all() and starts[-1] == index.size
+    out = [np.full((n, c), 7.0, np.float32) for c in (3, 4, 3)]
+    bk.bind_faces_nb(verts, faces, 1e-12, *tables, *out)
+    for a, b in zip(ref, out):
+        np.testing.assert_array_equal(a, b)  # drawn rows equal, the others still 7
+    assert (out[0][np.setdiff1d(np.arange(n), index)] == 7.0).all()
+
+
+@pytest.fixture(scope="module")
+def small_rig():
+    cal = DisplayCalibration.load(None).with_quilt(8, 1, 8 * 24, 16)  # 8 views of 24 x 16 pixels
+    cams = make_quilt_cameras(cal, focal_center=(0.0, 0.0, 0.0), size=0.12, near=0.01, far=10.0)
+    return cams, vs.rig_of(cams)
+
+
+def _warp_inputs(cams, rng: np.random.Generator):
+    V, H, W = len(cams), cams.height, cams.width
+    sources = vs.source_views(V, 3)
+    images = rng.uniform(size=(sources.size, H, W, 3)).astype(np.float32)
+    wmaps = rng.uniform(0.6, 1.4, size=(sources.size, H, W)).astype(np.float32)
+    tiles = np.array([[0, k * W] for k in range(V)], dtype=np.int64)
+    return sources, images, wmaps, tiles
+
+
+def test_warp_trusts_only_sampled_columns_tables_and_replans_a_changed_rig(small_rig) -> None:
+    """warp_views skips its range check of the pixel table for sampled_columns' own (SampledColumns, a
+    2-tuple), checks any other pair (a bad column raises), warps the same either way, and its plan kept
+    between calls follows a rig whose cameras moved (the same quilt as with no plan kept)."""
+    cams, rig = small_rig
+    rng = np.random.default_rng(8)
+    V, H, W = len(cams), cams.height, cams.width
+    sources, images, wmaps, tiles = _warp_inputs(cams, rng)
+    table = vs.sampled_columns(rng.uniform(size=(V, H, W)) < 0.5)
+    assert isinstance(table, vs.SampledColumns) and len(table) == 2 and table.shape == (V, H, W)
+    offsets, columns = table
+    quilts = []
+    for pixels in (table, (offsets, columns)):
+        q = np.full((H, V * W, 3), 7, np.uint8)
+        vs.warp_views(images, wmaps, sources, rig, quilt=q, tiles=tiles, pixels=pixels)
+        quilts.append(q)
+    np.testing.assert_array_equal(quilts[0], quilts[1])
+    assert (quilts[0] != 7).any()
+    bad = columns.copy()
+    bad[3] = W
+    with pytest.raises(InputError, match="pixels: expected sampled_columns"):
+        vs.warp_views(images, wmaps, sources, rig, quilt=quilts[1], tiles=tiles, pixels=(offsets, bad))
+    # another rig of the same size (the cameras moved): its own plan, not the kept one
+    moved = dataclasses.replace(rig, tx=rig.tx * 1.5, cx=rig.cx + 0.75)
+    got = np.full((H, V * W, 3), 7, np.uint8)
+    vs.warp_views(images, wmaps, sources, moved, quilt=got, tiles=tiles, pixels=table)
+    vs._PLANS.clear()
+    fresh = np.full((H, V * W, 3), 7, np.uint8)
+    vs.warp_views(images, wmaps, sources, moved, quilt=fresh, tiles=tiles, pixels=table)
+    np.testing.assert_array_equal(got, fresh)
+    assert not np.array_equal(got, quilts[0])
