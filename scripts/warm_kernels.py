@@ -135,6 +135,15 @@ def _avatars() -> None:
     rigged.deform(verts[0] + 0.01, cache=True, cache_tol=1e-4)
     BlendshapeAvatar.from_rigged(rigged).pose(torch.zeros(6))
     BlendshapeAvatar.from_rigged(rigged, exact_jvp=True).pose(torch.zeros(6))  # its per-Gaussian kernel
+    # the live renderer's drawn-Gaussian deform (RiggedStage.drawn_deform: every other Gaussian here)
+    import numpy as np
+
+    from holo_viewer.pipeline.avatars import RiggedStage
+
+    g = rigged.deform(verts[0])
+    deform = RiggedStage(rigged).drawn_deform(np.arange(0, len(g), 2))
+    if deform is not None:
+        deform(verts[0].numpy(), g.replace(means=g.means.clone(), quats=g.quats.clone(), log_scales=g.log_scales.clone()))
 
 
 def _visibility() -> None:
