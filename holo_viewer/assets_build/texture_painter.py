@@ -698,8 +698,13 @@ def eye_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     the face frame, +z forward), and the limbus is the
     largest angle from the axis at which the surface still stands 12 % of the bulge's height
     above the sclera (the 90th percentile of the radius 35 to 70 degrees from the axis: inner
-    shells such as ICT's iris mesh do not lower it), searched within 60 degrees of the axis.
-    Region labels are not needed (ICT's iris mesh lies inside the sclera+cornea shell).
+    shells such as ICT's iris mesh do not lower it), searched within 60 degrees of the axis and
+    only over the cap raised all the way from the axis (the raised vertices' angles up to the first
+    gap wider than :data:`_LIMBUS_GAP_DEG`). Without that last condition a bump of an
+    identity's eyeball far out on the sclera counted as cornea: on four of the six patients' eyes
+    (amara's left; james, kwame, rafael) the limbus came out 56-59 degrees, an iris over most of
+    the visible eye (docs/face_realism.md). Region labels are not needed (ICT's iris mesh lies
+    inside the sclera+cornea shell).
     """
     q = np.asarray(points, dtype=np.float64)
     centre, _ = _sphere_fit(q)
@@ -718,7 +723,15 @@ def eye_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     cornea = (r > base + 0.12 * bulge) & (theta < np.radians(60))
     if bulge <= 1e-6 * max(base, 1e-12) or not cornea.any():  # a plain sphere: a 12 mm iris on a 24 mm eyeball
         return centre, np.array([0.0, 0.0, 1.0]), float(np.arcsin(0.5))
-    return centre, axis, float(theta[cornea].max())
+    # the cap raised all the way from the axis: the raised vertices' angles up to the first gap wider
+    # than _LIMBUS_GAP_DEG (a bump of the sclera far out is not cornea)
+    t = np.sort(theta[cornea])
+    gap = np.nonzero(np.diff(t) > np.radians(_LIMBUS_GAP_DEG))[0]
+    return centre, axis, float(t[gap[0]] if len(gap) else t[-1])
+
+
+#: :func:`eye_axis`: raised vertices farther than this (degrees, from the axis) beyond the cap are not cornea
+_LIMBUS_GAP_DEG = 7.0
 
 
 # ============================================================================== the generator
