@@ -385,3 +385,48 @@ def test_hair_style_edges_and_the_hanging_curtain():
     assert np.all(horiz(out)[back] > 1.5 * horiz(pts)[back])  # pushed out to the widest radius above
     np.testing.assert_array_equal(out[front], pts[front])
     np.testing.assert_array_equal(out[:, 1], pts[:, 1])  # straight down: heights unchanged
+
+
+def test_hair_sheen_is_a_strand_highlight_lit_by_the_key_and_off_by_default():
+    """The baked sheen (texture_painter.Look.sheen / rim, amara's black hair): Kajiya-Kay's highlight
+    peaks where the strand is perpendicular to the half-vector of the key light and a frontal view and
+    nearly vanishes where the strand lies along it; none where the key light cannot reach; the rim term
+    lifts the silhouette, not the part facing the view; a look without them paints the earlier hair."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from holo_viewer.assets_build import texture_painter as tp
+
+    def unit(v):
+        v = np.asarray(v, np.float64)
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    look = replace(tp.Look(hair=(0.05, 0.04, 0.034)), sheen=0.35)
+    painter = SimpleNamespace(look=look, seed=3501)
+    h = unit(tp._KEY_LIGHT + tp._VIEW)
+    n0 = unit([-0.87, -0.375, 0.3])  # a surface turned from the half-vector, seen and lit by the key light
+    e1 = unit(np.cross(n0, [0.0, 1.0, 0.0]))
+    ang = np.radians(np.arange(0.0, 180.0, 0.5))  # strands in its tangent plane, every direction
+    t = np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * np.cross(n0, e1)
+    n = np.tile(n0, (len(t), 1))
+    one = np.ones(len(t))
+    s = tp._Painter.hair_sheen(painter, n, t, one, one, np.full(len(t), 50.0)).sum(1)
+    assert s.max() > 0.3 and s.min() < s.max() / 10, (s.min(), s.max())
+    peak = unit(t[np.argmax(s)] + tp._SHEEN_SHIFT[0] * n0)  # the primary's tilted tangent
+    assert abs(peak @ h) < 0.05, peak @ h  # ... is perpendicular to the half-vector at the peak
+    zero = np.zeros(2)
+    away = unit(np.array([[1.0, -0.8, 0.5]]))  # seen, but turned from the key light
+    assert away @ tp._KEY_LIGHT < 0 < away @ tp._VIEW
+    assert np.all(tp._Painter.hair_sheen(painter, away, unit([[0.0, 0.5, 0.8]]), one[:1], one[:1], one[:1] * 50) == 0)
+    rim = SimpleNamespace(look=replace(look, sheen=0.0, rim=0.12), seed=3501)
+    edge = unit(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.1]]))
+    r = tp._Painter.hair_sheen(rim, edge, unit([[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]]), zero, zero, np.full(2, 50.0))
+    assert r[0].sum() == 0 and r[1].sum() > 0.05, r
+    # off by default: the normals change nothing
+    plain = SimpleNamespace(look=tp.Look(), seed=3501)
+    plain.hair_sheen = lambda *a: tp._Painter.hair_sheen(plain, *a)
+    q = np.random.default_rng(0).normal(0.0, 60.0, (50, 3))
+    crown, axis = np.array([0.0, 80.0, -40.0]), unit([0.0, 1.0, -0.35])
+    a = tp._Painter.hair_color(plain, q, crown, axis)
+    b = tp._Painter.hair_color(plain, q, crown, axis, None, unit(q - [0.0, 10.0, -90.0]), unit(np.cross(q, [0, 1, 0])))
+    assert np.array_equal(a, b)

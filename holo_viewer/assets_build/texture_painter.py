@@ -49,6 +49,14 @@ class Look:
     strands relative to 1400 a brow; ``age``: 0 young .. 1 old: deeper forehead lines and crow's
     feet, nasolabial and marionette folds, under-eye lines, age spots, coarser texture;
     ``iris`` / ``iris_outer``: iris colours at the pupil and at the limbus.
+
+    Dark hair on the panel's black (docs/patients.md "Dark hair"): ``sheen``: strength of the baked
+    primary highlight of the strands (Kajiya-Kay: bright where the strand tangent is perpendicular to
+    the half-vector of the previews' key light and a frontal view; a slightly cool, uncoloured
+    reflection, with a weaker warm secondary band toward the tips, broken up by clumps);
+    ``strand_var``: extra strand-to-strand value variation (a share of lighter strands);
+    ``rim``: value lifted where the hair turns away from a frontal view (flyaways catching light at
+    the silhouette). All 0 (the default) paint exactly the earlier hair.
     """
 
     skin: tuple = tuple(_SKIN)
@@ -64,9 +72,26 @@ class Look:
     age: float = 0.0
     iris: tuple = (0.36, 0.25, 0.14)
     iris_outer: tuple = (0.24, 0.20, 0.14)
+    sheen: float = 0.0
+    strand_var: float = 0.0
+    rim: float = 0.0
 
 
 DEFAULT_LOOK = Look()
+
+#: the previews' key light (``flame.preview.add_key_lights``: camera direction + 0.6 up + 0.5 toward
+#: the subject's right) and a frontal view, in the face frame; the hair sheen is baked for them
+_KEY_LIGHT = np.array([-0.5, 0.6, 1.0]) / np.linalg.norm([-0.5, 0.6, 1.0])
+_VIEW = np.array([0.0, 0.0, 1.0])
+#: Kajiya-Kay exponents of the primary (R) and secondary (TRT) highlights and their tangents' shifts
+#: along the normal (the cuticle's tilt moves R toward the root, TRT toward the tip: Marschner et al.
+#: 2003); R's shift (about 14 deg) puts the band over the upper front of the head, as the key light does
+_SHEEN_POWER = (60.0, 14.0)
+_SHEEN_SHIFT = (-0.25, 0.14)
+#: neighbour averagings of the normals the sheen is baked with (the shell's ribs would streak it)
+_SHEEN_SMOOTH = 6
+#: the primary highlight's colour: the light's, a little cool against the warm pigment
+_SHEEN_COLOUR = np.array([0.86, 0.90, 0.97])
 
 
 
@@ -130,6 +155,26 @@ def _smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
 
 
 # ============================================================================== geometry helpers
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
+
+
+def _vertex_normals(v: np.ndarray, f: np.ndarray, iterations: int = 0) -> np.ndarray:
+    """(V, 3) unit area-weighted vertex normals, averaged over neighbours ``iterations`` times
+    (smooth over the hair shell's ribs, for the baked sheen)."""
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    n = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(n, f[:, k], fn)
+    n = _unit(n)
+    for _ in range(iterations):
+        acc = n.copy()
+        for a, b in ((0, 1), (1, 2), (2, 0), (1, 0), (2, 1), (0, 2)):
+            np.add.at(acc, f[:, a], n[f[:, b]])
+        n = _unit(acc)
+    return n
+
+
 def _cyl(q: np.ndarray, radius: float = 75.0) -> np.ndarray:
     """(arc-length across the face, height) in mm on a vertical cylinder around the head."""
     return np.stack([radius * np.arctan2(q[:, 0], q[:, 2] + radius), q[:, 1]], axis=1)
@@ -517,12 +562,15 @@ class _Painter:
 
     # ---------------------------------------------------------------- hair
     def hair_color(self, q: np.ndarray, crown: np.ndarray, axis: np.ndarray,
-                   uv: np.ndarray | None = None) -> np.ndarray:
+                   uv: np.ndarray | None = None, normal: np.ndarray | None = None,
+                   tangent: np.ndarray | None = None) -> np.ndarray:
         """Hair strands combed away from the crown, per-strand colour, clumps, darker roots.
 
         The strand index runs with the azimuth about the crown axis: from the hair shell's own
         UVs when given (tile 7: u from the crown toward the hairline, v = |azimuth| / pi, so the
         strands follow the shell's comb direction), else from the 3-D position (the scalp).
+        ``normal`` / ``tangent``: (N, 3) unit surface normals and strand directions in the face
+        frame, needed when the look has ``sheen`` or ``rim`` (:meth:`hair_sheen`).
         """
         s = self.seed
         n = len(q)
@@ -551,9 +599,44 @@ class _Painter:
             k = np.floor(strand).astype(np.int64)
             white = (_hash(k, np.zeros_like(k), np.full_like(k, 7), s + 47) < self.look.grey).astype(np.float64)
             col = col * (1 - white[:, None]) + np.array([0.74, 0.72, 0.68])[None, :] * lum[:, None] * white[:, None]
+        if self.look.strand_var > 0:  # a share of lighter strands (each strand lighter or not) and clumps
+            k = np.floor(strand).astype(np.int64)
+            light = _hash(k, np.zeros_like(k), np.full_like(k, 9), s + 48)
+            col *= (1.0 + self.look.strand_var * (_smoothstep(0.55, 1.0, light) + 0.5 * (c2 - 0.5)))[:, None]
         # darker roots near the crown whorl
         col *= (0.6 + 0.4 * _smoothstep(0.0, 30.0, polar))[:, None]
+        if (self.look.sheen > 0 or self.look.rim > 0) and normal is not None and tangent is not None:
+            col = col + self.hair_sheen(normal, tangent, c1, c2, polar)
         return col
+
+    def hair_sheen(self, n: np.ndarray, t: np.ndarray, c1: np.ndarray, c2: np.ndarray,
+                   polar: np.ndarray) -> np.ndarray:
+        """(N, 3) light added to the hair albedo by the look's ``sheen`` and ``rim`` (see :class:`Look`).
+
+        Kajiya-Kay's strand highlight, ``sin(T, H) ** p``, for the key light and a frontal view, on
+        the tangent tilted along the normal (the primary reflection toward the root, the secondary,
+        coloured by the pigment, toward the tip); each visible only where the key light reaches
+        the surface and the view sees it; clumps (``c2``) and single strands (``c1``) catch it
+        unevenly. The rim term lifts the value where the surface turns away from the view.
+        """
+        look = self.look
+        h = _KEY_LIGHT + _VIEW
+        h = h / np.linalg.norm(h)
+        lit = _smoothstep(-0.05, 0.35, n @ _KEY_LIGHT) * _smoothstep(-0.1, 0.25, n @ _VIEW)
+        catch = (0.45 + 0.8 * c2) * (0.7 + 0.6 * c1)
+        hair = np.asarray(look.hair, np.float64)
+        pigment = hair / max(float(hair.max()), 1e-9)
+        out = np.zeros((len(n), 3))
+        for power, shift, colour, gain in ((_SHEEN_POWER[0], _SHEEN_SHIFT[0], _SHEEN_COLOUR, 1.0),
+                                           (_SHEEN_POWER[1], _SHEEN_SHIFT[1], 0.5 * pigment, 0.35)):
+            ts = t + shift * n
+            ts /= np.maximum(np.linalg.norm(ts, axis=1, keepdims=True), 1e-12)
+            sin_th = np.sqrt(np.clip(1.0 - (ts @ h) ** 2, 0.0, 1.0))
+            out += (look.sheen * gain * lit * catch * sin_th ** power)[:, None] * colour[None, :]
+        if look.rim > 0:
+            edge = _smoothstep(0.45, 0.9, 1.0 - np.abs(n @ _VIEW))
+            out += (look.rim * edge * (0.6 + 0.5 * c1))[:, None] * (0.5 * (pigment + 1.0))[None, :]
+        return out * (0.6 + 0.4 * _smoothstep(0.0, 30.0, polar))[:, None]
 
     def hair_coverage(self, q: np.ndarray, scalp_soft: np.ndarray | None) -> np.ndarray:
         """Hair coverage on the skin tiles: from the scalp labels where there are any, else from a
@@ -751,10 +834,16 @@ def _paint(p: _Painter, mesh: AppearanceMesh, size: int, eye_size: int) -> tuple
     crown = np.array([0.0, top - 8.0, q_all[:, 2].min() * 0.35])
     axis = np.array([0.0, 1.0, -0.35])
     axis /= np.linalg.norm(axis)
+    shine = p.look.sheen > 0 or p.look.rim > 0
+    n_all = _vertex_normals(q_all, f, _SHEEN_SMOOTH) if shine else None
+    head_centre = np.array([0.0, 10.0, -90.0])  # mm, the face frame: inside the skull, behind the eyes
 
     textures: dict[str, np.ndarray] = {}
     for tex in ("face", "head", "hair"):
         sel = np.nonzero(np.isin(mat, [MATERIALS.index(m) for m, t in MATERIAL_TEXTURE.items() if t == tex]))[0]
+        if shine and tex == "hair":  # layers sharing texels: the outermost (the one seen) is rasterised last
+            rad = np.linalg.norm(q_all[f[sel]].mean(1) - head_centre, axis=1)
+            sel = sel[np.lexsort((np.arange(len(sel)), rad))]
         tri, bary = rasterize_uv(uvs[fuv[sel]], size, (TEXTURE_TILE[tex], 0.0))
         mask = tri >= 0
         ft = f[sel[tri[mask]]]
@@ -762,13 +851,20 @@ def _paint(p: _Painter, mesh: AppearanceMesh, size: int, eye_size: int) -> tuple
         pos = np.einsum("nk,nkc->nc", b, v[ft])
         q = _to_local(pos, p.frame)
         soft = {k: np.einsum("nk,nk->n", b, sv[ft]) for k, sv in soft_v.items()}
+        nrm = tan = None
+        if shine:
+            nrm = _unit(np.einsum("nk,nkc->nc", b, n_all[ft]))
+            # the shell's inner layer shares the outer one's texels: shade them as seen from outside the head
+            nrm *= np.where(np.einsum("nc,nc->n", nrm, q - head_centre) < 0, -1.0, 1.0)[:, None]
+            tan = q - crown  # combed away from the crown (on the hanging curtain: down the curtain)
+            tan = _unit(tan - np.einsum("nc,nc->n", tan, nrm)[:, None] * nrm)
         if tex == "hair":
             ii, jj = np.nonzero(mask)
-            col = p.hair_color(q, crown, axis, np.c_[(jj + 0.5) / size, 1.0 - (ii + 0.5) / size])
+            col = p.hair_color(q, crown, axis, np.c_[(jj + 0.5) / size, 1.0 - (ii + 0.5) / size], nrm, tan)
         else:
             col = p.skin(q, soft, brow)
             hc = p.hair_coverage(q, soft["scalp"] if has_scalp else None)
-            col = col * (1 - hc[:, None]) + p.hair_color(q, crown, axis) * 0.8 * hc[:, None]
+            col = col * (1 - hc[:, None]) + p.hair_color(q, crown, axis, None, nrm, tan) * 0.8 * hc[:, None]
             for name, w in (("mouth_interior", 1.0), ("eye_pocket", 0.8), ("nostrils", 0.7)):
                 c = np.asarray(_VERTEX_COLORS[name])
                 ww = np.clip(soft[name] * w, 0, 1)[:, None]
