@@ -103,3 +103,65 @@ def test_warp_trusts_only_sampled_columns_tables_and_replans_a_changed_rig(small
     vs.warp_views(images, wmaps, sources, moved, quilt=fresh, tiles=tiles, pixels=table)
     np.testing.assert_array_equal(got, fresh)
     assert not np.array_equal(got, quilts[0])
+
+
+def _cells_to_pixels_plain(zb: np.ndarray, cell: int, H: int, W: int, w_zero: float) -> np.ndarray:
+    """view_synthesis._cells_to_pixels as first written (every cell visited by the hole filling), in Python."""
+    zb = zb.copy()
+    h, w = zb.shape
+    for _ in range(3):
+        zn = zb.copy()
+        for y in range(h):
+            for x in range(w):
+                if zb[y, x] != np.inf:
+                    continue
+                acc, n = 0.0, 0
+                for yy in range(max(0, y - 1), min(h, y + 2)):
+                    for xx in range(max(0, x - 1), min(w, x + 2)):
+                        if zb[yy, xx] != np.inf:
+                            acc += zb[yy, xx]
+                            n += 1
+                if n >= 3:
+                    zn[y, x] = acc / n
+        zb[:, :] = zn
+    zb = np.where(zb != np.inf, 1.0 / zb, w_zero)
+
+    def taps(i: int, n: int) -> tuple[int, int, float]:
+        f = (i + 0.5) / cell - 0.5
+        c0 = min(max(int(np.floor(f)), 0), n - 1)
+        return c0, min(c0 + 1, n - 1), min(max(f - c0, 0.0), 1.0)
+
+    rows = np.empty((h, W))
+    for x in range(W):
+        x0, x1, ax = taps(x, w)
+        for y in range(h):
+            rows[y, x] = (1.0 - ax) * zb[y, x0] + ax * zb[y, x1]
+    out = np.empty((H, W), np.float32)
+    for y in range(H):
+        y0, y1, ay = taps(y, h)
+        for x in range(W):
+            out[y, x] = (1.0 - ay) * rows[y0, x] + ay * rows[y1, x]
+    return out
+
+
+def test_depth_cells_hole_filling_skips_only_cells_without_a_filled_neighbour() -> None:
+    """_cells_to_pixels visits, per pass, only the cells near a filled one: the same inverse depths bit for
+    bit as visiting every cell, for a blob with holes (filled over the passes), isolated cells and rows with
+    nothing, a blob at the border, an empty and a full grid."""
+    rng = np.random.default_rng(12)
+    h, w, cell = 17, 13, 3
+    H, W = h * cell - 1, w * cell - 2
+    yy, xx = np.mgrid[0:h, 0:w]
+    blob = ((yy - 8) / 6.0) ** 2 + ((xx - 5) / 4.0) ** 2 < 1.0
+    grids = []
+    for k in range(3):
+        z = np.where(blob & (rng.random((h, w)) < 0.7), rng.uniform(0.5, 0.7, (h, w)), np.inf)
+        z[rng.integers(0, h), rng.integers(0, w)] = 0.6  # an isolated cell
+        if k == 1:
+            z[:, :3] = np.where(rng.random((h, 3)) < 0.5, 0.55, np.inf)  # at the left border
+        grids.append(z)
+    grids += [np.full((h, w), np.inf), rng.uniform(0.5, 0.7, (h, w))]
+    for z in grids:
+        out = np.empty((H, W), np.float32)
+        vs._cells_to_pixels(z.copy(), h, w, cell, H, W, 1.25, out)
+        np.testing.assert_array_equal(out, _cells_to_pixels_plain(z, cell, H, W, 1.25))

@@ -154,11 +154,17 @@ def _zbuffer(means: np.ndarray, keep: np.ndarray, R: np.ndarray, tx: np.ndarray,
     # per centre, the centres in front kept in order, then per source u alone. The same float64
     # expressions in the same order as computing them per source (no fastmath): the same depth maps bit
     # for bit (tests/test_view_synthesis.py); default avatar, 9 sources: 8.0 -> 6.4 ms of CPU.
+    # The cell row too is the sources' (v is): computed once per centre, and the centres whose row is
+    # outside the image (v < 0, NaN or past the last cell row), which every source skipped, dropped then;
+    # per source only u, its test and its cell column remain (_keep_nearest's tests, split): the same
+    # depth maps bit for bit (tested); with the hole filling's skipped background (_cells_to_pixels) the
+    # default avatar's 9 sources at 210 x 280 px: 4.8 -> 3.6 ms of CPU.
     S = tx.size
     h, w = (H + cell - 1) // cell, (W + cell - 1) // cell
     n = means.shape[0]
     ok = np.zeros(n, dtype=np.bool_)
-    rx, zs, vs = np.empty(n), np.empty(n), np.empty(n)
+    rx, zs = np.empty(n), np.empty(n)
+    yis = np.empty(n, dtype=np.int64)
     for i in numba.prange(n):
         if not keep[i]:
             continue
@@ -166,21 +172,31 @@ def _zbuffer(means: np.ndarray, keep: np.ndarray, R: np.ndarray, tx: np.ndarray,
         z = R[2, 0] * mx + R[2, 1] * my + R[2, 2] * mz + tz
         if not z > near:
             continue
+        v = fy * (R[1, 0] * mx + R[1, 1] * my + R[1, 2] * mz + ty) / z + cy
+        if not v >= 0.0:
+            continue
+        yi = int(v / cell)
+        if not yi < h:
+            continue
         ok[i] = True
         zs[i] = z
         rx[i] = R[0, 0] * mx + R[0, 1] * my + R[0, 2] * mz
-        vs[i] = fy * (R[1, 0] * mx + R[1, 1] * my + R[1, 2] * mz + ty) / z + cy
+        yis[i] = yi
     m = 0
     for i in range(n):  # in order: the first of equal depths wins, as before
         if ok[i]:
-            rx[m], zs[m], vs[m] = rx[i], zs[i], vs[i]
+            rx[m], zs[m], yis[m] = rx[i], zs[i], yis[i]
             m += 1
     for s in numba.prange(S):
         zb = np.full((h, w), np.inf)
         for i in range(m):
             z = zs[i]
             u = fx * (rx[i] + tx[s]) / z + cx[s]
-            _keep_nearest(zb, u, vs[i], z, cell, h, w)
+            if not u >= 0.0:
+                continue
+            xi, yi = int(u / cell), yis[i]
+            if xi < w and z < zb[yi, xi]:
+                zb[yi, xi] = z
         _cells_to_pixels(zb, h, w, cell, H, W, w_zero, out[s])
 
 
@@ -221,11 +237,29 @@ def _keep_nearest(zb: np.ndarray, u: float, v: float, z: float, cell: int, h: in
 def _cells_to_pixels(zb: np.ndarray, h: int, w: int, cell: int, H: int, W: int, w_zero: float,
                      out: np.ndarray) -> None:
     """Nearest depth per cell -> (H, W) inverse depth: holes filled, background w_zero, bilinear."""
-    # holes inside the head (cells no centre fell in): the mean of >= 3 filled neighbours, 3 passes
+    # holes inside the head (cells no centre fell in): the mean of >= 3 filled neighbours, 3 passes.
+    # Per pass only the cells within one of a filled cell of the row above, its own or the row below are
+    # visited (lo..hi): any other has no filled neighbour (it stays empty, as before); the background's
+    # cells were ~3/4 of this function's time (9 sources, 210 x 280 px, cell 3: 2.1 -> 0.55 ms of CPU)
+    lo_x, hi_x = np.empty(h, dtype=np.int64), np.empty(h, dtype=np.int64)
     for _ in range(3):
         zn = zb.copy()
-        for y in range(h):
+        for y in range(h):  # each row's first and last filled cell (w, -1: none)
+            lo, hi = w, -1
             for x in range(w):
+                if zb[y, x] != np.inf:
+                    lo = x
+                    break
+            for x in range(w - 1, lo - 1, -1):
+                if zb[y, x] != np.inf:
+                    hi = x
+                    break
+            lo_x[y], hi_x[y] = lo, hi
+        for y in range(h):
+            lo, hi = w, -1
+            for yy in range(max(0, y - 1), min(h, y + 2)):
+                lo, hi = min(lo, lo_x[yy]), max(hi, hi_x[yy])
+            for x in range(max(0, lo - 1), min(w, hi + 2)):
                 if zb[y, x] != np.inf:
                     continue
                 acc, n = 0.0, 0
