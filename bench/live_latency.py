@@ -125,6 +125,8 @@ class ThreadCPU:
             return "child"
         if b"-i" in cmd and cmd[cmd.index(b"-i") + 1:cmd.index(b"-i") + 2] == [b"-"]:
             return "ffmpeg encoder"
+        if b"holo_viewer.tracking.dlib_worker" in cmd:  # LiveSessionConfig.tracker_process
+            return "tracker process"
         return "ffmpeg decoder" if b"rawvideo" in cmd or b"image2pipe" in cmd else "child"
 
     def sample(self) -> None:
@@ -352,13 +354,14 @@ def pct(x, q):
 
 def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: str = "auto",
                 record: bool = False, in_flight: int | None = None, render_threads: int | None = None,
-                threads_in_flight: int | None = None, visible_only: bool = True) -> dict:
+                threads_in_flight: int | None = None, visible_only: bool = True, tracker_process: bool = False) -> dict:
     """One replayed session; ``record``: the session writes its native video too (as ``live`` does);
     ``in_flight``: ``LiveSessionConfig.frames_in_flight`` (None: the default), ``render_threads``: the
     renderer's threads (None: all cores), ``threads_in_flight``: each renderer's threads once frames are in
     flight (``LiveSessionConfig.render_threads_in_flight``; None: the cores over the frames in flight), for
     paired A/Bs in one run (``--ab``, ``--ab-threads``); ``visible_only``: skip the Gaussians nobody sees, as
-    ``holo-viewer live`` does (False: every Gaussian drawn, ``--ab-visible``'s A)."""
+    ``holo-viewer live`` does (False: every Gaussian drawn, ``--ab-visible``'s A); ``tracker_process``:
+    ``LiveSessionConfig.tracker_process`` (dlib in a child process, ``--ab-tracker``'s B)."""
     from holo_viewer.live import sources
     from holo_viewer.live.loop import LiveSessionConfig, LiveSession
     from holo_viewer.live.render import LiveAvatarRenderer
@@ -367,7 +370,7 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     load_start = os.getloadavg()[0]
     t_start = time.perf_counter()
     cfg = LiveSessionConfig(out=str(out), tile_scale=tile_scale, write_native_video=record, flush_s=60.0,
-                            render_threads_in_flight=threads_in_flight,
+                            render_threads_in_flight=threads_in_flight, tracker_process=tracker_process,
                             **({"frames_in_flight": int(in_flight)} if in_flight is not None else {}))
     session = LiveSession(cfg, sources.WavReplay(files["wav"]), sources.VideoReplay(files["video"]))
     renderer = LiveAvatarRenderer(tile_scale=tile_scale, mode=mode, render_threads=render_threads,
@@ -567,6 +570,9 @@ def main() -> int:
                     "in flight instead of the cores over the frames in flight (row ab_threads_all)")
     ap.add_argument("--ab-visible", action="store_true", help="also every Gaussian drawn (A) against the "
                     "visible ones only (B, the default), one after the other (rows ab_visible)")
+    ap.add_argument("--ab-tracker", action="store_true", help="also the face tracker's dlib in this process (A, "
+                    "the default) against a child process (B, LiveSessionConfig.tracker_process), one after the other, "
+                    "twice (rows ab_tracker)")
     ap.add_argument("--startup-only", action="store_true", help="only the start-up runs: the live command's first "
                     "frame cold (empty kernel cache) and warm, and its quit time")
     args = ap.parse_args()
@@ -622,6 +628,8 @@ def main() -> int:
                                  threads_in_flight=os.cpu_count()) if args.ab_threads else None
         abv = [run_session(files, Path(tmp) / f"abv{i}", True, args.tile_scale, args.render_mode, record=True,
                            visible_only=v, **kw) for i, v in enumerate((False, True))] if args.ab_visible else None
+        abt = [run_session(files, Path(tmp) / f"abtr{i}", True, args.tile_scale, args.render_mode, record=True,
+                           tracker_process=bool(i % 2), **kw) for i in range(4)] if args.ab_tracker else None
         rss = rss_run(args.rss_seconds, Path(tmp) / "rss") if args.rss_seconds > 0 else None
     base, full = rows
     ratio = (full["reaction_ms_per_window_median"] or 0) / max(base["reaction_ms_per_window_median"] or 1e-9, 1e-9)
@@ -636,7 +644,9 @@ def main() -> int:
     print(f"reaction ms/window, render vs no-render: x{ratio:.2f}")
     named = [("cold", full), ("warm", warm)] + ([("1 in flight (A)", ab[0]), (f"{args.in_flight or 2} in flight (B)", ab[1])] if ab else []) + \
         ([("all cores per renderer in flight", ab_threads)] if ab_threads else []) + \
-        ([("every Gaussian (A)", abv[0]), ("visible Gaussians (B)", abv[1])] if abv else [])
+        ([("every Gaussian (A)", abv[0]), ("visible Gaussians (B)", abv[1])] if abv else []) + \
+        ([(f"tracker {'child process (B)' if i % 2 else 'in process (A)'}, pair {i // 2 + 1}", row)
+          for i, row in enumerate(abt)] if abt else [])
     for name, row in named:
         print(f"{name}: {row['displayed_fps']} displayed fps with recording (load {row['load_1min_start']} -> "
               f"{row['load_1min_end']}), render {row['render_ms_median']} ms, visible change "
@@ -668,7 +678,7 @@ def main() -> int:
               f"(growth {rss['rss_growth_mb']} MB), late windows {rss['late_reaction_windows']}/{rss['reaction_windows']}")
     result = {"config": vars(args), "load_average": load, "cores": os.cpu_count(), "no_render": base, "render": full,
               "render_warm": warm, "ab_before": ab[0] if ab else None, "ab_after": ab[1] if ab else None,
-              "ab_threads_all": ab_threads, "ab_visible": abv,
+              "ab_threads_all": ab_threads, "ab_visible": abv, "ab_tracker": abt,
               "startup": startup,
               "reaction_window_ratio_render_vs_baseline": round(ratio, 2), "fit": fit, "rss": rss}
     if args.json:

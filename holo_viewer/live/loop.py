@@ -109,6 +109,11 @@ class LiveSessionConfig:
     #: flight cost CPU and latency (quiet A/B, docs/live.md: 7.75 against 7.38 displayed fps, 414 against
     #: 582 ms to a visible change)
     frames_in_flight: int = 1
+    #: the face tracker's dlib in a child process (TrackerConfig.detector_process: the same landmarks, and the
+    #: ~2 ms of each shape prediction no longer holds this process's GIL, which the render's thread needs between
+    #: its kernels; ~0.7 ms more CPU a tracked frame for the pipe). Off until a quiet A/B shows the displayed fps
+    #: gain (`bench/live_latency.py --ab-tracker`; issue 37, docs/live.md)
+    tracker_process: bool = False
     #: each renderer's threads while frames are in flight (None: the cores over frames_in_flight, at least 1)
     render_threads_in_flight: int | None = None
     scenario: Any = None
@@ -488,6 +493,16 @@ class LiveSession:
         self._webcam_writer = None
         writer = None
         # load and warm up everything before the clock starts, so the first frames are not late
+        self._face_tracker = None
+        if self.video is not None and self.synthetic is None:
+            from ..tracking.tracker import FaceTracker, TrackerConfig
+            from ..tracking.viewer import WebcamMount
+
+            self._mount = cfg.mount or WebcamMount(hfov_deg=cfg.hfov_deg)
+            # created first: with tracker_process its dlib child loads dlib and the model while this process loads
+            # the rest
+            self._face_tracker = FaceTracker(TrackerConfig(hfov_deg=self._mount.hfov_deg, fast_fit=_fast_fit_ready(),
+                                                           detector_process=cfg.tracker_process))
         from ..reaction.api import load_default_bundle
         from ..reaction.stream import ReactionStream
 
@@ -525,14 +540,9 @@ class LiveSession:
             if "render" in header:
                 header["render"]["frames_in_flight"] = frames.n  # the frames are the same for any n (tested)
         self.frames_in_flight = frames
-        if self.video is not None and self.synthetic is None:
-            from ..tracking.tracker import FaceTracker, TrackerConfig
-            from ..tracking.viewer import WebcamMount
-
-            self._mount = cfg.mount or WebcamMount(hfov_deg=cfg.hfov_deg)
+        if self._face_tracker is not None:
             self.progress("warming the face tracker")
-            fast_fit = _fast_fit_ready()
-            self._face_tracker = FaceTracker(TrackerConfig(hfov_deg=self._mount.hfov_deg, fast_fit=fast_fit))
+            fast_fit = self._face_tracker.config.fast_fit
             self._face_tracker(np.zeros((64, 64, 3), np.uint8), 0.0)  # warm up (first calls are slow)
             if fast_fit:  # the fit's compiled steps loaded now, not at the first face
                 from ..tracking.fit_fast import compile_kernel
@@ -652,6 +662,8 @@ class LiveSession:
                                              f"({type(frames.twin_error).__name__}: {frames.twin_error})")
             for th in threads:
                 th.join(timeout=5.0)
+            if self._face_tracker is not None:
+                self._face_tracker.close()  # its dlib child process
             self.audio.stop()
             if self.video is not None:
                 self.video.stop()

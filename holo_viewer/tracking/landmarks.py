@@ -120,10 +120,14 @@ class LandmarkDetector:
         dlib's detector upsampling (0 or 1; 1 finds faces half as large, 4x slower).
     max_faces : int
         Keep at most this many faces (largest first).
+    process : bool
+        Run dlib in a child process (:class:`~holo_viewer.tracking.dlib_worker.DlibProcess`: the same results,
+        without holding this process's GIL for the ~2 ms of each shape prediction; the live tracker's). If the
+        child fails, dlib runs here from then on (``process_error`` says why). :meth:`close` stops it.
     """
 
     def __init__(self, redetect_every: int = 10, detect_width: int = 640, upsample: int = 0,
-                 max_faces: int = 4) -> None:
+                 max_faces: int = 4, process: bool = False) -> None:
         if int(redetect_every) < 1:
             raise InputError(f"redetect_every: expected >= 1, found {redetect_every}")
         if int(detect_width) < 64:
@@ -133,7 +137,17 @@ class LandmarkDetector:
         dlib = _import_dlib()
         self._dlib = dlib
         self._detector = dlib.get_frontal_face_detector()
-        self._predictor = dlib.shape_predictor(os.fspath(predictor_path()))
+        self._worker = None
+        #: why the child process failed (dlib then runs in this process), or None
+        self.process_error: str | None = None
+        if process:
+            from .dlib_worker import DlibProcess
+
+            try:
+                self._worker = DlibProcess(predictor_path())
+            except TrackingError as exc:
+                self.process_error = str(exc)
+        self._predictor = None if self._worker is not None else dlib.shape_predictor(os.fspath(predictor_path()))
         self.redetect_every = int(redetect_every)
         self.detect_width = int(detect_width)
         self.upsample = int(upsample)
@@ -160,19 +174,48 @@ class LandmarkDetector:
             small = frame[: h - h % step, : w - w % step].reshape(h // step, step, w // step, step, 3).mean(
                 axis=(1, 3)).astype(np.uint8)
             scale = small.shape[1] / w
-        rects, scores, _ = self._detector.run(small, self.upsample, 0.0)
+        if self._worker is not None:
+            try:
+                found = self._worker.detect(small, self.upsample)
+            except TrackingError as exc:
+                self._worker_failed(exc)
+                return self._hog(frame)
+        else:
+            rects, scores, _ = self._detector.run(small, self.upsample, 0.0)
+            found = [((r.left(), r.top(), r.right(), r.bottom()), s) for r, s in zip(rects, scores)]
         self.n_detections += 1
         out = []
-        for r, s in zip(rects, scores):
-            box = np.array([r.left(), r.top(), r.right() + 1, r.bottom() + 1], dtype=np.float64) / scale
+        for (left, top, right, bottom), s in found:
+            box = np.array([left, top, right + 1, bottom + 1], dtype=np.float64) / scale
             out.append((box, float(s)))
         return out
 
     def _predict(self, frame: np.ndarray, box: np.ndarray) -> np.ndarray:
         x0, y0, x1, y1 = (int(round(v)) for v in box)
+        if self._worker is not None:
+            try:
+                return self._worker.predict(frame, x0, y0, x1 - 1, y1 - 1) + 0.5  # float64, as below
+            except TrackingError as exc:
+                self._worker_failed(exc)
         shape = self._predictor(frame, self._dlib.rectangle(x0, y0, x1 - 1, y1 - 1))
         # dlib part coordinates are integer pixel indices; +0.5 puts them at pixel centres
         return np.array([[p.x + 0.5, p.y + 0.5] for p in shape.parts()], dtype=np.float64)
+
+    def _worker_failed(self, exc: Exception) -> None:
+        """The child process failed: dlib runs in this process from now on."""
+        self.process_error = str(exc)
+        worker, self._worker = self._worker, None
+        worker.close()
+        if self._predictor is None:
+            self._predictor = self._dlib.shape_predictor(os.fspath(predictor_path()))
+
+    def close(self) -> None:
+        """Stop the child process, if any (dlib runs in this process afterwards)."""
+        if self._worker is not None:
+            worker, self._worker = self._worker, None
+            worker.close()
+            if self._predictor is None:
+                self._predictor = self._dlib.shape_predictor(os.fspath(predictor_path()))
 
     def __call__(self, frame: np.ndarray, speaker_only: bool = False) -> list[FaceDetection]:
         """Faces in ``frame`` (H, W, 3) RGB uint8, largest first (empty list: none found).

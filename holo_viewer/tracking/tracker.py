@@ -49,6 +49,9 @@ class TrackerConfig:
     detect_width: int = 640
     #: the landmark fit's compiled steps (holo_viewer.tracking.fit_fast; False: the numpy reference)
     fast_fit: bool = True
+    #: dlib in a child process (LandmarkDetector(process=True): the same landmarks, this process's GIL free
+    #: meanwhile; the live loop's tracker); FaceTracker.close() stops it
+    detector_process: bool = False
 
     def __post_init__(self) -> None:
         check_finite_scalar(self.hfov_deg, "hfov_deg", low=1.0, high=170.0)
@@ -107,7 +110,7 @@ class FaceTracker:
         self.au_map = au_map if au_map is not None else default_au_map()
         self.head = LandmarkHeadModel(model if model is not None else load_default_model(), self.au_map)
         self.detector = detector if detector is not None else LandmarkDetector(
-            redetect_every=config.redetect_every, detect_width=config.detect_width)
+            redetect_every=config.redetect_every, detect_width=config.detect_width, process=config.detector_process)
         self.n_au = self.head.n_au
         self.state_dim = self.n_au + 6
         self._smooth = None if config.smoothing is None else OneEuroFilter(self.state_dim, config.smoothing)
@@ -123,6 +126,11 @@ class FaceTracker:
             self._smooth.reset()
         if hasattr(self.detector, "reset"):
             self.detector.reset()
+
+    def close(self) -> None:
+        """Stop the detector's child process, if any (``TrackerConfig.detector_process``)."""
+        if hasattr(self.detector, "close"):
+            self.detector.close()
 
     def state_from_params(self, params: np.ndarray) -> np.ndarray:
         """Reaction state (n_au + 6,) of fitted parameters: AU state, jaw [pitch, 0, 0], rotation."""
