@@ -15,7 +15,11 @@ A full numba cache (after whole-suite runs) held 13 specialisations this script 
 clone's make test compiled them in its tests. The visibility, one-splat render, viewer-normals, exact-JVP blend,
 strided to_uint8 and contiguous warp lines (about 27 s of CPU at load 15) compile 9 of them, the live-frames
 step's numba eye-slice scatter a 10th (it had compiled nothing since group frames stopped drawing slices by
-default); left: the three float64 binding kernels.
+default). A fresh clone's make test at 318ae57 still compiled 6 (their cache files written during the tests): the
+numba warp into a uint8 quilt, the numba uint8 row gather, the drawn-only deform's subset binding and the three
+float64 binding kernels; the interleaver, live-frames and avatars steps compile them too. Those three steps with
+the six kernels' caches removed (their float32 twins with them) 12.3 + 3.7 + 12.9 s of CPU, warm 4.3 + 2.1 + 5.2
+(load 15): about 10-13 s of CPU off the tests, 7.7 of it the uint8 warp.
 """
 
 from __future__ import annotations
@@ -66,6 +70,9 @@ def _interleave() -> None:
             # the one-pass column update (tracked frames; its weights are read-only in nearest mode)
             nb = -(-(quilt.shape[1] // lin.cols) // 16)
             lin.update_columns(quilt, out, np.arange(lin.n_views * nb).reshape(lin.n_views, nb) % 5 == 0, block=16)
+            if dtype == np.uint8 and mode == "nearest":  # the numba row gather (the C++ one is used when built;
+                lin.row_kernel = "numba"  # test_display_lenticular.py compares the two)
+                lin(quilt)
 
 
 def _live_frames() -> None:
@@ -103,10 +110,19 @@ def _live_frames() -> None:
 
     sources = view_synthesis.source_views(len(cams), 5)
     stack = np.zeros((sources.size, cams.height, cams.width, 4), np.float32)[..., :3]
+    wmaps = np.ones((sources.size, cams.height, cams.width), np.float32)
     for st in (stack, np.ascontiguousarray(stack)):  # and on one block (the live renderer's)
-        view_synthesis.warp_views(st, np.ones((sources.size, cams.height, cams.width), np.float32), sources,
-                                  view_synthesis.rig_of(cams), iters=1,
+        view_synthesis.warp_views(st, wmaps, sources, view_synthesis.rig_of(cams), iters=1,
                                   out=np.zeros((len(cams), cams.height, cams.width, 3), np.float32))
+    # the numba warp straight into a uint8 quilt (the C++ one is used when built; tests compare the two)
+    kernel, view_synthesis.WARP_KERNEL = view_synthesis.WARP_KERNEL, "numba"
+    try:
+        H, W = cams.height, cams.width
+        view_synthesis.warp_views(np.ascontiguousarray(stack), wmaps, sources, view_synthesis.rig_of(cams),
+                                  quilt=np.zeros((6 * H, 8 * W, 3), np.uint8),
+                                  tiles=np.array([[(5 - k // 8) * H, (k % 8) * W] for k in range(len(cams))]))
+    finally:
+        view_synthesis.WARP_KERNEL = kernel
     # the eye slices' numba scatter (the C++ one is used when built; tests compare the two)
     from holo_viewer.display import slices
 
@@ -121,7 +137,9 @@ def _live_frames() -> None:
 
 
 def _avatars() -> None:
-    """The rigged avatar's numba binding (with and without its cache) and the blend-shape avatar's kernel."""
+    """The rigged avatar's numba binding (with and without its cache, float32 and float64, all Gaussians or a
+    subset) and the blend-shape avatar's kernel."""
+    import numpy as np
     import torch
 
     from holo_viewer.avatar import BlendshapeAvatar
@@ -135,6 +153,20 @@ def _avatars() -> None:
     rigged.deform(verts[0] + 0.01, cache=True, cache_tol=1e-4)
     BlendshapeAvatar.from_rigged(rigged).pose(torch.zeros(6))
     BlendshapeAvatar.from_rigged(rigged, exact_jvp=True).pose(torch.zeros(6))  # its per-Gaussian kernel
+    # the drawn-only deform of the live frames with a visible mask (pipeline/avatars.RiggedStage.drawn_deform)
+    from holo_viewer.pipeline.avatars import RiggedStage
+
+    RiggedStage(rigged).drawn_deform(np.arange(0, 400, 3))(verts[0].numpy(), rigged.deform(verts[0]))
+    # the binding kernels on a float64 model (test_avatar_binding.py checks them against float64 math)
+    from holo_viewer.flame.model import FlameModel
+    from holo_viewer.flame.synthetic import random_flame_arrays
+
+    model64 = FlameModel.from_arrays(random_flame_arrays(n_vertices=300, n_shape=8, n_expr=6, seed=1),
+                                     dtype=torch.float64)
+    rigged64, v64 = random_rigged_avatar(model64, n=400), model64(expr=torch.zeros(1, 6, dtype=torch.float64)).vertices
+    rigged64.deform(v64[0])
+    rigged64.deform(v64[0], cache=True, cache_tol=1e-4)
+    rigged64.deform(v64[0] + 0.01, cache=True, cache_tol=1e-4)
     # the live renderer's drawn-Gaussian deform (RiggedStage.drawn_deform: every other Gaussian here)
     import numpy as np
 
