@@ -63,3 +63,24 @@ def test_tracker_fast_fit_setting(head):
         states.append([tr(frame, t / 25).state for t in range(3)])
     np.testing.assert_allclose(states[0], states[1], atol=1e-7)
     assert abs(states[0][-1][head.n_au + 3] - 0.2) < 0.02  # the rotation's x of the state (after AUs, jaw axis-angle)
+
+
+def test_live_loop_uses_the_compiled_fit_only_when_cached(monkeypatch):
+    """The live loop fits with the compiled steps when numba has them cached; on a cold cache it fits in numpy and
+    starts one nice-19 child that compiles them for the next session, none with HOLO_VIEWER_BACKGROUND_BUILDS=0."""
+    import subprocess
+
+    from holo_viewer.live import loop
+    from holo_viewer.tracking import fit_fast
+
+    started = []
+    monkeypatch.setattr(subprocess, "Popen", lambda cmd, **kw: started.append(cmd))
+    monkeypatch.setattr(fit_fast, "kernel_cached", lambda: True)
+    assert loop._fast_fit_ready() is True and not started
+    monkeypatch.setattr(fit_fast, "kernel_cached", lambda: False)
+    monkeypatch.setenv("HOLO_VIEWER_BACKGROUND_BUILDS", "0")
+    assert loop._fast_fit_ready() is False and not started
+    monkeypatch.setenv("HOLO_VIEWER_BACKGROUND_BUILDS", "1")
+    monkeypatch.delenv("HOLO_VIEWER_PRECOMPILE", raising=False)
+    assert loop._fast_fit_ready() is False
+    assert len(started) == 1 and started[0][:3] == ["nice", "-n", "19"] and started[0][-1] == "holo_viewer.tracking.fit_fast"
