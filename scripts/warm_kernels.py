@@ -16,8 +16,9 @@ clone's make test compiled them in its tests. The visibility, one-splat render, 
 strided to_uint8 and contiguous warp lines (about 27 s of CPU at load 15) compile 9 of them, the live-frames
 step's numba eye-slice scatter a 10th (it had compiled nothing since group frames stopped drawing slices by
 default). A fresh clone's make test at 318ae57 still compiled 6 (their cache files written during the tests): the
-numba warp into a uint8 quilt, the numba uint8 row gather, the drawn-only deform's subset binding and the three
-float64 binding kernels; the interleaver, live-frames and avatars steps compile them too. Those three steps with
+numba warp into a uint8 quilt, the numba uint8 row gather, the drawn-only deform's subset binding (since ebeddcc
+bind_faces_nb, warmed by 6ababbc) and the three float64 binding kernels; the interleaver, live-frames and avatars
+steps compile them too. Those three steps with
 the six kernels' caches removed (their float32 twins with them) 12.3 + 3.7 + 12.9 s of CPU, warm 4.3 + 2.1 + 5.2
 (load 15): about 10-13 s of CPU off the tests, 7.7 of it the uint8 warp.
 """
@@ -137,8 +138,8 @@ def _live_frames() -> None:
 
 
 def _avatars() -> None:
-    """The rigged avatar's numba binding (with and without its cache, float32 and float64, all Gaussians or a
-    subset) and the blend-shape avatar's kernel."""
+    """The rigged avatar's numba binding (with and without its cache, float32 and float64, all Gaussians or the
+    drawn ones) and the blend-shape avatar's kernel."""
     import numpy as np
     import torch
 
@@ -153,10 +154,6 @@ def _avatars() -> None:
     rigged.deform(verts[0] + 0.01, cache=True, cache_tol=1e-4)
     BlendshapeAvatar.from_rigged(rigged).pose(torch.zeros(6))
     BlendshapeAvatar.from_rigged(rigged, exact_jvp=True).pose(torch.zeros(6))  # its per-Gaussian kernel
-    # the drawn-only deform of the live frames with a visible mask (pipeline/avatars.RiggedStage.drawn_deform)
-    from holo_viewer.pipeline.avatars import RiggedStage
-
-    RiggedStage(rigged).drawn_deform(np.arange(0, 400, 3))(verts[0].numpy(), rigged.deform(verts[0]))
     # the binding kernels on a float64 model (test_avatar_binding.py checks them against float64 math)
     from holo_viewer.flame.model import FlameModel
     from holo_viewer.flame.synthetic import random_flame_arrays
