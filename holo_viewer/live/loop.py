@@ -503,6 +503,11 @@ class LiveSession:
             # the rest
             self._face_tracker = FaceTracker(TrackerConfig(hfov_deg=self._mount.hfov_deg, fast_fit=_fast_fit_ready(),
                                                            detector_process=cfg.tracker_process))
+            # the compiled fit loaded from numba's cache (~0.4 s of CPU, much of it in LLVM without the GIL) beside
+            # the reaction model's load and the renderer's warm-up, not after them
+            fit_warm = threading.Thread(target=self._warm_fit, name="fit-warm-up", daemon=True)
+            if self._face_tracker.config.fast_fit:
+                fit_warm.start()
         from ..reaction.api import load_default_bundle
         from ..reaction.stream import ReactionStream
 
@@ -542,12 +547,9 @@ class LiveSession:
         self.frames_in_flight = frames
         if self._face_tracker is not None:
             self.progress("warming the face tracker")
-            fast_fit = self._face_tracker.config.fast_fit
             self._face_tracker(np.zeros((64, 64, 3), np.uint8), 0.0)  # warm up (first calls are slow)
-            if fast_fit:  # the fit's compiled steps loaded now, not at the first face
-                from ..tracking.fit_fast import compile_kernel
-
-                compile_kernel(self._face_tracker.head)
+            if fit_warm.is_alive():  # the fit's compiled steps loaded before the clock starts, not at the first face
+                fit_warm.join()
             self._face_tracker.reset()
         self.progress("starting the session")
         self.audio.start()
@@ -681,6 +683,18 @@ class LiveSession:
         if self.errors:
             raise self.errors[0]
         return self.summary()
+
+    def _warm_fit(self) -> None:
+        """Load the tracker's compiled fit (:func:`holo_viewer.tracking.fit_fast.compile_kernel`); if that fails the
+        session fits with the numpy reference."""
+        from ..tracking.fit_fast import compile_kernel
+
+        tracker = self._face_tracker
+        try:
+            compile_kernel(tracker.head)
+        except Exception as exc:  # noqa: BLE001 - the numpy fit gives the same numbers
+            tracker.config = dataclasses.replace(tracker.config, fast_fit=False)
+            self.status["tracker"] = f"numpy fit ({type(exc).__name__}: {exc})"
 
     def _key(self, keysym: str) -> None:
         """Apply an instructor's or trainee's key and record it (session time, key, action; ratings)."""
