@@ -165,3 +165,22 @@ def test_depth_cells_hole_filling_skips_only_cells_without_a_filled_neighbour() 
         out = np.empty((H, W), np.float32)
         vs._cells_to_pixels(z.copy(), h, w, cell, H, W, 1.25, out)
         np.testing.assert_array_equal(out, _cells_to_pixels_plain(z, cell, H, W, 1.25))
+
+
+def test_visible_count_of_one_chunk_equals_the_union_over_chunks(small_rig) -> None:
+    """fast.render's stats n_visible: counted from the one chunk's drawn splats (the live frames' case) or
+    as the union over chunks of views (a small max_chunk_bytes): the same count, the same images."""
+    from holo_viewer.render import fast
+    from holo_viewer.render.config import RenderConfig
+    from holo_viewer.testing import random_gaussians
+
+    cams, _ = small_rig
+    g = random_gaussians(6000, sh_degree=1, seed=3)
+    means = np.asarray(g.means) * 0.4
+    means[:500, 0] += 3.0  # out of every view
+    g = g.replace(means=means)
+    one = fast.render(g, cams, RenderConfig())
+    many = fast.render(g, cams, RenderConfig(max_chunk_bytes=2**20))  # 1 MiB: one view a chunk
+    assert 0 < one.stats["n_visible"] < 6000
+    assert one.stats["n_visible"] == many.stats["n_visible"]
+    np.testing.assert_array_equal(one.images, many.images)

@@ -497,8 +497,8 @@ class NativeFrameRenderer:
         fast.render(g, src_cams, dataclasses.replace(cfg, t_min=max(cfg.t_min, LIVE_T_MIN)), out=images, slits=slits,
                     view_keep=self._source_keep(step, src, n), index=index)
         t1 = time.perf_counter()
-        gn = g.numpy()
-        means, logits = np.asarray(gn.means), np.asarray(gn.opacity_logits, dtype=np.float64)
+        # the two fields' numpy arrays (Gaussians.numpy() builds and checks a whole new Gaussians: ~0.25 ms)
+        means, logits = _field_np(g.means), np.asarray(_field_np(g.opacity_logits), dtype=np.float64)
         if index is not None:
             means, logits = np.take(means, index, axis=0), logits[index]  # take: means[index]'s rows, ~4x faster
         opacity = fast.sigmoid_cached(logits)  # the same values; cached while the logits stay
@@ -549,8 +549,7 @@ class NativeFrameRenderer:
         idx = self._lod_index(gaussians)  # the level of detail of all_views, slices included
         fraction = self._synthesized(gaussians, timings, slits=slits, step=self.group_view_step, index=idx)
         t1 = time.perf_counter()
-        gn = gaussians.numpy()
-        means, logits = np.asarray(gn.means), np.asarray(gn.opacity_logits, dtype=np.float64)
+        means, logits = _field_np(gaussians.means), np.asarray(_field_np(gaussians.opacity_logits), dtype=np.float64)
         if idx is not None:
             means, logits = np.take(means, idx, axis=0), logits[idx]  # take: means[idx]'s rows, ~4x faster
         opacity = 1.0 / (1.0 + np.exp(-logits))
@@ -805,6 +804,13 @@ class NativeFrameRenderer:
         t3 = time.perf_counter()
         timings.update(select=t1 - t, render=t2 - t1, interleave=t3 - t2)
         return len(cams) / len(self.cameras)
+
+
+def _field_np(x: Any) -> np.ndarray:
+    """A Gaussians field as numpy (a CPU tensor's own memory, as ``Gaussians.numpy()`` gives it)."""
+    from ..avatar.gaussians import Gaussians
+
+    return Gaussians._np(x)
 
 
 def group_viewers(viewers: Any) -> list:
