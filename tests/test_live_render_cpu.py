@@ -3,7 +3,9 @@ the fused drawn-Gaussian deform, the warp's plan kept between frames, and the pi
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import pickle
 
 import numpy as np
 import pytest
@@ -82,6 +84,9 @@ def test_warp_trusts_only_sampled_columns_tables_and_replans_a_changed_rig(small
     sources, images, wmaps, tiles = _warp_inputs(cams, rng)
     table = vs.sampled_columns(rng.uniform(size=(V, H, W)) < 0.5)
     assert isinstance(table, vs.SampledColumns) and len(table) == 2 and table.shape == (V, H, W)
+    for twin in (copy.deepcopy(table), pickle.loads(pickle.dumps(table))):  # rebuilt whole, shape included
+        assert isinstance(twin, vs.SampledColumns) and twin.shape == table.shape
+        assert all(np.array_equal(a, b) for a, b in zip(twin, table))
     offsets, columns = table
     quilts = []
     for pixels in (table, (offsets, columns)):

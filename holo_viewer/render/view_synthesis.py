@@ -588,6 +588,9 @@ class SampledColumns(tuple):
         self.shape = tuple(int(x) for x in shape)
         return self
 
+    def __getnewargs__(self) -> tuple:  # copy and pickle rebuild it with its shape
+        return (self[0], self[1], self.shape)
+
     @property
     def offsets(self) -> np.ndarray:
         return self[0]
