@@ -335,3 +335,34 @@ def test_camera_weights_draw_only_the_weighted_cameras(tiny_case):
     with pytest.raises(ValueError, match="views_per_step"):
         fa.fit_gaussians(student, binding, data, fa.replace_config(cfg, camera_weights=(1.0, 0.0, 0.0, 0.0)),
                          progress=False)
+
+
+def test_photometric_l2_is_the_squared_error(tiny_case):
+    """``AvatarFitConfig.photometric="l2"``: the loss per pixel is (image - target)^2, so on the same first
+    draw (same seed) it lies between the L1 loss squared (Jensen) and the L1 loss (|d| <= 1), strictly
+    below the latter; an unknown value is an error naming it."""
+    student, binding, data, cfg = tiny_case
+    one = fa.replace_config(cfg, iterations=1)
+    l1 = fa.fit_gaussians(student, binding, data, one, progress=False).losses[0]
+    l2 = fa.fit_gaussians(student, binding, data, fa.replace_config(one, photometric="l2"), progress=False).losses[0]
+    assert l1 ** 2 <= l2 < l1, (l1, l2)
+    with pytest.raises(ValueError, match="'l3'"):
+        fa.fit_gaussians(student, binding, data, fa.replace_config(one, photometric="l3"), progress=False)
+
+
+def test_average_gaussians_is_the_parameter_mean():
+    """``fit_avatar.average_gaussians`` (helen's squared-error stage, averaged with its start): centres,
+    log-scales, opacity logits and SH are the float64 means of the fits; a quaternion and its negative (the same
+    rotation) average to that rotation; one fit is returned unchanged; fits of different counts are an error."""
+    a = random_gaussians(50, sh_degree=1, seed=4)
+    b = random_gaussians(50, sh_degree=1, seed=5)
+    m = fa.average_gaussians([a, b])
+    for f in ("means", "log_scales", "opacity_logits", "sh"):
+        want = (np.asarray(getattr(a, f), np.float64) + np.asarray(getattr(b, f), np.float64)) / 2
+        assert np.allclose(getattr(m, f), want, rtol=0, atol=1e-6), f
+    qa = np.asarray(a.quats, np.float64) / np.linalg.norm(a.quats, axis=1, keepdims=True)
+    same = fa.average_gaussians([a, a.replace(quats=-a.quats)])
+    assert np.allclose(same.quats, qa, atol=1e-6) and np.allclose(np.linalg.norm(m.quats, axis=1), 1, atol=1e-6)
+    assert np.allclose(fa.average_gaussians([a]).means, a.means, atol=0)
+    with pytest.raises(ValueError, match="counts"):
+        fa.average_gaussians([a, random_gaussians(49, sh_degree=1, seed=6)])

@@ -134,6 +134,10 @@ class AvatarFitConfig:
     rim_px: int = 4
     crop_rim: float = 0.0
     w_alpha: float = 0.0
+    #: the photometric term per pixel: "l1" |image - target| (every stage so far), or "l2" (image - target)^2,
+    #: the squared error that the fidelity's PSNR measures (it weighs the outline's large errors more than L1;
+    #: tried for helen, docs/avatar_fit.md "Squared-error stage")
+    photometric: str = "l1"
     seed: int = 0
     dtype: str = "float32"
 
@@ -606,6 +610,8 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
     if config.pose_weights and len(config.pose_weights) != n_pose:
         raise ValueError(f"AvatarFitConfig.pose_weights: expected {n_pose} weights (one per pose of the dataset: "
                          f"{', '.join(data.names)}), found {len(config.pose_weights)}")
+    if config.photometric not in ("l1", "l2"):
+        raise ValueError(f"AvatarFitConfig.photometric: expected 'l1' or 'l2', found {config.photometric!r}")
     pose_p = np.asarray(config.pose_weights, np.float64) if config.pose_weights else None
     if pose_p is not None:
         if not np.all(np.isfinite(pose_p)) or np.any(pose_p < 0) or pose_p.sum() <= 0:
@@ -670,11 +676,12 @@ def fit_gaussians(local: Gaussians, binding: np.ndarray, data: Dataset,
                 img = render_view(means[0], quats[0], log_scales[0], params["opacity"], sh, w2c, K, W, H, full.near,
                                   rc)
             target = target.to(dtype) / 255.0
+            err = (img - target).abs() if config.photometric == "l1" else (img - target) ** 2
             if silhouette:
                 wpix = 1.0 + config.rim_weight * torch.from_numpy(rim_t).to(dtype)
-                l1 = ((img - target).abs().mean(dim=2) * wpix).mean()
+                l1 = (err.mean(dim=2) * wpix).mean()
             else:
-                l1 = (img - target).abs().mean()
+                l1 = err.mean()
             if config.ssim_weight > 0:
                 l1 = (1 - config.ssim_weight) * l1 + config.ssim_weight * (1 - _ssim(img, target))
             if config.w_alpha > 0:
@@ -844,6 +851,28 @@ def fidelity(avatar: Any, faces: dict[str, FaceControls], views: Sequence[int], 
         if images is not None:
             images[name] = np.stack([np.concatenate([views_g[i], mimg[k]], axis=1) for k, i in enumerate(views)])
     return out
+
+
+def average_gaussians(fits: Sequence[Gaussians]) -> Gaussians:
+    """The parameter average of fits of one set of Gaussians (the same count and binding, e.g. a file and a
+    short fine-tune of it: a "model soup"), in float64: centres, log-scales, opacity logits and SH averaged
+    alike; the quaternions normalised, sign-aligned to the first fit's, averaged and normalised again.
+    Returned as float32 (``extra`` of the first)."""
+    if not fits:
+        raise ValueError("average_gaussians: expected at least one set of Gaussians, found none")
+    gs = [f.numpy(np.float64) for f in fits]
+    if any(len(g) != len(gs[0]) or g.sh.shape != gs[0].sh.shape for g in gs):
+        raise ValueError(f"average_gaussians: expected fits of one set, found counts {[len(g) for g in gs]} and SH "
+                         f"shapes {[g.sh.shape for g in gs]}")
+    qs = [g.quats / np.linalg.norm(g.quats, axis=1, keepdims=True) for g in gs]
+    qs = [q * np.sign((q * qs[0]).sum(axis=1, keepdims=True) + 1e-30) for q in qs]
+    q = sum(qs) / len(qs)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+
+    def mean(field: str) -> np.ndarray:
+        return (sum(getattr(g, field) for g in gs) / len(gs)).astype(np.float32)
+    return fits[0].replace(means=mean("means"), quats=q.astype(np.float32), log_scales=mean("log_scales"),
+                           opacity_logits=mean("opacity_logits"), sh=mean("sh"))
 
 
 def replace_config(config: AvatarFitConfig, **changes: Any) -> AvatarFitConfig:
