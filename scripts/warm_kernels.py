@@ -17,8 +17,8 @@ strided to_uint8 and contiguous warp lines (about 27 s of CPU at load 15) compil
 step's numba eye-slice scatter a 10th (it had compiled nothing since group frames stopped drawing slices by
 default). A fresh clone's make test at 318ae57 still compiled 6 (their cache files written during the tests): the
 numba warp into a uint8 quilt, the numba uint8 row gather, the drawn-only deform's subset binding (since ebeddcc
-bind_faces_nb, warmed by 6ababbc) and the three float64 binding kernels; the interleaver, live-frames and avatars
-steps compile them too. Those three steps with
+bind_faces_nb, warmed by 6ababbc; bind_subset_nb stays the tests' reference) and the three float64 binding kernels;
+the interleaver, live-frames and avatars steps compile them too. Those three steps with
 the six kernels' caches removed (their float32 twins with them) 12.3 + 3.7 + 12.9 s of CPU, warm 4.3 + 2.1 + 5.2
 (load 15): about 10-13 s of CPU off the tests, 7.7 of it the uint8 warp.
 """
@@ -154,6 +154,14 @@ def _avatars() -> None:
     rigged.deform(verts[0] + 0.01, cache=True, cache_tol=1e-4)
     BlendshapeAvatar.from_rigged(rigged).pose(torch.zeros(6))
     BlendshapeAvatar.from_rigged(rigged, exact_jvp=True).pose(torch.zeros(6))  # its per-Gaussian kernel
+    # bind_subset_nb: the drawn deform's unfused reference (test_live_render_cpu.py checks bind_faces_nb by it)
+    from holo_viewer.avatar import _bind_kernels, rigged as rigged_module
+
+    faces, binding, mu, ql, ls = rigged._np_local()
+    index = np.arange(0, len(binding), 3, dtype=np.int64)
+    frame, _ = _bind_kernels.frames(verts[0].numpy(), faces, rigged_module.DEGENERATE_EPS)
+    _bind_kernels.bind_subset_nb(frame, binding, mu, ql, ls, index,
+                                 *(np.zeros((len(binding), c), np.float32) for c in (3, 4, 3)))
     # the binding kernels on a float64 model (test_avatar_binding.py checks them against float64 math)
     from holo_viewer.flame.model import FlameModel
     from holo_viewer.flame.synthetic import random_flame_arrays
