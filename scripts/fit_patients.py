@@ -4,8 +4,8 @@ Usage::
 
     python scripts/fit_patients.py [NAME ... | --all] [--iterations N] [--source assets/default_avatar.npz]
         [--out FILE (one patient)] [--no-eval] [--images DIR] [--json FILE] [--stage2 N] [--init FILE]
-        [--stage3 N] [--stage4 N] [--stage5 N] [--stage6 N] [--stage7 N] [--stage8 N]
-        [--init-stage 2|3|4|5|6|7|8] [--dataset-cache FILE]
+        [--stage3 N] [--stage4 N] [--stage5 N] [--stage6 N] [--stage7 N] [--stage8 N] [--stage9 N]
+        [--init-stage 2|3|4|5|6|7|8|9] [--dataset-cache FILE]
 
 Every patient shares the default head's ICT topology, so the default's fitted Gaussians keep their
 triangles and local offsets, rotations and scales on the patient's head (``fit_avatar.transfer_avatar``:
@@ -28,7 +28,9 @@ stage (``silhouette_stage_config``, ``--stage6 N``) weights the pixels along the
 rates; for ``STAGE7_PATIENTS`` a pain-limit stage
 (``pain_limit_stage_config``, ``--stage7 N``) draws pain 1 half the time at the limit stage's camera
 weights; for ``STAGE8_PATIENTS`` (rafael) a cameras-alike stage (``cameras_alike_stage_config``,
-``--stage8 N``) weights pain 1 0.45 / neutral 0.35 with every camera drawn alike. Writes
+``--stage8 N``) weights pain 1 0.45 / neutral 0.35 with every camera drawn alike; for ``STAGE9_PATIENTS``
+(helen) a squared-error stage (``squared_error_stage_config``, ``--stage9 N``) fits the squared error and is
+averaged with the file it started from. Writes
 ``assets/patients/<name>/avatar.npz`` with ``fit_angle_range_deg`` and, in its ``info``, ``psnr_min_db``
 (worst of the 48 quilt views and the two slider-limit views, neutral). ``default`` as NAME fine-tunes the
 default avatar itself the same way (the second stage of ``scripts/fit_default_avatar.py``). Deterministic
@@ -137,6 +139,17 @@ SILHOUETTE_STAGE_CONFIG = fa.replace_config(
 #: worst view and both slider limits up at neutral and pain 1; views 18-23 at pain 1 -0.10..-0.14 dB, under 35 dB
 #: either way: shipped by the coordinator's decision, docs/avatar_fit.md "Silhouette stage")
 STAGE6_PATIENTS: tuple[str, ...] = ("helen",)
+#: the squared-error stage (stage 9, issue 35, helen after her silhouette stage; docs/avatar_fit.md "Squared-error
+#: stage"): the silhouette stage's recipe (its pose and camera weights, rim crops, 0.3 x the rates) with the
+#: photometric term squared (``photometric="l2"``: the PSNR the target is stated in weighs the outline's large
+#: errors more than L1 does), without D-SSIM, the opacity regulariser or the rim weight, seed 9, 200 steps; its
+#: result is then averaged with the file it started from (``fit_avatar.average_gaussians``, both as stored in
+#: float16): alone the stage gained pain 1 and moved neutral's views by -0.35..+0.34 dB, averaged every view
+#: measured gained or held
+SQUARED_ERROR_STAGE_CONFIG = fa.replace_config(SILHOUETTE_STAGE_CONFIG, seed=9, photometric="l2", ssim_weight=0.0,
+                                               w_opacity=0.0, rim_weight=0.0)
+#: the patients whose shipped avatar has the squared-error stage
+STAGE9_PATIENTS: tuple[str, ...] = ("helen",)
 N_LASH = 2000
 #: the cameras of the default avatar's own fit (scripts/fit_default_avatar.py): a transfer without a
 #: fine-tune (``--iterations 0``) records their range
@@ -190,6 +203,26 @@ def silhouette_stage_config(pose_names: list[str], cfg: fa.AvatarFitConfig,
     ``SILHOUETTE_STAGE_CONFIG``'s seed, rim terms (``SILHOUETTE_TERMS``) and learning rates."""
     return fa.replace_config(limit_stage_config(pose_names, cfg, iterations), seed=SILHOUETTE_STAGE_CONFIG.seed,
                              **SILHOUETTE_TERMS, **{k: getattr(SILHOUETTE_STAGE_CONFIG, k) for k in _LR_FIELDS})
+
+
+def squared_error_stage_config(pose_names: list[str], cfg: fa.AvatarFitConfig,
+                               iterations: int = SQUARED_ERROR_STAGE_CONFIG.iterations) -> fa.AvatarFitConfig:
+    """The squared-error stage's settings (stage 9): :func:`silhouette_stage_config` with
+    ``SQUARED_ERROR_STAGE_CONFIG``'s seed, photometric term, D-SSIM, opacity and rim weights."""
+    c = SQUARED_ERROR_STAGE_CONFIG
+    return fa.replace_config(silhouette_stage_config(pose_names, cfg, iterations), seed=c.seed,
+                             photometric=c.photometric, ssim_weight=c.ssim_weight, w_opacity=c.w_opacity,
+                             rim_weight=c.rim_weight)
+
+
+def _as_stored(local: Any, binding: np.ndarray, model: Any, colour_source: str, head_path: Path) -> Any:
+    """``local`` as a fitted file stores it and loads it back (float16, unit quaternions)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = save_fitted_avatar(Path(tmp) / "stage.npz", local, binding, model, colour_source=colour_source,
+                                  head_path=head_path)
+        return load_fitted_avatar(path)[0]
 
 
 def _stage_record(cfg: fa.AvatarFitConfig, extra: dict | None = None) -> dict:
@@ -322,6 +355,8 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
               else args.stage6)
     stage8 = ((CAMERAS_ALIKE_STAGE_CONFIG.iterations if name in STAGE8_PATIENTS else 0) if args.stage8 is None
               else args.stage8)
+    stage9 = ((SQUARED_ERROR_STAGE_CONFIG.iterations if name in STAGE9_PATIENTS else 0) if args.stage9 is None
+              else args.stage9)
     stage2 = 0 if args.init and args.init_stage >= 3 else args.stage2
     if args.init and args.init_stage >= 4:
         stage3 = 0
@@ -333,6 +368,8 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
         stage3 = stage4 = stage5 = stage6 = 0
     if args.init and args.init_stage == 8:  # from a file with the limit stage: the cameras-alike stage alone
         stage3 = stage4 = stage5 = stage6 = stage7 = 0
+    if args.init and args.init_stage == 9:  # from a file with the silhouette stage: the squared-error stage alone
+        stage3 = stage4 = stage5 = stage6 = stage7 = stage8 = 0
     if args.init:  # a saved earlier stage (e.g. --stage2 0): its Gaussians, as shipped (float16)
         init, binding, init_keys = load_fitted_avatar(Path(args.init))
         if init_keys["head_sha256"] != _sha256(head_path):
@@ -411,6 +448,17 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
                 start = res_s.local
                 print(f"{name}: stage {number} ({what}) {steps} steps ({time.process_time() - c_stage:.0f} s CPU), "
                       f"first/last 50 {np.mean(res_s.losses[:50]):.4f} / {np.mean(res_s.losses[-50:]):.4f}", flush=True)
+        if stage9 > 0:
+            c9 = time.process_time()
+            res9 = fa.fit_gaussians(start, binding, data, squared_error_stage_config(data.names, cfg, stage9),
+                                    progress=False)
+            before = (start if args.init and args.init_stage == 9  # a file's Gaussians are as stored already
+                      else _as_stored(start, binding, model, source.name, head_path))
+            after = _as_stored(res9.local, binding, model, source.name, head_path)
+            start = fa.average_gaussians([before, after]).replace(extra=start.extra)
+            print(f"{name}: stage 9 (squared error, averaged with its start) {stage9} steps "
+                  f"({time.process_time() - c9:.0f} s CPU), first/last 50 {np.mean(res9.losses[:50]):.5f} / "
+                  f"{np.mean(res9.losses[-50:]):.5f}", flush=True)
         t3, c3 = time.perf_counter(), time.process_time()
         print(f"{name}: fit {t3 - t2:.0f} s ({c3 - c2:.0f} s CPU)", flush=True)
         fitted, angle_range, n_poses = start, data.angle_range_deg, len(data.names)
@@ -418,6 +466,7 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
             "name": name, "iterations": 0 if args.init else cfg.iterations, "stage2_iterations": stage2,
             "stage3_iterations": stage3, "stage4_iterations": stage4, "stage5_iterations": stage5,
             "stage6_iterations": stage6, "stage7_iterations": stage7, "stage8_iterations": stage8,
+            "stage9_iterations": stage9,
             "poses": data.names, "skipped_poses": data.skipped,
             "cameras": int(data.images.shape[1]), "fit_angle_range_deg": list(data.angle_range_deg), **how,
             "loss_first_50": float(np.mean(losses[:50])), "loss_last_50": float(np.mean(losses[-50:]))}
@@ -476,6 +525,15 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
         info["stage8_iterations"] = stage8
         info["stage8"] = _stage_record(s8, {
             "pose_weights": CAMERAS_ALIKE_WEIGHTS, "other_poses": 0.05, "camera_weights": 1.0})
+    if cfg.iterations and stage9:
+        s9 = SQUARED_ERROR_STAGE_CONFIG
+        info["method"] += "; then a squared-error stage averaged with its start"
+        info["stage9_iterations"] = stage9
+        info["stage9"] = _stage_record(s9, {
+            "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05,
+            "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT, "lr_scale": SILHOUETTE_LR_SCALE,
+            "photometric": s9.photometric, "rim_px": s9.rim_px, "crop_rim": s9.crop_rim, "rim_weight": s9.rim_weight,
+            "w_opacity": s9.w_opacity, "averaged_with_start": True})
     if args.init:
         info["init_stage"] = args.init_stage
     path = save_fitted_avatar(out, fitted, binding, model, colour_source=source.name, head_path=head_path,
@@ -558,7 +616,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="second-stage steps (detail-centred full-resolution crops; 0: the first stage only)")
     ap.add_argument("--init", default=None, help="start the second stage from this saved first stage (one name; "
                     "e.g. a file this script wrote with --stage2 0) instead of transfer + first stage")
-    ap.add_argument("--init-stage", type=int, default=2, choices=(2, 3, 4, 5, 6, 7, 8), help="the stage --init starts (3: the "
+    ap.add_argument("--init-stage", type=int, default=2, choices=(2, 3, 4, 5, 6, 7, 8, 9), help="the stage --init starts (3: the "
                     "file is a second stage, e.g. the avatar shipped before the third stage; 4: the stages before the pain stage, "
                     "a third stage, or kwame's second; 5: the limit stage, from a file with the pain stage; 6: the silhouette "
                     "stage, from a file with the limit stage; 7: the "
@@ -580,6 +638,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--stage8", type=int, default=None, help="cameras-alike-stage steps (pain 1 0.45, neutral "
                     f"0.35, every camera alike; default {CAMERAS_ALIKE_STAGE_CONFIG.iterations} for "
                     f"{', '.join(STAGE8_PATIENTS)}, 0 for the others)")
+    ap.add_argument("--stage9", type=int, default=None, help="squared-error-stage steps (the silhouette stage's "
+                    "recipe with the squared photometric error, then averaged with its start; default "
+                    f"{SQUARED_ERROR_STAGE_CONFIG.iterations} for {', '.join(STAGE9_PATIENTS)}, 0 for the others)")
     ap.add_argument("--dataset-cache", default=None, help="keep the training renders in this pickle and reuse "
                     "them when they match (one name)")
     ap.add_argument("--threads", type=int, default=1, help="torch and numba threads (default 1)")
@@ -607,6 +668,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--stage7: expected >= 0, found {args.stage7}")
     if args.stage8 is not None and args.stage8 < 0:
         ap.error(f"--stage8: expected >= 0, found {args.stage8}")
+    if args.stage9 is not None and args.stage9 < 0:
+        ap.error(f"--stage9: expected >= 0, found {args.stage9}")
     if args.dataset_cache and len(names) != 1:
         ap.error("--dataset-cache takes one name")
     if args.stage2 < 0:

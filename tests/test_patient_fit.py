@@ -456,6 +456,31 @@ def test_the_silhouette_stage_is_the_limit_stage_with_the_rim_terms():
         fp.main(["helen", "--stage6", "-1"])
 
 
+def test_the_squared_error_stage_is_the_silhouette_stage_with_the_squared_error():
+    """``scripts/fit_patients.py``'s stage 9 (helen): the silhouette stage's pose and camera weights, rim crops and
+    rates with the squared photometric error, no D-SSIM, no opacity term, no rim weight, seed 9, 200 steps (every
+    stage before it keeps L1); a negative count is a usage error."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "fit_patients.py"
+    spec = importlib.util.spec_from_file_location("fit_patients_script_s9", path)
+    fp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fp)
+    cfg = fa.replace_config(fp.PATIENT_CONFIG, quilt_views=(0, 47), orbit=((-30.0, 0.0), (0.0, 12.0)))
+    s6 = fp.silhouette_stage_config(["neutral", "pain_1"], cfg)
+    s9 = fp.squared_error_stage_config(["neutral", "pain_1"], cfg)
+    assert s9.photometric == "l2" and s9.iterations == 200 and s9.seed == 9
+    assert fa.replace_config(s9, photometric="l1", ssim_weight=s6.ssim_weight, w_opacity=s6.w_opacity,
+                             rim_weight=s6.rim_weight, seed=s6.seed) == s6
+    for s in (fp.STAGE2_CONFIG, fp.STAGE3_CONFIG, fp.STAGE4_CONFIG, fp.LIMIT_STAGE_CONFIG, fp.SILHOUETTE_STAGE_CONFIG,
+              fp.PAIN_LIMIT_STAGE_CONFIG, fp.CAMERAS_ALIKE_STAGE_CONFIG):
+        assert s.photometric == "l1"
+    assert set(fp.STAGE9_PATIENTS) == {"helen"}
+    with pytest.raises(SystemExit):
+        fp.main(["helen", "--stage9", "-1"])
+
+
 def test_the_silhouette_loss_weights_the_rim_and_adds_the_alpha_term():
     """``AvatarFitConfig.rim_weight`` / ``w_alpha`` (the silhouette stage): the first step's loss of a fit
     on one pose and one camera (no learning) equals the float64 formula computed here, mean(|G - T| (1 +
