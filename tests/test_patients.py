@@ -430,3 +430,19 @@ def test_hair_sheen_is_a_strand_highlight_lit_by_the_key_and_off_by_default():
     a = tp._Painter.hair_color(plain, q, crown, axis)
     b = tp._Painter.hair_color(plain, q, crown, axis, None, unit(q - [0.0, 10.0, -90.0]), unit(np.cross(q, [0, 1, 0])))
     assert np.array_equal(a, b)
+
+
+def test_amaras_black_hair_has_a_cool_sheen_and_stays_black():
+    """amara's shipped hair tile (docs/patients.md "Dark hair"): mostly dark and warm (black hair, not
+    grey), with a highlight band far brighter than the body and cooler than it."""
+    from PIL import Image
+
+    info = next(p for p in SHIPPED if p.name == "amara")
+    a = np.asarray(Image.open(info.folder / "albedo_hair.png").convert("RGB"), np.float64) / 255.0
+    lum = a @ np.array([0.299, 0.587, 0.114])
+    lo, mid, hi = np.percentile(lum, [10, 50, 99])
+    assert mid < 0.12 and lo < 0.06, (lo, mid)  # dark: black to dark brown
+    assert hi > 0.25 and hi > 3 * mid, (mid, hi)  # a sheen that reads on the panel's black
+    body = a[(lum > np.percentile(lum, 40)) & (lum < np.percentile(lum, 60))].mean(0)
+    band = a[lum >= hi].mean(0)
+    assert body[0] > body[2] and band[2] / band[0] > body[2] / body[0] + 0.1, (body, band)  # warm body, cool sheen

@@ -127,8 +127,9 @@ SKIN = {"I": (0.90, 0.72, 0.62), "II": (0.84, 0.63, 0.52), "III": (0.76, 0.55, 0
 RECIPES: tuple[Recipe, ...] = (
     Recipe("amara", "female", 29, "VI", 3501, "young woman, deep brown skin, long black hair",
            _LONG, Look(skin=SKIN["VI"], redness=0.25, periorbital=1.4, beard=0.0, lip=(0.34, 0.19, 0.18),
-                       hair=(0.035, 0.028, 0.025), brow=(0.03, 0.025, 0.022), iris=(0.16, 0.09, 0.05),
-                       iris_outer=(0.10, 0.07, 0.05), brow_density=0.9, age=0.0),
+                       hair=(0.05, 0.04, 0.034), brow=(0.03, 0.025, 0.022), iris=(0.16, 0.09, 0.05),
+                       iris_outer=(0.10, 0.07, 0.05), brow_density=0.9, age=0.0,
+                       sheen=0.35, strand_var=0.6, rim=0.12),  # black hair that reads on the panel's black
            sex_score=-2.2, age_score=-1.2, ipd_mm=61.5),
     Recipe("james", "male", 32, "II", 3502, "young man, fair skin, short brown hair",
            _SHORT, Look(skin=SKIN["II"], hair=(0.22, 0.15, 0.09), brow=(0.15, 0.10, 0.065),
