@@ -28,6 +28,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from ..geometry import vertex_normals
 from ..flame.appearance import (_BROW, _HAIR, _LIP, _SKIN, _VERTEX_COLORS, EYE_TEXTURE_SIZE, LASH_TEXTURE_SIZE,
                                 MATERIAL_TEXTURE, MATERIALS, TEXTURE_SIZE, TEXTURE_TILE, AppearanceMesh, HeadAppearance,
                                 _signed_dist_polygon, _to_local, assemble_appearance, face_frame)
@@ -159,14 +160,10 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
 
 
-def _vertex_normals(v: np.ndarray, f: np.ndarray, iterations: int = 0) -> np.ndarray:
-    """(V, 3) unit area-weighted vertex normals, averaged over neighbours ``iterations`` times
-    (smooth over the hair shell's ribs, for the baked sheen)."""
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, f[:, k], fn)
-    n = _unit(n)
+def _smoothed_normals(v: np.ndarray, f: np.ndarray, iterations: int = 0) -> np.ndarray:
+    """(V, 3) unit area-weighted vertex normals (:func:`holo_viewer.geometry.vertex_normals`), averaged over
+    neighbours ``iterations`` times (smooth over the hair shell's ribs, for the baked sheen)."""
+    n = _unit(vertex_normals(v, f))
     for _ in range(iterations):
         acc = n.copy()
         for a, b in ((0, 1), (1, 2), (2, 0), (1, 0), (2, 1), (0, 2)):
@@ -835,7 +832,7 @@ def _paint(p: _Painter, mesh: AppearanceMesh, size: int, eye_size: int) -> tuple
     axis = np.array([0.0, 1.0, -0.35])
     axis /= np.linalg.norm(axis)
     shine = p.look.sheen > 0 or p.look.rim > 0
-    n_all = _vertex_normals(q_all, f, _SHEEN_SMOOTH) if shine else None
+    n_all = _smoothed_normals(q_all, f, _SHEEN_SMOOTH) if shine else None
     head_centre = np.array([0.0, 10.0, -90.0])  # mm, the face frame: inside the skull, behind the eyes
 
     textures: dict[str, np.ndarray] = {}
