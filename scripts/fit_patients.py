@@ -427,20 +427,9 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
             start = res4.local
             print(f"{name}: stage 4 (pain) {stage4} steps ({time.process_time() - c4:.0f} s CPU), first/last 50 "
                   f"{np.mean(res4.losses[:50]):.4f} / {np.mean(res4.losses[-50:]):.4f}", flush=True)
-        if stage5 > 0:
-            c5 = time.process_time()
-            res5 = fa.fit_gaussians(start, binding, data, limit_stage_config(data.names, cfg, stage5), progress=False)
-            start = res5.local
-            print(f"{name}: stage 5 (limits) {stage5} steps ({time.process_time() - c5:.0f} s CPU), first/last 50 "
-                  f"{np.mean(res5.losses[:50]):.4f} / {np.mean(res5.losses[-50:]):.4f}", flush=True)
-        if stage6 > 0:
-            c6 = time.process_time()
-            res6 = fa.fit_gaussians(start, binding, data, silhouette_stage_config(data.names, cfg, stage6),
-                                    progress=False)
-            start = res6.local
-            print(f"{name}: stage 6 (silhouette) {stage6} steps ({time.process_time() - c6:.0f} s CPU), first/last 50 "
-                  f"{np.mean(res6.losses[:50]):.4f} / {np.mean(res6.losses[-50:]):.4f}", flush=True)
-        for number, steps, stage_config, what in ((7, stage7, pain_limit_stage_config, "pain at the limits"),
+        for number, steps, stage_config, what in ((5, stage5, limit_stage_config, "limits"),
+                                                  (6, stage6, silhouette_stage_config, "silhouette"),
+                                                  (7, stage7, pain_limit_stage_config, "pain at the limits"),
                                                   (8, stage8, cameras_alike_stage_config, "cameras alike")):
             if steps > 0:
                 c_stage = time.process_time()
