@@ -98,13 +98,25 @@ class ThreadCPU:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="bench-sampler", daemon=True)
         self._tck = os.sysconf("SC_CLK_TCK")
+        self._fds: dict[str, int] = {}  # /proc files kept open (_read)
 
-    @staticmethod
-    def _stat(path: str) -> tuple[str, float] | None:
+    def _read(self, path: str) -> str | None:
+        """A /proc file's text, its file kept open and re-read (``pread``) at the next sample: ~5x less CPU a
+        sample than opening it each time (the sampler's thread took ~1.6 ms a displayed frame); None once
+        the thread or process is gone."""
+        fd = self._fds.get(path)
         try:
-            with open(path) as fh:
-                s = fh.read()
+            if fd is None:
+                fd = self._fds[path] = os.open(path, os.O_RDONLY)
+            return os.pread(fd, 4096, 0).decode()
         except OSError:
+            if path in self._fds:
+                os.close(self._fds.pop(path))
+            return None
+
+    def _stat(self, path: str) -> tuple[str, float] | None:
+        s = self._read(path)
+        if not s:
             return None
         f = s[s.rindex(")") + 2:].split()
         return s[s.index("(") + 1:s.rindex(")")], int(f[11]) + int(f[12])
@@ -145,11 +157,7 @@ class ThreadCPU:
                 continue
             name = self._names.get(int(tid))
             snap[int(tid)] = (name or "native workers", st[1] / self._tck)
-            try:
-                with open(f"/proc/self/task/{tid}/children") as fh:
-                    children.update(int(c) for c in fh.read().split())
-            except OSError:
-                pass
+            children.update(int(c) for c in (self._read(f"/proc/self/task/{tid}/children") or "").split())
         for pid in children:
             st = self._stat(f"/proc/{pid}/stat")
             if st is not None:
@@ -168,14 +176,20 @@ class ThreadCPU:
     def __exit__(self, *exc) -> None:
         self._stop.set()
         self._thread.join()
+        for fd in self._fds.values():
+            os.close(fd)
+        self._fds.clear()
+
+    def nearest(self, t: float) -> int:
+        """The index of the sample nearest ``t`` (perf_counter)."""
+        return min(range(len(self.snaps)), key=lambda i: abs(self.snaps[i][0] - t))
 
     def between(self, t0: float, t1: float) -> tuple[float, dict[str, float]]:
         """(seconds between the samples nearest t0 and t1, CPU seconds per name spent between them); a
         thread or child that ended before t1 counts up to its last sample."""
         if len(self.snaps) < 2:
             return 0.0, {}
-        a = min(range(len(self.snaps)), key=lambda i: abs(self.snaps[i][0] - t0))
-        b = min(range(len(self.snaps)), key=lambda i: abs(self.snaps[i][0] - t1))
+        a, b = self.nearest(t0), self.nearest(t1)
         last: dict = {}
         for _, snap in self.snaps[a:b + 1]:
             last.update(snap)
@@ -200,14 +214,133 @@ def _with_ended(a: dict, b: dict) -> dict[str, float]:
     return out
 
 
+#: the compiled kernels whose calls start worker threads of their own (hv::parallel_for: the caller and
+#: n_threads - 1 std::threads, started per call and joined before it returns)
+KERNEL_MODULES = ("holo_viewer.render._splat_cpp", "holo_viewer.display._slices_cpp")
+KERNEL_WORKERS = "C++ workers: "  # + the kernel's name: the CPU of the threads one call of it started
+
+
+class KernelWorkers:
+    """Names the :data:`ENDED` CPU: wraps every function of the compiled kernels (:data:`KERNEL_MODULES`, on
+    the module, so every caller's ``module.func(...)`` goes through it) and measures, around each call, the
+    process's CPU less what the threads alive before the call spent (``CLOCK_PROCESS_CPUTIME_ID`` and
+    ``/proc/self/task/*/schedstat``, ns): the CPU of the worker threads the call started (and joined), and
+    the calling thread's own CPU in the call (its share: ``parallel_for`` runs the caller as one worker).
+    Rows: (``perf_counter`` at return, kernel name, workers' CPU s, caller's CPU s). Two kernel calls at
+    once (frames in flight) may see each other's workers end: their sum is right, the split approximate.
+    ~0.03 ms of CPU a read, two a call (the task files are kept open and re-read)."""
+
+    def __init__(self, modules: tuple[str, ...] = KERNEL_MODULES) -> None:
+        import importlib
+
+        self.rows: list[tuple[float, str, float, float]] = []
+        self._mods = []
+        for name in modules:
+            try:
+                self._mods.append(importlib.import_module(name))
+            except ImportError:  # not built: nothing to name
+                pass
+        self._saved: list[tuple[object, str, object]] = []
+        self._fds: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def _threads_ns(self) -> tuple[int, dict[str, int]]:
+        """(the process's CPU clock, {tid: CPU} of its live threads), ns."""
+        with self._lock:
+            total = time.clock_gettime_ns(time.CLOCK_PROCESS_CPUTIME_ID)
+            live = {}
+            for tid in os.listdir("/proc/self/task"):
+                fd = self._fds.get(tid)
+                if fd is None:
+                    try:
+                        fd = self._fds[tid] = os.open(f"/proc/self/task/{tid}/schedstat", os.O_RDONLY)
+                    except OSError:  # ended since listdir
+                        continue
+                try:
+                    live[tid] = int(os.pread(fd, 64, 0).split()[0])
+                except (OSError, ValueError, IndexError):  # ended: close its file
+                    os.close(self._fds.pop(tid))
+            return total, live
+
+    def _wrap(self, name: str, func):
+        def call(*args, **kwargs):
+            p0, t0 = self._threads_ns()
+            c0 = time.thread_time_ns()
+            try:
+                return func(*args, **kwargs)
+            finally:
+                c1 = time.thread_time_ns()
+                # the process's CPU in the call less what the threads alive before it spent: the threads the
+                # call started (ended, or still exiting: a joined thread may linger in /proc a moment)
+                p1, t1 = self._threads_ns()
+                before = sum(t1[tid] - c for tid, c in t0.items() if tid in t1)
+                self.rows.append((time.perf_counter(), name, max(0, p1 - p0 - before) / 1e9, (c1 - c0) / 1e9))
+
+        return call
+
+    def __enter__(self) -> "KernelWorkers":
+        for mod in self._mods:
+            for name in dir(mod):
+                func = getattr(mod, name)
+                if not name.startswith("_") and callable(func):
+                    self._saved.append((mod, name, func))
+                    setattr(mod, name, self._wrap(name, func))
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for mod, name, func in self._saved:
+            setattr(mod, name, func)
+        self._saved.clear()
+        with self._lock:
+            for fd in self._fds.values():
+                os.close(fd)
+            self._fds.clear()
+
+    def between(self, t0: float, t1: float) -> dict[str, float]:
+        """CPU seconds of the kernels' workers per ``KERNEL_WORKERS + name``, calls returned in (t0, t1]."""
+        out: dict[str, float] = {}
+        for t, name, cpu, _ in self.rows:
+            if t0 < t <= t1:
+                out[KERNEL_WORKERS + name] = out.get(KERNEL_WORKERS + name, 0.0) + cpu
+        return out
+
+    def per_kernel(self, t0: float, t1: float, frames: int) -> dict[str, dict]:
+        """Per kernel, calls returned in (t0, t1]: calls a frame, and ms of CPU a frame of its workers and of
+        its callers (part of the caller's thread's CPU: MainThread with one frame in flight), largest first."""
+        acc: dict[str, list] = {}
+        for t, name, cpu, own in self.rows:
+            if t0 < t <= t1:
+                a = acc.setdefault(name, [0, 0.0, 0.0])
+                a[0] += 1
+                a[1] += cpu
+                a[2] += own
+        f = max(frames, 1)
+        return {name: {"calls_per_frame": round(n / f, 2), "workers_ms": round(1000 * w / f, 1),
+                       "caller_ms": round(1000 * c / f, 1), "total_ms": round(1000 * (w + c) / f, 1)}
+                for name, (n, w, c) in sorted(acc.items(), key=lambda kv: -(kv[1][1] + kv[1][2]))}
+
+
+def name_ended(cpu: dict[str, float], workers: dict[str, float], clamp: bool = True) -> dict[str, float]:
+    """``cpu`` (per name, with :data:`ENDED`) with the kernels' workers (:meth:`KernelWorkers.between` over the
+    same span) taken out of ENDED under their names; ENDED keeps the rest (threads that ended outside a
+    kernel call; ``clamp``: >= 0, the sampler's clock ticks round it: a 50 ms interval of the timeline may
+    go below 0, its sum over the intervals not)."""
+    out = dict(cpu)
+    if ENDED in out:
+        named = sum(workers.values())
+        out.update(workers)
+        out[ENDED] = max(0.0, out[ENDED] - named) if clamp else out[ENDED] - named
+    return out
+
+
 def busy_timeline(sampler: "ThreadCPU", done: list[float], render_s: list[float], t0: float, t1: float,
-                  cores: int) -> dict:
+                  cores: int, workers: "KernelWorkers | None" = None) -> dict:
     """Where the cores idle in a displayed frame's cycle: each interval between two samples of ``sampler``
     (its period, 50 ms in the render runs) within [t0, t1] counts as *in a render* when its middle lies in
     a render call of the main thread (ended at ``done[i]``, lasting ``render_s[i]``), else *between
     renders*; per part, the cores each thread / child kept busy on average (CPU seconds over wall seconds)
     and the idle cores (``cores`` minus all of them). With frames in flight the renders overlap: the
-    intervals of any render count."""
+    intervals of any render count. ``workers``: the ended threads named by kernel (:func:`name_ended`)."""
     spans = sorted((d - r, d) for d, r in zip(done, render_s))
     starts = np.array([a for a, _ in spans]) if spans else np.zeros(0)
     ends = np.array([b for _, b in spans]) if spans else np.zeros(0)
@@ -218,9 +351,9 @@ def busy_timeline(sampler: "ThreadCPU", done: list[float], render_s: list[float]
         inside = bool(((starts <= mid) & (mid <= ends)).any())
         part = parts["in_render" if inside else "between_renders"]
         part[0] += tb - ta
-        for name, d in _with_ended(a, b).items():
-            if d > 0:
-                part[1][name] = part[1].get(name, 0.0) + d
+        d_ab = _with_ended(a, b)
+        for name, d in (d_ab if workers is None else name_ended(d_ab, workers.between(ta, tb), clamp=False)).items():
+            part[1][name] = part[1].get(name, 0.0) + d
     out = {}
     for label, (wall, cpu) in parts.items():
         if wall <= 0:
@@ -381,7 +514,8 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     cpu0, kids0 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     sched = SchedTimes(renderer) if renderer is not None else None
-    with ThreadCPU(period=0.05) as sampler:  # 50 ms: the in-render / between-renders split (20 ms cost ~8 ms a frame)
+    # 50 ms: the in-render / between-renders split (20 ms cost ~8 ms a frame); the C++ kernels' workers by kernel
+    with ThreadCPU(period=0.05) as sampler, KernelWorkers() as workers:
         summary = session.run(renderer, on_frame=times)
     t_end = time.perf_counter()
     cpu1, kids1 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -423,6 +557,8 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
         # thread and per ffmpeg child, per displayed frame; cores_used: all of it over the wall time
         if len(times.done) >= 3:
             span, cpu = sampler.between(times.done[1], times.done[-1])
+            ta, tb = sampler.snaps[sampler.nearest(times.done[1])][0], sampler.snaps[sampler.nearest(times.done[-1])][0]
+            cpu = name_ended(cpu, workers.between(ta, tb))
             nfr = sum(1 for d in times.done[2:] if d <= sampler.snaps[-1][0])
             total = sum(cpu.values())
             timing["in_session"] = {
@@ -430,11 +566,14 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
                 "cpu_ms_per_displayed_frame": round(1000 * total / max(nfr, 1), 1),
                 "cpu_ms_per_displayed_frame_by_thread": {k: round(1000 * v / max(nfr, 1), 1) for k, v in
                                                          sorted(cpu.items(), key=lambda kv: -kv[1]) if v > 0},
+                # the C++ kernels' calls over the same span: their workers' CPU (above, by name) and their
+                # callers' (within MainThread / the render threads above)
+                "cpp_kernels_per_displayed_frame": workers.per_kernel(ta, tb, nfr),
                 "cpu_s_per_session_second_by_thread": {k: round(v / max(span, 1e-9), 3) for k, v in
                                                        sorted(cpu.items(), key=lambda kv: -kv[1]) if v > 0},
                 # where the cores idle: during the render calls and between them (the loop, showing, waiting)
                 "timeline": busy_timeline(sampler, times.done, times.render_s, times.done[1], times.done[-1],
-                                          os.cpu_count() or 1)}
+                                          os.cpu_count() or 1, workers)}
     return {**timing,
         "render": render, "tile_scale": tile_scale, "render_mode": mode, "wall_s": round(wall, 2), "frames": n,
         "viewer_fps": cfg.viewer_fps, "shared_vad": session._speech_gate.shares_vad,
