@@ -19,7 +19,9 @@ at close), also per displayed frame; ``frames_in_flight`` (the loop's renderers 
 inflight``), ``twins_ready_s`` (when the second renderer joined, after the start-up's warm-up frame) and
 ``display_interval_ms`` (wall time between frames shown; a frame in flight renders longer than that); ``in_session``: the same split by thread and child (main thread,
 the render's native workers, tracker, reaction, video writer, ffmpeg encoder and the replayed webcam's
-decoder) from the second displayed frame to the last, start-up excluded (:class:`ThreadCPU`), and its
+decoder; the C++ kernels' per-call worker threads by kernel, :class:`KernelWorkers`) from the second displayed
+frame to the last, start-up excluded (:class:`ThreadCPU`), ``cpp_kernels_per_displayed_frame`` (each C++ kernel's
+calls and CPU a frame, its workers' and its caller's), and its
 ``timeline``: the cores each kept busy during the render calls and between them, and the idle ones
 (:func:`busy_timeline`); ``render_call_main_thread``: each render call's wall time on the main thread
 split into on a CPU, waiting for one and blocked (the GIL, the render's workers; :class:`SchedTimes`).
@@ -88,7 +90,9 @@ class ThreadCPU:
     that are not Python threads), the tracker, the reaction thread, the video writer; children by their
     role (the session video's encoder, the replayed webcam's decoder); ``ended threads``: the process's own
     CPU (``/proc/self/stat``) that no sampled thread holds, i.e. the C++ kernels' workers, started per call
-    and gone within milliseconds (until 2026-11-28 20:05 uncounted: ~40 ms a frame, "1.5 cores busy")."""
+    and gone within milliseconds (until 2026-11-28 20:05 uncounted: ~40 ms a frame, "1.5 cores busy"); with
+    :class:`KernelWorkers` (:func:`name_ended`) they are named by kernel and ``ended threads`` keeps the rest
+    (0-0.6 ms a frame in live sessions: nothing else ends per frame)."""
 
     def __init__(self, period: float = 0.2) -> None:
         self.period = period
@@ -807,6 +811,10 @@ def main() -> int:
                   f"{ins['cpu_ms_per_displayed_frame']} ms of CPU a displayed frame, {ins['cores_used']} cores busy; "
                   "by thread (ms a frame): " + ", ".join(f"{k} {v}" for k, v in
                                                           ins["cpu_ms_per_displayed_frame_by_thread"].items()))
+            ck = ins.get("cpp_kernels_per_displayed_frame")
+            if ck:
+                print("  C++ kernels (ms a frame, workers + caller): " + ", ".join(
+                    f"{k} {v['workers_ms']} + {v['caller_ms']}" for k, v in ck.items()))
             for part, v in ins.get("timeline", {}).items():
                 print(f"    {part} ({v['share_of_time']:.0%} of the time): {v['cores_busy']} cores busy, "
                       f"{v['cores_idle']} idle; " + ", ".join(f"{k} {c}" for k, c in v["by_thread"].items()))
