@@ -39,9 +39,35 @@ def test_the_reference_is_the_default_head_and_gets_no_gain(default_basis):
     f = ex.landmark_pain_fractions(basis, ex.default_au_map(model.n_expr), levels=1.0)
     assert f["eye_aperture"][0] == ex.PAIN_REFERENCE_FRACTIONS["eye_aperture"]  # recomputed, not a table
     assert f["brow_eye_gap"][0] == ex.PAIN_REFERENCE_FRACTIONS["brow_eye_gap"]
-    am = ex.au_map_for(model, normalise_pain=True)
-    assert am.pain_gains is None
-    assert np.array_equal(ex.pain_expression(0.7, am), ex.pain_expression(0.7, ex.default_au_map(model.n_expr)))
+    assert ex.identity_pain_gains(model) == {}  # the reference: no identity gain ...
+    for normalise in (False, True):  # ... only its own brow gain, on or off
+        am = ex.au_map_for(model, normalise_pain=normalise)
+        assert dict(am.pain_gains) == dict(ex.DEFAULT_HEAD_PAIN_GAINS)
+
+
+def test_the_default_heads_own_brow_gain(default_basis):
+    """The default head's brows descend to DEFAULT_HEAD_BROW_FRACTION at pain 1 (its gain recomputed from
+    its vertices), monotone along the curve; its eyes keep the shared face's gain; no patient gets it."""
+    from holo_viewer.avatar.patients import load_patient_model
+
+    model, basis = default_basis
+    base = ex.default_au_map(model.n_expr)
+    gains = ex.identity_pain_gains(model, base, reference={
+        "eye_aperture": ex.PAIN_REFERENCE_FRACTIONS["eye_aperture"], "brow_eye_gap": ex.DEFAULT_HEAD_BROW_FRACTION})
+    assert gains == pytest.approx(dict(ex.DEFAULT_HEAD_PAIN_GAINS), rel=1e-9) and set(gains) == {"AU4"}
+    am = ex.au_map_for(model)
+    f = ex.landmark_pain_fractions(basis, am, levels=np.linspace(0, 1, 21))
+    assert f["brow_eye_gap"][-1] == pytest.approx(ex.DEFAULT_HEAD_BROW_FRACTION, abs=1e-9)
+    assert f["eye_aperture"][-1] <= ex.PAIN_REFERENCE_FRACTIONS["eye_aperture"]
+    assert np.all(np.diff(f["brow_eye_gap"]) < 0) and np.all(np.diff(f["eye_aperture"]) < 0)
+    i4 = list(model.expression_names).index("AU4")
+    shared = ex.pain_expression(1.0, base)
+    assert ex.pain_expression(1.0, am)[i4] == pytest.approx(shared[i4] * ex.DEFAULT_HEAD_PAIN_GAINS["AU4"])
+    assert ex.pspi_from_aus(ex.pain_aus(1.0)) == pytest.approx(14.05)  # PSPI: the AU intensities, unchanged
+    kwame = load_patient_model("kwame")  # the ward's strongest brow descent with the shared face
+    assert ex.au_map_for(kwame).pain_gains is None  # a patient's head in the default's format: no own gain
+    k = ex.landmark_pain_fractions(kwame, ex.au_map_for(kwame), levels=1.0)["brow_eye_gap"][0]
+    assert abs(k - ex.DEFAULT_HEAD_BROW_FRACTION) < 0.001
 
 
 @pytest.mark.parametrize("eye, brow", [(1.3, 1.0), (1.0, 1.12), (1.25, 1.1)])

@@ -59,6 +59,18 @@ reference keeps gain 1 (the shared deltas), and no gain exceeds :data:`PAIN_GAIN
 intensities (:func:`pain_aus`, PSPI) are unchanged. Off by default (:data:`PAIN_NORMALISE_IDENTITY`):
 on amara, the widest eye, the detector of ``bench/face_realism.py`` reads the eye squeezed to the
 reference's fraction as more open than the shared face's (docs/face_realism.md).
+
+The default head's own brows (issue 35)
+---------------------------------------
+The default head alone (the shipped ``assets/default_head.npz``, not the patients built in its format)
+lowers its brows further than the shared face: :data:`DEFAULT_HEAD_PAIN_GAINS` (AU4 x 1.186, within
+:data:`PAIN_GAIN_MAX`) brings its brow-to-upper-lid gap at pain 1 to :data:`DEFAULT_HEAD_BROW_FRACTION`
+of neutral on its landmark vertices (0.787 with the shared face; 0.755 is the strongest descent of the
+shared face on the ward's heads, kwame's). Why: the landmark detector reads every head's squeezed slit as
+shorter than it is (inter-ocular distance -9 % at pain 1 against -2.3 % on the vertices), which inflates
+the brow gap it reports by ~7 %, and the default's front views sat at the 0.85 line (docs/face_realism.md).
+:func:`au_map_for` attaches these gains to the default head's map; the identity normalisation's reference
+(:data:`PAIN_REFERENCE_FRACTIONS`) stays the default head with the shared deltas.
 """
 
 from __future__ import annotations
@@ -81,7 +93,8 @@ __all__ = ["AU_NAMES", "AU_MAX", "REACT_AUS", "AUMap", "default_au_map", "au_map
            "pain_aus", "pain_expression", "estimate_aus", "pspi", "pspi_from_aus", "named_expression",
            "jaw_for_expression", "EXPRESSION_NAMES_KNOWN", "NAMED_EXPRESSIONS", "PAIN_PEAK", "PAIN_EXPONENT",
            "PAIN_RANGE", "PAIN_GAIN_GROUPS", "PAIN_REFERENCE_FRACTIONS", "PAIN_GAIN_MAX", "PAIN_NORMALISE_IDENTITY",
-           "landmark_pain_measures", "landmark_pain_fractions", "identity_pain_gains"]
+           "DEFAULT_HEAD_BROW_FRACTION", "DEFAULT_HEAD_PAIN_GAINS", "landmark_pain_measures",
+           "landmark_pain_fractions", "identity_pain_gains"]
 
 AU_NAMES: tuple[str, ...] = ("AU1", "AU2", "AU4", "AU5", "AU6", "AU7", "AU9", "AU10", "AU12", "AU14", "AU15",
                              "AU16", "AU17", "AU18", "AU20", "AU23", "AU24", "AU25", "AU26", "AU43")
@@ -138,6 +151,14 @@ PAIN_GAIN_MAX = 1.5
 #: (docs/face_realism.md, "Identity normalisation of pain"), the landmark detector reads her eyes squeezed
 #: to the reference's fraction as *more* open (33 of 40 rows against 38 with the shared face)
 PAIN_NORMALISE_IDENTITY = False
+#: the default head's brow-to-upper-lid gap at pain 1 / neutral on its landmark vertices with its own gains
+#: (module docstring, "The default head's own brows"); the ward's strongest with the shared face: kwame 0.755
+DEFAULT_HEAD_BROW_FRACTION = 0.755
+#: the default head's own pain gains: ``identity_pain_gains(default head, reference={"eye_aperture":
+#: PAIN_REFERENCE_FRACTIONS["eye_aperture"], "brow_eye_gap": DEFAULT_HEAD_BROW_FRACTION})`` (brows only: the
+#: stronger brow lowerer narrows the eye a little, so the eyes keep gain 1); tests/test_pain_identity.py
+#: recomputes it from assets/default_head.npz
+DEFAULT_HEAD_PAIN_GAINS: Mapping[str, float] = MappingProxyType({"AU4": 1.1858465061355663})
 
 
 @dataclass(frozen=True)
@@ -310,6 +331,7 @@ def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None, *,
 
     ``normalise_pain`` (default :data:`PAIN_NORMALISE_IDENTITY`, off): attach the head's
     :func:`identity_pain_gains` (a head of the default head's format: the default and the patients).
+    The shipped default head's map always carries :data:`DEFAULT_HEAD_PAIN_GAINS`.
 
     Raises
     ------
@@ -328,15 +350,34 @@ def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None, *,
                              f"of the default head ({names[:4]}... vs {list(EXPRESSION_NAMES[:4])}...); "
                              f"rebuild it with scripts/build_default_head.py")
         base = default_au_map(n_expr)
+        own = DEFAULT_HEAD_PAIN_GAINS if _is_shipped_default_head(model) else {}
         if not (PAIN_NORMALISE_IDENTITY if normalise_pain is None else normalise_pain):
-            return base
-        return base.with_pain_gains(identity_pain_gains(model, base))
+            return base.with_pain_gains(own)
+        # identity_pain_gains of the default head itself is {} (it is the reference): its own gains stay
+        return base.with_pain_gains({**own, **identity_pain_gains(model, base)})
     raise FlameError(
         f"{getattr(model, 'source', 'model')}: this FLAME model has no AU map, so action units and pain "
         f"cannot be turned into its {n_expr} expression coefficients. Supply a JSON file with --au-map FILE "
         f"(or au_map_path=FILE), format: {{\"n_expr\": {n_expr}, \"aus\": {{\"AU4\": [{n_expr} numbers], "
         f"\"AU12\": [...], ...}}}} giving the expression coefficients per unit AU intensity (0..5 scale; "
         f"AU43 0..1); see holo_viewer/flame/expressions.py and docs/default_head.md.")
+
+
+def _is_shipped_default_head(model: Any) -> bool:
+    """The model was loaded from the default head's own file (the checkout's ``assets/default_head.npz`` or
+    its rebuilt copy in the cache, :func:`~holo_viewer.flame.default_head.default_head_path`), not from a
+    patient's head in the same format."""
+    src = getattr(model, "source", None)
+    if not getattr(model, "is_default_head", False) or not src:
+        return False
+    from ..cache import cache_dir
+    from .default_head import ASSET_NAME, default_head_path
+
+    try:
+        own = Path(src).resolve()
+        return own in (default_head_path(build_if_missing=False).resolve(), (cache_dir() / ASSET_NAME).resolve())
+    except (OSError, TypeError, ValueError):
+        return False
 
 
 # --------------------------------------------------------------------- identity normalisation of pain
