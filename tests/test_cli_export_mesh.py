@@ -139,14 +139,16 @@ def _default_head_built() -> bool:
 @pytest.mark.skipif(not _default_head_built(), reason="default head asset / expressions not built yet")
 def test_default_head_pain_and_expression_names(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     from holo_viewer.flame.default_head import load_default_model
-    from holo_viewer.flame.expressions import default_au_map, pain_expression
+    from holo_viewer.flame.expressions import DEFAULT_HEAD_PAIN_GAINS, au_map_for, pain_expression
 
     model = load_default_model(dtype=torch.float64)
     name = model.expression_names[0]
     out = tmp_path / "pain.glb"
     assert main(["export-mesh", "--pain", "1", "--expr", f"{name}=0.5", "--jaw", "8", "--out", str(out)]) == 0, \
         capsys.readouterr().err
-    expr = np.asarray(pain_expression(1.0, default_au_map(model.n_expr)), dtype=np.float64)
+    au = au_map_for(model)  # the default head's own pain face (its brow gain)
+    assert dict(au.pain_gains) == dict(DEFAULT_HEAD_PAIN_GAINS)
+    expr = np.asarray(pain_expression(1.0, au), dtype=np.float64)
     expr[0] = 0.5
     expected = model(expr=expr, jaw_pose=[np.deg2rad(8.0), 0, 0]).vertices[0].numpy()
     verts, faces = _load_mesh(out)
