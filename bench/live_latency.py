@@ -89,7 +89,7 @@ class ThreadCPU:
     thread (the render's serial part and the loop), the render's native workers (OpenMP / numba: threads
     that are not Python threads), the tracker, the reaction thread, the video writer; children by their
     role (the session video's encoder, the replayed webcam's decoder); ``ended threads``: the process's own
-    CPU (``/proc/self/stat``) that no sampled thread holds, i.e. the C++ kernels' workers, started per call
+    CPU (``CLOCK_PROCESS_CPUTIME_ID``; /proc/self/stat until 2026-11-29) that no sampled thread holds, i.e. the C++ kernels' workers, started per call
     and gone within milliseconds (until 2026-11-28 20:05 uncounted: ~40 ms a frame, "1.5 cores busy"); with
     :class:`KernelWorkers` (:func:`name_ended`) they are named by kernel and ``ended threads`` keeps the rest
     (0-0.6 ms a frame in live sessions: nothing else ends per frame)."""
@@ -152,15 +152,15 @@ class ThreadCPU:
         snap, children = {}, set()
         # the whole process (its threads, also those that ended: the C++ kernels start their workers per call,
         # threads that live a few ms and are never in a sample); between() names what the tasks miss
-        proc = self._stat("/proc/self/stat")
-        if proc is not None:
-            snap[0] = (PROCESS, proc[1] / self._tck)
+        # in ns (the process clock, each thread's schedstat): the 50 ms intervals of busy_timeline need more than
+        # /proc's 10 ms clock ticks; the children (ffmpeg's threads together) in ticks, from their stat
+        snap[0] = (PROCESS, time.clock_gettime_ns(time.CLOCK_PROCESS_CPUTIME_ID) / 1e9)
         for tid in os.listdir("/proc/self/task"):
-            st = self._stat(f"/proc/self/task/{tid}/stat")
-            if st is None:
+            st = self._read(f"/proc/self/task/{tid}/schedstat")
+            if not st:
                 continue
             name = self._names.get(int(tid))
-            snap[int(tid)] = (name or "native workers", st[1] / self._tck)
+            snap[int(tid)] = (name or "native workers", int(st.split()[0]) / 1e9)
             children.update(int(c) for c in (self._read(f"/proc/self/task/{tid}/children") or "").split())
         for pid in children:
             st = self._stat(f"/proc/{pid}/stat")
