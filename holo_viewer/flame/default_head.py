@@ -130,10 +130,31 @@ def load_default_model(n_shape: int | None = None, n_expr: int | None = None, ad
     Returns
     -------
     FlameModel
+        A new model each call (a deep copy of the one this process read the file into: the file is read
+        again when it changed).
     """
+    import copy
+
     import torch
 
     from .model import FlameModel
 
-    return FlameModel.load(default_head_path(), n_shape=n_shape, n_expr=n_expr, add_teeth=add_teeth,
-                           dtype=torch.float32 if dtype is None else dtype, device=device)
+    path = default_head_path()
+    dtype = torch.float32 if dtype is None else dtype
+    st = path.stat()
+    # this process's loaded models (reading and checking the file: ~0.1 s of CPU a call; a deep copy of the
+    # model: ~3 ms), keyed by the arguments and the file's identity, so a changed file is read again
+    key = (str(path), st.st_ino, st.st_size, st.st_mtime_ns, n_shape, n_expr, bool(add_teeth), dtype, str(device))
+    model = _LOADED.get(key)
+    if model is None:
+        model = FlameModel.load(path, n_shape=n_shape, n_expr=n_expr, add_teeth=add_teeth, dtype=dtype,
+                                device=device)
+        while len(_LOADED) >= _LOADED_KEPT:
+            _LOADED.pop(next(iter(_LOADED)))
+        _LOADED[key] = model
+    return copy.deepcopy(model)  # each caller its own model: the kept one is never handed out
+
+
+#: load_default_model's models of this process (the last few), never handed out: callers get deep copies
+_LOADED: dict = {}
+_LOADED_KEPT = 4
