@@ -58,8 +58,14 @@ def test_cached_tables_equal_fresh_ones(cache, monkeypatch, mode):
     loads = []
     real = table_cache._load
     monkeypatch.setattr(table_cache, "_load", lambda *a: loads.append(a[0]) or real(*a))
+    table_cache._KEPT.clear()  # what another process finds: the files
     _same(_tables(TINY, mode), fresh)  # read back
     assert len(loads) == 4
+    again = _tables(TINY, mode)
+    _same(again, fresh)  # this process kept them: not read again, and each caller gets its own copy
+    assert len(loads) == 4
+    again["k0"][:] = 0
+    _same(_tables(TINY, mode), fresh)
 
 
 def test_damaged_cache_files_are_rebuilt_with_a_warning(cache):

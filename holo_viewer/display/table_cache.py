@@ -16,6 +16,8 @@ bytes. Anything else (truncated, corrupt, foreign) is rebuilt with a warning and
 trusted. The :data:`KEEP` most recently used files of each kind stay (an edit of a table module
 would otherwise leave its old tables behind). ``HOLO_VIEWER_TABLE_CACHE=0`` turns the cache off (tables built every time); set to a
 folder, it holds the tables instead (``bench/live_latency.py`` points a cold start at an empty one).
+The process also keeps the last :data:`_KEPT_N` tables it loaded or wrote and hands out copies of them
+while their file is unchanged (same inode, size and modification time): a file is read and checked once.
 """
 
 from __future__ import annotations
@@ -115,6 +117,37 @@ def _prune(folder: Path, kind: str) -> None:
             pass
 
 
+#: the tables this process last loaded or wrote, (path, key) -> (the file's identity then, arrays): read again
+#: only when the file changed (loading and checking one costs ~0.1-0.3 s of CPU, a copy ~10-30 ms)
+_KEPT: dict = {}
+_KEPT_N = 4
+
+
+def _identity(path: Path) -> tuple[int, int, int] | None:
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def _kept(path: Path, key: str) -> dict[str, np.ndarray] | None:
+    """The arrays this process kept of ``path`` when the file is still the one they came from."""
+    got = _KEPT.get((str(path), key))
+    return got[1] if got is not None and got[0] == _identity(path) else None
+
+
+def _keep(path: Path, key: str, arrays: dict[str, np.ndarray]) -> None:
+    """Keep ``arrays`` (never handed out: callers get copies) as the content of ``path`` as it is now."""
+    _KEPT.pop((str(path), key), None)
+    ident = _identity(path)
+    if ident is None:
+        return
+    _KEPT[(str(path), key)] = (ident, arrays)
+    while len(_KEPT) > _KEPT_N:
+        _KEPT.pop(next(iter(_KEPT)))
+
+
 def cached_tables(kind: str, key: str, spec: Spec, build: Callable[[], dict[str, np.ndarray]]
                   ) -> dict[str, np.ndarray]:
     """The arrays of table ``kind`` keyed ``key`` (:func:`table_key`): loaded from the cache when a
@@ -130,8 +163,10 @@ def cached_tables(kind: str, key: str, spec: Spec, build: Callable[[], dict[str,
     path = table_path(kind, key)
     if path.is_file():
         try:
-            arrays = _load(path, key, spec)
+            kept = _kept(path, key)
+            arrays = _load(path, key, spec) if kept is None else {n: a.copy() for n, a in kept.items()}
             os.utime(path)  # recently used (pruning)
+            _keep(path, key, kept if kept is not None else {n: a.copy() for n, a in arrays.items()})
             return arrays
         except FileNotFoundError:  # pruned by another process meanwhile: simply rebuilt
             pass
@@ -147,6 +182,7 @@ def cached_tables(kind: str, key: str, spec: Spec, build: Callable[[], dict[str,
     try:
         save_npz(path, __key__=np.array(key), __crc__=crcs, **{n: arrays[n] for n in spec})
         _prune(path.parent, kind)
+        _keep(path, key, {n: arrays[n].copy() for n in spec})
     except (HoloViewerError, OSError) as exc:
         warnings.warn(f"{path}: cannot cache the {kind} table ({exc}); it is rebuilt at every start",
                       RuntimeWarning, stacklevel=2)
