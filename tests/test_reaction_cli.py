@@ -90,12 +90,13 @@ def test_react_cli_bad_inputs(speaker_files, tmp_path, capsys):
 
 
 def test_generate_demo_reaction_follows_pain():
-    from holo_viewer.reaction import generate_demo_reaction
+    from holo_viewer.reaction import api, generate_demo_reaction
 
     lo = generate_demo_reaction(seconds=2.0, pain=0.0, seed=1)
-    hi = generate_demo_reaction(seconds=2.0, pain=1.0, seed=1)
+    hi = generate_demo_reaction(seconds=2.0, pain=1.0, seed=1)  # lo's speaker, kept in this process
     assert set(hi) == FLAME_KEYS and hi["expr"].shape[0] == 50
-    again = generate_demo_reaction(seconds=2.0, pain=1.0, seed=1)
+    api._DEMO_SPEAKERS.clear()
+    again = generate_demo_reaction(seconds=2.0, pain=1.0, seed=1)  # the speaker synthesized again: the same
     np.testing.assert_array_equal(again["expr"], hi["expr"])
     au = default_au_map()
     assert pspi(hi["expr"].astype(np.float64), au).mean() > pspi(lo["expr"].astype(np.float64), au).mean() + 5.0

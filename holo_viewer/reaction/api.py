@@ -183,6 +183,10 @@ def react(bundle: ReactionBundle, audio: np.ndarray, sample_rate: int, speaker_s
     return smooth_states(out[0].numpy(), smoothing, initial=initial)
 
 
+#: generate_demo_reaction's speakers of this process, (frames, seed, text-to-speech, AU names) -> SpeakerClip
+_DEMO_SPEAKERS: dict = {}
+
+
 def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 0,
                            temperature: float = DEFAULT_TEMPERATURE, top_k: int | None = DEFAULT_TOP_K, checkpoint: str | os.PathLike | None = None,
                            warmup: float = 4.0, smoothing: float = ANIMATION_SMOOTHING_S) -> dict[str, np.ndarray]:
@@ -231,25 +235,36 @@ def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 
     T = max(1, int(round(seconds * FPS)))
     W = int(round(warmup * FPS))
     cfg = SyntheticConfig(seconds=(T + W) / FPS)
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
-    jaw_unit = np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64)
     hears_speech = getattr(bundle.model.config, "audio_features", "log_mel") == "speech"
     from .tts import espeak_available
 
-    if hears_speech and espeak_available():
-        from dataclasses import replace
+    tts = hears_speech and espeak_available()
+    if hears_speech and not tts:
+        import warnings
 
-        from .data import tts_speaker
+        warnings.warn("espeak-ng not found: the demo speaker is the harmonic synthetic voice, which the "
+                      "reaction model does not hear as speech (apt-get install espeak-ng)", RuntimeWarning,
+                      stacklevel=2)
+    # the same speaker for the same length, seed and voice kind: synthesized once per process (text-to-speech
+    # and voice detection, ~1 s of CPU for a 6 s clip); each call gets its own copy
+    key = (T + W, int(seed), tts, tuple(au_map.names))
+    if key not in _DEMO_SPEAKERS:
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
+        jaw_unit = np.asarray(jaw_for_expression("mouth_open", 1.0), dtype=np.float64)
+        if tts:
+            from dataclasses import replace
 
-        sp, _ = tts_speaker(rng, replace(cfg, still_face_fraction=0.0), au_map.names, jaw_unit)
-    else:
-        if hears_speech:
-            import warnings
+            from .data import tts_speaker
 
-            warnings.warn("espeak-ng not found: the demo speaker is the harmonic synthetic voice, which the "
-                          "reaction model does not hear as speech (apt-get install espeak-ng)", RuntimeWarning,
-                          stacklevel=2)
-        sp = synth_speaker(rng, cfg, au_map.names, jaw_unit)
+            sp, _ = tts_speaker(rng, replace(cfg, still_face_fraction=0.0), au_map.names, jaw_unit)
+        else:
+            sp = synth_speaker(rng, cfg, au_map.names, jaw_unit)
+        while len(_DEMO_SPEAKERS) >= 4:
+            _DEMO_SPEAKERS.pop(next(iter(_DEMO_SPEAKERS)))
+        _DEMO_SPEAKERS[key] = sp
+    import copy
+
+    sp = copy.deepcopy(_DEMO_SPEAKERS[key])
     states = react(bundle, sp.waveform, cfg.audio.sample_rate, sp.state, pain=pain, temperature=temperature,
                    top_k=top_k, seed=seed, smoothing=smoothing)
     return flame_params_from_states(states[W:], au_map)
