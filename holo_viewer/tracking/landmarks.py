@@ -18,11 +18,13 @@ left eye, 48-59 outer lips, 60-67 inner lips.
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -72,6 +74,20 @@ def _import_dlib():
     except ImportError as exc:
         raise MissingDependencyError("dlib-bin", "face tracking", extra="live") from exc
     return dlib
+
+
+@functools.lru_cache(maxsize=1)
+def _frontal_detector() -> Any:
+    """dlib's HOG face detector, loaded once per process (~0.25 s of CPU) and shared: it keeps no state
+    between calls, and dlib holds the GIL while it runs, so two trackers' calls never overlap."""
+    return _import_dlib().get_frontal_face_detector()
+
+
+@functools.lru_cache(maxsize=2)
+def _shape_predictor(path: str) -> Any:
+    """dlib's shape predictor of ``path``, loaded once per process (~0.5 s of CPU, 100 MB) and shared, as
+    :func:`_frontal_detector`."""
+    return _import_dlib().shape_predictor(path)
 
 
 def predictor_path() -> Path:
@@ -136,7 +152,7 @@ class LandmarkDetector:
             raise InputError(f"upsample: expected 0, 1 or 2, found {upsample}")
         dlib = _import_dlib()
         self._dlib = dlib
-        self._detector = dlib.get_frontal_face_detector()
+        self._detector = _frontal_detector()
         self._worker = None
         #: why the child process failed (dlib then runs in this process), or None
         self.process_error: str | None = None
@@ -147,7 +163,7 @@ class LandmarkDetector:
                 self._worker = DlibProcess(predictor_path())
             except TrackingError as exc:
                 self.process_error = str(exc)
-        self._predictor = None if self._worker is not None else dlib.shape_predictor(os.fspath(predictor_path()))
+        self._predictor = None if self._worker is not None else _shape_predictor(os.fspath(predictor_path()))
         self.redetect_every = int(redetect_every)
         self.detect_width = int(detect_width)
         self.upsample = int(upsample)
@@ -207,7 +223,7 @@ class LandmarkDetector:
         worker, self._worker = self._worker, None
         worker.close()
         if self._predictor is None:
-            self._predictor = self._dlib.shape_predictor(os.fspath(predictor_path()))
+            self._predictor = _shape_predictor(os.fspath(predictor_path()))
 
     def close(self) -> None:
         """Stop the child process, if any (dlib runs in this process afterwards)."""
@@ -215,7 +231,7 @@ class LandmarkDetector:
             worker, self._worker = self._worker, None
             worker.close()
             if self._predictor is None:
-                self._predictor = self._dlib.shape_predictor(os.fspath(predictor_path()))
+                self._predictor = _shape_predictor(os.fspath(predictor_path()))
 
     def __call__(self, frame: np.ndarray, speaker_only: bool = False) -> list[FaceDetection]:
         """Faces in ``frame`` (H, W, 3) RGB uint8, largest first (empty list: none found).
