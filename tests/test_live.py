@@ -631,6 +631,7 @@ def test_traced_reaction_stream_equals_the_model(monkeypatch):
     kw = {"temperature": DEFAULT_TEMPERATURE, "top_k": DEFAULT_TOP_K, "seed": 2}
     eager, traced = ReactionStream(bundle, **kw), ReactionStream(bundle, trace=True, **kw)
     assert traced.trace_error is None and traced._run is not traced.model and eager._run is eager.model
+    assert ReactionStream(bundle, trace=True, **kw)._run is traced._run  # traced once in this process
     outs = ([], [])
     for t in range(len(syn.states)):
         for stream, out in zip((eager, traced), outs):
@@ -643,6 +644,11 @@ def test_traced_reaction_stream_equals_the_model(monkeypatch):
         raise RuntimeError("cannot trace this")
 
     monkeypatch.setattr(torch.jit, "trace", no_trace)
+    import weakref
+
+    from holo_viewer.reaction import stream as stream_module
+
+    monkeypatch.setattr(stream_module, "_TRACES", weakref.WeakKeyDictionary())  # none traced in this process yet
     s = ReactionStream(bundle, trace=True, **kw)
     assert s._run is s.model and s.trace_error == "RuntimeError: cannot trace this"
 

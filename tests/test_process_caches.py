@@ -1,5 +1,5 @@
-"""The per-process caches of set-up work (the default head's model, the interleaver's tables, dlib's models): a cached result
-equals a fresh build, and each caller gets its own copy (changing it changes no later caller's)."""
+"""The per-process caches of set-up work (the default head's model, the interleaver's tables, dlib's models):
+a cached result equals a fresh build, and each caller gets its own copy (changing it changes no later caller's)."""
 
 from __future__ import annotations
 
