@@ -51,6 +51,11 @@ visible mask, no face, a changing expression) with the float32 warp and the inte
 against the C++ kernels (the same bytes: asserted), rounds alternating in one process; CPU ms per frame
 (``bench/results/live_frame_kernels_ab.json``).
 
+``--live-scales [S,...]`` (alone): the default group frame at each tile scale as ``holo-viewer live --tile-scale S``
+renders it (its per-view visible mask; ``SXxSY``: width and height scaled apart, not a live option), CPU a frame and
+the cone / eye PSNR against the present full-quality frame (and a tile-scale-2.0 full quilt, ``--live-fine``);
+``--live-pair PNG``: a bystander's eye image at tile scale 1.0 and 0.5 (``bench/results/live_frame_scales.json``).
+
 Wall clock on a shared machine: the load average (1 min) before and after is recorded with the
 CPU seconds of every mode; compare ratios from one run.
 
@@ -58,6 +63,7 @@ Usage::
 
     python bench/live_frame.py [--quick] [--device cpu|cuda [--gpu-only]] [--json bench/results/live_frame.json]
     python bench/live_frame.py --group-only [--quick]     python bench/live_frame.py --kernels-ab
+    python bench/live_frame.py --live-scales 0.5,0.75,1.0,0.75x1.0 [--live-pair docs/images/live_tile_scale_pair.png]
 """
 
 from __future__ import annotations
@@ -451,6 +457,187 @@ def kernels_ab(rounds: int = 5, n_frames: int = 6) -> list[dict]:
     return [rec]
 
 
+#: ``--live-scales``' default: the tile scales ``holo-viewer live`` can be given (1.0 is its default, 0.5 the latency bench's)
+LIVE_SCALES = "0.5,0.75,1.0"
+#: the bystander of ``--live-pair``'s picture (deg, m)
+PAIR_POSITION = (-15.0, 0.6)
+
+
+class _WithCameras:
+    """A pipeline seen through other quilt cameras (the tile shapes the live command cannot ask for), enough for
+    :func:`~holo_viewer.pipeline.live_support.visible_mask`: its face, Gaussians and these cameras."""
+
+    def __init__(self, pipe: Pipeline, cameras) -> None:
+        self._pipe, self._cameras = pipe, cameras
+
+    @property
+    def face(self):
+        return self._pipe.face
+
+    def set_face(self, face) -> None:
+        self._pipe.set_face(face)
+
+    def gaussians(self):
+        return self._pipe.gaussians()
+
+    def cameras(self):
+        return self._cameras
+
+
+def scaled_cameras(cams, sx: float, sy: float):
+    """The quilt cameras with tiles ``sx`` x ``sy`` of the full size (each axis as ``ViewSettings.tile_scale``
+    rounds it): the same rig and field of view, pixels ``1/sx`` wide and ``1/sy`` tall (fx, cx scaled by the
+    width's ratio, fy, cy by the height's); ``sx == sy`` gives the pipeline's own cameras at that tile scale."""
+    from holo_viewer.camera import Cameras
+
+    w, h = max(8, round(cams.width * sx)), max(8, round(cams.height * sy))
+    K = np.array(cams.K, dtype=np.float64, copy=True)
+    K[:, 0, :] *= w / cams.width
+    K[:, 1, :] *= h / cams.height
+    return Cameras(np.array(cams.world_to_cam, dtype=np.float64), K, w, h, cams.near, cams.far)
+
+
+def live_scales(cal: DisplayCalibration, pipe: Pipeline, scales: list, quick: bool = False,
+                pair: str | None = None, fine: float | None = 2.0) -> list[dict]:
+    """``--live-scales``: the default group frame at each tile scale as ``holo-viewer live`` renders it
+    (``LiveAvatarRenderer(tile_scale=S, native=True, mode="auto", visible_only=...)``: the per-view visible mask
+    of that scale, built first and untimed; the renderer's own frame renderer, one tracked viewer at
+    :data:`GROUP_VIEWERS`' first, the fill serving it), against the *present* full-quality frame (tile scale 1.0,
+    every view: ``full_quilt``) over :class:`~holo_viewer.display.eyes.ConeSweep` and at the viewer's eyes. An
+    entry ``SXxSY`` (e.g. ``0.5x1.0``) is a tile shape the command cannot ask for: the quilt cameras with
+    the width and the height scaled apart (:func:`scaled_cameras`), with their own per-view mask. The flare of
+    :func:`flare_frames`; one untimed pass, then ``2`` (quick) or :data:`GROUP_ROUNDS` passes, the scales taking
+    turns. Records: ``tile_scale`` (the width's), ``tile_scale_y``, ``tile``, ``cpu_seconds_per_frame`` (process
+    CPU, both cores), ``seconds_per_frame`` (wall), ``cone_worst_db``, ``cone_median_db``, ``tracked_eye_db``,
+    ``gaussians_drawn_per_view``. ``fine``: also each record's ``cone_worst_db_fine`` / ``cone_median_db_fine`` /
+    ``tracked_eye_db_fine`` against the full quilt at that finer tile scale (nearer the picture the panel could
+    show), and a first record (``mode`` ``full_quilt``, tile scale 1.0) scored against it: what rendering the
+    reference's own views on another pixel grid costs in this measure. ``pair``: a PNG of what the bystander at :data:`PAIR_POSITION` sees at
+    tile scale 1.0 and 0.5 (flare frame 2), side by side."""
+    from holo_viewer.display.eyes import ConeSweep, TrackedViewer
+    from holo_viewer.live.render import LiveAvatarRenderer
+    from holo_viewer.pipeline.live_support import visible_mask
+
+    frames = flare_frames(pipe)
+    display = VirtualDisplay(cal)
+    full = NativeFrameRenderer(cal, pipe.cameras())
+    refs = [full.frame(g, mode="full_quilt").native.copy() for g in frames]
+    del full
+    evaluated = [2, 4] if quick else [2, 3, 4, 6]
+    cone = ConeSweep(display)
+    ref_seen = {k: [cone.see(refs[k], i) for i in range(len(cone.positions))] for k in evaluated}
+    viewer = TrackedViewer(*GROUP_VIEWERS[0])
+
+    def scores(ref: dict, seen: dict, natives: dict) -> tuple[np.ndarray, float]:
+        """(frames, positions) cone PSNR and the worst tracked eye of ``natives`` against ``ref``."""
+        db = np.array([[eyes.head_psnr(seen[k][i], cone.see(natives[k], i)) for i in range(len(cone.positions))]
+                       for k in evaluated])
+        return db, min(eyes.eye_psnr(display, ref[k], natives[k], viewer) for k in evaluated)
+
+    records = []
+    if fine:
+        t0 = time.process_time()
+        fine_live = NativeFrameRenderer(cal, scaled_cameras(pipe.cameras(), fine, fine))
+        fine_refs = {k: fine_live.frame(frames[k], mode="full_quilt").native.copy() for k in evaluated}
+        del fine_live
+        fine_seen = {k: [cone.see(fine_refs[k], i) for i in range(len(cone.positions))] for k in evaluated}
+        db, eye_db = scores(fine_refs, fine_seen, {k: refs[k] for k in evaluated})
+        records.append({"mode": "full_quilt", "tile_scale": 1.0, "tile_scale_y": 1.0, "reference": f"full_quilt at tile "
+                        f"scale {fine:g}", "cone_worst_db_fine": float(db.min()), "cone_median_db_fine": float(np.median(db)),
+                        "tracked_eye_db_fine": eye_db, "frames_evaluated": evaluated})
+        print(f"full quilt at tile scale 1.0 against {fine:g}: cone worst {db.min():.1f} dB, median {np.median(db):.1f}, "
+              f"eyes {eye_db:.1f} ({time.process_time() - t0:.0f} s of CPU)", flush=True)
+    runs = []
+    for spec in scales:
+        t0, c0 = time.perf_counter(), time.process_time()
+        if "x" in str(spec):
+            sx, sy = (float(v) for v in str(spec).split("x"))
+            cams = scaled_cameras(pipe.cameras(), sx, sy)
+            keep = visible_mask(_WithCameras(pipe, cams), per_view=True)
+            live = NativeFrameRenderer(cal, cams, NativeFrameConfig(render=RenderConfig(num_threads=os.cpu_count() or 1)),
+                                       keep=keep)
+            live.prepare_all_views()
+            mode, how = "group", "quilt cameras scaled per axis (not a live option)"
+        else:
+            sx = sy = float(spec)
+            r = LiveAvatarRenderer(tile_scale=sx, native=True, preview=False, mode="auto", visible_only="build")
+            live, keep, mode, how = r._live, r.visible_keep, r.session_mode.tracked, "LiveAvatarRenderer"
+        print(f"tile {live.cameras.width}x{live.cameras.height}: built in {time.perf_counter() - t0:.1f} s "
+              f"(CPU {time.process_time() - c0:.1f} s, the visible mask included when not cached), load {load():.2f}",
+              flush=True)
+        for g in frames:  # warm-up, untimed
+            live.frame(g, [viewer], mode)
+        runs.append({"spec": str(spec), "sx": sx, "sy": sy, "live": live, "keep": keep, "mode": mode, "how": how,
+                     "cpus": [], "secs": [], "loads": [], "natives": {}})
+    rounds = 2 if quick else GROUP_ROUNDS
+    for _ in range(rounds):
+        for run in runs:
+            for k in range(1, len(frames)):
+                c0 = time.process_time()
+                f = run["live"].frame(frames[k], [viewer], run["mode"])
+                run["cpus"].append(time.process_time() - c0)
+                run["secs"].append(f.seconds)
+                run["loads"].append(load())
+                if k in evaluated:
+                    run["natives"][k] = f.native.copy()
+    for run in runs:
+        live, natives = run["live"], run["natives"]
+        cone_db, eye_db = scores(refs, ref_seen, natives)
+        worst = cone_db.min(axis=0)
+        keep = run["keep"]
+        cpu = float(np.median(run["cpus"]))
+        rec = {"mode": run["mode"], "viewers": 1, "served": 0, "tile_scale": run["sx"], "tile_scale_y": run["sy"],
+               "tile": f"{live.cameras.width}x{live.cameras.height}", "renderer": run["how"],
+               "group_view_step": live.group_view_step,
+               "gaussians_drawn_per_view": None if keep is None or keep.ndim != 2
+               else [int(keep.sum(axis=1).min()), int(keep.sum(axis=1).max())],
+               "cpu_seconds_per_frame": cpu, "seconds_per_frame": float(np.median(run["secs"])),
+               "best_seconds": float(min(run["secs"])), "frames_timed": len(run["cpus"]),
+               "timing": f"after one untimed pass, {rounds} rounds, the tile scales taking turns",
+               "tracked_eye_db": eye_db, "cone_worst_db": float(worst.min()), "cone_median_db": float(np.median(cone_db)),
+               "cone_worst_position": cone.positions[int(np.argmin(worst))],
+               "reference": "full_quilt at tile scale 1.0 of the same face (the present frame)",
+               "load_1min": float(np.mean(run["loads"])), "frames_evaluated": evaluated,
+               "viewer_positions": [list(GROUP_VIEWERS[0])]}
+        if fine:
+            db, e = scores(fine_refs, fine_seen, natives)
+            rec.update(cone_worst_db_fine=float(db.min()), cone_median_db_fine=float(np.median(db)), tracked_eye_db_fine=e)
+        records.append(rec)
+        print(f"live tile {rec['tile']:8s} ({run['spec']:>7s})  CPU {cpu:.3f} s/frame (wall {rec['seconds_per_frame']:.3f}, "
+              f"best {rec['best_seconds']:.3f})  cone worst {rec['cone_worst_db']:.1f} dB (at {rec['cone_worst_position']}), "
+              f"median {rec['cone_median_db']:.1f}, tracked eyes {eye_db:.1f} dB"
+              + (f"; against {fine:g}: {rec['cone_worst_db_fine']:.1f} / {rec['cone_median_db_fine']:.1f} / "
+                 f"{rec['tracked_eye_db_fine']:.1f} dB" if fine else "") + f", load {rec['load_1min']:.2f}", flush=True)
+    if pair:
+        by = {(r["sx"], r["sy"]): r for r in runs}
+        if (1.0, 1.0) in by and (0.5, 0.5) in by:
+            write_pair(pair, display, refs[2], [by[(1.0, 1.0)]["natives"][2], by[(0.5, 0.5)]["natives"][2]],
+                       ["tile scale 1.0", "tile scale 0.5"])
+            print(f"wrote {pair}", flush=True)
+    return records
+
+
+def write_pair(path: str, display: VirtualDisplay, ref: np.ndarray, natives: list, labels: list) -> None:
+    """What an eye at :data:`PAIR_POSITION` sees of each native image, the head region side by side at twice
+    the size (nearest), each labelled with its PSNR against ``ref`` seen from there."""
+    from PIL import Image, ImageDraw
+
+    a, d = PAIR_POSITION
+    seen = display.see_many([ref] + list(natives), a, d)
+    h, w = seen[0].shape[:2]
+    tiles = []
+    for img, label in zip(seen[1:], labels):
+        crop = img[int(h * 0.12):int(h * 0.62), int(w * 0.2):int(w * 0.8)]
+        im = Image.fromarray((np.clip(crop, 0, 1) * 255).astype(np.uint8))
+        im = im.resize((im.width * 2, im.height * 2), Image.NEAREST)
+        ImageDraw.Draw(im).text((4, 4), f"{label}, eye at {a:+.0f} deg {d:.1f} m: {eyes.head_psnr(seen[0], img):.1f} dB",
+                                fill=(255, 255, 0))
+        tiles.append(np.asarray(im))
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(path, "wb") as fh:
+        Image.fromarray(np.concatenate(tiles, axis=1)).save(fh, format="PNG")
+
+
 def write_sheet(path: str, display: VirtualDisplay, shown: dict, viewer, moments: tuple, refs: list) -> None:
     """'tracked eye | bystander 0 | -15 | +15 deg' (0.6 m) per moment and mode, each labelled with its
     PSNR against the present frame seen from there; the head region of each perceived image."""
@@ -515,11 +702,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ref-views", type=int, default=None, help="views checked against float64 (1 quick, 2)")
     ap.add_argument("--kernels-ab", action="store_true",
                     help="only the live-size A/B of the numba warp + row gather against the C++ kernels")
+    ap.add_argument("--live-scales", nargs="?", const=LIVE_SCALES, default=None,
+                    help="only the default group frame at these tile scales as holo-viewer live renders it "
+                         f"(default {LIVE_SCALES}; SXxSY: width and height scaled apart)")
+    ap.add_argument("--live-fine", type=float, default=2.0,
+                    help="with --live-scales: also score against the full quilt at this tile scale (0: not)")
+    ap.add_argument("--live-pair", default=None,
+                    help="with --live-scales (0.5 and 1.0 among them): a PNG of a bystander's eye image at both")
     ap.add_argument("--vtk-views", type=int, default=None,
                     help="VTK views timed one call each and extrapolated; default: the whole pass")
     args = ap.parse_args(argv)
     if args.json is None:
         args.json = ("bench/results/live_frame_kernels_ab.json" if args.kernels_ab else
+                     "bench/results/live_frame_scales.json" if args.live_scales else
                      "bench/results/live_frame_group.json" if args.group_only else "bench/results/live_frame.json")
     n_frames = args.frames or (6 if args.quick else 10)
     ref_views = args.ref_views if args.ref_views is not None else (1 if args.quick else 2)
@@ -532,6 +727,9 @@ def main(argv: list[str] | None = None) -> int:
         cams = pipe.cameras()
         if args.kernels_ab:
             raise _GroupOnly(kernels_ab())
+        if args.live_scales:
+            raise _GroupOnly(live_scales(cal, pipe, [v.strip() for v in args.live_scales.split(",") if v.strip()],
+                                         args.quick, args.live_pair, args.live_fine or None))
         if args.group_only:
             raise _GroupOnly(group_sweep(cal, pipe, args.quick, args.sheet))
         params: list = []
