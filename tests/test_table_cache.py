@@ -121,3 +121,81 @@ def test_old_tables_are_pruned(cache, monkeypatch):
     for shift in (0.1, 0.2, 0.3):
         _tables(dataclasses.replace(TINY, center=TINY.center + shift), "nearest")
     assert len(list(cache.glob("gather_*.npz"))) == 2 and len(list(cache.glob("*.npz"))) == 8
+    assert table_cache.keep_count("gather") == 2 and table_cache.keep_count("visible_gaussians") == 24
+
+
+def _mask(i: int) -> np.ndarray:
+    return np.arange(7) % (i % 5 + 2) == 0
+
+
+def _masks(cache, keys, built: list) -> None:
+    """Each key's mask as a separate ``live`` start would get it (this process's kept tables forgotten)."""
+    for i, key in keys:
+        table_cache._KEPT.clear()
+        got = table_cache.cached_tables("visible_gaussians", key, {"keep": ((7,), "bool")},
+                                        lambda i=i: built.append(i) or {"keep": _mask(i)})
+        assert np.array_equal(got["keep"], _mask(i))
+
+
+def test_the_wards_masks_all_stay_cached(cache):
+    """A course cycling the ward (default + 6 patients) at tile scales 0.5 and 1: 14 visible-Gaussian masks,
+    each built once (the old count of 4 per kind rebuilt all 14 at every round)."""
+    keys = list(enumerate(table_cache.table_key("visible_gaussians", None, avatar=a, tile_scale=s)
+                          for a in range(7) for s in (0.5, 1.0)))
+    built: list = []
+    for _ in range(3):
+        _masks(cache, keys, built)
+    assert built == list(range(14))
+    assert len(list(cache.glob("visible_gaussians_*.npz"))) == 14
+
+
+def test_masks_beyond_the_count_go_least_recently_used_first(cache):
+    n = table_cache.keep_count("visible_gaussians")
+    keys = [(i, table_cache.table_key("visible_gaussians", None, avatar=i)) for i in range(n + 2)]
+    built: list = []
+    _masks(cache, keys[:n], built)
+    _masks(cache, keys[:1], built)  # mask 0 used again: now the most recent
+    _masks(cache, keys[n:], built)  # two more: masks 1 and 2 (the least recently used) removed
+    left = {p.name for p in cache.glob("visible_gaussians_*.npz")}
+    assert left == {f"visible_gaussians_{k}.npz" for i, k in keys if i not in (1, 2)}
+    assert built == list(range(n + 2))
+
+
+def test_two_patients_get_separate_masks(cache, monkeypatch):
+    """`holo-viewer live --avatar NAME` (live/render.py): visible_mask keys the mask by the avatar's own Gaussians,
+    and the background build runs once per (avatar, tile scale) naming the avatar. The weights are stubbed (the
+    real ones: tests/test_visibility.py); tile scale 0.05, ~2 s of CPU, most of it loading the two patients."""
+    import subprocess
+
+    from holo_viewer.display.calibration import DisplayCalibration
+    from holo_viewer.pipeline import Pipeline, ViewSettings, live_support
+    from holo_viewer.pipeline.scene import load_avatar
+    from holo_viewer.render import visibility
+
+    def weights(g, cams, per_view=False):  # (V, N): a view-dependent share of each Gaussian's opacity
+        g = g.numpy()
+        return np.outer(np.linspace(0.001, 1.0, len(cams)), 1.0 / (1.0 + np.exp(-g.opacity_logits.astype(float))))
+
+    monkeypatch.setattr(visibility, "max_weights", weights)
+    poses = ({"jaw_pose": (0.3, 0.0, 0.0)},)
+    pipes, masks = {}, {}
+    for name in ("helen", "james"):
+        model, avatar, _, _ = load_avatar(name, need_gaussians=True)
+        pipes[name] = Pipeline(calibration=DisplayCalibration.load(None), view=ViewSettings(tile_scale=0.05),
+                               model=model, avatar=avatar)
+        assert live_support.visible_mask(pipes[name], poses=poses, cached_only=True) is None  # neither shares one
+        masks[name] = live_support.visible_mask(pipes[name], poses=poses, per_view=True)
+        n = len(pipes[name].gaussians())
+        assert masks[name].shape == (len(pipes[name].cameras()), n)
+    assert masks["helen"].shape[1] != masks["james"].shape[1]  # 102263 and 97344 Gaussians
+    assert len(list(cache.glob("visible_gaussians_*.npz"))) == 2
+    for name in ("helen", "james"):
+        np.testing.assert_array_equal(live_support.visible_mask(pipes[name], poses=poses, per_view=True,
+                                                                cached_only=True), masks[name])
+    started = []
+    monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: started.append(a[0]))
+    monkeypatch.setattr(live_support, "_later", set())
+    monkeypatch.setenv("HOLO_VIEWER_BACKGROUND_BUILDS", "1")
+    for name, scale in (("helen", 0.5), ("james", 0.5), ("helen", 0.5), ("helen", 1.0)):
+        live_support.build_visible_mask_later(name, scale)
+    assert [c[-2:] for c in started] == [["helen", "0.5"], ["james", "0.5"], ["helen", "1.0"]]

@@ -13,9 +13,16 @@ uncompressed ``.npz`` per table, named by a digest of
 Files are written atomically (:func:`holo_viewer.fileio.save_npz`) and checked on load: the stored
 key, every expected array's dtype and shape (from the caller's spec), and a CRC-32 of each array's
 bytes. Anything else (truncated, corrupt, foreign) is rebuilt with a warning and rewritten, never
-trusted. The :data:`KEEP` most recently used files of each kind stay (an edit of a table module
-would otherwise leave its old tables behind). ``HOLO_VIEWER_TABLE_CACHE=0`` turns the cache off (tables built every time); set to a
-folder, it holds the tables instead (``bench/live_latency.py`` points a cold start at an empty one).
+trusted. The :data:`KEEP` most recently used files of each kind stay, :data:`KEEP_KIND` of the kinds
+named there (an edit of a table module would otherwise leave its old tables behind): the panel tables
+(~145 MB a set for the Portrait, one set per calibration, quilt layout and mode, shared by every avatar)
+4 sets, the visible-Gaussian masks (``visible_gaussians``, one per avatar and tile scale, ~5 MB: 49 bytes
+a Gaussian at 48 views) 24, the ward's 7 avatars at 3 tile scales. "Used" is the file's modification
+time, set at every write and load to the process clock's nanoseconds (strictly increasing in a process;
+a file system may stamp at a clock tick's grain, and files written in one tick tie), the name
+breaking ties: the order is deterministic. ``HOLO_VIEWER_TABLE_CACHE=0`` turns the cache off (tables
+built every time); set to a folder, it holds the tables instead (``bench/live_latency.py`` points a
+cold start at an empty one).
 The process also keeps the last :data:`_KEPT_N` tables it loaded or wrote and hands out copies of them
 while their file is unchanged (same inode, size and modification time): a file is read and checked once.
 """
@@ -24,6 +31,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import time
 import warnings
 import zlib
 from pathlib import Path
@@ -31,12 +39,15 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["VERSION", "KEEP", "DISABLE_VAR", "table_key", "table_path", "cached_tables"]
+__all__ = ["VERSION", "KEEP", "KEEP_KIND", "keep_count", "DISABLE_VAR", "table_key", "table_path", "cached_tables"]
 
 #: bump when a table's meaning changes in a way the source digest would not show
 VERSION = 1
 #: files kept per kind of table (least recently used removed; stale sources, other panels)
 KEEP = 4
+#: kinds that keep another count: a live start without its avatar's mask draws every Gaussian and pays a
+#: ~30-60 s CPU rebuild beside it, so the masks of 7 avatars x 3 tile scales (~5 MB each) all stay
+KEEP_KIND: dict[str, int] = {"visible_gaussians": 24}
 #: ``0``: build the tables every time (no reads, no writes); a folder: keep the tables there
 DISABLE_VAR = "HOLO_VIEWER_TABLE_CACHE"
 #: modules whose code computes the cached tables: their source is part of every key
@@ -101,16 +112,31 @@ def _load(path: Path, key: str, spec: Spec) -> dict[str, np.ndarray]:
     return arrays
 
 
+def keep_count(kind: str) -> int:
+    """How many ``kind`` files the cache keeps: :data:`KEEP_KIND`'s count, else :data:`KEEP`."""
+    return KEEP_KIND.get(kind, KEEP)
+
+
+_last_used_ns = 0
+
+
+def _mark_used(path: Path) -> None:
+    """Set ``path``'s times to now in nanoseconds, later than any this process set before."""
+    global _last_used_ns
+    _last_used_ns = max(time.time_ns(), _last_used_ns + 1)
+    os.utime(path, ns=(_last_used_ns, _last_used_ns))
+
+
 def _prune(folder: Path, kind: str) -> None:
-    """Remove all but the :data:`KEEP` most recently used ``kind`` files of ``folder``."""
-    def used(p: Path) -> int:
+    """Remove all but the :func:`keep_count` most recently used ``kind`` files of ``folder``."""
+    def used(p: Path) -> tuple[int, str]:
         try:
-            return p.stat().st_mtime_ns
+            return p.stat().st_mtime_ns, p.name
         except OSError:  # removed meanwhile by another process
-            return -1
+            return -1, p.name
 
     files = sorted(folder.glob(f"{kind}_*.npz"), key=used, reverse=True)
-    for old in files[KEEP:]:
+    for old in files[keep_count(kind):]:
         try:
             old.unlink(missing_ok=True)
         except OSError:
@@ -165,7 +191,7 @@ def cached_tables(kind: str, key: str, spec: Spec, build: Callable[[], dict[str,
         try:
             kept = _kept(path, key)
             arrays = _load(path, key, spec) if kept is None else {n: a.copy() for n, a in kept.items()}
-            os.utime(path)  # recently used (pruning)
+            _mark_used(path)  # recently used (pruning)
             _keep(path, key, kept if kept is not None else {n: a.copy() for n, a in arrays.items()})
             return arrays
         except FileNotFoundError:  # pruned by another process meanwhile: simply rebuilt
@@ -181,6 +207,7 @@ def cached_tables(kind: str, key: str, spec: Spec, build: Callable[[], dict[str,
     crcs = np.array([_crc(arrays[n]) for n in spec], dtype=np.int64)
     try:
         save_npz(path, __key__=np.array(key), __crc__=crcs, **{n: arrays[n] for n in spec})
+        _mark_used(path)
         _prune(path.parent, kind)
         _keep(path, key, {n: arrays[n].copy() for n in spec})
     except (HoloViewerError, OSError) as exc:
