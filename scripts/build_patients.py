@@ -57,7 +57,7 @@ def build(recipe, ict, dirs, out: Path) -> dict:
                          "coefficients": [float(x) for x in coef]},
             "ipd_mm": recipe.ipd_mm,
             "hair": {k: v for k, v in asdict(recipe.hair).items()},
-            "look": {k: v for k, v in asdict(recipe.look).items()},
+            "look": {k: v for k, v in asdict(recipe.look).items() if k != "hair_value" or v != 1.0},
             "licence": LICENCE, "files": files}
     with atomic_write(Path(folder) / "patient.json", "w") as fh:
         json.dump(info, fh, indent=1)

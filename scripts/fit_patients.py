@@ -5,7 +5,7 @@ Usage::
     python scripts/fit_patients.py [NAME ... | --all] [--iterations N] [--source assets/default_avatar.npz]
         [--out FILE (one patient)] [--no-eval] [--images DIR] [--json FILE] [--stage2 N] [--init FILE]
         [--stage3 N] [--stage4 N] [--stage5 N] [--stage6 N] [--stage7 N] [--stage8 N] [--stage9 N]
-        [--init-stage 2|3|4|5|6|7|8|9] [--dataset-cache FILE]
+        [--init-stage 2|3|4|5|6|7|8|9] [--dataset-cache FILE] [--recolour-from DIR] [--stage9-rounds N]
 
 Every patient shares the default head's ICT topology, so the default's fitted Gaussians keep their
 triangles and local offsets, rotations and scales on the patient's head (``fit_avatar.transfer_avatar``:
@@ -30,7 +30,10 @@ rates; for ``STAGE7_PATIENTS`` a pain-limit stage
 weights; for ``STAGE8_PATIENTS`` (rafael) a cameras-alike stage (``cameras_alike_stage_config``,
 ``--stage8 N``) weights pain 1 0.45 / neutral 0.35 with every camera drawn alike; for ``STAGE9_PATIENTS``
 (helen) a squared-error stage (``squared_error_stage_config``, ``--stage9 N``) fits the squared error and is
-averaged with the file it started from. Writes
+averaged with the file it started from (``--stage9-rounds N``: N rounds, each from the last average). A patient
+whose textures were repainted is refitted from the earlier file with ``--recolour-from DIR`` (the textures that
+file was fitted to): its colours are rescaled by the new albedo over the old (``recolour_to_textures``) before
+the stages (measured for a darker hair on helen, not shipped: docs/avatar_fit.md "A greyer helen"). Writes
 ``assets/patients/<name>/avatar.npz`` with ``fit_angle_range_deg`` and, in its ``info``, ``psnr_min_db``
 (worst of the 48 quilt views and the two slider-limit views, neutral). ``default`` as NAME fine-tunes the
 default avatar itself the same way (the second stage of ``scripts/fit_default_avatar.py``). Deterministic
@@ -150,6 +153,10 @@ SQUARED_ERROR_STAGE_CONFIG = fa.replace_config(SILHOUETTE_STAGE_CONFIG, seed=9, 
                                                w_opacity=0.0, rim_weight=0.0)
 #: the patients whose shipped avatar has the squared-error stage
 STAGE9_PATIENTS: tuple[str, ...] = ("helen",)
+#: rounds of the squared-error stage per patient (1 when not named), each from the last round's average
+#: (docs/avatar_fit.md "A greyer helen": on a recoloured file a second round gained every view measured, on
+#: helen's shipped one it traded views)
+STAGE9_ROUNDS: dict[str, int] = {}
 N_LASH = 2000
 #: the cameras of the default avatar's own fit (scripts/fit_default_avatar.py): a transfer without a
 #: fine-tune (``--iterations 0``) records their range
@@ -223,6 +230,19 @@ def _as_stored(local: Any, binding: np.ndarray, model: Any, colour_source: str, 
         path = save_fitted_avatar(Path(tmp) / "stage.npz", local, binding, model, colour_source=colour_source,
                                   head_path=head_path)
         return load_fitted_avatar(path)[0]
+
+
+def recolour_to_textures(local: Any, binding: np.ndarray, model: Any, old_folder: Path, head_path: Path) -> Any:
+    """``local`` (fitted to ``model`` painted with ``old_folder``'s textures) recoloured for the textures in
+    the model's own folder: ``fit_avatar.transfer_avatar`` on the same head, unclipped, every SH coefficient
+    scaled per channel by (new albedo + 0.03) / (old + 0.03) at each Gaussian's surface point (the fitted
+    shading kept; unchanged texels give 1), returned as a fitted file stores it (float16)."""
+    old = fa.folder_appearance(model, old_folder)
+    new = fa.TargetSource.for_model(model)
+    verts = model.v_template.detach().cpu().double().numpy()
+    out = fa.transfer_avatar(local, binding, verts, model.faces.cpu().numpy(), old.albedo_at, new.albedo_at,
+                             clip=False)
+    return _as_stored(out.replace(extra=local.extra), binding, model, new.name, head_path)
 
 
 def _stage_record(cfg: fa.AvatarFitConfig, extra: dict | None = None) -> dict:
@@ -357,6 +377,8 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
               else args.stage8)
     stage9 = ((SQUARED_ERROR_STAGE_CONFIG.iterations if name in STAGE9_PATIENTS else 0) if args.stage9 is None
               else args.stage9)
+    stage9_rounds = ((STAGE9_ROUNDS.get(name, 1) if stage9 else 1) if args.stage9_rounds is None
+                     else args.stage9_rounds)
     stage2 = 0 if args.init and args.init_stage >= 3 else args.stage2
     if args.init and args.init_stage >= 4:
         stage3 = 0
@@ -377,6 +399,9 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
                              f"{init_keys['head_sha256'][:12]}), expected {name}'s {head_path}")
         how = {"init": str(args.init), "init_stage": args.init_stage,
                "init_iterations": dict(init_keys.get("info") or {}).get("iterations")}
+        if args.recolour_from:  # repainted textures: the colours rescaled by the new albedo over the old
+            init = recolour_to_textures(init, binding, model, Path(args.recolour_from), head_path)
+            how["recoloured_from"] = str(args.recolour_from)
     else:
         init, binding, how = initial_avatar(Path(args.source), model)
     source = fa.TargetSource.for_model(model)
@@ -437,15 +462,17 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
                 start = res_s.local
                 print(f"{name}: stage {number} ({what}) {steps} steps ({time.process_time() - c_stage:.0f} s CPU), "
                       f"first/last 50 {np.mean(res_s.losses[:50]):.4f} / {np.mean(res_s.losses[-50:]):.4f}", flush=True)
-        if stage9 > 0:
+        for round9 in range(stage9_rounds if stage9 > 0 else 0):
             c9 = time.process_time()
             res9 = fa.fit_gaussians(start, binding, data, squared_error_stage_config(data.names, cfg, stage9),
                                     progress=False)
-            before = (start if args.init and args.init_stage == 9  # a file's Gaussians are as stored already
+            before = (start if (args.init and args.init_stage == 9) or round9  # a file's Gaussians: as stored
                       else _as_stored(start, binding, model, source.name, head_path))
             after = _as_stored(res9.local, binding, model, source.name, head_path)
             start = fa.average_gaussians([before, after]).replace(extra=start.extra)
-            print(f"{name}: stage 9 (squared error, averaged with its start) {stage9} steps "
+            if round9 + 1 < stage9_rounds:  # the next round starts from the average as a file stores it
+                start = _as_stored(start, binding, model, source.name, head_path)
+            print(f"{name}: stage 9 (squared error, averaged with its start) round {round9 + 1}: {stage9} steps "
                   f"({time.process_time() - c9:.0f} s CPU), first/last 50 {np.mean(res9.losses[:50]):.5f} / "
                   f"{np.mean(res9.losses[-50:]):.5f}", flush=True)
         t3, c3 = time.perf_counter(), time.process_time()
@@ -522,9 +549,12 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
             "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05,
             "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT, "lr_scale": SILHOUETTE_LR_SCALE,
             "photometric": s9.photometric, "rim_px": s9.rim_px, "crop_rim": s9.crop_rim, "rim_weight": s9.rim_weight,
-            "w_opacity": s9.w_opacity, "averaged_with_start": True})
+            "w_opacity": s9.w_opacity, "averaged_with_start": True, "rounds": stage9_rounds})
     if args.init:
         info["init_stage"] = args.init_stage
+    if args.recolour_from:
+        info["recoloured"] = ("the --init file's colours rescaled by the albedo now over the textures it was fitted "
+                              "to (--recolour-from) before the stages")
     path = save_fitted_avatar(out, fitted, binding, model, colour_source=source.name, head_path=head_path,
                               info=info, fit_angle_range_deg=angle_range)
     if not args.no_eval:
@@ -630,6 +660,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--stage9", type=int, default=None, help="squared-error-stage steps (the silhouette stage's "
                     "recipe with the squared photometric error, then averaged with its start; default "
                     f"{SQUARED_ERROR_STAGE_CONFIG.iterations} for {', '.join(STAGE9_PATIENTS)}, 0 for the others)")
+    ap.add_argument("--stage9-rounds", type=int, default=None, help="squared-error stage rounds, each from the "
+                    "last round's average (default: STAGE9_ROUNDS, else 1)")
+    ap.add_argument("--recolour-from", default=None, help="with --init: the folder of the textures (albedo.json "
+                    "and PNGs) the --init file was fitted to; its colours are rescaled to the patient's textures "
+                    "now (a repainted look) before the stages")
     ap.add_argument("--dataset-cache", default=None, help="keep the training renders in this pickle and reuse "
                     "them when they match (one name)")
     ap.add_argument("--threads", type=int, default=1, help="torch and numba threads (default 1)")
@@ -659,6 +694,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--stage8: expected >= 0, found {args.stage8}")
     if args.stage9 is not None and args.stage9 < 0:
         ap.error(f"--stage9: expected >= 0, found {args.stage9}")
+    if args.stage9_rounds is not None and args.stage9_rounds < 1:
+        ap.error(f"--stage9-rounds: expected >= 1, found {args.stage9_rounds}")
+    if args.recolour_from and not args.init:
+        ap.error("--recolour-from: needs --init (the file fitted to those textures)")
     if args.dataset_cache and len(names) != 1:
         ap.error("--dataset-cache takes one name")
     if args.stage2 < 0:

@@ -28,19 +28,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def _appearance(model, folder: Path):
-    from holo_viewer.errors import FlameError
-    from holo_viewer.fileio import read_json
-    from holo_viewer.flame import head_textures as ht
-
-    inputs = ht.appearance_inputs(model)
-    args = {k: inputs[k] for k in ("vertices", "faces", "uv", "faces_uv", "vertex_region", "region_names", "landmarks")}
-    man = read_json(folder / ht.PATIENT_MANIFEST, FlameError, "head texture manifest")
-    seed = int(man.get("seed", 0)) if isinstance(man, dict) else 0
-    tex, alpha, s = ht.load_textures(folder, ht.mesh_key(inputs, seed), ht.PATIENT_MANIFEST)
-    return ht._appearance(**args, seed=s, textures=tex, alpha=alpha)
-
-
 def recolour(name: str, old: Path, out: Path, eps: float = 0.03, bright: float = 0.5) -> dict:
     from holo_viewer.assets_build import fit_avatar as fa
     from holo_viewer.avatar import patients
@@ -51,7 +38,7 @@ def recolour(name: str, old: Path, out: Path, eps: float = 0.03, bright: float =
     c0 = time.process_time()
     info = patients.patient_info(name)
     model = patients.load_patient_model(name)
-    app_old, app_new = _appearance(model, old), _appearance(model, info.folder)
+    app_old, app_new = fa.folder_appearance(model, old), fa.folder_appearance(model, info.folder)
     local, binding, keys = load_fitted_avatar(old / "avatar.npz")
     faces = model.faces.cpu().numpy()
     vs = model.v_template.detach().cpu().double().numpy()

@@ -883,10 +883,29 @@ def replace_config(config: AvatarFitConfig, **changes: Any) -> AvatarFitConfig:
 # =============================================================================== transfer to another identity
 
 
+def folder_appearance(model: Any, folder: Any) -> Any:
+    """``model``'s head painted with the textures in ``folder`` (its ``albedo.json`` and PNGs, e.g. a
+    patient's earlier textures kept beside the avatar fitted to them); ``.albedo_at`` and
+    ``.face_material`` as the head's own appearance."""
+    from pathlib import Path
+
+    from ..errors import FlameError
+    from ..fileio import read_json
+    from ..flame import head_textures as ht
+
+    folder = Path(folder)
+    inputs = ht.appearance_inputs(model)
+    args = {k: inputs[k] for k in ("vertices", "faces", "uv", "faces_uv", "vertex_region", "region_names", "landmarks")}
+    man = read_json(folder / ht.PATIENT_MANIFEST, FlameError, "head texture manifest")
+    seed = int(man.get("seed", 0)) if isinstance(man, dict) else 0
+    tex, alpha, s = ht.load_textures(folder, ht.mesh_key(inputs, seed), ht.PATIENT_MANIFEST)
+    return ht._appearance(**args, seed=s, textures=tex, alpha=alpha)
+
+
 def transfer_avatar(local: Gaussians, binding: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
                     src_albedo_at: Callable[[np.ndarray, np.ndarray], np.ndarray],
                     dst_albedo_at: Callable[[np.ndarray, np.ndarray], np.ndarray],
-                    mode: str = "shade", eps: float = 0.03, max_gain: float = 4.0) -> Gaussians:
+                    mode: str = "shade", eps: float = 0.03, max_gain: float = 4.0, clip: bool = True) -> Gaussians:
     """A fitted avatar's Gaussians for another head of the same topology (issue 35).
 
     The binding is kept: each Gaussian stays on its triangle with its local offset, rotation and
@@ -895,7 +914,8 @@ def transfer_avatar(local: Gaussians, binding: np.ndarray, vertices: np.ndarray,
     source rest mesh; barycentric, so the same point on the new head): ``mode="albedo"`` sets SH DC to
     the new albedo (higher SH zero); ``mode="shade"`` (default) keeps the fitted shading, scaling
     every SH coefficient per channel by ``(dst + eps) / (src + eps)`` (clamped to ``max_gain``), so
-    the baked lighting of the source fit carries over to the new skin and hair."""
+    the baked lighting of the source fit carries over to the new skin and hair; ``clip=False`` keeps
+    fitted colours outside [0, 1] (a recolour on the same head: unchanged texels keep every value)."""
     if mode not in ("shade", "albedo"):
         raise InputError(f"transfer mode: expected 'shade' or 'albedo', found {mode!r}")
     b = np.asarray(binding)
@@ -908,9 +928,10 @@ def transfer_avatar(local: Gaussians, binding: np.ndarray, vertices: np.ndarray,
     else:
         a_src = np.clip(np.asarray(src_albedo_at(b, bary), np.float64), 0.0, 1.0)
         gain = np.clip((a_dst + eps) / (a_src + eps), 0.0, max_gain)
-        c = np.clip(sh[:, 0] * SH_C0 + 0.5, 0.0, 1.0)
+        c = sh[:, 0] * SH_C0 + 0.5
+        c = np.clip(c, 0.0, 1.0) if clip else c
         sh[:, 1:] *= gain[:, None, :]
-        sh[:, 0] = (np.clip(c * gain, 0.0, 1.0) - 0.5) / SH_C0
+        sh[:, 0] = ((np.clip(c * gain, 0.0, 1.0) if clip else c * gain) - 0.5) / SH_C0
     return local.replace(sh=sh.astype(np.float32))
 
 

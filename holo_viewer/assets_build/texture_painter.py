@@ -58,6 +58,11 @@ class Look:
     ``strand_var``: extra strand-to-strand value variation (a share of lighter strands);
     ``rim``: value lifted where the hair turns away from a frontal view (flyaways catching light at
     the silhouette). All 0 (the default) paint exactly the earlier hair.
+
+    ``hair_value``: the hair shell's texture (base and white strands alike) scaled by this; the hair
+    painted on the skin and scalp textures keeps its value (1, the default, paints exactly the earlier
+    hair). A lever for helen's fidelity, measured but set by no recipe yet: her near-white hair against the
+    panel's black puts half her fitted avatar's error on its outline (docs/avatar_fit.md "A greyer helen").
     """
 
     skin: tuple = tuple(_SKIN)
@@ -76,6 +81,7 @@ class Look:
     sheen: float = 0.0
     strand_var: float = 0.0
     rim: float = 0.0
+    hair_value: float = 1.0
 
 
 DEFAULT_LOOK = Look()
@@ -606,6 +612,13 @@ class _Painter:
             col = col + self.hair_sheen(normal, tangent, c1, c2, polar)
         return col
 
+    def hair_shell_color(self, q: np.ndarray, crown: np.ndarray, axis: np.ndarray, uv: np.ndarray,
+                         normal: np.ndarray | None = None, tangent: np.ndarray | None = None) -> np.ndarray:
+        """The hair shell's texture: :meth:`hair_color` times the look's ``hair_value`` (the hair painted on
+        the skin and scalp textures keeps :meth:`hair_color`'s value)."""
+        col = self.hair_color(q, crown, axis, uv, normal, tangent)
+        return col if self.look.hair_value == 1.0 else col * float(self.look.hair_value)
+
     def hair_sheen(self, n: np.ndarray, t: np.ndarray, c1: np.ndarray, c2: np.ndarray,
                    polar: np.ndarray) -> np.ndarray:
         """(N, 3) light added to the hair albedo by the look's ``sheen`` and ``rim`` (see :class:`Look`).
@@ -857,7 +870,7 @@ def _paint(p: _Painter, mesh: AppearanceMesh, size: int, eye_size: int) -> tuple
             tan = _unit(tan - np.einsum("nc,nc->n", tan, nrm)[:, None] * nrm)
         if tex == "hair":
             ii, jj = np.nonzero(mask)
-            col = p.hair_color(q, crown, axis, np.c_[(jj + 0.5) / size, 1.0 - (ii + 0.5) / size], nrm, tan)
+            col = p.hair_shell_color(q, crown, axis, np.c_[(jj + 0.5) / size, 1.0 - (ii + 0.5) / size], nrm, tan)
         else:
             col = p.skin(q, soft, brow)
             hc = p.hair_coverage(q, soft["scalp"] if has_scalp else None)
