@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
         pipe = scene.pipeline
         pipe.set_view(tile_scale=args.tile_scale)
         if args.reaction:
-            frames, _ = reaction_frames(seconds=args.seconds, pain=args.pain)
+            frames, _ = reaction_frames(seconds=args.seconds, pain=args.pain, au_map=pipe.au_map)
         else:
             frames = scene.frames or []
         report = StreamReport(n_frames=0, budget=0.0, policy=args.policy)

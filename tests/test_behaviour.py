@@ -325,6 +325,40 @@ def test_pain_combines_by_maximum_and_follows_a_timeline():
     assert np.allclose(out["expr"][-1, 6:10], want[6:10], atol=2e-3)  # AU6 AU7 AU9 AU10 of pain 0.4
 
 
+
+def test_layers_draw_the_avatars_own_pain_face():
+    """Issue 35: the layers' pain face is the avatar's (``au_map_for``: the default head's AU4 gain), the face
+    its pain slider and the legibility bench draw; a map passed in (a patient's, no gain) is honoured; the live
+    session takes the rendered pipeline's map."""
+    from types import SimpleNamespace
+
+    from holo_viewer.flame.expressions import default_au_map, pain_expression
+    from holo_viewer.live.loop import session_behaviour
+    from holo_viewer.pipeline import Pipeline
+
+    pipe = Pipeline(avatar=None)  # the default head, no Gaussians
+    own = pipe.au_map
+    assert own.pain_gains is not None and own.pain_gains["AU4"] > 1.1
+    beh = ListenerBehaviour(BehaviourConfig(seed=0))
+    assert dict(beh.au_map.pain_gains) == dict(own.pain_gains)
+    assert np.allclose(beh._pain_vector(1.0) @ beh.au_map.matrix, pain_expression(1.0, own), atol=1e-12)
+    cfg = BehaviourConfig(seed=3).without("gaze", "blinks", "brows", "breathing", "sway", "nods", "flares")
+    shared = default_au_map()
+    for am, other in ((None, shared), (shared, own)):
+        out = apply_behaviour(_still(FPS * 3), cfg, pain=1.0, au_map=am)
+        p = float(out["pain_shown"][-1])
+        assert p > 0.5
+        assert np.allclose(out["expr"][-1], pain_expression(p, own if am is None else am), atol=1e-5)
+        assert not np.allclose(out["expr"][-1], pain_expression(p, other), atol=1e-3)
+    # live: the session's layers use the rendered avatar's map (a patient with identity gains here)
+    patient = shared.with_pain_gains({"AU6": 1.2})
+    live = session_behaviour("default", 5, SimpleNamespace(pipeline=SimpleNamespace(au_map=patient)))
+    assert live.au_map is patient and live.config.seed == 5
+    assert dict(session_behaviour("default", 5, SimpleNamespace(pipeline=pipe)).au_map.pain_gains) == \
+        dict(own.pain_gains)
+    assert dict(session_behaviour("default", 5).au_map.pain_gains) == dict(own.pain_gains)  # no renderer
+
+
 # ------------------------------------------------------------------ the pain-timeline schema
 def test_pain_timeline_schema(tmp_path):
     tl = PainTimeline.from_json([{"t": 0, "level": 0.2}, {"t": 1.0, "level": 0.7, "source": "key"}])

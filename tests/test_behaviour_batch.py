@@ -109,3 +109,30 @@ def test_manifest_viewer_fields_set_the_gaze_target(tmp_path):
     ya = np.mean([f["eyes_pose"][1] for f in resolve_job(a, "a").frames])
     yb = np.mean([f["eyes_pose"][1] for f in resolve_job(b, "b").frames])
     assert yb > ya + 0.1  # the eyes turn toward the viewer at +20 deg (+x)
+
+
+def test_a_reaction_job_gives_the_layers_its_avatars_map(tmp_path, monkeypatch):
+    """Issue 35: a reaction job's layers draw the pain face with its avatar's AU map (the scene pipeline's
+    ``au_map``: the default head's brow gain, a patient's none); a job without layers loads no scene."""
+    from types import SimpleNamespace
+
+    from holo_viewer.batch import worker
+    from holo_viewer.flame.expressions import default_au_map
+    from holo_viewer.pipeline import reactions
+    from holo_viewer.reaction.api import default_checkpoint_path
+
+    if not default_checkpoint_path().is_file():
+        pytest.skip("no shipped reaction checkpoint")
+    am = default_au_map().with_pain_gains({"AU6": 1.2})
+    scenes, seen = [], []
+    monkeypatch.setattr(worker, "load_scene_pipeline", lambda scene: scenes.append(scene) or SimpleNamespace(au_map=am))
+
+    def frames(**kw):
+        seen.append(kw["au_map"])
+        return [{} for _ in range(25)], 25.0
+
+    monkeypatch.setattr(reactions, "reaction_frames", frames)
+    on, off = read_manifest(_write(tmp_path / "m.jsonl", [{"seconds": 1.0}, {"seconds": 1.0, "behaviour": False}]))
+    a = resolve_job(on, "a")
+    resolve_job(off, "b")
+    assert len(seen) == 2 and seen[0] is am and seen[1] is None and scenes == [a.scene]

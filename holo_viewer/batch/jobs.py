@@ -174,13 +174,17 @@ def load_frames(job: ResolvedJob) -> list[dict[str, Any]]:
         from ..behaviour import PainKey, PainTimeline
 
         pain = PainTimeline(PainKey(t, v) for t, v in spec.pain_timeline)
-    behaviour = target = None
+    behaviour = target = au_map = None
     if spec.behaviour is not None:
         from ..behaviour import BehaviourConfig, viewer_target
 
         behaviour = BehaviourConfig.from_dict(dict(spec.behaviour), source=f"{spec.label}: behaviour")
         target = viewer_target(0.0 if spec.viewer_angle is None else spec.viewer_angle,
                                0.6 if spec.viewer_distance is None else spec.viewer_distance)
+        if spec.driver in ("reaction", "synthetic_reaction"):  # the layers' pain face is the avatar's own
+            from .worker import load_scene_pipeline
+
+            au_map = load_scene_pipeline(job.scene).au_map
     if spec.driver == "flame_params":
         frames = _sequence(spec)
     elif spec.driver == "reaction":
@@ -189,7 +193,7 @@ def load_frames(job: ResolvedJob) -> list[dict[str, Any]]:
 
         params, _ = react_to_speaker(spec.speaker_audio, spec.speaker_params, pain=pain, seed=spec.seed,
                                      temperature=DEFAULT_TEMPERATURE if spec.temperature is None else spec.temperature,
-                                     behaviour=behaviour, target=target)
+                                     behaviour=behaviour, target=target, au_map=au_map)
         params.pop("pain_shown", None)  # already in the expressions
         frames = flame_sequence_frames(params, source=spec.speaker_params)
     elif spec.driver == "synthetic_reaction":
@@ -197,7 +201,7 @@ def load_frames(job: ResolvedJob) -> list[dict[str, Any]]:
 
         kw = {} if spec.temperature is None else {"temperature": spec.temperature}
         frames, _ = reaction_frames(seconds=spec.seconds, pain=pain, seed=spec.seed, behaviour=behaviour,
-                                    target=target, **kw)
+                                    target=target, au_map=au_map, **kw)
     else:
         frames = [{} for _ in range(spec.frames)]
     if len(frames) != job.n_frames:

@@ -206,17 +206,20 @@ class ListenerBehaviour:
     n_expr : int
         Expression coefficients of the frames (the default head's AU map sized to it).
     au_map : holo_viewer.flame.expressions.AUMap, optional
-        For a user FLAME model (default: the default head's).
+        The avatar's map (``Pipeline.au_map``, ``au_map_for(model)``): its ``pain_gains`` shape the pain
+        face, as in the pipeline's ``FaceControls(pain)``. Default: the shipped default head's own map
+        (:func:`default_au_map` with :data:`DEFAULT_HEAD_PAIN_GAINS`, what ``au_map_for`` gives that head);
+        pass a patient's or a user model's map for their avatars.
     joints : (5, 3) rest joints (default: the default head's)
     fps : frames per second of the stream
     """
 
     def __init__(self, config: BehaviourConfig | None = None, n_expr: int | None = None, au_map: Any = None,
                  joints: np.ndarray = DEFAULT_JOINTS, fps: float = FPS) -> None:
-        from ..flame.expressions import default_au_map
+        from ..flame.expressions import DEFAULT_HEAD_PAIN_GAINS, default_au_map
 
         self.config = c = config or BehaviourConfig()
-        self.au_map = au_map if au_map is not None else default_au_map(n_expr)
+        self.au_map = au_map if au_map is not None else default_au_map(n_expr).with_pain_gains(DEFAULT_HEAD_PAIN_GAINS)
         self.n_expr = self.au_map.n_expr
         self._pinv = np.linalg.pinv(self.au_map.matrix)
         names = self.au_map.names
@@ -313,7 +316,7 @@ class ListenerBehaviour:
 
 def apply_behaviour(params: Mapping[str, Any], config: BehaviourConfig | None = None, *, pain: Any = 0.0,
                     target: Any = None, speaking: Any = None, pause_onsets: Any = None,
-                    fps: float = FPS) -> dict[str, np.ndarray]:
+                    fps: float = FPS, au_map: Any = None) -> dict[str, np.ndarray]:
     """The layers over a whole clip: :class:`ListenerBehaviour` stepped over its T frames.
 
     Parameters
@@ -323,6 +326,9 @@ def apply_behaviour(params: Mapping[str, Any], config: BehaviourConfig | None = 
     pain : float, (T,) array, or a :class:`~.timeline.PainTimeline` (the instructor's level per frame)
     target : (3,) or (T, 3) point(s) to look at (avatar frame; default :func:`default_target`)
     speaking, pause_onsets : (T,) bool, optional (default: speaking throughout, no pauses)
+    au_map : AUMap, optional
+        The avatar's map (:class:`ListenerBehaviour`; default: the shipped default head's own); the
+        composed ``expr`` has its ``n_expr`` columns (``params["expr"]`` padded with zeros or cut).
 
     Returns
     -------
@@ -350,7 +356,7 @@ def apply_behaviour(params: Mapping[str, Any], config: BehaviourConfig | None = 
         raise InputError(f"target: expected shape (3,) or ({T}, 3), found {tg.shape}")
     sp = np.ones(T, bool) if speaking is None else np.asarray(speaking, bool).reshape(T)
     po = np.zeros(T, bool) if pause_onsets is None else np.asarray(pause_onsets, bool).reshape(T)
-    beh = ListenerBehaviour(config, n_expr=expr.shape[1], fps=fps)
+    beh = ListenerBehaviour(config, n_expr=expr.shape[1], au_map=au_map, fps=fps)
     keys = ("expr", "jaw_pose", "rotation", "neck_pose", "translation", "eyes_pose")
     per_frame = {k: np.asarray(params[k], dtype=np.float64) for k in keys if k in params}
     rows: dict[str, list[np.ndarray]] = {k: [] for k in keys}

@@ -63,14 +63,16 @@ def format_timing_table(rows: list[tuple[str, float, str]]) -> str:
     return "\n".join(lines)
 
 
-def _reaction_frames(seconds: float, pain: float, seed: int, behaviour: object = "default") -> tuple[list[dict], float]:
+def _reaction_frames(seconds: float, pain: float, seed: int, behaviour: object = "default",
+                     au_map: object = None) -> tuple[list[dict], float]:
     """Listener FLAME frames (and their rate) from the reaction model for a synthesized speaker clip,
-    with the behaviour layers (``behaviour``: a BehaviourConfig, "default", or None for the model alone)."""
+    with the behaviour layers (``behaviour``: a BehaviourConfig, "default", or None for the model alone;
+    ``au_map``: the avatar's map, whose pain gains shape their pain face)."""
     from ..errors import ReactionError
     from ..pipeline import reaction_frames
 
     try:
-        return reaction_frames(seconds=seconds, pain=pain, seed=seed, behaviour=behaviour)
+        return reaction_frames(seconds=seconds, pain=pain, seed=seed, behaviour=behaviour, au_map=au_map)
     except ImportError as exc:
         raise ReactionError("demo: the reaction video needs the listener-reaction model "
                             f"(holo_viewer.reaction), which cannot be imported ({exc})") from exc
@@ -160,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
     from .behaviour_args import behaviour_from_args
 
     behaviour = behaviour_from_args(args, seed=args.seed)
-    src_frames, src_fps = _reaction_frames(args.seconds, args.pain, args.seed, behaviour)
+    src_frames, src_fps = _reaction_frames(args.seconds, args.pain, args.seed, behaviour, pipe.au_map)
     step("reaction model", t0, f"{len(src_frames)} frames at {src_fps:g} fps for a synthesized speaker clip")
 
     # the frame rate the time budget allows, from the (warm) time of the video's first quilt

@@ -39,7 +39,7 @@ from ..tracking.viewer import ViewerPose
 from .controls import Controls, Scenario
 from .session import NATIVE_VIDEO, SessionRecorder
 
-__all__ = ["LiveSessionConfig", "LiveSession", "speech_gate", "starting_image"]
+__all__ = ["LiveSessionConfig", "LiveSession", "speech_gate", "session_behaviour", "starting_image"]
 
 FPS = 25
 #: the session video's encoder flags: the lossless policy's, on one encoder thread. x264's default
@@ -159,6 +159,17 @@ def _fast_fit_ready() -> bool:
         except OSError:
             pass
     return False
+
+
+def session_behaviour(behaviour: Any, seed: int, renderer: Any = None) -> Any:
+    """The session's :class:`~holo_viewer.behaviour.ListenerBehaviour` (``behaviour``: a BehaviourConfig or
+    "default", seeded with ``seed``), with the rendered avatar's own AU map (``renderer.pipeline.au_map``:
+    its pain gains, as its pain slider and the legibility bench use them); no renderer: the default head's."""
+    from ..behaviour import BehaviourConfig, ListenerBehaviour
+
+    bcfg = BehaviourConfig(seed=seed) if isinstance(behaviour, str) else behaviour
+    au_map = renderer.pipeline.au_map if renderer is not None and hasattr(renderer, "pipeline") else None
+    return ListenerBehaviour(bcfg, au_map=au_map)
 
 
 def speech_gate(stream: Any) -> Any:
@@ -514,12 +525,9 @@ class LiveSession:
         self.progress("warming the reaction model")
         self._stream = ReactionStream(load_default_bundle(), temperature=cfg.temperature,
                                       top_k=DEFAULT_TOP_K if cfg.temperature else None, seed=cfg.seed, trace=True)
-        from ..behaviour import BehaviourConfig, ListenerBehaviour
-
         self._speech_gate = speech_gate(self._stream)  # the model's speech channels' VAD, if it has them
         if cfg.behaviour is not None:
-            bcfg = BehaviourConfig(seed=cfg.seed) if isinstance(cfg.behaviour, str) else cfg.behaviour
-            self._behaviour = ListenerBehaviour(bcfg)
+            self._behaviour = session_behaviour(cfg.behaviour, cfg.seed, renderer)
         from .session import avatar_record
 
         header = self.recorder.header

@@ -196,7 +196,11 @@ class SyntheticSpeaker:
 
 
 class FaceStates:
-    """Face states of the reaction model (n_au + 6,) -> GaussianAvatars FLAME arrays of the default head."""
+    """Face states of the reaction model (n_au + 6,) -> GaussianAvatars FLAME arrays of the default head.
+
+    ``default_au_map()`` here is the reaction model's AU space (its state's AU order and AU -> FLAME matrix),
+    which carries no pain: the pain face, with the avatar's pain gains, is the behaviour layers' (the live
+    loop's ``session_behaviour``) or the renderer's ``FaceControls(pain)``, both with the avatar's map."""
 
     def __init__(self) -> None:
         from ..flame.expressions import default_au_map

@@ -32,15 +32,17 @@ DEFAULT_BEHAVIOUR: Any = "default"
 
 
 def with_behaviour(params: dict[str, np.ndarray], behaviour: Any = DEFAULT_BEHAVIOUR, pain: Any = 0.0,
-                   target: Any = None, audio: np.ndarray | None = None, seed: int = 0) -> dict[str, np.ndarray]:
+                   target: Any = None, audio: np.ndarray | None = None, seed: int = 0,
+                   au_map: Any = None) -> dict[str, np.ndarray]:
     """A reaction's FLAME arrays with the behaviour layers composed on them.
 
     ``behaviour``: a :class:`~holo_viewer.behaviour.BehaviourConfig` (or the default); ``pain``: the
     instructor's level, a float or a :class:`~holo_viewer.behaviour.PainTimeline`; ``target``: the
     point the eyes look at (avatar frame; default a viewer 0.6 m in front of the panel); ``audio``:
     the speaker's 16 kHz samples, for the speech cues of blinks and gaze (None: speaking throughout).
-    ``seed`` seeds the default configuration (a given config has its own). The result has
-    ``pain_shown`` (T,): the pain in the face at each frame.
+    ``seed`` seeds the default configuration (a given config has its own); ``au_map``: the avatar's
+    map (``Pipeline.au_map``), whose pain gains shape the pain face (None: the shipped default head's
+    own). The result has ``pain_shown`` (T,): the pain in the face at each frame.
     """
     from ..behaviour import BehaviourConfig, apply_behaviour
     from ..reaction.speech import speech_cues
@@ -50,11 +52,11 @@ def with_behaviour(params: dict[str, np.ndarray], behaviour: Any = DEFAULT_BEHAV
     sp = po = None
     if audio is not None:
         sp, po = speech_cues(audio, T)
-    return apply_behaviour(params, cfg, pain=pain, target=target, speaking=sp, pause_onsets=po)
+    return apply_behaviour(params, cfg, pain=pain, target=target, speaking=sp, pause_onsets=po, au_map=au_map)
 
 
 def reaction_frames(seconds: float = 2.0, pain: Any = 0.5, seed: int = 0, behaviour: Any = DEFAULT_BEHAVIOUR,
-                    target: Any = None, **kwargs: Any) -> tuple[list[dict[str, np.ndarray]], float]:
+                    target: Any = None, au_map: Any = None, **kwargs: Any) -> tuple[list[dict[str, np.ndarray]], float]:
     """Listener FLAME frames reacting to a synthesized speaker clip, and their frame rate.
 
     Parameters
@@ -70,6 +72,9 @@ def reaction_frames(seconds: float = 2.0, pain: Any = 0.5, seed: int = 0, behavi
     behaviour : BehaviourConfig or None
         The no-data layers (:func:`with_behaviour`; default: all on); None: the model alone.
     target : (3,) point the eyes look at (avatar frame), optional
+    au_map : AUMap, optional
+        The avatar's map for the behaviour layers' pain face (``Pipeline.au_map``; None: the shipped
+        default head's own, :func:`with_behaviour`).
     **kwargs
         Passed to :func:`holo_viewer.reaction.api.generate_demo_reaction` (temperature, top_k,
         checkpoint, warmup, smoothing).
@@ -87,7 +92,7 @@ def reaction_frames(seconds: float = 2.0, pain: Any = 0.5, seed: int = 0, behavi
         params = generate_demo_reaction(seconds=seconds, pain=pain, seed=seed, **kwargs)
     else:
         params = with_behaviour(generate_demo_reaction(seconds=seconds, pain=0.0, seed=seed, **kwargs), behaviour,
-                                pain=pain, target=target, seed=seed)
+                                pain=pain, target=target, seed=seed, au_map=au_map)
         params.pop("pain_shown")
     fps = float(params.get("fps", 25.0)) if isinstance(params, dict) else 25.0
     return flame_sequence_frames(params, source="reaction model output"), fps
@@ -97,7 +102,7 @@ def react_to_speaker(audio_path: str | os.PathLike, speaker_path: str | os.PathL
                      listener_past_path: str | os.PathLike | None = None, checkpoint: str | os.PathLike | None = None,
                      temperature: float = DEFAULT_TEMPERATURE, top_k: int | None = DEFAULT_TOP_K, seed: int = 0,
                      smoothing: float | None = None, behaviour: Any = DEFAULT_BEHAVIOUR,
-                     target: Any = None) -> tuple[dict[str, np.ndarray], int]:
+                     target: Any = None, au_map: Any = None) -> tuple[dict[str, np.ndarray], int]:
     """The listener's FLAME parameters reacting to a speaker's audio and face.
 
     Parameters
@@ -120,6 +125,8 @@ def react_to_speaker(audio_path: str | os.PathLike, speaker_path: str | os.PathL
     behaviour : BehaviourConfig or None
         The no-data layers (default: all on; None: the model alone).
     target : (3,) point the eyes look at (avatar frame), optional
+    au_map : AUMap, optional
+        The avatar's map for the behaviour layers' pain face (see :func:`reaction_frames`).
 
     Returns
     -------
@@ -134,16 +141,16 @@ def react_to_speaker(audio_path: str | os.PathLike, speaker_path: str | os.PathL
     from ..reaction.audio import read_wav
 
     bundle = load_default_bundle(checkpoint)
-    au_map = default_au_map()
-    speaker = load_speaker_npz(speaker_path, au_map)
-    past = load_speaker_npz(listener_past_path, au_map) if listener_past_path else None
+    states_map = default_au_map()  # the reaction model's AU space (its states), not the avatar's pain face
+    speaker = load_speaker_npz(speaker_path, states_map)
+    past = load_speaker_npz(listener_past_path, states_map) if listener_past_path else None
     audio, sr = read_wav(audio_path)
     states = react(bundle, audio, sr, speaker, pain=pain if behaviour is None else 0.0, listener_past=past,
                    temperature=temperature, top_k=top_k or None, seed=seed,
                    smoothing=ANIMATION_SMOOTHING_S if smoothing is None else smoothing)
-    params = flame_params_from_states(states, au_map)
+    params = flame_params_from_states(states, states_map)
     if behaviour is not None:
-        params = with_behaviour(params, behaviour, pain=pain, target=target, audio=audio, seed=seed)
+        params = with_behaviour(params, behaviour, pain=pain, target=target, audio=audio, seed=seed, au_map=au_map)
     return params, int(states.shape[0])
 
 
