@@ -21,7 +21,8 @@ from ..fileio import atomic_write
 from ..flame.default_head import ict_facekit_path
 from .ict import DEFAULT_HAIR, IPD, N_IDENTITY, HairStyle, build_from_ict, load_ict
 
-__all__ = ["build_default_head", "build_patient_head", "write_default_head", "BUILDER_VERSION"]
+__all__ = ["build_default_head", "build_patient_head", "write_default_head", "stored_ulp_differences",
+           "BUILDER_VERSION"]
 
 #: Bumped whenever the generated head changes (stored in the asset).
 BUILDER_VERSION = 3  # 3: converted from ICT Face Model Light (issue 17)
@@ -81,6 +82,55 @@ def _storage_arrays(arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         elif np.issubdtype(a.dtype, np.integer):
             a = a.astype(np.int32 if k in _INT32_KEYS else np.int64)
         out[k] = np.array(a, order="C", copy=True)  # keeps 0-d scalars 0-d
+    return out
+
+
+def stored_ulp_differences(arrays: Mapping[str, np.ndarray], path: str | os.PathLike) -> dict[str, float]:
+    """How far a rebuilt head is from a written one, in units in the last place of each stored array.
+
+    The build is float64 arithmetic through numpy and its BLAS, whose kernels differ by CPU (an Intel and an
+    AMD machine give sums in another order), so a rebuild on another machine can land one float64 ulp away and
+    round to the neighbouring float32 or float16 when stored. Equal bytes are therefore a property of one
+    machine; within one ulp of the stored type is what a rebuild anywhere must give, while a change to the
+    builder or its inputs moves values by many ulps.
+
+    Parameters
+    ----------
+    arrays : mapping
+        Output of :func:`build_default_head` / :func:`build_patient_head`.
+    path : path
+        A file written by :func:`write_default_head`.
+
+    Returns
+    -------
+    dict
+        ``{key: largest difference in ulps of the stored dtype at the array's largest magnitude}``: 0 where
+        bit-equal; ``inf`` where the key is missing on either side, the shapes or dtypes differ, or integer
+        arrays differ.
+    """
+    stored = _storage_arrays(arrays)
+    with np.load(path, allow_pickle=False) as z:
+        written = {k: z[k] for k in z.files}
+    out: dict[str, float] = {}
+    for k in sorted(set(stored) | set(written)):
+        a, b = stored.get(k), written.get(k)
+        if a is None or b is None or a.shape != b.shape or a.dtype != b.dtype:
+            out[k] = float("inf")
+        elif a.dtype.kind != "f":
+            out[k] = 0.0 if np.array_equal(a, b) else float("inf")
+        elif not np.array_equal(np.isfinite(a), np.isfinite(b)):
+            out[k] = float("inf")
+        else:
+            finite = np.isfinite(a)
+            if not finite.any():
+                out[k] = 0.0
+                continue
+            # one ulp at the array's largest magnitude: near-zero entries (a 1e-12 that is 0 in exact arithmetic)
+            # have tiny ulps of their own, and a last-bit change there says nothing about the head
+            scale = max(float(np.abs(a[finite]).max()), float(np.abs(b[finite]).max()))
+            ulp = float(np.spacing(a.dtype.type(scale)))
+            diff = np.abs(a[finite].astype(np.float64) - b[finite].astype(np.float64))
+            out[k] = float(diff.max() / ulp) if ulp > 0 else (0.0 if diff.max() == 0 else float("inf"))
     return out
 
 
