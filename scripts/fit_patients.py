@@ -5,7 +5,7 @@ Usage::
     python scripts/fit_patients.py [NAME ... | --all] [--iterations N] [--source assets/default_avatar.npz]
         [--out FILE (one patient)] [--no-eval] [--images DIR] [--json FILE] [--stage2 N] [--init FILE]
         [--stage3 N] [--stage4 N] [--stage5 N] [--stage6 N] [--stage7 N] [--stage8 N] [--stage9 N]
-        [--init-stage 2|3|4|5|6|7|8|9] [--dataset-cache FILE] [--recolour-from DIR] [--stage9-rounds N]
+        [--stage10 N] [--init-stage 2|3|4|5|6|7|8|9|10] [--dataset-cache FILE] [--recolour-from DIR] [--stage9-rounds N]
 
 Every patient shares the default head's ICT topology, so the default's fitted Gaussians keep their
 triangles and local offsets, rotations and scales on the patient's head (``fit_avatar.transfer_avatar``:
@@ -30,9 +30,11 @@ rates; for ``STAGE7_PATIENTS`` a pain-limit stage
 weights; for ``STAGE8_PATIENTS`` (rafael) a cameras-alike stage (``cameras_alike_stage_config``,
 ``--stage8 N``) weights pain 1 0.45 / neutral 0.35 with every camera drawn alike; for ``STAGE9_PATIENTS``
 (helen) a squared-error stage (``squared_error_stage_config``, ``--stage9 N``) fits the squared error and is
-averaged with the file it started from (``--stage9-rounds N``: N rounds, each from the last average). A patient
-whose textures were repainted is refitted from the earlier file with ``--recolour-from DIR`` (the textures that
-file was fitted to): its colours are rescaled by the new albedo over the old (``recolour_to_textures``) before
+averaged with the file it started from (``--stage9-rounds N``: N rounds, each from the last average); for
+``STAGE10_PATIENTS`` (none yet; measured on helen) the same stage on targets whose mesh colours are carried
+``CARRY_OUT_PX`` px past the outline (``carried_out_dataset``, ``--stage10 N``), again averaged with its start.
+A patient whose textures were repainted is refitted from the earlier file with ``--recolour-from DIR`` (the
+textures that file was fitted to): its colours are rescaled by the new albedo over the old (``recolour_to_textures``) before
 the stages (measured for a darker hair on helen, not shipped: docs/avatar_fit.md "A greyer helen"). Writes
 ``assets/patients/<name>/avatar.npz`` with ``fit_angle_range_deg`` and, in its ``info``, ``psnr_min_db``
 (worst of the 48 quilt views and the two slider-limit views, neutral). ``default`` as NAME fine-tunes the
@@ -157,6 +159,16 @@ STAGE9_PATIENTS: tuple[str, ...] = ("helen",)
 #: (docs/avatar_fit.md "A greyer helen": on a recoloured file a second round gained every view measured, on
 #: helen's shipped one it traded views)
 STAGE9_ROUNDS: dict[str, int] = {}
+#: the carried-out stage (stage 10, issue 35, helen after stage 9; docs/avatar_fit.md "Gaussians inserted at helen's
+#: silhouette"): the squared-error stage (its recipe and seed, averaged with its start) on targets whose mesh colours
+#: are carried ``CARRY_OUT_PX`` px past the mesh's outline (``carried_out_dataset``) at every camera of |yaw| < 25 deg
+#: (the outer orbit cameras keep the black background: carried there too, the +9.6 deg slider limit lost 0.36 dB).
+#: The fit's loss counts the black background round the outline, the fidelity (over the mesh mask) does not, so the
+#: edge Gaussians (seen edge-on, ~3 px past the outline) were fitted darker than the mesh inside it
+CARRY_OUT_PX = 2.0
+#: the patients whose shipped avatar has the carried-out stage: none (measured on helen: every pain-1 number and
+#: neutral's worst view and median up 0.1-0.5 dB, but neutral's +9.6 deg limit -0.08 and view 47 -0.11: not shipped)
+STAGE10_PATIENTS: tuple[str, ...] = ()
 N_LASH = 2000
 #: the cameras of the default avatar's own fit (scripts/fit_default_avatar.py): a transfer without a
 #: fine-tune (``--iterations 0``) records their range
@@ -220,6 +232,33 @@ def squared_error_stage_config(pose_names: list[str], cfg: fa.AvatarFitConfig,
     return fa.replace_config(silhouette_stage_config(pose_names, cfg, iterations), seed=c.seed,
                              photometric=c.photometric, ssim_weight=c.ssim_weight, w_opacity=c.w_opacity,
                              rim_weight=c.rim_weight)
+
+
+def carried_out_dataset(data: Any, cfg: fa.AvatarFitConfig, px: float = CARRY_OUT_PX) -> Any:
+    """A copy of ``data`` (``cfg``'s cameras: quilt views, then the orbit) whose images at the cameras of |yaw| <
+    25 deg have each background pixel within ``px`` (Euclidean, pixel centres) of the mesh mask set to its nearest
+    mesh pixel's colour; masks, other cameras and ``data`` itself unchanged."""
+    import copy
+
+    from scipy import ndimage
+
+    if not px > 0:
+        raise ValueError(f"carried_out_dataset: px: expected > 0, found {px}")
+    cams = [i for i, yaw in enumerate([0.0] * len(cfg.quilt_views) + [y for y, _ in cfg.orbit]) if abs(yaw) < 25.0]
+    if data.images.shape[1] != len(cfg.quilt_views) + len(cfg.orbit):
+        raise ValueError(f"carried_out_dataset: expected {len(cfg.quilt_views) + len(cfg.orbit)} cameras (cfg's quilt "
+                         f"views and orbit), found {data.images.shape[1]}")
+    out = copy.copy(data)
+    out.images = data.images.copy()
+    for p in range(data.images.shape[0]):
+        for c in cams:
+            m = np.asarray(data.masks[p, c], bool)
+            if not m.any():
+                continue
+            d, (iy, ix) = ndimage.distance_transform_edt(~m, return_indices=True)
+            ring = ~m & (d <= px)
+            out.images[p, c][ring] = data.images[p, c][iy[ring], ix[ring]]
+    return out
 
 
 def _as_stored(local: Any, binding: np.ndarray, model: Any, colour_source: str, head_path: Path) -> Any:
@@ -377,6 +416,8 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
               else args.stage8)
     stage9 = ((SQUARED_ERROR_STAGE_CONFIG.iterations if name in STAGE9_PATIENTS else 0) if args.stage9 is None
               else args.stage9)
+    stage10 = ((SQUARED_ERROR_STAGE_CONFIG.iterations if name in STAGE10_PATIENTS else 0) if args.stage10 is None
+               else args.stage10)
     stage9_rounds = ((STAGE9_ROUNDS.get(name, 1) if stage9 else 1) if args.stage9_rounds is None
                      else args.stage9_rounds)
     stage2 = 0 if args.init and args.init_stage >= 3 else args.stage2
@@ -392,6 +433,8 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
         stage3 = stage4 = stage5 = stage6 = stage7 = 0
     if args.init and args.init_stage == 9:  # from a file with the silhouette stage: the squared-error stage alone
         stage3 = stage4 = stage5 = stage6 = stage7 = stage8 = 0
+    if args.init and args.init_stage == 10:  # from a file with the squared-error stage: the carried-out stage alone
+        stage3 = stage4 = stage5 = stage6 = stage7 = stage8 = stage9 = 0
     if args.init:  # a saved earlier stage (e.g. --stage2 0): its Gaussians, as shipped (float16)
         init, binding, init_keys = load_fitted_avatar(Path(args.init))
         if init_keys["head_sha256"] != _sha256(head_path):
@@ -475,6 +518,17 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
             print(f"{name}: stage 9 (squared error, averaged with its start) round {round9 + 1}: {stage9} steps "
                   f"({time.process_time() - c9:.0f} s CPU), first/last 50 {np.mean(res9.losses[:50]):.5f} / "
                   f"{np.mean(res9.losses[-50:]):.5f}", flush=True)
+        if stage10 > 0:
+            c10 = time.process_time()
+            res10 = fa.fit_gaussians(start, binding, carried_out_dataset(data, cfg),
+                                     squared_error_stage_config(data.names, cfg, stage10), progress=False)
+            before = (start if args.init and args.init_stage == 10  # a file's Gaussians: as stored
+                      else _as_stored(start, binding, model, source.name, head_path))
+            after = _as_stored(res10.local, binding, model, source.name, head_path)
+            start = fa.average_gaussians([before, after]).replace(extra=start.extra)
+            print(f"{name}: stage 10 (squared error on targets carried {CARRY_OUT_PX:g} px out, averaged with its "
+                  f"start): {stage10} steps ({time.process_time() - c10:.0f} s CPU), first/last 50 "
+                  f"{np.mean(res10.losses[:50]):.5f} / {np.mean(res10.losses[-50:]):.5f}", flush=True)
         t3, c3 = time.perf_counter(), time.process_time()
         print(f"{name}: fit {t3 - t2:.0f} s ({c3 - c2:.0f} s CPU)", flush=True)
         fitted, angle_range, n_poses = start, data.angle_range_deg, len(data.names)
@@ -482,7 +536,7 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
             "name": name, "iterations": 0 if args.init else cfg.iterations, "stage2_iterations": stage2,
             "stage3_iterations": stage3, "stage4_iterations": stage4, "stage5_iterations": stage5,
             "stage6_iterations": stage6, "stage7_iterations": stage7, "stage8_iterations": stage8,
-            "stage9_iterations": stage9,
+            "stage9_iterations": stage9, "stage10_iterations": stage10,
             "poses": data.names, "skipped_poses": data.skipped,
             "cameras": int(data.images.shape[1]), "fit_angle_range_deg": list(data.angle_range_deg), **how,
             "loss_first_50": float(np.mean(losses[:50])), "loss_last_50": float(np.mean(losses[-50:]))}
@@ -541,15 +595,20 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
         info["stage8_iterations"] = stage8
         info["stage8"] = _stage_record(s8, {
             "pose_weights": CAMERAS_ALIKE_WEIGHTS, "other_poses": 0.05, "camera_weights": 1.0})
+    s9 = SQUARED_ERROR_STAGE_CONFIG  # stages 9 and 10 (the latter on carried-out targets)
+    s9_terms = {"pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05,
+                "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT, "lr_scale": SILHOUETTE_LR_SCALE,
+                "photometric": s9.photometric, "rim_px": s9.rim_px, "crop_rim": s9.crop_rim, "rim_weight": s9.rim_weight,
+                "w_opacity": s9.w_opacity, "averaged_with_start": True}
     if cfg.iterations and stage9:
-        s9 = SQUARED_ERROR_STAGE_CONFIG
         info["method"] += "; then a squared-error stage averaged with its start"
         info["stage9_iterations"] = stage9
-        info["stage9"] = _stage_record(s9, {
-            "pose_weights": PAIN_STAGE_WEIGHTS, "other_poses": 0.05,
-            "camera_weight_abs_yaw_ge_25": LIMIT_CAMERA_WEIGHT, "lr_scale": SILHOUETTE_LR_SCALE,
-            "photometric": s9.photometric, "rim_px": s9.rim_px, "crop_rim": s9.crop_rim, "rim_weight": s9.rim_weight,
-            "w_opacity": s9.w_opacity, "averaged_with_start": True, "rounds": stage9_rounds})
+        info["stage9"] = _stage_record(s9, {**s9_terms, "rounds": stage9_rounds})
+    if cfg.iterations and stage10:
+        info["method"] += "; then the same on targets carried past the outline, averaged with its start"
+        info["stage10_iterations"] = stage10
+        info["stage10"] = _stage_record(s9, {**s9_terms, "carry_out_px": CARRY_OUT_PX,
+                                             "carried_cameras": "abs_yaw_lt_25"})
     if args.init:
         info["init_stage"] = args.init_stage
     if args.recolour_from:
@@ -635,12 +694,13 @@ def main(argv: list[str] | None = None) -> int:
                     help="second-stage steps (detail-centred full-resolution crops; 0: the first stage only)")
     ap.add_argument("--init", default=None, help="start the second stage from this saved first stage (one name; "
                     "e.g. a file this script wrote with --stage2 0) instead of transfer + first stage")
-    ap.add_argument("--init-stage", type=int, default=2, choices=(2, 3, 4, 5, 6, 7, 8, 9), help="the stage --init starts (3: the "
+    ap.add_argument("--init-stage", type=int, default=2, choices=(2, 3, 4, 5, 6, 7, 8, 9, 10), help="the stage --init starts (3: the "
                     "file is a second stage, e.g. the avatar shipped before the third stage; 4: the stages before the pain stage, "
                     "a third stage, or kwame's second; 5: the limit stage, from a file with the pain stage; 6: the silhouette "
                     "stage, from a file with the limit stage; 7: the "
                     "pain-limit stage, from a file with the limit stage; 8: the cameras-alike stage, from a file "
-                    "with the limit stage)")
+                    "with the limit stage; 9: the squared-error stage, from a file with the silhouette stage; 10: the "
+                    "carried-out stage, from a file with the squared-error stage)")
     ap.add_argument("--stage3", type=int, default=None, help="third-stage steps (D-SSIM; default "
                     f"{STAGE3_CONFIG.iterations} for {', '.join(STAGE3_PATIENTS)}, 0 for the others)")
     ap.add_argument("--stage4", type=int, default=None, help="pain-stage steps (poses weighted to pain 1; default "
@@ -660,6 +720,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--stage9", type=int, default=None, help="squared-error-stage steps (the silhouette stage's "
                     "recipe with the squared photometric error, then averaged with its start; default "
                     f"{SQUARED_ERROR_STAGE_CONFIG.iterations} for {', '.join(STAGE9_PATIENTS)}, 0 for the others)")
+    ap.add_argument("--stage10", type=int, default=None, help="carried-out-stage steps (the squared-error stage on "
+                    f"targets carried {CARRY_OUT_PX:g} px past the outline, averaged with its start; default "
+                    f"{SQUARED_ERROR_STAGE_CONFIG.iterations} for {', '.join(STAGE10_PATIENTS) or 'none yet'}, 0 for "
+                    "the others)")
     ap.add_argument("--stage9-rounds", type=int, default=None, help="squared-error stage rounds, each from the "
                     "last round's average (default: STAGE9_ROUNDS, else 1)")
     ap.add_argument("--recolour-from", default=None, help="with --init: the folder of the textures (albedo.json "
@@ -694,6 +758,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--stage8: expected >= 0, found {args.stage8}")
     if args.stage9 is not None and args.stage9 < 0:
         ap.error(f"--stage9: expected >= 0, found {args.stage9}")
+    if args.stage10 is not None and args.stage10 < 0:
+        ap.error(f"--stage10: expected >= 0, found {args.stage10}")
     if args.stage9_rounds is not None and args.stage9_rounds < 1:
         ap.error(f"--stage9-rounds: expected >= 1, found {args.stage9_rounds}")
     if args.recolour_from and not args.init:

@@ -483,6 +483,42 @@ def test_the_squared_error_stage_is_the_silhouette_stage_with_the_squared_error(
             fp.main(["helen", *bad])
 
 
+def test_the_carried_out_stage_carries_the_mesh_colours_past_the_outline():
+    """``scripts/fit_patients.py``'s stage 10 (measured on helen, not shipped): ``carried_out_dataset`` sets each
+    background pixel within ``px`` of the mesh mask to its nearest mesh pixel's colour (a rectangle's nearest
+    pixel: the coordinates clamped into it, computed here in float64) at the cameras of |yaw| < 25 deg only; the masks, the other cameras
+    and the input stay as they were; bad input and a negative count are errors."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "fit_patients.py"
+    spec = importlib.util.spec_from_file_location("fit_patients_script_s10", path)
+    fp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fp)
+    cfg = fa.replace_config(fp.PATIENT_CONFIG, quilt_views=(0, 47), orbit=((-30.0, 0.0), (0.0, 12.0)))
+    rng = np.random.default_rng(0)
+    images = rng.integers(0, 256, (2, 4, 12, 10, 3), dtype=np.uint8)
+    masks = np.zeros((2, 4, 12, 10), bool)
+    masks[:, :, 3:8, 2:6] = True
+    data = fa.Dataset(images.copy(), masks.copy(), [], None, ["neutral", "pain_1"], [])
+    out = fp.carried_out_dataset(data, cfg, px=2.0)
+    assert np.array_equal(data.images, images) and np.array_equal(out.masks, masks)  # the input unchanged
+    want = images.copy()
+    for y in range(12):
+        for x in range(10):
+            cy, cx = min(max(y, 3), 7), min(max(x, 2), 5)
+            if (cy, cx) != (y, x) and np.hypot(y - cy, x - cx) <= 2.0:
+                want[:, [0, 1, 3], y, x] = images[:, [0, 1, 3], cy, cx]  # camera 2 (yaw -30) keeps its background
+    assert np.array_equal(out.images, want) and not np.array_equal(want, images)
+    assert fp.STAGE10_PATIENTS == () and fp.CARRY_OUT_PX == 2.0  # measured on helen, not shipped
+    with pytest.raises(ValueError, match="px"):
+        fp.carried_out_dataset(data, cfg, px=0.0)
+    with pytest.raises(ValueError, match="expected 4 cameras"):
+        fp.carried_out_dataset(fa.Dataset(images[:, :3], masks[:, :3], [], None, ["a", "b"], []), cfg)
+    with pytest.raises(SystemExit):
+        fp.main(["helen", "--stage10", "-1"])
+
+
 def test_the_silhouette_loss_weights_the_rim_and_adds_the_alpha_term():
     """``AvatarFitConfig.rim_weight`` / ``w_alpha`` (the silhouette stage): the first step's loss of a fit
     on one pose and one camera (no learning) equals the float64 formula computed here, mean(|G - T| (1 +
