@@ -92,6 +92,7 @@ from holo_viewer.pipeline import FaceControls  # noqa: E402
 from holo_viewer.render import RenderConfig, render_views  # noqa: E402
 from holo_viewer.render import view_synthesis  # noqa: E402
 from holo_viewer.render.api import validate_inputs  # noqa: E402
+from scenes import cpu_model  # noqa: E402  (bench/ is the script's own folder)
 
 
 def frames_of_animation(pipe: Pipeline, n: int, params: list | None = None) -> list:
@@ -1047,7 +1048,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     result = {"benchmark": "live_frame", "quick": args.quick, "frames_per_mode": n_frames,
-              "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+              "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "cpu_model": cpu_model(),
                           "load_1min_before": load_before, "load_1min_after": load()},
               "seconds_total": time.perf_counter() - t_run, "records": records}
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)

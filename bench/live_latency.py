@@ -826,7 +826,10 @@ def main() -> int:
     if rss:
         print(f"RSS over a {rss['seconds']:g} s synthetic session: {rss['rss_mb_after_10s']} -> {rss['rss_mb_end']} MB "
               f"(growth {rss['rss_growth_mb']} MB), late windows {rss['late_reaction_windows']}/{rss['reaction_windows']}")
-    result = {"config": vars(args), "load_average": load, "cores": os.cpu_count(), "no_render": base, "render": full,
+    from scenes import cpu_model
+
+    result = {"config": vars(args), "load_average": load, "cores": os.cpu_count(), "cpu_model": cpu_model(),
+              "no_render": base, "render": full,
               "render_warm": warm, "ab_before": ab[0] if ab else None, "ab_after": ab[1] if ab else None,
               "ab_threads_all": ab_threads, "ab_visible": abv, "ab_tracker": abt,
               "startup": startup,

@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import math
+import platform
 
 import numpy as np
 
@@ -152,3 +153,16 @@ def framed_cameras(g: Gaussians, n_views: int = 48, width: int = 420, height: in
         lo, hi = means.min(axis=0), means.max(axis=0)
         centre, half = 0.5 * (lo + hi), 0.5 * float(hi[1] - lo[1]) * margin
     return quilt_cameras(n_views, width, height, size=half, target=tuple(centre))
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``'s "model name", else :func:`platform.processor`), for the bench JSONs:
+    the project's VMs change between sessions (an AMD EPYC since 2026-11-29), and timings compare only on one CPU."""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
