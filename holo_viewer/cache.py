@@ -1,4 +1,4 @@
-"""The one cache-directory helper.
+"""The one cache-directory helper, and the bounded in-process store the per-process caches share.
 
 Files the package generates once and reuses (the default avatar's local Gaussians, a default
 head rebuilt for a stripped checkout) go to :func:`cache_dir`:
@@ -15,7 +15,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["cache_dir", "ENV_VAR"]
+__all__ = ["cache_dir", "keep_recent", "ENV_VAR"]
 
 #: environment variable that overrides the cache folder
 ENV_VAR = "HOLO_VIEWER_CACHE"
@@ -27,3 +27,15 @@ def cache_dir() -> Path:
     if root:
         return Path(root)
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "holo_viewer"
+
+
+def keep_recent(store: dict, key: object, value: object, n: int) -> object:
+    """Put ``value`` in ``store`` as its most recently used entry and drop the oldest beyond ``n``; returns ``value``.
+
+    The per-process caches (loaded models, interleave tables, table files, synthetic speakers) keep their last
+    few entries this way, oldest first in the dict's order."""
+    store.pop(key, None)
+    store[key] = value
+    while len(store) > n:
+        store.pop(next(iter(store)))
+    return value

@@ -42,6 +42,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from ..cache import keep_recent
 from ..errors import InputError
 from .calibration import DisplayCalibration
 
@@ -385,9 +386,7 @@ class Interleaver:
         else:  # each Interleaver its own arrays: the kept ones are never handed out
             for name, v in kept.items():
                 setattr(self, name, _copied(v))
-        _TABLES[key] = kept  # the most recently used last
-        while len(_TABLES) > _TABLES_KEPT:
-            _TABLES.pop(next(iter(_TABLES)))
+        keep_recent(_TABLES, key, kept, _TABLES_KEPT)  # the most recently used last
 
     def _build_tables(self) -> None:
         cal, n, cols = self.calibration, self.n_views, self.cols

@@ -39,6 +39,8 @@ from typing import Callable
 
 import numpy as np
 
+from ..cache import keep_recent
+
 __all__ = ["VERSION", "KEEP", "KEEP_KIND", "keep_count", "DISABLE_VAR", "table_key", "table_path", "cached_tables"]
 
 #: bump when a table's meaning changes in a way the source digest would not show
@@ -165,13 +167,11 @@ def _kept(path: Path, key: str) -> dict[str, np.ndarray] | None:
 
 def _keep(path: Path, key: str, arrays: dict[str, np.ndarray]) -> None:
     """Keep ``arrays`` (never handed out: callers get copies) as the content of ``path`` as it is now."""
-    _KEPT.pop((str(path), key), None)
     ident = _identity(path)
     if ident is None:
+        _KEPT.pop((str(path), key), None)
         return
-    _KEPT[(str(path), key)] = (ident, arrays)
-    while len(_KEPT) > _KEPT_N:
-        _KEPT.pop(next(iter(_KEPT)))
+    keep_recent(_KEPT, (str(path), key), (ident, arrays), _KEPT_N)
 
 
 def cached_tables(kind: str, key: str, spec: Spec, build: Callable[[], dict[str, np.ndarray]]

@@ -25,6 +25,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from ..cache import keep_recent
 from ..errors import FlameError
 
 __all__ = ["default_head_path", "load_default_model", "ict_facekit_path", "ASSET_NAME", "EXPRESSION_NAMES",
@@ -149,9 +150,7 @@ def load_default_model(n_shape: int | None = None, n_expr: int | None = None, ad
     if model is None:
         model = FlameModel.load(path, n_shape=n_shape, n_expr=n_expr, add_teeth=add_teeth, dtype=dtype,
                                 device=device)
-        while len(_LOADED) >= _LOADED_KEPT:
-            _LOADED.pop(next(iter(_LOADED)))
-        _LOADED[key] = model
+        keep_recent(_LOADED, key, model, _LOADED_KEPT)
     return copy.deepcopy(model)  # each caller its own model: the kept one is never handed out
 
 

@@ -16,6 +16,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from ..cache import keep_recent
 from ..camera import Cameras, intrinsics, look_at
 from ..errors import InputError
 from ..validation import check_finite_scalar
@@ -128,9 +129,7 @@ def speaker_clip(seconds: float, seed: int, salt: int) -> Any:
             sp, _ = tts_speaker(rng, replace(cfg, still_face_fraction=0.0), au.names, jaw)
         else:
             sp = synth_speaker(rng, cfg, au.names, jaw)
-        while len(_CLIPS) >= _CLIPS_KEPT:
-            _CLIPS.pop(next(iter(_CLIPS)))
-        _CLIPS[key] = sp
+        keep_recent(_CLIPS, key, sp, _CLIPS_KEPT)
     return copy.deepcopy(_CLIPS[key])
 
 

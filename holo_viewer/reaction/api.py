@@ -259,9 +259,9 @@ def generate_demo_reaction(seconds: float = 2.0, pain: float = 0.5, seed: int = 
             sp, _ = tts_speaker(rng, replace(cfg, still_face_fraction=0.0), au_map.names, jaw_unit)
         else:
             sp = synth_speaker(rng, cfg, au_map.names, jaw_unit)
-        while len(_DEMO_SPEAKERS) >= 4:
-            _DEMO_SPEAKERS.pop(next(iter(_DEMO_SPEAKERS)))
-        _DEMO_SPEAKERS[key] = sp
+        from ..cache import keep_recent
+
+        keep_recent(_DEMO_SPEAKERS, key, sp, 4)
     import copy
 
     sp = copy.deepcopy(_DEMO_SPEAKERS[key])
