@@ -744,22 +744,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--out takes one name")
     if args.init and len(names) != 1:
         ap.error("--init takes one name")
-    if args.stage3 is not None and args.stage3 < 0:
-        ap.error(f"--stage3: expected >= 0, found {args.stage3}")
-    if args.stage5 is not None and args.stage5 < 0:
-        ap.error(f"--stage5: expected >= 0, found {args.stage5}")
-    if args.stage4 is not None and args.stage4 < 0:
-        ap.error(f"--stage4: expected >= 0, found {args.stage4}")
-    if args.stage6 is not None and args.stage6 < 0:
-        ap.error(f"--stage6: expected >= 0, found {args.stage6}")
-    if args.stage7 is not None and args.stage7 < 0:
-        ap.error(f"--stage7: expected >= 0, found {args.stage7}")
-    if args.stage8 is not None and args.stage8 < 0:
-        ap.error(f"--stage8: expected >= 0, found {args.stage8}")
-    if args.stage9 is not None and args.stage9 < 0:
-        ap.error(f"--stage9: expected >= 0, found {args.stage9}")
-    if args.stage10 is not None and args.stage10 < 0:
-        ap.error(f"--stage10: expected >= 0, found {args.stage10}")
+    for k in (3, 5, 4, 6, 7, 8, 9, 10):
+        n = getattr(args, f"stage{k}")
+        if n is not None and n < 0:
+            ap.error(f"--stage{k}: expected >= 0, found {n}")
     if args.stage9_rounds is not None and args.stage9_rounds < 1:
         ap.error(f"--stage9-rounds: expected >= 1, found {args.stage9_rounds}")
     if args.recolour_from and not args.init:

@@ -16,6 +16,18 @@ from holo_viewer.pipeline import Pipeline, ViewSettings  # noqa: E402
 from holo_viewer.testing import random_flame_model, random_gaussians  # noqa: E402
 
 
+def _load_script(relpath: str, name: str):
+    """A fresh module of the clone's ``relpath`` (``scripts/fit_patients.py``, ``bench/patient_fidelity.py``):
+    neither is a package module."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / relpath)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def _tiny_asset(tmp_path, **kw):
     model = random_flame_model(n_vertices=40, seed=1)
     g = random_gaussians(20, sh_degree=1, seed=0)
@@ -302,13 +314,7 @@ def test_supersampled_mesh_render_matches_the_analytic_coverage_of_an_edge():
 def test_the_fidelity_bench_replaces_only_partly_covered_pixels_by_their_area_average():
     """bench/patient_fidelity.py's references side by side: ``ss4rim`` is the 1x render except where the 4x4
     coverage is strictly between 0 and 1; ``ss4`` the 4x4 render; ``aliased`` the 1x one; one (1x) mask."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "bench" / "patient_fidelity.py"
-    spec = importlib.util.spec_from_file_location("patient_fidelity_bench", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = _load_script("bench/patient_fidelity.py", "patient_fidelity_bench")
     rng = np.random.default_rng(1)
     im1, ims = rng.random((2, 3, 4, 3)), rng.random((2, 3, 4, 3))
     m1 = rng.random((2, 3, 4)) > 0.5
@@ -387,13 +393,7 @@ def test_the_pain_limit_stage_draws_pain_1_half_the_time_at_the_limit_cameras_we
     """``scripts/fit_patients.py``'s seventh stage (mei): pain 1 0.5, neutral 0.25, pain 0.5 0.15, the
     other poses 0.05 each; the orbit cameras at |yaw| >= 25 deg ``LIMIT_CAMERA_WEIGHT`` x (as the limit stage);
     its own seed; a negative step count is refused, and ``--init-stage 7`` runs it alone."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "scripts" / "fit_patients.py"
-    spec = importlib.util.spec_from_file_location("fit_patients_script_s7", path)
-    fp = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(fp)
+    fp = _load_script("scripts/fit_patients.py", "fit_patients_script_s7")
     cfg = fa.replace_config(fp.PATIENT_CONFIG, quilt_views=(0, 47), orbit=((-30.0, 0.0), (-20.0, 0.0), (25.0, 12.0)))
     s7 = fp.pain_limit_stage_config(["neutral", "smile_1", "pain_0.5", "pain_1"], cfg)
     w = fp.LIMIT_CAMERA_WEIGHT
@@ -411,13 +411,7 @@ def test_the_cameras_alike_stage_is_the_pain_limit_stage_with_every_camera_weigh
     """``scripts/fit_patients.py``'s stage 8 (rafael): pain 1 0.45, neutral 0.35, pain 0.5 0.15, the other
     poses 0.05 each; every camera 1 (the outer ones too); the pain-limit stage's seed and crops, 400 steps; a
     negative step count is refused."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "scripts" / "fit_patients.py"
-    spec = importlib.util.spec_from_file_location("fit_patients_script_s8", path)
-    fp = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(fp)
+    fp = _load_script("scripts/fit_patients.py", "fit_patients_script_s8")
     cfg = fa.replace_config(fp.PATIENT_CONFIG, quilt_views=(0, 47), orbit=((-30.0, 0.0), (-20.0, 0.0), (25.0, 12.0)))
     names = ["neutral", "smile_1", "pain_0.5", "pain_1"]
     s8 = fp.cameras_alike_stage_config(names, cfg)
@@ -435,13 +429,7 @@ def test_the_silhouette_stage_is_the_limit_stage_with_the_rim_terms():
     """``scripts/fit_patients.py``'s stage 6: the limit stage's pose and camera weights, its own seed, the
     rim terms of ``SILHOUETTE_TERMS`` and its learning rates x ``SILHOUETTE_LR_SCALE`` (the stages before it
     keep the rim terms off); a negative count is a usage error."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "scripts" / "fit_patients.py"
-    spec = importlib.util.spec_from_file_location("fit_patients_script_s6", path)
-    fp = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(fp)
+    fp = _load_script("scripts/fit_patients.py", "fit_patients_script_s6")
     cfg = fa.replace_config(fp.PATIENT_CONFIG, quilt_views=(0, 47), orbit=((-30.0, 0.0), (0.0, 12.0)))
     s5 = fp.limit_stage_config(["neutral", "pain_1"], cfg, 50)
     s6 = fp.silhouette_stage_config(["neutral", "pain_1"], cfg, 50)
@@ -460,13 +448,7 @@ def test_the_squared_error_stage_is_the_silhouette_stage_with_the_squared_error(
     """``scripts/fit_patients.py``'s stage 9 (helen): the silhouette stage's pose and camera weights, rim crops and
     rates with the squared photometric error, no D-SSIM, no opacity term, no rim weight, seed 9, 200 steps (every
     stage before it keeps L1); a negative count is a usage error."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "scripts" / "fit_patients.py"
-    spec = importlib.util.spec_from_file_location("fit_patients_script_s9", path)
-    fp = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(fp)
+    fp = _load_script("scripts/fit_patients.py", "fit_patients_script_s9")
     cfg = fa.replace_config(fp.PATIENT_CONFIG, quilt_views=(0, 47), orbit=((-30.0, 0.0), (0.0, 12.0)))
     s6 = fp.silhouette_stage_config(["neutral", "pain_1"], cfg)
     s9 = fp.squared_error_stage_config(["neutral", "pain_1"], cfg)
@@ -488,13 +470,7 @@ def test_the_carried_out_stage_carries_the_mesh_colours_past_the_outline():
     background pixel within ``px`` of the mesh mask to its nearest mesh pixel's colour (a rectangle's nearest
     pixel: the coordinates clamped into it, computed here in float64) at the cameras of |yaw| < 25 deg only; the masks, the other cameras
     and the input stay as they were; bad input and a negative count are errors."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "scripts" / "fit_patients.py"
-    spec = importlib.util.spec_from_file_location("fit_patients_script_s10", path)
-    fp = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(fp)
+    fp = _load_script("scripts/fit_patients.py", "fit_patients_script_s10")
     cfg = fa.replace_config(fp.PATIENT_CONFIG, quilt_views=(0, 47), orbit=((-30.0, 0.0), (0.0, 12.0)))
     rng = np.random.default_rng(0)
     images = rng.integers(0, 256, (2, 4, 12, 10, 3), dtype=np.uint8)
@@ -623,19 +599,14 @@ def test_recolouring_to_repainted_textures_scales_by_the_albedo_ratio(tmp_path):
     patient's own (``fit_avatar.folder_appearance`` reads DIR as the head's loader reads its folder): from the
     same textures every colour is kept (to float16), from textures whose hair is half as bright the hair
     Gaussians' colours double (unclipped), and the skin's stay."""
-    import importlib.util
     import shutil
-    from pathlib import Path
 
     from holo_viewer.avatar import patients
     from holo_viewer.avatar.gaussians import SH_C0
     from holo_viewer.fileio import load_image, save_image
     from holo_viewer.flame.appearance import MATERIALS
 
-    path = Path(__file__).resolve().parents[1] / "scripts" / "fit_patients.py"
-    spec = importlib.util.spec_from_file_location("fit_patients_script_rc", path)
-    fp = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(fp)
+    fp = _load_script("scripts/fit_patients.py", "fit_patients_script_rc")
     info = patients.patient_info("helen")
     model = patients.load_patient_model("helen")
     local, binding, _ = load_fitted_avatar(info.avatar_path)
