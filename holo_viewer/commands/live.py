@@ -54,11 +54,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                "whatever the mode but cone), fast (CPU), or auto (gsplat where a CUDA GPU and the "
                                "gsplat package are present, else fast)")
     out.add_argument("--render-mode", choices=("auto", "cone", "tracked", "all_views"), default="auto",
-                     help="auto (default): tracked while a face is tracked, all_views otherwise; tracked: the "
+                     help="auto (default): group frames, every view of the default cone each frame (every 6th "
+                     "rendered, the others warped by depth), so every viewer sees the present face; tracked: the "
                      "panel's default cone, only the subpixels the tracked eyes receive redrawn, from one image per "
-                     "eye (fastest); all_views: default cone, every 5th view rendered and the others warped by depth; "
-                     "cone: the 48 cameras follow the tracked viewer (Algorithm 1's viewer angle and distance), the "
-                     "whole quilt each frame (slowest)")
+                     "eye (fastest; everyone else sees older frames); all_views: default cone, every 5th view rendered "
+                     "and the others warped by depth; cone: the 48 cameras follow the tracked viewer (Algorithm 1's "
+                     "viewer angle and distance), the whole quilt each frame (slowest)")
     out.add_argument("--frames-in-flight", type=_in_flight_arg, default=1, metavar="N",
                      help="render up to N frames at once, each on a renderer of its own (default 1: one frame at a "
                      "time, which keeps 2 cores busy with group frames; 2 may help where one frame leaves cores "
@@ -78,7 +79,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="who the patient is (session.json records it)")
     ctl.add_argument("--pain", type=float, default=0.0, help="initial pain level in [0, 1] (keys Up/Down change it)")
     ctl.add_argument("--scenario", metavar="FILE.json", help="timeline of pain levels and named expressions")
-    ctl.add_argument("--group", action="store_true", help="centre the view cone on all faces instead of the nearest")
+    ctl.add_argument("--group", action="store_true", help="follow the centre of all tracked faces instead of the "
+                     "nearest: the patient looks there, and the cone mode and the preview aim there (group frames "
+                     "serve every position either way)")
     ctl.add_argument("--no-viewer-prediction", action="store_true", help="render for the smoothed viewer pose as "
                      "tracked, not extrapolated to when the frame is shown")
     from ..reaction.decoding import DEFAULT_TEMPERATURE
