@@ -351,8 +351,6 @@ class LiveSession:
             faces = FaceStates()
             stream = self._stream
             S = stream.S
-            n_au = S - 6
-            k = stream.k
             end_frames = None
             if self.audio.finished is False and hasattr(self.audio, "duration_s"):
                 end_frames = int(math.floor(self.audio.duration_s * FPS + 1e-9))
@@ -420,7 +418,7 @@ class LiveSession:
                 lf = faces.listener(listener)
                 sf = faces.speaker(last_state)
                 _, vp = self._viewer.get()
-                ang, dist, tracked = vp.angle_deg, vp.distance_m, vp.tracked
+                ang, dist = vp.angle_deg, vp.distance_m
                 shown = -1.0  # no behaviour layers: the renderer adds the pain
                 if beh is not None:  # eyes on the tracked viewer, blinks, breathing, sway, pain dynamics
                     from ..behaviour import viewer_target

@@ -14,16 +14,13 @@
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ..reaction.decoding import DEFAULT_TEMPERATURE, DEFAULT_TOP_K
 from .core import Pipeline
 from .settings import FaceControls, flame_sequence_frames
-
-if TYPE_CHECKING:  # pragma: no cover
-    from ..camera import Cameras
 
 __all__ = ["reaction_frames", "react_to_speaker", "with_behaviour", "FaceStateRenderer"]
 
