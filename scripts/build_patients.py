@@ -5,8 +5,11 @@ Usage: python scripts/build_patients.py [--only NAME ...] [--out assets/patients
 For each recipe of ``holo_viewer.assets_build.patients``: the identity coefficients (seeded, set
 along the sex and age directions of ICT's identity space), the head (``head.npz``, the default
 head's format), the painted albedo (``albedo.json`` + PNGs) and ``patient.json`` (who, the identity,
-the hair and look, the licences, every file's sha256). Deterministic: a rebuild gives the same bytes.
-``avatar.npz`` is not touched (the fitting script writes it). ``--renders DIR`` also writes a mesh
+the hair and look, the licences, every file's sha256). Deterministic: a rebuild gives the same bytes on one
+machine; a head already on disk is kept when the rebuild is within 4 ulps of it (another CPU's BLAS:
+``assets_build.head.keep_or_write_head``), so ``avatar.npz``, keyed to the head's sha256, still loads; a head
+that differs more is written and the build warns that the avatar must be refitted. ``avatar.npz`` is not
+touched (the fitting script writes it). ``--renders DIR`` also writes a mesh
 render per patient (front, three-quarter, side; neutral and pain 1) and ``DIR/ward.png``.
 """
 
@@ -14,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -34,8 +38,19 @@ LICENCE = {
 }
 
 
+def write_head(name: str, folder: Path, arrays) -> Path:
+    """``folder/head.npz`` from the built arrays, unless the file there is that head to 4 ulps (kept, so
+    ``avatar.npz`` still loads); one line on stdout, or a warning on stderr when the head changed."""
+    from holo_viewer.assets_build.head import keep_or_write_head
+
+    written = keep_or_write_head(folder / "head.npz", arrays)
+    line, loud = written.report(folder / "avatar.npz", f"python scripts/fit_patients.py {name}")
+    print(line, file=sys.stderr if loud else sys.stdout)
+    return written.path
+
+
 def build(recipe, ict, dirs, out: Path) -> dict:
-    from holo_viewer.assets_build.head import build_patient_head, write_default_head
+    from holo_viewer.assets_build.head import build_patient_head
     from holo_viewer.assets_build.patients import N_MODES, identity_coefficients
     from holo_viewer.fileio import atomic_write, ensure_dir, file_sha256
     from holo_viewer.flame.head_textures import PATIENT_PREFIX, build_head_textures
@@ -45,7 +60,7 @@ def build(recipe, ict, dirs, out: Path) -> dict:
     coef = identity_coefficients(recipe.seed, recipe.sex_score, recipe.age_score, *dirs)
     coef = np.round(coef, 6)  # what patient.json stores is what the head is built from
     arrays = build_patient_head(coef, recipe.ipd_mm / 1000.0, recipe.hair, ict=ict)
-    head = write_default_head(Path(folder) / "head.npz", arrays)
+    head = write_head(recipe.name, Path(folder), arrays)
     model = FlameModel.load(head, n_shape=None, n_expr=None)
     paths = build_head_textures(model, folder, seed=recipe.seed, prefix=PATIENT_PREFIX, look=recipe.look)
     files = {p.name: file_sha256(p) for p in [head] + list(paths)}

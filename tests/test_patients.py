@@ -284,7 +284,7 @@ def test_heads_differ_in_hair_and_identity():
 
 
 def test_a_rebuild_reproduces_a_shipped_head_and_identity_reads_as_sex():
-    from holo_viewer.assets_build.head import build_patient_head, stored_ulp_differences
+    from holo_viewer.assets_build.head import REBUILD_ULPS, build_patient_head, stored_ulp_differences
     from holo_viewer.assets_build.ict import load_ict
     from holo_viewer.assets_build.patients import N_MODES, identity_directions, recipe
     from holo_viewer.flame.default_head import ict_facekit_path
@@ -302,8 +302,9 @@ def test_a_rebuild_reproduces_a_shipped_head_and_identity_reads_as_sex():
     r = recipe(info.name)
     arrays = build_patient_head(np.asarray(info.raw["identity"]["coefficients"]), r.ipd_mm / 1000.0, r.hair, ict=ict)
     # the shipped head.npz is the file patient.json's sha256 names (checked on load); a rebuild on any machine is
-    # within a few ulps of it (another CPU's BLAS sums in another order: stored_ulp_differences)
-    far = {k: d for k, d in stored_ulp_differences(arrays, info.head_path).items() if d > 4}
+    # within a few ulps of it (another CPU's BLAS sums in another order: stored_ulp_differences), so the builder
+    # keeps the shipped bytes (keep_or_write_head: tests/test_default_head.py)
+    far = {k: d for k, d in stored_ulp_differences(arrays, info.head_path).items() if d > REBUILD_ULPS}
     assert not far, f"{info.head_path} is stale (ulps off: {far}): rebuild with scripts/build_patients.py"
 
 

@@ -2,7 +2,9 @@
 
 :func:`build_default_head` converts ICT Face Model Light (ICT-FaceKit, MIT; :mod:`.ict`) into our
 FLAME-format head; :func:`write_default_head` writes it as ``assets/default_head.npz`` (compressed,
-fixed zip timestamps, so a rebuild gives the same bytes). The run-time loader,
+fixed zip timestamps, so a rebuild gives the same bytes on one machine); :func:`keep_or_write_head` is what
+the build scripts call: it keeps a head file already on disk when the rebuild is within :data:`REBUILD_ULPS`
+of it (another CPU's BLAS), so the sha256 that fitted avatars are keyed to holds. The run-time loader,
 :mod:`holo_viewer.flame.default_head`, only reads the asset (it calls this module only to rebuild a
 missing asset when the ICT source is present). Format: see that module's docstring.
 """
@@ -12,20 +14,25 @@ from __future__ import annotations
 import io
 import os
 import zipfile
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
 
-from ..fileio import atomic_write
+from ..fileio import atomic_write, file_sha256
 from ..flame.default_head import ict_facekit_path
 from .ict import DEFAULT_HAIR, IPD, N_IDENTITY, HairStyle, build_from_ict, load_ict
 
 __all__ = ["build_default_head", "build_patient_head", "write_default_head", "stored_ulp_differences",
-           "BUILDER_VERSION"]
+           "keep_or_write_head", "HeadWrite", "BUILDER_VERSION", "REBUILD_ULPS"]
 
 #: Bumped whenever the generated head changes (stored in the asset).
 BUILDER_VERSION = 3  # 3: converted from ICT Face Model Light (issue 17)
+#: a rebuild within this many ulps of the stored type (:func:`stored_ulp_differences`; float32 ulps for the
+#: float64 ``jaw_open_angle``) of a head file is that head: an AMD EPYC's rebuilds of the shipped heads gave 0-1
+#: (jaw_open_angle 1-25 float64 ulps, under 1e-7 float32 ulps); a changed builder or input moves values by many
+REBUILD_ULPS = 4
 _FLOAT32_KEYS = ("v_template", "J_regressor", "weights", "uv")
 _FLOAT16_KEYS = ("shapedirs", "posedirs")  # deltas of at most a few cm: float16 keeps them to < 0.01 mm
 _INT32_KEYS = ("f", "vertex_region", "faces_uv", "landmark_vertices")
@@ -91,8 +98,8 @@ def stored_ulp_differences(arrays: Mapping[str, np.ndarray], path: str | os.Path
     The build is float64 arithmetic through numpy and its BLAS, whose kernels differ by CPU (an Intel and an
     AMD machine give sums in another order), so a rebuild on another machine can land one float64 ulp away and
     round to the neighbouring float32 or float16 when stored. Equal bytes are therefore a property of one
-    machine; within one ulp of the stored type is what a rebuild anywhere must give, while a change to the
-    builder or its inputs moves values by many ulps.
+    machine; within one ulp of the stored type (of float32 for the float64 scalars, see below) is what a rebuild
+    anywhere must give, while a change to the builder or its inputs moves values by many ulps.
 
     Parameters
     ----------
@@ -104,7 +111,8 @@ def stored_ulp_differences(arrays: Mapping[str, np.ndarray], path: str | os.Path
     Returns
     -------
     dict
-        ``{key: largest difference in ulps of the stored dtype at the array's largest magnitude}``: 0 where
+        ``{key: largest difference in ulps of the stored dtype (float32 ulps for float64 arrays) at the array's
+        largest magnitude}``: 0 where
         bit-equal; ``inf`` where the key is missing on either side, the shapes or dtypes differ, or integer
         arrays differ.
     """
@@ -126,9 +134,13 @@ def stored_ulp_differences(arrays: Mapping[str, np.ndarray], path: str | os.Path
                 out[k] = 0.0
                 continue
             # one ulp at the array's largest magnitude: near-zero entries (a 1e-12 that is 0 in exact arithmetic)
-            # have tiny ulps of their own, and a last-bit change there says nothing about the head
+            # have tiny ulps of their own, and a last-bit change there says nothing about the head. float64 values
+            # count in float32 ulps: they are results of fits (jaw_open_angle), whose float64 rounding noise is
+            # the fit's condition number times eps (1-25 float64 ulps between CPUs on the patients' heads), and
+            # the renderer uses float32
             scale = max(float(np.abs(a[finite]).max()), float(np.abs(b[finite]).max()))
-            ulp = float(np.spacing(a.dtype.type(scale)))
+            unit = np.float32 if a.dtype == np.float64 else a.dtype.type
+            ulp = float(np.spacing(unit(scale)))
             diff = np.abs(a[finite].astype(np.float64) - b[finite].astype(np.float64))
             out[k] = float(diff.max() / ulp) if ulp > 0 else (0.0 if diff.max() == 0 else float("inf"))
     return out
@@ -161,3 +173,84 @@ def write_default_head(path: str | os.PathLike, arrays: Mapping[str, np.ndarray]
     with atomic_write(target) as fh:
         fh.write(buf.getvalue())
     return target
+
+
+@dataclass(frozen=True)
+class HeadWrite:
+    """What :func:`keep_or_write_head` did with a head file."""
+
+    path: Path
+    kept: bool  #: the file on disk was kept (the rebuild is within the tolerance of it)
+    sha256: str  #: the file's sha256 afterwards
+    previous_sha256: str | None  #: before (None: there was no readable file)
+    ulps: dict[str, float] = field(default_factory=dict)  #: stored_ulp_differences against the previous file
+
+    def far(self, tolerance: float = REBUILD_ULPS) -> dict[str, float]:
+        """The keys beyond ``tolerance`` ulps of the previous file."""
+        return {k: d for k, d in self.ulps.items() if d > tolerance}
+
+    def report(self, avatar: str | os.PathLike | None = None, refit: str = "") -> tuple[str, bool]:
+        """(one line for the build log, loud): loud when the head changed under an avatar fitted to the old
+        bytes (``avatar``: its fitted-avatar ``.npz``; ``refit``: the command that refits it)."""
+        short = self.sha256[:12]
+        if self.kept:
+            worst = max(self.ulps.items(), key=lambda kv: kv[1], default=("", 0.0))
+            how = "equals it" if worst[1] == 0 else f"is within {worst[1]:.2g} ulps of it (largest: {worst[0]})"
+            return f"{self.path}: kept the file on disk (sha256 {short}...): the rebuild {how}", False
+        if self.previous_sha256 is None:
+            return f"{self.path}: wrote a new head (sha256 {short}...)", False
+        far = ", ".join(f"{k} {d:g}" for k, d in self.far().items()) or "unreadable"
+        line = (f"{self.path}: the rebuild differs from the file on disk beyond {REBUILD_ULPS} ulps ({far}); wrote it: "
+                f"sha256 {self.previous_sha256[:12]}... -> {short}...")
+        keyed = _avatar_head_sha256(avatar) if avatar is not None else None
+        if keyed is not None and keyed != self.sha256:
+            return (f"WARNING: {line}. {avatar} was fitted to head {keyed[:12]}... and will not load until it is "
+                    f"refitted{': ' + refit if refit else ''}"), True
+        return f"WARNING: {line}", True
+
+
+def _avatar_head_sha256(path: str | os.PathLike) -> str | None:
+    """The ``head_sha256`` a fitted avatar file is keyed to, or None (no such file / field)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return str(z["head_sha256"]) if "head_sha256" in z.files else None
+    except (OSError, ValueError):
+        return None
+
+
+def keep_or_write_head(path: str | os.PathLike, arrays: Mapping[str, np.ndarray],
+                       tolerance: float = REBUILD_ULPS) -> HeadWrite:
+    """Write a built head unless the file at ``path`` already is that head to ``tolerance`` ulps.
+
+    A fitted avatar is keyed to its head's sha256, and a rebuild on another CPU (another BLAS, another
+    summation order) or with another zlib lands a few last bits or compressed bytes away from the shipped file
+    while being the same head. So when every array of ``arrays`` is within ``tolerance`` ulps of the stored
+    type of the file (:func:`stored_ulp_differences`: same keys, shapes and dtypes, integers and strings equal)
+    the file's bytes are kept and every digest keyed to them still holds; otherwise (or when the file is missing
+    or unreadable) the new head is written with :func:`write_default_head`.
+
+    Parameters
+    ----------
+    path : path
+        The head file (``assets/default_head.npz``, ``assets/patients/NAME/head.npz``).
+    arrays : mapping
+        Output of :func:`build_default_head` / :func:`build_patient_head`.
+    tolerance : float
+        Ulps of the stored type, at each array's largest magnitude.
+
+    Returns
+    -------
+    HeadWrite
+    """
+    target = Path(path)
+    previous, ulps = None, {}
+    if target.is_file():
+        previous = file_sha256(target)
+        try:
+            ulps = stored_ulp_differences(arrays, target)
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+            ulps = {}  # unreadable: written anew
+        if ulps and max(ulps.values()) <= tolerance:
+            return HeadWrite(target, True, previous, previous, ulps)
+    write_default_head(target, arrays)
+    return HeadWrite(target, False, file_sha256(target), previous, ulps)
