@@ -73,6 +73,7 @@ def build(recipe, ict, dirs, out: Path) -> dict:
             "ipd_mm": recipe.ipd_mm,
             "hair": {k: v for k, v in asdict(recipe.hair).items()},
             "look": {k: v for k, v in asdict(recipe.look).items() if k != "hair_value" or v != 1.0},
+            **({"pain_gains": dict(recipe.pain_gains)} if recipe.pain_gains else {}),
             "licence": LICENCE, "files": files}
     with atomic_write(Path(folder) / "patient.json", "w") as fh:
         json.dump(info, fh, indent=1)

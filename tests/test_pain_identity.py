@@ -138,3 +138,31 @@ def test_pain_gains_are_checked():
     assert base.with_pain_gains({"AU6": 1.0}).pain_gains is None
     with pytest.raises(InputError, match=r"landmarks: expected finite \(68, 2\)"):
         ex.landmark_pain_measures(np.zeros((67, 3)))
+
+
+def test_a_patient_json_carries_its_own_pain_gains(tmp_path):
+    """``patient.json``'s ``pain_gains`` reach the head's AU map through the loader (no path check): a copy
+    of a patient's folder under another name gets the gains its JSON states; a bad gain names the field."""
+    import json
+    import shutil
+
+    from holo_viewer.avatar import patients as P
+    from holo_viewer.errors import AvatarError
+
+    src = P.patient_info("kwame")  # no gains of his own
+    folder = tmp_path / "zed"
+    folder.mkdir()
+    shutil.copyfile(src.head_path, folder / "head.npz")
+    info = {**src.raw, "name": "zed", "files": {"head.npz": src.files["head.npz"]}, "pain_gains": {"AU4": 1.2}}
+    (folder / "patient.json").write_text(json.dumps(info))
+    model = P.load_patient_model("zed", tmp_path)
+    am = ex.au_map_for(model)
+    assert dict(am.pain_gains) == {"AU4": 1.2}
+    shared = ex.pain_expression(1.0, am.with_pain_gains(None))
+    assert np.abs(shared).max() > 0
+    assert ex.pain_expression(1.0, am) == pytest.approx(shared + 0.2 * ex.pain_aus(1.0)["AU4"] * am.row("AU4"))
+    assert ex.au_map_for(P.load_patient_model("kwame")).pain_gains is None
+    for bad in ({"AU4": 2.0}, {"AU99": 1.1}, [1.2]):
+        (folder / "patient.json").write_text(json.dumps({**info, "pain_gains": bad}))
+        with pytest.raises(AvatarError, match=r"zed.patient\.json: field 'pain_gains'"):
+            P.patient_info("zed", tmp_path)

@@ -90,6 +90,9 @@ class Recipe:
     age_score: float = 0.0
     ipd_mm: float = 63.0
     hair_notes: dict = field(default_factory=dict)
+    #: per-AU gains on the shared pain face (``flame.expressions.AUMap.pain_gains``), written into
+    #: ``patient.json`` when set (docs/patients.md)
+    pain_gains: dict = field(default_factory=dict)
 
 
 # ---------------------------------------------------------------------------------------- hair

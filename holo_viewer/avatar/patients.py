@@ -113,8 +113,23 @@ def parse_patient_json(data: Any, path: Path) -> PatientInfo:
             raise _fail(path, f"field 'files': expected file name -> 64-hex sha256, found {fname!r}: {digest!r}")
     if not isinstance(data.get("licence"), dict):
         raise _fail(path, "field 'licence': expected an object naming the source and licence of every asset")
+    _check_pain_gains(data.get("pain_gains", {}), path)
     return PatientInfo(name=name, sex=data["sex"], age=age, fitzpatrick=data["fitzpatrick"], seed=seed,
                        folder=path.parent, description=str(data.get("description", "")), files=dict(files), raw=data)
+
+
+def _check_pain_gains(gains: Any, path: Path) -> None:
+    """``patient.json``'s optional ``pain_gains``: AU name -> gain on the shared pain face's intensity of
+    that AU (``flame.expressions.AUMap.pain_gains``), each in [1, ``PAIN_GAIN_MAX``]."""
+    from ..flame.expressions import AU_NAMES, PAIN_GAIN_MAX
+
+    if not isinstance(gains, dict):
+        raise _fail(path, f"field 'pain_gains': expected an object AU name -> gain, found {type(gains).__name__}")
+    for au, g in gains.items():
+        ok = isinstance(g, (int, float)) and not isinstance(g, bool) and 1.0 <= float(g) <= PAIN_GAIN_MAX
+        if au not in AU_NAMES or not ok:
+            raise _fail(path, f"field 'pain_gains': expected an AU of {AU_NAMES[0]}..{AU_NAMES[-1]} -> a gain in "
+                              f"[1, {PAIN_GAIN_MAX:g}], found {au!r}: {g!r}")
 
 
 def _read_info(path: Path) -> PatientInfo:
@@ -171,11 +186,15 @@ def _model(head: str, mtime: float) -> Any:
 
 
 def load_patient_model(name: str, folder: str | Path | None = None) -> Any:
-    """The patient's head as a FlameModel (cached per process; its textures are found beside it)."""
+    """The patient's head as a FlameModel (cached per process; its textures are found beside it, and its
+    ``patient.json``'s ``pain_gains`` in ``metadata["pain_gains"]``, which ``flame.expressions.au_map_for``
+    attaches to its AU map)."""
     info = patient_info(name, folder)
     if not info.head_path.is_file():
         raise AvatarError(f"patient {name!r}: {info.head_path} is missing (run scripts/build_patients.py)")
-    return _model(str(info.head_path), info.head_path.stat().st_mtime)
+    model = _model(str(info.head_path), info.head_path.stat().st_mtime)
+    model.metadata["pain_gains"] = {k: float(v) for k, v in dict(info.raw.get("pain_gains") or {}).items()}
+    return model
 
 
 def load_patient_avatar(name: str, folder: str | Path | None = None) -> Any:

@@ -331,7 +331,9 @@ def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None, *,
 
     ``normalise_pain`` (default :data:`PAIN_NORMALISE_IDENTITY`, off): attach the head's
     :func:`identity_pain_gains` (a head of the default head's format: the default and the patients).
-    The shipped default head's map always carries :data:`DEFAULT_HEAD_PAIN_GAINS`.
+    The shipped default head's map always carries :data:`DEFAULT_HEAD_PAIN_GAINS`; a patient's head
+    (``holo_viewer.avatar.patients.load_patient_model``) its own ``patient.json`` ``pain_gains``, which
+    the loader puts in ``model.metadata["pain_gains"]`` (docs/patients.md).
 
     Raises
     ------
@@ -350,7 +352,8 @@ def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None, *,
                              f"of the default head ({names[:4]}... vs {list(EXPRESSION_NAMES[:4])}...); "
                              f"rebuild it with scripts/build_default_head.py")
         base = default_au_map(n_expr)
-        own = DEFAULT_HEAD_PAIN_GAINS if _is_shipped_default_head(model) else {}
+        own = DEFAULT_HEAD_PAIN_GAINS if _is_shipped_default_head(model) else dict(
+            (getattr(model, "metadata", None) or {}).get("pain_gains") or {})  # a patient's, from patient.json
         if not (PAIN_NORMALISE_IDENTITY if normalise_pain is None else normalise_pain):
             return base.with_pain_gains(own)
         # identity_pain_gains of the default head itself is {} (it is the reference): its own gains stay
