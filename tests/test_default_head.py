@@ -624,6 +624,24 @@ def test_build_patients_script_keeps_an_equal_head_so_the_avatar_still_loads(tmp
             assert "WARNING" in out.err and "avatar.npz" in out.err and f"fit_patients.py {info.name}" in out.err
 
 
+def test_a_copy_of_the_default_head_keeps_its_own_pain_gains(tmp_path):
+    """The default head's brow gain (DEFAULT_HEAD_PAIN_GAINS) follows its bytes, not its path: a copy elsewhere
+    gets it (the path test did not), a patient's head in the same format does not."""
+    import shutil
+
+    from holo_viewer.avatar.patients import list_patients
+    from holo_viewer.flame import expressions as ex
+
+    (tmp_path / "elsewhere").mkdir()
+    copy = tmp_path / "elsewhere" / "default_head.npz"
+    shutil.copyfile(default_head_path(build_if_missing=False), copy)
+    model = FlameModel.load(copy, n_shape=None, n_expr=None)
+    assert model.is_default_head and dict(ex.au_map_for(model).pain_gains) == dict(ex.DEFAULT_HEAD_PAIN_GAINS)
+    shutil.copyfile(list_patients()[0].head_path, copy)  # other bytes at the same path
+    patient = FlameModel.load(copy, n_shape=None, n_expr=None)
+    assert patient.is_default_head and ex.au_map_for(patient).pain_gains is None
+
+
 @needs_ict
 def test_landmark_embedding_matches_the_head():
     from holo_viewer.tracking.head_model import LandmarkEmbedding

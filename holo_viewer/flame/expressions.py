@@ -62,7 +62,8 @@ reference's fraction as more open than the shared face's (docs/face_realism.md).
 
 The default head's own brows (issue 35)
 ---------------------------------------
-The default head alone (the shipped ``assets/default_head.npz``, not the patients built in its format)
+The default head alone (the shipped ``assets/default_head.npz`` or a copy of its bytes at any path, not the
+patients built in its format)
 lowers its brows further than the shared face: :data:`DEFAULT_HEAD_PAIN_GAINS` (AU4 x 1.186, within
 :data:`PAIN_GAIN_MAX`) brings its brow-to-upper-lid gap at pain 1 to :data:`DEFAULT_HEAD_BROW_FRACTION`
 of neutral on its landmark vertices (0.787 with the shared face; 0.755 is the strongest descent of the
@@ -331,7 +332,8 @@ def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None, *,
 
     ``normalise_pain`` (default :data:`PAIN_NORMALISE_IDENTITY`, off): attach the head's
     :func:`identity_pain_gains` (a head of the default head's format: the default and the patients).
-    The shipped default head's map always carries :data:`DEFAULT_HEAD_PAIN_GAINS`; a patient's head
+    The default head's map (its file's bytes, at any path) always carries :data:`DEFAULT_HEAD_PAIN_GAINS`; a
+    patient's head
     (``holo_viewer.avatar.patients.load_patient_model``) its own ``patient.json`` ``pain_gains``, which
     the loader puts in ``model.metadata["pain_gains"]`` (docs/patients.md).
 
@@ -367,9 +369,10 @@ def au_map_for(model: Any, au_map_path: str | os.PathLike | None = None, *,
 
 
 def _is_shipped_default_head(model: Any) -> bool:
-    """The model was loaded from the default head's own file (the checkout's ``assets/default_head.npz`` or
-    its rebuilt copy in the cache, :func:`~holo_viewer.flame.default_head.default_head_path`), not from a
-    patient's head in the same format."""
+    """The model was loaded from a file with the default head's bytes: the checkout's
+    ``assets/default_head.npz`` (or its rebuilt copy in the cache, :func:`~holo_viewer.flame.default_head.
+    default_head_path`) or a copy of it anywhere, recognised by its sha256 rather than its path; a patient's
+    head in the same format has other bytes (its gains come from its ``patient.json``)."""
     src = getattr(model, "source", None)
     if not getattr(model, "is_default_head", False) or not src:
         return False
@@ -377,10 +380,24 @@ def _is_shipped_default_head(model: Any) -> bool:
     from .default_head import ASSET_NAME, default_head_path
 
     try:
-        own = Path(src).resolve()
-        return own in (default_head_path(build_if_missing=False).resolve(), (cache_dir() / ASSET_NAME).resolve())
+        own = _file_digest(Path(src))
+        return any(p.is_file() and _file_digest(p) == own
+                   for p in (default_head_path(build_if_missing=False), cache_dir() / ASSET_NAME))
     except (OSError, TypeError, ValueError):
         return False
+
+
+_DIGESTS: dict = {}  # (path, size, mtime) -> sha256 (cache.keep_recent)
+
+
+def _file_digest(path: Path) -> str:
+    """A file's sha256, kept per process while its size and modification time stay (a 6 MB head: 4 ms)."""
+    from ..cache import keep_recent
+    from ..fileio import file_sha256
+
+    st = path.stat()
+    key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
+    return _DIGESTS[key] if key in _DIGESTS else keep_recent(_DIGESTS, key, file_sha256(path), 16)
 
 
 # --------------------------------------------------------------------- identity normalisation of pain
