@@ -206,7 +206,10 @@ def test_compiled_warp_writes_the_numba_kernels_bytes(cams, monkeypatch, kernel)
                   rng.uniform(0.3, 1.2, size=(sources.size, H, W)).astype(np.float32)):
         images = rng.uniform(size=(sources.size, H, W, 3)).astype(np.float32)
         images[:, :, : W // 5] = 0.0  # background at the left: columns skipped
-        for pixels in (None, vs.sampled_columns(rng.uniform(size=(V, H, W)) < 0.4)):
+        # every column; a dense list (16 listed columns span < 32: the depth row's first read by a permute, the
+        # image row's from the 32-texel window); a sparse one (gathers)
+        for pixels in (None, vs.sampled_columns(rng.uniform(size=(V, H, W)) < 0.8),
+                       vs.sampled_columns(rng.uniform(size=(V, H, W)) < 0.4)):
             out = {}
             for k in ("numba", kernel):
                 monkeypatch.setattr(vs, "WARP_KERNEL", k)
@@ -214,6 +217,82 @@ def test_compiled_warp_writes_the_numba_kernels_bytes(cams, monkeypatch, kernel)
                 vs.warp_views(images, wmaps, sources, rig, quilt=out[k], tiles=tiles, pixels=pixels)
             np.testing.assert_array_equal(out[kernel], out["numba"])
             assert (out["numba"] != 7).mean() > 0.3
+
+#: the Portrait's texel-to-subpixel ratio at full tiles (3.66 native pixels a texel each way) on SMALL's tiles
+NATIVE_PANEL = dataclasses.replace(SMALL, screen_w=384, screen_h=512)
+
+
+def _native_case(cams, panel=NATIVE_PANEL):
+    from holo_viewer.display.lenticular import Interleaver
+    from holo_viewer.display.quilt import tile_slices
+    from holo_viewer.pipeline.live import read_pixels
+
+    V = len(cams)
+    il = Interleaver(panel, (840, 840, 3), cols=8, rows=6, n_views=V)
+    tiles = np.array([[s.start for s in tile_slices(840, 840, 8, 6, k)] for k in range(V)])
+    sampled = vs.sampled_columns(read_pixels(il, panel, V))
+    return il, tiles, sampled, vs.native_targets(il.gather_indices()[0], tiles, sampled, il.quilt_shape, il.shape)
+
+
+@pytest.mark.parametrize("kernel", ["auto", "cpp-scalar"])
+def test_warp_into_native_is_the_quilt_warp_interleaved(cams, monkeypatch, kernel):
+    """warp_views(native=) (the warp straight into the native subpixels, one channel each, the sources' from
+    their renders) gives the bytes of the reference: the sources' tiles (to_uint8), the float32 warp into the
+    quilt's read texels, the nearest interleave. Bit for bit, on random images (values outside [0, 1] and
+    exact halves included), smooth and rough depths, view steps 5 and 6, a background colour per channel;
+    every subpixel is written (the native starts at 7)."""
+    from holo_viewer.display.native import views_to_native
+
+    if not vs.native_warp_available():
+        pytest.skip("the C++ extension holo_viewer.render._splat_cpp (with warp_native) is not built")
+    monkeypatch.setattr(vs, "WARP_KERNEL", kernel)
+    rig = vs.rig_of(cams)
+    V, H, W = len(cams), cams.height, cams.width
+    il, tiles, sampled, targets = _native_case(cams)
+    assert targets is not None and targets.codes.size == sampled.columns.size
+    rng = np.random.default_rng(41)
+    yy, xx = np.mgrid[0:H, 0:W]
+    smooth = (0.7 + 0.25 * np.sin(xx / 17.0) * np.cos(yy / 23.0)).astype(np.float32)
+    for step, rough, bg in ((6, False, (0.0, 0.0, 0.0)), (5, True, (0.2, 0.5, 1.0))):
+        sources = vs.source_views(V, step)
+        wmaps = (rng.uniform(0.3, 1.2, size=(sources.size, H, W)) if rough else
+                 np.stack([smooth + 0.01 * i for i in range(sources.size)])).astype(np.float32)
+        images = (rng.uniform(size=(sources.size, H, W, 3)) * 1.1 - 0.05).astype(np.float32)
+        images[:, :, : W // 5] = bg  # background at the left: columns skipped
+        images[0, 0, 30:33, 0] = [0.5 / 255, 1.5 / 255, 2.5 / 255]  # to_uint8 rounds halves to even
+        quilt = np.zeros(il.quilt_shape, np.uint8)
+        views_to_native(images, (8, 6), quilt=quilt, tiles=sources)
+        vs.warp_views(images, wmaps, sources, rig, quilt=quilt, tiles=tiles, pixels=sampled, background=bg)
+        ref = il(quilt)
+        native = np.full(il.shape, 7, np.uint8)
+        assert vs.warp_views(images, wmaps, sources, rig, pixels=sampled, background=bg, native=native,
+                             targets=targets) is native
+        np.testing.assert_array_equal(native, ref)
+        assert len(np.unique(ref)) > 200
+    with pytest.raises(InputError, match="targets"):  # codes of another table
+        vs.warp_views(images, wmaps, sources, rig, pixels=vs.sampled_columns(np.ones((V, H, W), bool)),
+                      native=native, targets=targets)
+    with pytest.raises(InputError, match="native"):
+        vs.warp_views(images, wmaps, sources, rig, pixels=sampled, native=native[:, :-1], targets=targets)
+
+
+def test_native_targets_only_where_the_codes_fit(cams):
+    """native_targets lists each read texel's one or two subpixels; a layout where a texel is read by more
+    (SMALL's full-size screen: ~15 native pixels a texel each way) gets None, so the frames keep the quilt
+    and the interleave (test_all_views_with_synthesis_against_every_view runs that path)."""
+    il, tiles, sampled, targets = _native_case(cams)
+    flat = np.full(il.shape, 0, np.uint8).reshape(-1)
+    offsets, columns = sampled
+    V, H, W = sampled.shape
+    k_y = np.repeat(np.arange(V * H), np.diff(offsets))
+    for b in (targets.codes & 0xFF, targets.codes >> 8):  # every subpixel named by exactly one texel
+        np.add.at(flat, targets.rowoff[k_y % H] + targets.coloff[columns] + targets.lut[b], 1)
+    lone = (targets.codes & 0xFF) == (targets.codes >> 8)
+    np.subtract.at(flat, (targets.rowoff[k_y % H] + targets.coloff[columns] + targets.lut[targets.codes & 0xFF])[lone],
+                   1)
+    assert (flat == 1).all()
+    assert _native_case(cams, SMALL)[3] is None
+
 
 def test_zbuffer_depth_of_an_opaque_plane(cams):
     z_plane = 0.02  # world z of the plane (the cameras look down -z from ~1.6 m)

@@ -8,7 +8,8 @@
   column update leaves the native image equal to a full interleave of the updated quilt. Exact.
 * A spy on the function, run through every caller (the pipeline's quilt and native stages, the GUI's
   exports, the live frames of every mode, the device path, quilt-to-native and show's quilt files),
-  sees each of them call it.
+  sees each of them call it; synthesized frames only with ``warp_native`` off (on, the default, the warp
+  writes the native image itself: the same bytes, checked here and in tests/test_view_synthesis.py).
 """
 
 from __future__ import annotations
@@ -150,7 +151,13 @@ def test_every_caller_goes_through_the_one_function(spy, monkeypatch, tmp_path):
     assert ran(lambda: exact.frame(g, mode="full_quilt")) == [("views", True)]
     assert ran(lambda: exact.frame(g, viewer, "tracked")) == [("columns", True)]
     synth = NativeFrameRenderer(SMALL, cams, NativeFrameConfig(view_step=3))
+    synth.warp_native = False  # the reference of synthesized frames: the sources' tiles, the warp, the interleave
     assert ran(lambda: synth.frame(g, mode="all_views")) == [("tiles", False), ("quilt->native", True)]
+    ref = synth.native.copy()
+    synth.warp_native = True  # the default: the warp straight into the native image (the same bytes), no chain
+    assert ran(lambda: synth.frame(g, mode="all_views")) == ([] if synth._targets else
+                                                             [("tiles", False), ("quilt->native", True)])
+    np.testing.assert_array_equal(synth.native, ref)
     from holo_viewer.display import slices as slices_mod
 
     # the slices' own scatter is no views -> native chain (per-eye images into the subpixels): stubbed out

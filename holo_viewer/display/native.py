@@ -28,7 +28,10 @@ Rounding is :func:`~holo_viewer.images.to_uint8`'s everywhere (``rint(255 x)``, 
 paths give the same bytes (tests/test_views_to_native.py checks each form against outputs saved
 before the callers were moved onto this function, and spies on every caller). The per-eye scatters of
 tracked frames (:mod:`holo_viewer.display.slices`, :func:`holo_viewer.display.eyes.scatter_eye_images`)
-are not this chain: they write subpixels from per-eye images, not from views.
+are not this chain: they write subpixels from per-eye images, not from views. Nor are synthesized frames
+on the CPU (``NativeFrameRenderer.warp_native``, the default): the warp writes each native subpixel itself
+(:func:`holo_viewer.render.view_synthesis.warp_views` ``native=``), the bytes of this chain (tested);
+with ``warp_native`` off they take the chain.
 """
 
 from __future__ import annotations

@@ -42,7 +42,7 @@ from ..camera import Cameras
 from ..errors import InputError
 
 __all__ = ["Rig", "rig_of", "source_views", "inverse_depth", "warp_views", "bracket", "sampled_columns",
-           "SampledColumns",
+           "SampledColumns", "NativeTargets", "native_targets", "native_warp_available",
            "inverse_depth_torch", "warp_views_torch", "auto_cell", "zbuffer_depth"]
 
 
@@ -614,6 +614,90 @@ def sampled_columns(pixels: np.ndarray) -> SampledColumns:
     return SampledColumns(offsets, columns, (V, H, W))
 
 
+class NativeTargets:
+    """Where each texel the interleave reads lands in the native image (:func:`native_targets`), for
+    :func:`warp_views`' ``native``: per listed texel of a :class:`SampledColumns` (in its order) a code of its
+    one or two native subpixels, ``codes`` (n,) uint16 (low and high byte; a texel read once names its byte
+    twice), byte b = (p << 2) | channel addressing ``rowoff[y] + coloff[x] + lut[b]`` of the flat native image
+    for texel (k, y, x); ``shape`` the native image's, ``sampled`` the table the codes follow."""
+
+    def __init__(self, sampled: SampledColumns, codes: np.ndarray, rowoff: np.ndarray, coloff: np.ndarray,
+                 lut: np.ndarray, shape: tuple[int, int, int]) -> None:
+        self.sampled, self.codes, self.rowoff, self.coloff, self.lut = sampled, codes, rowoff, coloff, lut
+        self.shape = tuple(int(s) for s in shape)
+
+
+def native_targets(idx0: np.ndarray, tiles: np.ndarray, sampled: SampledColumns, quilt_shape: tuple,
+                   native_shape: tuple) -> NativeTargets | None:
+    """The native subpixels of the texels in ``sampled`` for a nearest interleave whose flat gather is
+    ``native.ravel()[s] = quilt.ravel()[idx0[s]]`` (``Interleaver.gather_indices()[0]``), the views' tiles at
+    ``tiles`` (V, 2) (row, column) of the quilt; None where the layout does not fit the codes: a subpixel
+    reading a texel outside every view's tile or not in ``sampled``, a texel read by more than two subpixels,
+    a view's image row (column) read by native rows (columns) that depend on the view, or more than 64 native
+    pixels per texel. Every native subpixel is then written by ``warp_views(native=)``."""
+    idx0 = np.asarray(idx0)
+    tiles = np.asarray(tiles, dtype=np.int64)
+    Hq, Wq = int(quilt_shape[0]), int(quilt_shape[1])
+    Hn, Wn = int(native_shape[0]), int(native_shape[1])
+    V, H, W = sampled.shape
+    if idx0.size != Hn * Wn * 3 or tiles.shape != (V, 2):
+        return None
+    q = idx0.astype(np.int32)
+    ch = np.tile(np.arange(3, dtype=np.int32), Hn * Wn)
+    q -= ch
+    if q.min(initial=0) < 0 or q.max(initial=0) >= Hq * Wq * 3 or (q % 3).any():
+        return None  # the interleave reads each subpixel's own channel
+    q //= 3
+    view_of = np.full((Hq, Wq), -1, dtype=np.int16)
+    for k, (r0, c0) in enumerate(tiles):
+        view_of[r0:r0 + H, c0:c0 + W] = k
+    k = view_of.reshape(-1)[q]
+    if k.min() < 0:
+        return None
+    qr = q // np.int32(Wq)
+    y = qr - tiles[:, 0].astype(np.int32)[k]
+    x = q - qr * np.int32(Wq) - tiles[:, 1].astype(np.int32)[k]
+    yrow = y.reshape(Hn, Wn * 3)
+    xcol = x.reshape(Hn, Wn, 3)
+    if not (yrow == yrow[:, :1]).all() or not (xcol == xcol[:1, :, :1]).all():
+        return None
+    y_of, x_of = yrow[:, 0], xcol[0, :, 0]  # the image row of each native row, column of each native column
+    rbase = np.full(H, Hn, dtype=np.int64)
+    np.minimum.at(rbase, y_of, np.arange(Hn))
+    cbase = np.full(W, Wn, dtype=np.int64)
+    np.minimum.at(cbase, x_of, np.arange(Wn))
+    ry, rx = np.arange(Hn) - rbase[y_of], np.arange(Wn) - cbase[x_of]
+    rbase[rbase == Hn] = 0  # rows / columns no subpixel reads (nothing listed there)
+    cbase[cbase == Wn] = 0
+    RX = int(rx.max()) + 1
+    if (int(ry.max()) + 1) * RX > 64:
+        return None
+    offsets, columns = sampled
+    n = columns.size
+    tid = np.full(V * H * W, -1, dtype=np.int32)  # texel -> its index in the table
+    tid[np.repeat(np.arange(V * H, dtype=np.int64), np.diff(offsets)) * W + columns] = np.arange(n, dtype=np.int32)
+    tid = tid[(k.astype(np.int32) * np.int32(H) + y) * np.int32(W) + x] if V * H * W < 2 ** 31 else \
+        tid[(k.astype(np.int64) * H + y) * W + x]
+    if tid.min(initial=0) < 0:
+        return None
+    count = np.bincount(tid, minlength=n)
+    if count.max(initial=0) > 2 or count.min(initial=1) < 1:
+        return None
+    b = ((((ry[:, None, None] * RX + rx[None, :, None]) << 2) | np.arange(3)).astype(np.uint16)).reshape(-1)
+    lo = np.empty(n, dtype=np.uint16)
+    lo[tid] = b  # one of each texel's subpixels (each has one or two), the other below
+    other = b != lo[tid]
+    hi = lo.copy()
+    hi[tid[other]] = b[other]
+    codes = lo | (hi << 8)
+    lut = np.zeros(256, dtype=np.int32)
+    p = np.arange((int(ry.max()) + 1) * RX)
+    for c in range(3):
+        lut[(p << 2) | c] = (p // RX) * Wn * 3 + (p % RX) * 3 + c
+    return NativeTargets(sampled, codes, (rbase * Wn * 3).astype(np.int64), (cbase * 3).astype(np.int32), lut,
+                         (Hn, Wn, 3))
+
+
 #: _warp_plan's last plans: (V, S) -> ((fx, tx copy, cx copy, sources copy), (jobs, slot, d))
 _PLANS: dict[tuple[int, int], tuple] = {}
 
@@ -648,7 +732,8 @@ def _warp_plan(rig: Rig, sources: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
 def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: Rig, *, iters: int = 1,
                out: np.ndarray | None = None, quilt: np.ndarray | None = None,
                tiles: np.ndarray | None = None, pixels: tuple[np.ndarray, np.ndarray] | None = None,
-               background: tuple[float, float, float] = (0.0, 0.0, 0.0), exact: bool = False) -> np.ndarray:
+               background: tuple[float, float, float] = (0.0, 0.0, 0.0), exact: bool = False,
+               native: np.ndarray | None = None, targets: NativeTargets | None = None) -> np.ndarray:
     """Synthesize every view of the rig not in ``sources`` from its nearest rendered views on
     either side.
 
@@ -683,6 +768,14 @@ def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: 
         1 per channel of it). ``out`` is always written by the float64 kernel. The float32 one runs in
         C++ where the extension is built (``_splat_cpp.warp_u8``: the numba kernel's bytes, tested;
         :data:`WARP_KERNEL`).
+    native, targets : numpy.ndarray or None
+        Instead of ``out`` / ``quilt``: the (Hn, Wn, 3) uint8 native image of a nearest interleave, every
+        subpixel (``targets``: :func:`native_targets` of that interleave, ``pixels`` its ``sampled``): each
+        synthesized view's subpixel gets the byte the float32 warp writes into the quilt for its texel's
+        channel, each source view's the byte ``to_uint8`` writes into its tile, so the image equals tiling the
+        sources, warping into the quilt and interleaving it, bit for bit (tested), with neither the quilt nor
+        the interleave's gather (the source renders are not checked for NaN / inf there). Only the compiled
+        kernel (:func:`native_warp_available`; ``_splat_cpp.warp_native``).
 
     Returns
     -------
@@ -717,6 +810,9 @@ def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: 
     spans = np.empty((sources.size, H, 2), dtype=np.int64)
     wr = np.empty((sources.size, H, 2), dtype=np.float64)
     _row_extents(images, wmaps, bg, spans, wr)
+    if native is not None:
+        _warp_native(images, wmaps, sources, slot, jobs, d, int(iters), pixels, spans, wr, bg, native, targets)
+        return native
     if quilt is not None:
         if tiles is None or quilt.dtype != np.uint8:
             raise InputError("quilt: expected a uint8 quilt together with tiles (V, 2) row/column offsets")
@@ -745,6 +841,34 @@ def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: 
     _warp(images, wmaps, slot, jobs, d, int(iters), offsets, columns, spans, wr, bg, out, np.empty((1, 1, 3), np.uint8),
           np.zeros(0, np.int64), np.zeros(0, np.int64), False)
     return out
+
+
+
+def native_warp_available() -> bool:
+    """True where the compiled kernel of ``warp_views(native=)`` is built (``_splat_cpp.warp_native``)."""
+    cpp = _warp_cpp()
+    return cpp is not None and hasattr(cpp, "warp_native")
+
+
+def _warp_native(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, slot: np.ndarray, jobs: np.ndarray,
+                 d: np.ndarray, iters: int, pixels: Any, spans: np.ndarray, wr: np.ndarray, bg: np.ndarray,
+                 native: np.ndarray, targets: NativeTargets | None) -> None:
+    """warp_views(native=): the checks, then ``_splat_cpp.warp_native`` (the index bounds it checks itself)."""
+    V, H, W = slot.size, images.shape[1], images.shape[2]
+    if not isinstance(targets, NativeTargets) or targets.sampled is not pixels or pixels.shape != (V, H, W):
+        raise InputError(f"targets: expected native_targets of the pixels given (a ({V}, {H}, {W}) SampledColumns)")
+    if native.dtype != np.uint8 or tuple(native.shape) != targets.shape or not native.flags.c_contiguous:
+        raise InputError(f"native: expected a C-contiguous uint8 {targets.shape} array, found {native.dtype} "
+                         f"{native.shape}")
+    cpp = _warp_cpp() if native_warp_available() else None
+    if cpp is None:
+        raise InputError("native: warp_views(native=) needs the compiled extension (holo_viewer.render._splat_cpp)")
+    job_of = np.full(V, -1, dtype=np.int64)
+    job_of[jobs[:, 0]] = np.arange(len(jobs))
+    cpp.warp_native(np.ascontiguousarray(images), np.ascontiguousarray(wmaps), slot,
+                    np.ascontiguousarray(jobs, dtype=np.int64), d, iters, pixels.offsets, pixels.columns,
+                    targets.codes, spans, wr, bg, job_of, targets.rowoff, targets.coloff, targets.lut, native,
+                    sources.size, V, len(jobs), H, W, int(numba.get_num_threads()), 1 if WARP_KERNEL == "cpp-scalar" else 0)
 
 
 # ---- torch twins (any device): the GPU path keeps its views on the device -----------------------

@@ -1673,7 +1673,7 @@ PyObject* has_avx512(PyObject*, PyObject*) { return PyBool_FromLong(cpu_has_avx5
 // The numba kernel's expressions in its order, with its fused multiply-adds where LLVM fuses them
 // (numba fastmath "contract": each a * b + c written here as one fma; the build has -ffp-contract=off so
 // nothing else fuses), 16 columns at a time with AVX-512 (numba's loop is scalar): the depth row's and
-// the image row's values read by permutes from a window of 32 depths / 21 texels where the 16 columns'
+// the image row's values read by permutes from a window of 32 depths / 32 texels where the 16 columns'
 // reads fit in it (gathers, slow on this CPU, only where they do not). The template parameters pick
 // which product of a two-product sum is fused (IA: the column iteration's interpolation, BA: the
 // blend's first two taps); <true, true> is numba's (tests/test_view_synthesis.py: bit for bit).
@@ -1742,9 +1742,17 @@ HV_WARP_SCALAR(HV_TARGET_AVX512, _v)
 #endif
 
 #if HV_HAVE_AVX2_PATH
-// wrow[x] of 16 listed columns: one load where they are consecutive, else a gather
-HV_TARGET_AVX512 inline __m512 warp_load16(const float* row, const int32_t* x, __m512i xv) {
-    return x[15] - x[0] == 15 ? _mm512_loadu_ps(row + x[0]) : _mm512_i32gather_ps(xv, row, 4);
+// wrow[x] of 16 listed columns (increasing) of a row of W: one load where they are consecutive, a permute of
+// the 32 values from column min(x[0], W - 32) where they span fewer than 32 (the interleave's listed columns
+// at full tiles: every group of a live frame), else a gather
+HV_TARGET_AVX512 inline __m512 warp_load16(const float* row, const int32_t* x, __m512i xv, int W) {
+    if (x[15] - x[0] == 15) return _mm512_loadu_ps(row + x[0]);
+    if (x[15] - x[0] < 32 && W >= 32) {
+        const int b = std::min(x[0], W - 32);
+        return _mm512_permutex2var_ps(_mm512_loadu_ps(row + b), _mm512_sub_epi32(xv, _mm512_set1_epi32(b)),
+                                      _mm512_loadu_ps(row + b + 16));
+    }
+    return _mm512_i32gather_ps(xv, row, 4);
 }
 
 // (the window's first column b, whether columns p and p + 1 of every lane lie in the n columns b .. b + n - 1)
@@ -1765,7 +1773,7 @@ HV_TARGET_AVX512 void warp_columns16(const float* wrow, const int32_t* xl, int n
         const __m512i x = _mm512_loadu_si512(xl + i);
         const __m512 xf = _mm512_cvtepi32_ps(x);
         const __m512 base = _mm512_add_ps(xf, vd0);
-        __m512 xs = _mm512_fmadd_ps(vd1, warp_load16(wrow, xl + i, x), base);
+        __m512 xs = _mm512_fmadd_ps(vd1, warp_load16(wrow, xl + i, x, W), base);
         for (int it = 0;; ++it) {
             const __m512 c = _mm512_min_ps(_mm512_max_ps(xs, lo), hi);
             __m512i p = _mm512_cvttps_epi32(_mm512_roundscale_ps(c, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC));
@@ -1794,11 +1802,39 @@ HV_TARGET_AVX512 void warp_columns16(const float* wrow, const int32_t* xl, int n
     warp_columns_scalar_v<IA>(wrow, xl + i, n - i, d0, d1, iters, W, i0 + i, f + i);
 }
 
-// element t of the 64 floats r0 | r1 | r2 | r3 for each lane (t < 64)
-HV_TARGET_AVX512 inline __m512 warp_pick64(__m512 r0, __m512 r1, __m512 r2, __m512 r3, __m512i t) {
-    const __m512 lo = _mm512_permutex2var_ps(r0, t, r1);  // index bits 0-4
-    const __m512 hi = _mm512_permutex2var_ps(r2, t, r3);
-    return _mm512_mask_mov_ps(lo, _mm512_test_epi32_mask(t, _mm512_set1_epi32(32)), hi);
+// The image row's texels p and p + 1 of 16 lanes (an (W, 3) float row) in six registers r0..r5 where they fit
+// in a window of 32 texels (96 floats; every group of a live frame at full tiles, where 21 texels fit ~0.5 %)
+// and W >= 32: returns true and t = 3 (p - window start); else false and t = 3 p (gathers). Channel c of
+// texel p is then tap t + c, of p + 1 tap t + 3 + c.
+struct WarpWindow {
+    __m512 r0, r1, r2, r3, r4, r5;
+    __m512i t;
+    bool win;
+};
+
+HV_TARGET_AVX512 inline void warp_window_rgb(const float* row, __m512i p, int W, WarpWindow& w) {
+    int b;
+    const __m512i three = _mm512_set1_epi32(3);
+    w.win = warp_window(p, W, 32, b);
+    if (w.win) {
+        const float* s = row + 3 * int64_t(b);
+        w.r0 = _mm512_loadu_ps(s); w.r1 = _mm512_loadu_ps(s + 16); w.r2 = _mm512_loadu_ps(s + 32);
+        w.r3 = _mm512_loadu_ps(s + 48); w.r4 = _mm512_loadu_ps(s + 64); w.r5 = _mm512_loadu_ps(s + 80);
+        w.t = _mm512_mullo_epi32(_mm512_sub_epi32(p, _mm512_set1_epi32(b)), three);
+    } else {
+        w.r0 = w.r1 = w.r2 = w.r3 = w.r4 = w.r5 = _mm512_setzero_ps();
+        w.t = _mm512_mullo_epi32(p, three);
+    }
+}
+
+// tap t of every lane (t = w.t + offset)
+HV_TARGET_AVX512 inline __m512 warp_tap(const WarpWindow& w, const float* row, __m512i t) {
+    if (!w.win) return _mm512_i32gather_ps(t, row, 4);
+    const __m512 lo = _mm512_permutex2var_ps(w.r0, t, w.r1);  // index bits 0-4
+    const __m512 mid = _mm512_permutex2var_ps(w.r2, t, w.r3);
+    const __m512 hi = _mm512_permutex2var_ps(w.r4, t, w.r5);
+    const __m512 m = _mm512_mask_mov_ps(lo, _mm512_cmpge_epi32_mask(t, _mm512_set1_epi32(32)), mid);
+    return _mm512_mask_mov_ps(m, _mm512_cmpge_epi32_mask(t, _mm512_set1_epi32(64)), hi);
 }
 
 template <bool BA>
@@ -1815,30 +1851,17 @@ HV_TARGET_AVX512 void warp_blend16(const float* ia, const float* ib, const int32
         const __m512 ca0 = _mm512_mul_ps(vwa, _mm512_sub_ps(one, fa_)), ca1 = _mm512_mul_ps(vwa, fa_);
         const __m512 cb0 = _mm512_mul_ps(vwb, _mm512_sub_ps(one, fb_)), cb1 = _mm512_mul_ps(vwb, fb_);
         const __m512i pva = _mm512_loadu_si512(pa + i), pvb = _mm512_loadu_si512(pb + i);
-        int ba, bb;
-        // 21 texels (64 floats) from texel b hold every lane's p and p + 1: permutes, else gathers
-        const bool wina = warp_window(pva, W, 21, ba), winb = warp_window(pvb, W, 21, bb);
-        const __m512i ta = _mm512_mullo_epi32(_mm512_sub_epi32(pva, _mm512_set1_epi32(wina ? ba : 0)), three);
-        const __m512i tb = _mm512_mullo_epi32(_mm512_sub_epi32(pvb, _mm512_set1_epi32(winb ? bb : 0)), three);
-        __m512 a0{}, a1{}, a2{}, a3{}, b0{}, b1{}, b2{}, b3{};
-        if (wina) {  // floats 3 b .. 3 b + 63 (3 W - 1 at most: b <= W - 21 and 3 W >= 3 b + 63)
-            const float* w = ia + 3 * int64_t(ba);
-            a0 = _mm512_loadu_ps(w); a1 = _mm512_loadu_ps(w + 16); a2 = _mm512_loadu_ps(w + 32);
-            a3 = _mm512_loadu_ps(w + 48);
-        }
-        if (winb) {
-            const float* w = ib + 3 * int64_t(bb);
-            b0 = _mm512_loadu_ps(w); b1 = _mm512_loadu_ps(w + 16); b2 = _mm512_loadu_ps(w + 32);
-            b3 = _mm512_loadu_ps(w + 48);
-        }
+        // the texels p and p + 1 of every lane from a 32-texel window in registers, else gathers
+        WarpWindow wa_, wb_;
+        warp_window_rgb(ia, pva, W, wa_);
+        warp_window_rgb(ib, pvb, W, wb_);
+        const __m512i ta = wa_.t, tb = wb_.t;
         __m512i res[3];
         for (int c = 0; c < 3; ++c) {
             const __m512i tac = _mm512_add_epi32(ta, _mm512_set1_epi32(c)), tbc = _mm512_add_epi32(tb, _mm512_set1_epi32(c));
             const __m512i tac3 = _mm512_add_epi32(tac, three), tbc3 = _mm512_add_epi32(tbc, three);
-            const __m512 A = wina ? warp_pick64(a0, a1, a2, a3, tac) : _mm512_i32gather_ps(tac, ia, 4);
-            const __m512 B = wina ? warp_pick64(a0, a1, a2, a3, tac3) : _mm512_i32gather_ps(tac3, ia, 4);
-            const __m512 C = winb ? warp_pick64(b0, b1, b2, b3, tbc) : _mm512_i32gather_ps(tbc, ib, 4);
-            const __m512 D = winb ? warp_pick64(b0, b1, b2, b3, tbc3) : _mm512_i32gather_ps(tbc3, ib, 4);
+            const __m512 A = warp_tap(wa_, ia, tac), B = warp_tap(wa_, ia, tac3);
+            const __m512 C = warp_tap(wb_, ib, tbc), D = warp_tap(wb_, ib, tbc3);
             __m512 v = BA ? _mm512_fmadd_ps(ca0, A, _mm512_mul_ps(ca1, B)) : _mm512_fmadd_ps(ca1, B, _mm512_mul_ps(ca0, A));
             v = _mm512_fmadd_ps(cb0, C, v);
             v = _mm512_fmadd_ps(cb1, D, v);
@@ -1901,9 +1924,10 @@ void warp_rows(const WarpJob& J, int j, int y0, int y1, bool wide, std::vector<i
         warp_live_range(J.spans + (sa * H + y) * 2, J.wr + (sa * H + y) * 2, dj[0], dj[1], lo, hi);
         warp_live_range(J.spans + (sb * H + y) * 2, J.wr + (sb * H + y) * 2, dj[2], dj[3], lo, hi);
         int64_t n0 = nx, n1 = nx;
-        if (hi >= lo) {
-            n0 = std::lower_bound(xall, xall + nx, lo, [](int32_t v, int64_t t) { return int64_t(v) < t; }) - xall;
-            n1 = std::upper_bound(xall, xall + nx, hi, [](int64_t t, int32_t v) { return t < int64_t(v); }) - xall;
+        if (hi >= lo) {  // the columns before lo and after hi: a scan over them (they are filled next) instead
+            n0 = 0;      // of binary searches, whose dependent reads of a row not yet in cache took ~2 ms a frame
+            while (n0 < nx && xall[n0] < lo) ++n0;
+            while (n1 > n0 && xall[n1 - 1] > hi) --n1;
         }
         uint8_t* orow = J.out + (J.row0[j] + y) * J.Wq * 3;
         const int64_t c0 = J.col0[j];
@@ -2037,6 +2061,283 @@ PyObject* warp_u8(PyObject*, PyObject* args) {
 }
 
 
+// ---- view synthesis straight into the native image (warp_native) ----------------------------------------
+// The interleave (nearest mode) shows each native subpixel one channel of one quilt texel; with view synthesis
+// the warp wrote the quilt's read texels (3 channels each) and the interleave then gathered one byte per
+// subpixel. warp_native writes the subpixels themselves: per listed texel (k, y, x) a code of its one or two
+// destination subpixels (view_synthesis.native_targets: byte b = (p << 2) | channel, the subpixel at
+// rowoff[y] + coloff[x] + lut[b]; a texel read once repeats its byte), the channel of each computed with
+// warp_u8's expressions in its order (so the same byte the quilt held and the interleave copied), the source
+// views' subpixels with to_uint8's arithmetic from their renders (their tiles' bytes). Work items are bands of
+// texel rows with every view: a band's native rows are written by one thread.
+struct NativeJob {
+    WarpJob w;                       // out, row0, col0, Wq unused
+    const int64_t* job_of;           // (V,) the warp job of view k, or -1 (a source)
+    const uint16_t* codes;           // parallel to columns
+    const int64_t* rowoff;           // (H,) native offset of each texel row's first subpixel row
+    const int32_t* coloff;           // (W,)
+    const int32_t* lut;              // (256,)
+    uint8_t* native;
+    int V;
+};
+
+// one destination byte b of a texel: the synthesized value of its channel (scalar; warp_u8's expressions)
+template <bool BA>
+inline uint8_t warp_native_value(float ca0, float ca1, float cb0, float cb1, const float* a, const float* b, int c) {
+    return warp_blend_scalar<BA>(ca0, ca1, cb0, cb1, a[c], a[3 + c], b[c], b[3 + c]);
+}
+
+#if HV_HAVE_AVX2_PATH
+// 16 texels' two destination bytes: the blend of the channel each names (codes' low and high byte)
+template <bool BA>
+HV_TARGET_AVX512 void warp_blend16_native(const float* ia, const float* ib, const int32_t* pa, const int32_t* pb,
+                                          const float* fa, const float* fb, float wa, float wb, const uint16_t* codes,
+                                          int n, int W, uint8_t* v0, uint8_t* v1) {
+    const __m512 vwa = _mm512_set1_ps(wa), vwb = _mm512_set1_ps(wb), one = _mm512_set1_ps(1.0f);
+    const __m512 k255 = _mm512_set1_ps(255.0f), half = _mm512_set1_ps(0.5f);
+    const __m512 lo = _mm512_set1_ps(-1.0f), hi = _mm512_set1_ps(256.0f);
+    const __m512i izero = _mm512_setzero_si512(), i255 = _mm512_set1_epi32(255), three = _mm512_set1_epi32(3);
+    const __m512i ch_mask = _mm512_set1_epi32(3);
+    int i = 0;
+    for (; i + 16 <= n; i += 16) {
+        const __m512 fa_ = _mm512_loadu_ps(fa + i), fb_ = _mm512_loadu_ps(fb + i);
+        const __m512 ca0 = _mm512_mul_ps(vwa, _mm512_sub_ps(one, fa_)), ca1 = _mm512_mul_ps(vwa, fa_);
+        const __m512 cb0 = _mm512_mul_ps(vwb, _mm512_sub_ps(one, fb_)), cb1 = _mm512_mul_ps(vwb, fb_);
+        const __m512i pva = _mm512_loadu_si512(pa + i), pvb = _mm512_loadu_si512(pb + i);
+        const __m512i code = _mm512_cvtepu16_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(codes + i)));
+        const __m512i chs[2] = {_mm512_and_si512(code, ch_mask),
+                                _mm512_and_si512(_mm512_srli_epi32(code, 8), ch_mask)};
+        WarpWindow wa_, wb_;
+        warp_window_rgb(ia, pva, W, wa_);
+        warp_window_rgb(ib, pvb, W, wb_);
+        const __m512i ta = wa_.t, tb = wb_.t;
+        for (int d = 0; d < 2; ++d) {
+            const __m512i tac = _mm512_add_epi32(ta, chs[d]), tbc = _mm512_add_epi32(tb, chs[d]);
+            const __m512i tac3 = _mm512_add_epi32(tac, three), tbc3 = _mm512_add_epi32(tbc, three);
+            const __m512 A = warp_tap(wa_, ia, tac), B = warp_tap(wa_, ia, tac3);
+            const __m512 C = warp_tap(wb_, ib, tbc), D = warp_tap(wb_, ib, tbc3);
+            __m512 v = BA ? _mm512_fmadd_ps(ca0, A, _mm512_mul_ps(ca1, B)) : _mm512_fmadd_ps(ca1, B, _mm512_mul_ps(ca0, A));
+            v = _mm512_fmadd_ps(cb0, C, v);
+            v = _mm512_fmadd_ps(cb1, D, v);
+            const __m512 s = _mm512_min_ps(_mm512_max_ps(_mm512_fmadd_ps(v, k255, half), lo), hi);
+            const __m512i r = _mm512_min_epi32(_mm512_max_epi32(_mm512_cvttps_epi32(s), izero), i255);
+            _mm_storeu_si128(reinterpret_cast<__m128i*>((d ? v1 : v0) + i), _mm512_cvtepi32_epi8(r));
+        }
+    }
+    for (; i < n; ++i) {
+        const float ca0 = wa * (1.0f - fa[i]), ca1 = wa * fa[i], cb0 = wb * (1.0f - fb[i]), cb1 = wb * fb[i];
+        const float* a = ia + 3 * pa[i];
+        const float* b = ib + 3 * pb[i];
+        v0[i] = warp_blend_scalar_v<BA>(ca0, ca1, cb0, cb1, a[codes[i] & 3], a[3 + (codes[i] & 3)],
+                                        b[codes[i] & 3], b[3 + (codes[i] & 3)]);
+        const int c1 = (codes[i] >> 8) & 3;
+        v1[i] = warp_blend_scalar_v<BA>(ca0, ca1, cb0, cb1, a[c1], a[3 + c1], b[c1], b[3 + c1]);
+    }
+}
+#endif
+
+template <bool IA, bool BA>
+void warp_native_rows(const NativeJob& N, int j, int y0, int y1, bool wide, std::vector<int32_t>& buf_i,
+                      std::vector<float>& buf_f, std::vector<uint8_t>& vals) {
+    const WarpJob& J = N.w;
+    const int H = J.H, W = J.W;
+    const int64_t k = J.jobs[3 * j], a = J.jobs[3 * j + 1], b = J.jobs[3 * j + 2];
+    const int64_t sa = J.slot[a], sb = J.slot[b];
+    const float wa = float(double(b - k) / double(b - a));
+    const float wb = 1.0f - wa;
+    const double* dj = J.d + 4 * j;
+    const float da0 = float(dj[0]), da1 = float(dj[1]), db0 = float(dj[2]), db1 = float(dj[3]);
+    int32_t *i0a = buf_i.data(), *i0b = buf_i.data() + W;
+    float *fa = buf_f.data(), *fb = buf_f.data() + W;
+    uint8_t *v0 = vals.data(), *v1 = vals.data() + W + 16;
+    const int32_t* __restrict lut = N.lut;
+    for (int y = y0; y < y1; ++y) {
+        const int64_t o0 = J.offsets[k * H + y], o1 = J.offsets[k * H + y + 1];
+        const int32_t* __restrict xall = J.columns + o0;
+        const uint16_t* __restrict call = N.codes + o0;
+        const int64_t nx = o1 - o0;
+        if (nx == 0) continue;
+        int64_t lo = W, hi = -1;
+        warp_live_range(J.spans + (sa * H + y) * 2, J.wr + (sa * H + y) * 2, dj[0], dj[1], lo, hi);
+        warp_live_range(J.spans + (sb * H + y) * 2, J.wr + (sb * H + y) * 2, dj[2], dj[3], lo, hi);
+        int64_t n0 = nx, n1 = nx;
+        if (hi >= lo) {  // the columns before lo and after hi: a scan over them (they are filled next) instead
+            n0 = 0;      // of binary searches, whose dependent reads of a row not yet in cache took ~2 ms a frame
+            while (n0 < nx && xall[n0] < lo) ++n0;
+            while (n1 > n0 && xall[n1 - 1] > hi) --n1;
+        }
+        // (byte stores may alias anything: the loops read their tables through local restrict pointers)
+        uint8_t* __restrict nrow = N.native + N.rowoff[y];
+        const int32_t* __restrict coloff = N.coloff;
+        const uint8_t bg[4] = {J.bg8[0], J.bg8[1], J.bg8[2], 0};
+        for (int64_t i = 0; i < n0; ++i) {  // columns outside [n0, n1): background
+            const int32_t base = coloff[xall[i]];
+            const int c0 = call[i] & 0xFF, c1 = call[i] >> 8;
+            nrow[base + lut[c0]] = bg[c0 & 3];
+            nrow[base + lut[c1]] = bg[c1 & 3];
+        }
+        for (int64_t i = n1; i < nx; ++i) {
+            const int32_t base = coloff[xall[i]];
+            const int c0 = call[i] & 0xFF, c1 = call[i] >> 8;
+            nrow[base + lut[c0]] = bg[c0 & 3];
+            nrow[base + lut[c1]] = bg[c1 & 3];
+        }
+        const int32_t* __restrict xl = xall + n0;
+        const uint16_t* __restrict cl = call + n0;
+        const int n = int(n1 - n0);
+        if (n <= 0) continue;
+        const float* wra = J.wmaps + (sa * H + y) * W;
+        const float* wrb = J.wmaps + (sb * H + y) * W;
+        const float* ia = J.images + (sa * H + y) * int64_t(W) * 3;
+        const float* ib = J.images + (sb * H + y) * int64_t(W) * 3;
+#if HV_HAVE_AVX2_PATH
+        if (wide) {
+            warp_columns16<IA>(wra, xl, n, da0, da1, J.iters, W, i0a, fa);
+            warp_columns16<IA>(wrb, xl, n, db0, db1, J.iters, W, i0b, fb);
+            warp_blend16_native<BA>(ia, ib, i0a, i0b, fa, fb, wa, wb, cl, n, W, v0, v1);
+        } else
+#endif
+        {
+            warp_columns_scalar<IA>(wra, xl, n, da0, da1, J.iters, W, i0a, fa);
+            warp_columns_scalar<IA>(wrb, xl, n, db0, db1, J.iters, W, i0b, fb);
+            for (int i = 0; i < n; ++i) {
+                const float ca0 = wa * (1.0f - fa[i]), ca1 = wa * fa[i], cb0 = wb * (1.0f - fb[i]), cb1 = wb * fb[i];
+                const float* pa = ia + 3 * i0a[i];
+                const float* pb = ib + 3 * i0b[i];
+                v0[i] = warp_native_value<BA>(ca0, ca1, cb0, cb1, pa, pb, cl[i] & 3);
+                v1[i] = warp_native_value<BA>(ca0, ca1, cb0, cb1, pa, pb, (cl[i] >> 8) & 3);
+            }
+        }
+        const uint8_t* __restrict r0 = v0;
+        const uint8_t* __restrict r1 = v1;
+        for (int i = 0; i < n; ++i) {  // a texel read once names its byte twice: the same value, twice
+            const int32_t base = coloff[xl[i]];
+            const int c = cl[i];
+            nrow[base + lut[c & 0xFF]] = r0[i];
+            nrow[base + lut[c >> 8]] = r1[i];
+        }
+    }
+}
+
+// holo_viewer.images.to_uint8 of one float32 value: rint(v * 255) (half to even), NaN -> 0, clipped to [0, 255]
+inline uint8_t native_to_uint8(float v) {
+    float s = std::nearbyint(v * 255.0f);
+    s = s > 0.0f ? s : 0.0f;
+    s = s < 255.0f ? s : 255.0f;
+    return uint8_t(s);
+}
+
+// the subpixels of source view k's rows y0 .. y1 - 1: to_uint8 of its render (the bytes of its quilt tile; the
+// rows are in cache, read by the warps of the views beside it)
+inline void native_source_rows(const NativeJob& N, int64_t k, int y0, int y1) {
+    const WarpJob& J = N.w;
+    const int H = J.H, W = J.W;
+    const int32_t* __restrict lut = N.lut;
+    const int32_t* __restrict coloff = N.coloff;
+    const int32_t* __restrict columns = J.columns;
+    const uint16_t* __restrict codes = N.codes;
+    for (int y = y0; y < y1; ++y) {
+        const int64_t o0 = J.offsets[k * H + y], o1 = J.offsets[k * H + y + 1];
+        const float* __restrict irow = J.images + (J.slot[k] * H + y) * int64_t(W) * 3;
+        uint8_t* __restrict nrow = N.native + N.rowoff[y];
+        for (int64_t i = o0; i < o1; ++i) {
+            const int x = columns[i], c = codes[i];
+            const int c0 = c & 0xFF, c1 = c >> 8;
+            const uint8_t a = native_to_uint8(irow[3 * x + (c0 & 3)]), b = native_to_uint8(irow[3 * x + (c1 & 3)]);
+            const int32_t base = coloff[x];
+            nrow[base + lut[c0]] = a;
+            nrow[base + lut[c1]] = b;
+        }
+    }
+}
+
+PyObject* warp_native(PyObject*, PyObject* args) {
+    Py_buffer images{}, wmaps{}, slot{}, jobs{}, d{}, offsets{}, columns{}, codes{}, spans{}, wr{}, bg{}, job_of{},
+        rowoff{}, coloff{}, lut{}, native{};
+    NativeJob N{};
+    WarpJob& J = N.w;
+    int S, n_threads, mode;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*iy*y*y*y*y*y*y*y*y*y*w*iiiiiii", &images, &wmaps, &slot, &jobs, &d,
+                          &J.iters, &offsets, &columns, &codes, &spans, &wr, &bg, &job_of, &rowoff, &coloff, &lut,
+                          &native, &S, &N.V, &J.T, &J.H, &J.W, &n_threads, &mode))
+        return nullptr;
+    const int V = N.V;
+    bool ok = S > 0 && V > 0 && J.T >= 0 && J.H > 0 && J.W >= 2 && J.iters >= 0;
+    if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.warp_native: inconsistent sizes");
+    const int64_t H = J.H, W = J.W;
+    ok = ok && need(images, S * H * W * 12, "images") && need(wmaps, S * H * W * 4, "wmaps") &&
+         need(slot, V * 8LL, "slot") && need(jobs, J.T * 24LL, "jobs") && need(d, J.T * 32LL, "d") &&
+         need(spans, S * H * 16, "spans") && need(wr, S * H * 16, "wr") && need(bg, 12, "bg") &&
+         need(job_of, V * 8LL, "job_of") && need(offsets, (V * H + 1) * 8, "offsets") &&
+         need(rowoff, H * 8, "rowoff") && need(coloff, W * 4, "coloff") && need(lut, 256 * 4, "lut");
+    const int64_t n_cols = columns.len / 4, n_nat = native.len;
+    ok = ok && need(codes, n_cols * 2, "codes");
+    if (ok) {
+        J.images = (const float*)images.buf; J.wmaps = (const float*)wmaps.buf; J.slot = (const int64_t*)slot.buf;
+        J.jobs = (const int64_t*)jobs.buf; J.d = (const double*)d.buf; J.spans = (const int64_t*)spans.buf;
+        J.wr = (const double*)wr.buf; J.offsets = (const int64_t*)offsets.buf; J.columns = (const int32_t*)columns.buf;
+        N.job_of = (const int64_t*)job_of.buf;
+        N.codes = (const uint16_t*)codes.buf; N.rowoff = (const int64_t*)rowoff.buf;
+        N.coloff = (const int32_t*)coloff.buf; N.lut = (const int32_t*)lut.buf; N.native = (uint8_t*)native.buf;
+        for (int c = 0; c < 3; ++c) {  // warp_u8's background bytes
+            const double v = std::min(std::max(std::fma(double(((const float*)bg.buf)[c]), 255.0, 0.5), -1.0), 256.0);
+            J.bg8[c] = uint8_t(std::min(std::max(int(v), 0), 255));
+        }
+        // every index the kernel follows lies inside its buffers (checked, not trusted)
+        for (int64_t kk = 0; ok && kk < V; ++kk) {
+            const int64_t j = N.job_of[kk], s = J.slot[kk];
+            ok = (j >= 0) != (s >= 0) && j < J.T && s < S && (j < 0 || J.jobs[3 * j] == kk);
+        }
+        for (int j = 0; ok && j < J.T; ++j) {
+            const int64_t k = J.jobs[3 * j], a = J.jobs[3 * j + 1], b = J.jobs[3 * j + 2];
+            ok = k >= 0 && k < V && a >= 0 && a < V && b >= 0 && b < V && a < b && J.slot[a] >= 0 && J.slot[a] < S &&
+                 J.slot[b] >= 0 && J.slot[b] < S && N.job_of[k] == j;
+        }
+        for (int64_t i = 0; ok && i <= V * H; ++i)
+            ok = J.offsets[i] >= 0 && J.offsets[i] <= n_cols && (i == 0 || J.offsets[i] >= J.offsets[i - 1]);
+        for (int64_t r = 0; ok && r < V * H; ++r)
+            ok = J.offsets[r + 1] == J.offsets[r] ||
+                 (J.columns[J.offsets[r]] >= 0 && J.columns[J.offsets[r + 1] - 1] < W);
+        // rowoff[y] + coloff[x] + lut[b] inside the native image for every y, x and b
+        int64_t rmin = INT64_MAX, rmax = INT64_MIN, cmin = INT64_MAX, cmax = INT64_MIN, lmin = INT64_MAX, lmax = INT64_MIN;
+        for (int64_t y = 0; y < H; ++y) { rmin = std::min(rmin, N.rowoff[y]); rmax = std::max(rmax, N.rowoff[y]); }
+        for (int64_t x = 0; x < W; ++x) { cmin = std::min(cmin, int64_t(N.coloff[x])); cmax = std::max(cmax, int64_t(N.coloff[x])); }
+        for (int b = 0; b < 256; ++b) { lmin = std::min(lmin, int64_t(N.lut[b])); lmax = std::max(lmax, int64_t(N.lut[b])); }
+        ok = ok && rmin + cmin + lmin >= 0 && rmax + cmax + lmax < n_nat;
+        if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.warp_native: a job, tile, column or target lies outside the arrays");
+    }
+    if (ok) {
+        const auto fn = warp_native_rows<true, true>;
+#if HV_HAVE_AVX2_PATH
+        const bool wide = mode == 0 && cpu_has_avx512();
+#else
+        const bool wide = false;
+#endif
+        const int rows = 8;  // texel rows a work item (2, 4, 8, 16: the same CPU within 1 ms, measured)
+        const int per = (J.H + rows - 1) / rows;
+        Py_BEGIN_ALLOW_THREADS
+        parallel_for(per, std::max(1, n_threads), [&](int item) {
+            thread_local std::vector<int32_t> bi;
+            thread_local std::vector<float> bf;
+            thread_local std::vector<uint8_t> vals;
+            if (bi.size() < size_t(2 * J.W)) bi.resize(size_t(2 * J.W));
+            if (bf.size() < size_t(2 * J.W)) bf.resize(size_t(2 * J.W));
+            if (vals.size() < size_t(2 * J.W + 32)) vals.resize(size_t(2 * J.W + 32));
+            const int y0 = item * rows, y1 = std::min(J.H, y0 + rows);
+            for (int k = 0; k < N.V; ++k) {
+                if (N.job_of[k] < 0) native_source_rows(N, k, y0, y1);
+                else fn(N, int(N.job_of[k]), y0, y1, wide, bi, bf, vals);
+            }
+        });
+        Py_END_ALLOW_THREADS
+    }
+    for (Py_buffer* b : {&images, &wmaps, &slot, &jobs, &d, &offsets, &columns, &codes, &spans, &wr, &bg, &job_of,
+                         &rowoff, &coloff, &lut, &native})
+        PyBuffer_Release(b);
+    if (!ok) return nullptr;
+    Py_RETURN_NONE;
+}
+
 PyMethodDef methods[] = {
     {"composite", composite, METH_VARARGS,
      "composite(rec, off, base, ids, nv, m, tile, tiles_x, tiles_y, width, height, alpha_threshold, "
@@ -2074,6 +2375,12 @@ PyMethodDef methods[] = {
      "Hq, Wq, n_threads, mode) -> None\n\n"
      "holo_viewer.render.view_synthesis._warp_u8 (the float32 warp into the uint8 quilt) with its fused "
      "multiply-adds, the same bytes; mode 1: scalar only."},
+    {"warp_native", warp_native, METH_VARARGS,
+     "warp_native(images, wmaps, slot, jobs, d, iters, offsets, columns, codes, spans, wr, bg, job_of, rowoff, "
+     "coloff, lut, native, S, V, T, H, W, n_threads, mode) -> None\n\n"
+     "warp_u8 + the nearest interleave in one pass: every native subpixel of the listed texels (codes: "
+     "view_synthesis.native_targets) written, the synthesized views' with warp_u8's bytes, the sources' with "
+     "to_uint8's of their renders (their quilt tiles' bytes); mode 1: scalar only."},
     {"has_avx512", has_avx512, METH_NOARGS, "True when the CPU runs the AVX-512 path (16x16 tiles)."},
     {nullptr, nullptr, 0, nullptr}};
 
