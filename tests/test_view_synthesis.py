@@ -218,6 +218,38 @@ def test_compiled_warp_writes_the_numba_kernels_bytes(cams, monkeypatch, kernel)
             np.testing.assert_array_equal(out[kernel], out["numba"])
             assert (out["numba"] != 7).mean() > 0.3
 
+@pytest.mark.parametrize("kernel", ["auto", "cpp-scalar"])
+def test_compiled_row_extents_equal_the_numba_kernels(monkeypatch, kernel):
+    """row_extents in C++ (AVX-512: 16 pixels' floats against the background's pattern from each end) gives the
+    numba kernel's spans and depth ranges: empty rows, spans at either edge, a span that differs from the
+    background in one channel only, widths that are and are not multiples of 16, a background per channel."""
+    if vs._warp_cpp() is None or not hasattr(vs._warp_cpp(), "row_extents"):
+        pytest.skip("the C++ extension holo_viewer.render._splat_cpp (with row_extents) is not built")
+    rng = np.random.default_rng(7)
+    for W, bg in ((420, (0.0, 0.0, 0.0)), (105, (0.2, 0.5, 1.0)), (7, (0.0, 0.0, 0.0)), (33, (1.0, 0.0, 0.25))):
+        S, H = 3, 40
+        bg = np.array(bg, np.float32)
+        images = np.tile(bg, (S, H, W, 1))
+        for s in range(S):
+            for y in range(H):
+                a = int(rng.integers(0, W + 1))
+                b = int(rng.integers(a, W + 1)) if y % 5 else W  # every 5th a span to the right edge
+                if y % 7 == 3:
+                    continue  # background only
+                images[s, y, a:b] = rng.random((b - a, 3))
+                if y % 3 == 0:
+                    images[s, y, a:b, :2] = bg[:2]  # only the last channel differs
+        wmaps = rng.random((S, H, W)).astype(np.float32)
+        got = {}
+        for k in ("numba", kernel):
+            monkeypatch.setattr(vs, "WARP_KERNEL", k)
+            got[k] = (np.empty((S, H, 2), np.int64), np.empty((S, H, 2)))
+            vs.row_extents(images, wmaps, bg, *got[k])
+        for a, b in zip(got[kernel], got["numba"]):
+            np.testing.assert_array_equal(a, b)
+        assert (got["numba"][0][:, :, 0] == W).any() and (got["numba"][0][:, :, 1] == W - 1).any()
+
+
 #: the Portrait's texel-to-subpixel ratio at full tiles (3.66 native pixels a texel each way) on SMALL's tiles
 NATIVE_PANEL = dataclasses.replace(SMALL, screen_w=384, screen_h=512)
 

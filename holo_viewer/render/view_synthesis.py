@@ -569,6 +569,19 @@ def _warp_u8(images: np.ndarray, wmaps: np.ndarray, slot: np.ndarray, jobs: np.n
 WARP_KERNEL = "auto"
 
 
+def row_extents(images: np.ndarray, wmaps: np.ndarray, bg: np.ndarray, spans: np.ndarray, wr: np.ndarray) -> None:
+    """:func:`_row_extents` into ``spans`` (S, H, 2) int64 and ``wr`` (S, H, 2) float64: in C++ where the extension is
+    built and :data:`WARP_KERNEL` is not ``"numba"`` (``_splat_cpp.row_extents``, the same values, tested;
+    0.4 against 3.3 ms of CPU for a full-tile group frame's 9 sources), else the numba kernel."""
+    cpp = _warp_cpp() if WARP_KERNEL != "numba" else None
+    if cpp is None or not hasattr(cpp, "row_extents"):
+        _row_extents(images, wmaps, bg, spans, wr)
+        return
+    S, H, W = wmaps.shape
+    cpp.row_extents(np.ascontiguousarray(images), np.ascontiguousarray(wmaps), np.ascontiguousarray(bg, np.float32),
+                    spans, wr, S, H, W, int(numba.get_num_threads()), 1 if WARP_KERNEL == "cpp-scalar" else 0)
+
+
 def _warp_cpp():  # noqa: ANN202
     """The compiled warp's module, or None where the extension (or its ``warp_u8``) is not built."""
     from .fast import _cpp
@@ -809,7 +822,7 @@ def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: 
     bg = np.asarray(background, dtype=np.float32).reshape(3)
     spans = np.empty((sources.size, H, 2), dtype=np.int64)
     wr = np.empty((sources.size, H, 2), dtype=np.float64)
-    _row_extents(images, wmaps, bg, spans, wr)
+    row_extents(images, wmaps, bg, spans, wr)
     if native is not None:
         _warp_native(images, wmaps, sources, slot, jobs, d, int(iters), pixels, spans, wr, bg, native, targets)
         return native

@@ -2081,6 +2081,17 @@ struct NativeJob {
     int V;
 };
 
+// Asks for the listed columns and codes of view k's texel row y ahead of their use: a row's entries are read
+// once a frame (~40 MB in all), and its first reads (the background scans from both ends) waited on them
+inline void native_prefetch_row(const NativeJob& N, int64_t k, int y) {
+    const WarpJob& J = N.w;
+    const int64_t o0 = J.offsets[k * J.H + y], o1 = J.offsets[k * J.H + y + 1];
+    const char* a = reinterpret_cast<const char*>(J.columns + o0);
+    const char* b = reinterpret_cast<const char*>(N.codes + o0);
+    for (int64_t o = 0; o < (o1 - o0) * 4; o += 64) __builtin_prefetch(a + o);
+    for (int64_t o = 0; o < (o1 - o0) * 2; o += 64) __builtin_prefetch(b + o);
+}
+
 // one destination byte b of a texel: the synthesized value of its channel (scalar; warp_u8's expressions)
 template <bool BA>
 inline uint8_t warp_native_value(float ca0, float ca1, float cb0, float cb1, const float* a, const float* b, int c) {
@@ -2156,6 +2167,7 @@ void warp_native_rows(const NativeJob& N, int j, int y0, int y1, bool wide, std:
         const int32_t* __restrict xall = J.columns + o0;
         const uint16_t* __restrict call = N.codes + o0;
         const int64_t nx = o1 - o0;
+        if (y + 1 < y1) native_prefetch_row(N, k, y + 1);
         if (nx == 0) continue;
         int64_t lo = W, hi = -1;
         warp_live_range(J.spans + (sa * H + y) * 2, J.wr + (sa * H + y) * 2, dj[0], dj[1], lo, hi);
@@ -2238,6 +2250,7 @@ inline void native_source_rows(const NativeJob& N, int64_t k, int y0, int y1) {
     const uint16_t* __restrict codes = N.codes;
     for (int y = y0; y < y1; ++y) {
         const int64_t o0 = J.offsets[k * H + y], o1 = J.offsets[k * H + y + 1];
+        if (y + 1 < y1) native_prefetch_row(N, k, y + 1);
         const float* __restrict irow = J.images + (J.slot[k] * H + y) * int64_t(W) * 3;
         uint8_t* __restrict nrow = N.native + N.rowoff[y];
         for (int64_t i = o0; i < o1; ++i) {
@@ -2325,6 +2338,7 @@ PyObject* warp_native(PyObject*, PyObject* args) {
             if (vals.size() < size_t(2 * J.W + 32)) vals.resize(size_t(2 * J.W + 32));
             const int y0 = item * rows, y1 = std::min(J.H, y0 + rows);
             for (int k = 0; k < N.V; ++k) {
+                if (k + 1 < N.V) native_prefetch_row(N, k + 1, y0);
                 if (N.job_of[k] < 0) native_source_rows(N, k, y0, y1);
                 else fn(N, int(N.job_of[k]), y0, y1, wide, bi, bf, vals);
             }
@@ -2334,6 +2348,116 @@ PyObject* warp_native(PyObject*, PyObject* args) {
     for (Py_buffer* b : {&images, &wmaps, &slot, &jobs, &d, &offsets, &columns, &codes, &spans, &wr, &bg, &job_of,
                          &rowoff, &coloff, &lut, &native})
         PyBuffer_Release(b);
+    if (!ok) return nullptr;
+    Py_RETURN_NONE;
+}
+
+// ---- view_synthesis._row_extents: per (source, row) the non-background span and the depth range ----------
+// spans (S, H, 2) int64: the first and last column whose colour differs from bg in any channel ((W, -1) for
+// none); wr (S, H, 2) float64: the row's smallest and largest inverse depth. The numba kernel's values
+// exactly (float compares and min / max); AVX-512: 16 pixels' 48 floats compared with the background's
+// period-3 pattern at a time, from each end, and the depths' min / max 16 at a time.
+#if HV_HAVE_AVX2_PATH
+// bit j: float j of the 48 from s differs from the background pattern p0 | p1 | p2
+HV_TARGET_AVX512 inline uint64_t row_differs48(const float* s, __m512 p0, __m512 p1, __m512 p2) {
+    const uint64_t a = _mm512_cmp_ps_mask(_mm512_loadu_ps(s), p0, _CMP_NEQ_UQ);
+    const uint64_t b = _mm512_cmp_ps_mask(_mm512_loadu_ps(s + 16), p1, _CMP_NEQ_UQ);
+    const uint64_t c = _mm512_cmp_ps_mask(_mm512_loadu_ps(s + 32), p2, _CMP_NEQ_UQ);
+    return a | (b << 16) | (c << 32);
+}
+
+inline bool px_differs(const float* img, int x, const float* bg) {
+    const float* s = img + 3 * int64_t(x);
+    return s[0] != bg[0] || s[1] != bg[1] || s[2] != bg[2];
+}
+
+HV_TARGET_AVX512 void row_extent_avx512(const float* img, const float* w, const float* bg, int W, int64_t* span,
+                                        double* range) {
+    float pat[48];
+    for (int i = 0; i < 48; ++i) pat[i] = bg[i % 3];
+    const __m512 p0 = _mm512_loadu_ps(pat), p1 = _mm512_loadu_ps(pat + 16), p2 = _mm512_loadu_ps(pat + 32);
+    int lo = W, hi = -1;
+    int x = 0;
+    for (; x + 16 <= W; x += 16) {
+        const uint64_t m = row_differs48(img + 3 * int64_t(x), p0, p1, p2);
+        if (m) { lo = x + __builtin_ctzll(m) / 3; break; }
+    }
+    if (lo == W)
+        for (; x < W; ++x)
+            if (px_differs(img, x, bg)) { lo = x; break; }
+    if (lo < W) {  // the last one: from the right end
+        int e = W;
+        for (; e - 16 >= lo; e -= 16) {
+            const uint64_t m = row_differs48(img + 3 * int64_t(e - 16), p0, p1, p2);
+            if (m) { hi = e - 16 + (63 - __builtin_clzll(m)) / 3; break; }
+        }
+        if (hi < 0)
+            for (int xx = e - 1; xx >= lo; --xx)
+                if (px_differs(img, xx, bg)) { hi = xx; break; }
+    }
+    span[0] = lo; span[1] = hi;
+    __m512 vmin = _mm512_set1_ps(INFINITY), vmax = _mm512_set1_ps(-INFINITY);
+    int i = 0;
+    for (; i + 16 <= W; i += 16) {
+        const __m512 v = _mm512_loadu_ps(w + i);
+        vmin = _mm512_min_ps(vmin, v); vmax = _mm512_max_ps(vmax, v);
+    }
+    float mn = _mm512_reduce_min_ps(vmin), mx = _mm512_reduce_max_ps(vmax);
+    for (; i < W; ++i) { mn = std::min(mn, w[i]); mx = std::max(mx, w[i]); }
+    range[0] = W > 0 ? double(mn) : INFINITY; range[1] = W > 0 ? double(mx) : -INFINITY;
+}
+#endif
+
+void row_extent_scalar(const float* img, const float* w, const float* bg, int W, int64_t* span, double* range) {
+    int lo = W, hi = -1;
+    for (int x = 0; x < W; ++x) {
+        const float* s = img + 3 * int64_t(x);
+        if (s[0] != bg[0] || s[1] != bg[1] || s[2] != bg[2]) {
+            if (lo == W) lo = x;
+            hi = x;
+        }
+    }
+    span[0] = lo; span[1] = hi;
+    double mn = INFINITY, mx = -INFINITY;
+    for (int x = 0; x < W; ++x) { mn = std::min(mn, double(w[x])); mx = std::max(mx, double(w[x])); }
+    range[0] = mn; range[1] = mx;
+}
+
+PyObject* row_extents(PyObject*, PyObject* args) {
+    Py_buffer images{}, wmaps{}, bg{}, spans{}, wr{};
+    int S, H, W, n_threads, mode;
+    if (!PyArg_ParseTuple(args, "y*y*y*w*w*iiiii", &images, &wmaps, &bg, &spans, &wr, &S, &H, &W, &n_threads, &mode))
+        return nullptr;
+    bool ok = S >= 0 && H >= 0 && W >= 0;
+    if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.row_extents: inconsistent sizes");
+    const int64_t rows = int64_t(S) * H;
+    ok = ok && need(images, rows * W * 12, "images") && need(wmaps, rows * W * 4, "wmaps") && need(bg, 12, "bg") &&
+         need(spans, rows * 16, "spans") && need(wr, rows * 16, "wr");
+    if (ok) {
+        const float* img = (const float*)images.buf;
+        const float* w = (const float*)wmaps.buf;
+        const float* b = (const float*)bg.buf;
+        int64_t* sp = (int64_t*)spans.buf;
+        double* r = (double*)wr.buf;
+#if HV_HAVE_AVX2_PATH
+        const bool wide = mode == 0 && cpu_has_avx512();
+#else
+        const bool wide = false;
+#endif
+        const int chunk = 64;
+        Py_BEGIN_ALLOW_THREADS
+        parallel_for(int((rows + chunk - 1) / chunk), std::max(1, n_threads), [&](int c) {
+            for (int64_t i = int64_t(c) * chunk; i < std::min(rows, int64_t(c + 1) * chunk); ++i) {
+#if HV_HAVE_AVX2_PATH
+                if (wide) { row_extent_avx512(img + i * W * 3, w + i * W, b, W, sp + 2 * i, r + 2 * i); continue; }
+#endif
+                row_extent_scalar(img + i * W * 3, w + i * W, b, W, sp + 2 * i, r + 2 * i);
+            }
+        });
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&images); PyBuffer_Release(&wmaps); PyBuffer_Release(&bg); PyBuffer_Release(&spans);
+    PyBuffer_Release(&wr);
     if (!ok) return nullptr;
     Py_RETURN_NONE;
 }
@@ -2381,6 +2505,10 @@ PyMethodDef methods[] = {
      "warp_u8 + the nearest interleave in one pass: every native subpixel of the listed texels (codes: "
      "view_synthesis.native_targets) written, the synthesized views' with warp_u8's bytes, the sources' with "
      "to_uint8's of their renders (their quilt tiles' bytes); mode 1: scalar only."},
+    {"row_extents", row_extents, METH_VARARGS,
+     "row_extents(images, wmaps, bg, spans, wr, S, H, W, n_threads, mode) -> None\n\n"
+     "holo_viewer.render.view_synthesis._row_extents (the same values): per (source, row) the first and last "
+     "column not of the background colour ((W, -1) for none) and the inverse depth's min and max; mode 1: scalar."},
     {"has_avx512", has_avx512, METH_NOARGS, "True when the CPU runs the AVX-512 path (16x16 tiles)."},
     {nullptr, nullptr, 0, nullptr}};
 
