@@ -48,7 +48,8 @@ frame is **deformed Gaussians -> native image** (``NativeFrameRenderer.frame``).
 
 ``--kernels-ab`` (alone): live-sized group frames (``holo-viewer live``'s renderer: tile scale 0.5, the per-view
 visible mask, no face, a changing expression) with the float32 warp and the interleave's row gather in numba
-against the C++ kernels (the same bytes: asserted), rounds alternating in one process; CPU ms per frame
+against the C++ kernels (since 2026-11-29 06:00 the default's C++ warp straight into the native image; the same
+bytes: asserted), rounds alternating in one process; CPU ms per frame
 (``bench/results/live_frame_kernels_ab.json``).
 
 ``--live-scales [S,...]`` (alone): the default group frame at each tile scale as ``holo-viewer live --tile-scale S``
@@ -206,15 +207,17 @@ GROUP_VIEWERS = ((6.0, 0.6), (-15.0, 0.5), (-4.0, 0.75), (16.0, 0.9))
 #: all_views rows skip the Gaussians nobody sees (live_support.visible_mask), each rendered source view only those
 #: seen in that view (per_view=True, since 2026-11-28 19:00), except "union_keep" (every source view draws the
 #: union over the views, as `holo-viewer live` did until then), "all_gaussians" (every Gaussian drawn, as before
-#: 2026-11-28 16:00) and the last ("numba_kernels": the float32 warp and the interleave's row gather in numba, as
-#: before 2026-11-28 21:50; the C++ kernels write the same bytes)
+#: 2026-11-28 16:00), "quilt_warp" (the warp into the quilt, then the interleave, as before 2026-11-29 06:00; the
+#: default's warp straight into the native image writes the same bytes) and the last ("numba_kernels": the float32
+#: warp and the interleave's row gather in numba, as before 2026-11-28 21:50; the C++ kernels write the same bytes)
 GROUP_RUNS = (("group", 0, {}), ("group", 1, {}), ("group", 4, {}), ("tracked", 1, {}), ("tracked", 4, {}),
               ("all_views", 0, {}), ("group", 0, {"group_view_step": 5}), ("group", 0, {"group_view_step": 8}),
               ("group", 1, {"group_view_step": 5}), ("group", 1, {"group_view_step": 8}),
               ("group", 1, {"group_view_step": 12}), ("group", 1, {"group_slices": 1}),
               ("group", 4, {"group_slices": 1}), ("group", 4, {"group_slices": 4}),
               ("group", 1, {"group_slices": 1, "group_feather": None}), ("group", 0, {"union_keep": True}),
-              ("group", 0, {"all_gaussians": True}), ("group", 0, {"numba_kernels": True}))
+              ("group", 0, {"all_gaussians": True}), ("group", 0, {"quilt_warp": True}),
+              ("group", 0, {"numba_kernels": True}))
 #: passes over the flare of each default group row, the rows taking turns (2 with --quick)
 GROUP_ROUNDS = 4
 #: comfort: a tracked viewer walks past fixed single-eye positions (deg, m), 1.5 deg a frame, face still
@@ -305,7 +308,8 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
         redraw everything, warmed by one untimed pass over the flare (each frame's wall and CPU kept): every
         row is then timed in the same steady state, after the same warm-up."""
         viewers = all_viewers[:n]
-        config = {k: v for k, v in knobs.items() if k not in ("all_gaussians", "union_keep", "numba_kernels")}
+        config = {k: v for k, v in knobs.items()
+                  if k not in ("all_gaussians", "union_keep", "numba_kernels", "quilt_warp")}
         live = NativeFrameRenderer(cal, cams, NativeFrameConfig(**config),  # all_gaussians: every one, as before
                                    keep=None if knobs.get("all_gaussians") else keep if knobs.get("union_keep")
                                    else keep_views)
@@ -328,6 +332,9 @@ def group_sweep(cal: DisplayCalibration, pipe: Pipeline, quick: bool = False, sh
         numba_kernels = bool(knobs.get("numba_kernels"))  # the A/B of the compiled warp and row gather
         view_synthesis.WARP_KERNEL = "numba" if numba_kernels else "auto"
         live.interleaver.row_kernel = "numba" if numba_kernels else "auto"
+        # quilt_warp (and the numba pair): the warp into the quilt, then the interleave (the same bytes as the
+        # default's warp straight into the native image)
+        live.warp_native = not (numba_kernels or knobs.get("quilt_warp"))
 
     def timed_pass(live: NativeFrameRenderer, arg, mode: str, acc: dict) -> None:
         """One timed pass over the flare (frames 1..): wall, CPU, load, and the frames evaluated or shown."""
@@ -438,6 +445,7 @@ def kernels_ab(rounds: int = 5, n_frames: int = 6) -> list[dict]:
         for k in ("numba", "cpp"):
             view_synthesis.WARP_KERNEL = "numba" if k == "numba" else "auto"
             live.interleaver.row_kernel = "numba" if k == "numba" else "auto"
+            live.warp_native = k == "cpp"  # the C++ side: the default, the warp straight into the native image
             for i, g in enumerate(faces):
                 c0 = time.process_time()
                 f = live.frame(g, None, "auto")

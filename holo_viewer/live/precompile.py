@@ -29,23 +29,27 @@ from typing import Any, Callable
 __all__ = ["KERNELS", "BackgroundCompile", "kernels_cached", "compile_kernels"]
 
 def _warp_kernels() -> tuple[str, ...]:
-    """The numba warp the live quilt path calls: ``_warp_u8`` where the C++ warp is not built (or
-    ``view_synthesis.WARP_KERNEL`` is ``"numba"``), else none (the C++ ``warp_u8`` needs no compile).
+    """The numba kernels of the warp the live path calls: ``_row_extents`` and ``_warp_u8`` where the C++
+    ones are not built (or ``view_synthesis.WARP_KERNEL`` is ``"numba"``), else none (the C++ ``row_extents``,
+    ``warp_u8`` and ``warp_native`` need no compile; since 2026-11-29 the C++ ``row_extents`` too).
     Until 2026-11-28 this list named ``_warp`` (the float views' and exact path's kernel), which no live
     frame calls: it was never cached by a live session, so :func:`kernels_cached` stayed False and both
     children started at every ``live`` start (~1 s of CPU each on a warm cache, beside the parent's
     start-up on 2 cores)."""
     from ..render import view_synthesis as vs
 
-    return ("_warp_u8",) if vs.WARP_KERNEL == "numba" or vs._warp_cpp() is None else ()
+    cpp = None if vs.WARP_KERNEL == "numba" else vs._warp_cpp()
+    return (("_row_extents",) if cpp is None or not hasattr(cpp, "row_extents") else ()) + (
+        ("_warp_u8",) if cpp is None else ())
 
 
-#: the children: each compiles one group (about equal halves of the compile time without the C++ warp)
-GROUPS = {"depth": ("_zbuffer_coef", "_zbuffer"), "warp": ("_row_extents",) + _warp_kernels()}
+#: the children: each compiles one group (about equal halves of the compile time without the C++ warp); a group
+#: with nothing to compile (the warp's, where the C++ kernels are built) starts no child
+GROUPS = {k: v for k, v in {"depth": ("_zbuffer_coef", "_zbuffer"), "warp": _warp_kernels()}.items() if v}
 
 #: the view_synthesis dispatchers the children compile (module attribute names): those the default live
 #: frames call (the numba ``_warp`` and ``_warp_u8`` stay reachable: they compile on their first call)
-KERNELS = GROUPS["depth"] + GROUPS["warp"]
+KERNELS = tuple(k for g in GROUPS.values() for k in g)
 
 #: set to 0 to never start the children
 ENV_VAR = "HOLO_VIEWER_PRECOMPILE"
@@ -88,12 +92,13 @@ def compile_kernels(groups: tuple[str, ...] = tuple(GROUPS), report: Callable[[s
         report("_zbuffer_coef")
         vs.inverse_depth(means, opacity, cams, src, rig=rig)
         report("_zbuffer")
-    if "warp" in groups:
+    if "warp" in groups and "warp" in GROUPS:
         wmaps = np.full((src.size, H, W), 1.0 / 0.6, dtype=np.float32)  # (not from _zbuffer: the other group's)
         images = rng.uniform(0, 1, (src.size, H, W, 3)).astype(np.float32)
-        vs._row_extents(images, wmaps, np.zeros(3, np.float32), np.empty((src.size, H, 2), np.int64),
-                        np.empty((src.size, H, 2), np.float64))  # as warp_views calls it
-        report("_row_extents")
+        if "_row_extents" in GROUPS["warp"]:
+            vs._row_extents(images, wmaps, np.zeros(3, np.float32), np.empty((src.size, H, 2), np.int64),
+                            np.empty((src.size, H, 2), np.float64))  # as warp_views calls it
+            report("_row_extents")
         quilt = np.zeros((cal.quilt_height, cal.quilt_width, 3), np.uint8)
         tiles = np.array([[0, k * W] for k in range(V)], dtype=np.int64)
         pixels = vs.sampled_columns(np.ones((V, H, W), dtype=bool))
