@@ -310,8 +310,8 @@ def test_warp_into_native_is_the_quilt_warp_interleaved(cams, monkeypatch, kerne
 
 def test_native_targets_only_where_the_codes_fit(cams):
     """native_targets lists each read texel's one or two subpixels; a layout where a texel is read by more
-    (SMALL's full-size screen: ~15 native pixels a texel each way) gets None, so the frames keep the quilt
-    and the interleave (test_all_views_with_synthesis_against_every_view runs that path)."""
+    (a 768 x 1024 panel: ~7.3 native pixels a texel each way; SMALL's full-size one: ~15) gets None, so the
+    frames keep the quilt and the interleave (test_all_views_with_synthesis_against_every_view runs that path)."""
     il, tiles, sampled, targets = _native_case(cams)
     flat = np.full(il.shape, 0, np.uint8).reshape(-1)
     offsets, columns = sampled
@@ -323,7 +323,7 @@ def test_native_targets_only_where_the_codes_fit(cams):
     np.subtract.at(flat, (targets.rowoff[k_y % H] + targets.coloff[columns] + targets.lut[targets.codes & 0xFF])[lone],
                    1)
     assert (flat == 1).all()
-    assert _native_case(cams, SMALL)[3] is None
+    assert _native_case(cams, dataclasses.replace(SMALL, screen_w=768, screen_h=1024))[3] is None
 
 
 def test_zbuffer_depth_of_an_opaque_plane(cams):

@@ -1735,6 +1735,16 @@ inline void warp_live_range(const int64_t* span, const double* wr, double d0, do
         const float s = std::fma(v, 255.0f, 0.5f);                                                            \
         const float c = std::min(std::max(s, -1.0f), 256.0f);                                                 \
         return uint8_t(std::min(std::max(int(c), 0), 255));                                                   \
+    }                                                                                                         \
+    /* channel c of texel i: its sources' columns pa, pb and fractions fa, fb, the blend weights wa, wb */     \
+    template <bool BA>                                                                                        \
+    ATTR inline uint8_t warp_texel_channel##SFX(const float* ia, const float* ib, const int32_t* pa,           \
+                                                const int32_t* pb, const float* fa, const float* fb, float wa, \
+                                                float wb, int i, int c) {                                     \
+        const float ca0 = wa * (1.0f - fa[i]), ca1 = wa * fa[i], cb0 = wb * (1.0f - fb[i]), cb1 = wb * fb[i];  \
+        const float* a = ia + 3 * pa[i];                                                                      \
+        const float* b = ib + 3 * pb[i];                                                                      \
+        return warp_blend_scalar##SFX<BA>(ca0, ca1, cb0, cb1, a[c], a[3 + c], b[c], b[3 + c]);                \
     }
 HV_WARP_SCALAR(, )
 #if HV_HAVE_AVX2_PATH
@@ -1837,37 +1847,51 @@ HV_TARGET_AVX512 inline __m512 warp_tap(const WarpWindow& w, const float* row, _
     return _mm512_mask_mov_ps(m, _mm512_cmpge_epi32_mask(t, _mm512_set1_epi32(64)), hi);
 }
 
+// 16 texels' blend weights and both sources' windows (fa, fb, pa, pb from i), then per channel the rounded bytes
+struct WarpBlend16 {
+    __m512 ca0, ca1, cb0, cb1;
+    WarpWindow a, b;
+};
+
+HV_TARGET_AVX512 inline void warp_blend16_setup(const float* ia, const float* ib, const int32_t* pa, const int32_t* pb,
+                                                const float* fa, const float* fb, float wa, float wb, int W,
+                                                WarpBlend16& s) {
+    const __m512 vwa = _mm512_set1_ps(wa), vwb = _mm512_set1_ps(wb), one = _mm512_set1_ps(1.0f);
+    const __m512 fa_ = _mm512_loadu_ps(fa), fb_ = _mm512_loadu_ps(fb);
+    s.ca0 = _mm512_mul_ps(vwa, _mm512_sub_ps(one, fa_)); s.ca1 = _mm512_mul_ps(vwa, fa_);
+    s.cb0 = _mm512_mul_ps(vwb, _mm512_sub_ps(one, fb_)); s.cb1 = _mm512_mul_ps(vwb, fb_);
+    // the texels p and p + 1 of every lane from a 32-texel window in registers, else gathers
+    warp_window_rgb(ia, _mm512_loadu_si512(pa), W, s.a);
+    warp_window_rgb(ib, _mm512_loadu_si512(pb), W, s.b);
+}
+
+// channel ch (per lane) of the 16 texels, rounded half up and clamped as warp_u8 does: 0..255 per 32-bit lane
+template <bool BA>
+HV_TARGET_AVX512 inline __m512i warp_blend16_channel(const WarpBlend16& s, const float* ia, const float* ib,
+                                                     __m512i ch) {
+    const __m512i three = _mm512_set1_epi32(3);
+    const __m512i tac = _mm512_add_epi32(s.a.t, ch), tbc = _mm512_add_epi32(s.b.t, ch);
+    const __m512i tac3 = _mm512_add_epi32(tac, three), tbc3 = _mm512_add_epi32(tbc, three);
+    const __m512 A = warp_tap(s.a, ia, tac), B = warp_tap(s.a, ia, tac3);
+    const __m512 C = warp_tap(s.b, ib, tbc), D = warp_tap(s.b, ib, tbc3);
+    __m512 v = BA ? _mm512_fmadd_ps(s.ca0, A, _mm512_mul_ps(s.ca1, B)) : _mm512_fmadd_ps(s.ca1, B, _mm512_mul_ps(s.ca0, A));
+    v = _mm512_fmadd_ps(s.cb0, C, v);
+    v = _mm512_fmadd_ps(s.cb1, D, v);
+    const __m512 r = _mm512_fmadd_ps(v, _mm512_set1_ps(255.0f), _mm512_set1_ps(0.5f));
+    const __m512 c = _mm512_min_ps(_mm512_max_ps(r, _mm512_set1_ps(-1.0f)), _mm512_set1_ps(256.0f));
+    return _mm512_min_epi32(_mm512_max_epi32(_mm512_cvttps_epi32(c), _mm512_setzero_si512()), _mm512_set1_epi32(255));
+}
+
 template <bool BA>
 HV_TARGET_AVX512 void warp_blend16(const float* ia, const float* ib, const int32_t* pa, const int32_t* pb,
                                    const float* fa, const float* fb, float wa, float wb, int n, int W, uint8_t* rgb) {
-    const __m512 vwa = _mm512_set1_ps(wa), vwb = _mm512_set1_ps(wb), one = _mm512_set1_ps(1.0f);
-    const __m512 k255 = _mm512_set1_ps(255.0f), half = _mm512_set1_ps(0.5f);
-    const __m512 lo = _mm512_set1_ps(-1.0f), hi = _mm512_set1_ps(256.0f);
-    const __m512i izero = _mm512_setzero_si512(), i255 = _mm512_set1_epi32(255), three = _mm512_set1_epi32(3);
     const __m512i pack3 = _mm512_broadcast_i32x4(_mm_setr_epi8(0, 1, 2, 4, 5, 6, 8, 9, 10, 12, 13, 14, -1, -1, -1, -1));
     int i = 0;
     for (; i + 16 <= n; i += 16) {
-        const __m512 fa_ = _mm512_loadu_ps(fa + i), fb_ = _mm512_loadu_ps(fb + i);
-        const __m512 ca0 = _mm512_mul_ps(vwa, _mm512_sub_ps(one, fa_)), ca1 = _mm512_mul_ps(vwa, fa_);
-        const __m512 cb0 = _mm512_mul_ps(vwb, _mm512_sub_ps(one, fb_)), cb1 = _mm512_mul_ps(vwb, fb_);
-        const __m512i pva = _mm512_loadu_si512(pa + i), pvb = _mm512_loadu_si512(pb + i);
-        // the texels p and p + 1 of every lane from a 32-texel window in registers, else gathers
-        WarpWindow wa_, wb_;
-        warp_window_rgb(ia, pva, W, wa_);
-        warp_window_rgb(ib, pvb, W, wb_);
-        const __m512i ta = wa_.t, tb = wb_.t;
+        WarpBlend16 s;
+        warp_blend16_setup(ia, ib, pa + i, pb + i, fa + i, fb + i, wa, wb, W, s);
         __m512i res[3];
-        for (int c = 0; c < 3; ++c) {
-            const __m512i tac = _mm512_add_epi32(ta, _mm512_set1_epi32(c)), tbc = _mm512_add_epi32(tb, _mm512_set1_epi32(c));
-            const __m512i tac3 = _mm512_add_epi32(tac, three), tbc3 = _mm512_add_epi32(tbc, three);
-            const __m512 A = warp_tap(wa_, ia, tac), B = warp_tap(wa_, ia, tac3);
-            const __m512 C = warp_tap(wb_, ib, tbc), D = warp_tap(wb_, ib, tbc3);
-            __m512 v = BA ? _mm512_fmadd_ps(ca0, A, _mm512_mul_ps(ca1, B)) : _mm512_fmadd_ps(ca1, B, _mm512_mul_ps(ca0, A));
-            v = _mm512_fmadd_ps(cb0, C, v);
-            v = _mm512_fmadd_ps(cb1, D, v);
-            const __m512 s = _mm512_min_ps(_mm512_max_ps(_mm512_fmadd_ps(v, k255, half), lo), hi);
-            res[c] = _mm512_min_epi32(_mm512_max_epi32(_mm512_cvttps_epi32(s), izero), i255);
-        }
+        for (int c = 0; c < 3; ++c) res[c] = warp_blend16_channel<BA>(s, ia, ib, _mm512_set1_epi32(c));
         // the 16 pixels' bytes (0..255 each) interleaved r, g, b: one 32-bit word per pixel, its three
         // low bytes packed per 128-bit lane (12 of 16 bytes), four 16-byte stores 12 bytes apart (each
         // writing 4 bytes the next overwrites; rgb has room past 3 n). Was 48 byte stores: 7 % of the warp.
@@ -1880,13 +1904,8 @@ HV_TARGET_AVX512 void warp_blend16(const float* ia, const float* ib, const int32
         _mm_storeu_si128(reinterpret_cast<__m128i*>(o + 24), _mm512_extracti32x4_epi32(packed, 2));
         _mm_storeu_si128(reinterpret_cast<__m128i*>(o + 36), _mm512_extracti32x4_epi32(packed, 3));
     }
-    for (; i < n; ++i) {
-        const float ca0 = wa * (1.0f - fa[i]), ca1 = wa * fa[i], cb0 = wb * (1.0f - fb[i]), cb1 = wb * fb[i];
-        const float* a = ia + 3 * pa[i];
-        const float* b = ib + 3 * pb[i];
-        for (int c = 0; c < 3; ++c)
-            rgb[3 * i + c] = warp_blend_scalar_v<BA>(ca0, ca1, cb0, cb1, a[c], a[3 + c], b[c], b[3 + c]);
-    }
+    for (; i < n; ++i)
+        for (int c = 0; c < 3; ++c) rgb[3 * i + c] = warp_texel_channel_v<BA>(ia, ib, pa, pb, fa, fb, wa, wb, i, c);
 }
 #endif
 
@@ -1899,16 +1918,66 @@ inline void warp_fill_bg(uint8_t* o, int64_t n, const uint8_t* bg) {
     std::memcpy(o + 3 * p, pat, size_t(3 * (n - p)));
 }
 
+// One warp job's constants (view k from sources a < k < b: their slots, blend weights, column offsets)
+struct WarpRow {
+    int64_t k, sa, sb;
+    float wa, wb, da0, da1, db0, db1;
+    const double* dj;
+};
+
+inline WarpRow warp_row_job(const WarpJob& J, int j) {
+    WarpRow R;
+    const int64_t k = J.jobs[3 * j], a = J.jobs[3 * j + 1], b = J.jobs[3 * j + 2];
+    R.k = k; R.sa = J.slot[a]; R.sb = J.slot[b];
+    R.wa = float(double(b - k) / double(b - a));
+    R.wb = 1.0f - R.wa;
+    R.dj = J.d + 4 * j;
+    R.da0 = float(R.dj[0]); R.da1 = float(R.dj[1]); R.db0 = float(R.dj[2]); R.db1 = float(R.dj[3]);
+    return R;
+}
+
+// [n0, n1): the listed columns xall[0 .. nx) of row y that can read a non-background pixel of either source
+inline void warp_row_live(const WarpJob& J, const WarpRow& R, int y, const int32_t* xall, int64_t nx, int64_t& n0,
+                          int64_t& n1) {
+    const int H = J.H;
+    int64_t lo = J.W, hi = -1;
+    warp_live_range(J.spans + (R.sa * H + y) * 2, J.wr + (R.sa * H + y) * 2, R.dj[0], R.dj[1], lo, hi);
+    warp_live_range(J.spans + (R.sb * H + y) * 2, J.wr + (R.sb * H + y) * 2, R.dj[2], R.dj[3], lo, hi);
+    n0 = n1 = nx;
+    if (hi >= lo) {  // the columns before lo and after hi: a scan over them (they are filled next) instead
+        n0 = 0;      // of binary searches, whose dependent reads of a row not yet in cache took ~2 ms a frame
+        while (n0 < nx && xall[n0] < lo) ++n0;
+        while (n1 > n0 && xall[n1 - 1] > hi) --n1;
+    }
+}
+
+// both sources' columns (i0, f) of the n listed columns xl of row y; ia, ib: the sources' image rows
+template <bool IA>
+inline void warp_row_columns(const WarpJob& J, const WarpRow& R, int y, const int32_t* xl, int n, bool wide,
+                             int32_t* i0a, float* fa, int32_t* i0b, float* fb, const float*& ia, const float*& ib) {
+    const int H = J.H, W = J.W;
+    const float* wra = J.wmaps + (R.sa * H + y) * W;
+    const float* wrb = J.wmaps + (R.sb * H + y) * W;
+    ia = J.images + (R.sa * H + y) * int64_t(W) * 3;
+    ib = J.images + (R.sb * H + y) * int64_t(W) * 3;
+#if HV_HAVE_AVX2_PATH
+    if (wide) {
+        warp_columns16<IA>(wra, xl, n, R.da0, R.da1, J.iters, W, i0a, fa);
+        warp_columns16<IA>(wrb, xl, n, R.db0, R.db1, J.iters, W, i0b, fb);
+        return;
+    }
+#endif
+    warp_columns_scalar<IA>(wra, xl, n, R.da0, R.da1, J.iters, W, i0a, fa);
+    warp_columns_scalar<IA>(wrb, xl, n, R.db0, R.db1, J.iters, W, i0b, fb);
+}
+
 template <bool IA, bool BA>
 void warp_rows(const WarpJob& J, int j, int y0, int y1, bool wide, std::vector<int32_t>& every,
                std::vector<int32_t>& buf_i, std::vector<float>& buf_f, std::vector<uint8_t>& rgb) {
     const int H = J.H, W = J.W;
-    const int64_t k = J.jobs[3 * j], a = J.jobs[3 * j + 1], b = J.jobs[3 * j + 2];
-    const int64_t sa = J.slot[a], sb = J.slot[b];
-    const float wa = float(double(b - k) / double(b - a));
-    const float wb = 1.0f - wa;
-    const double* dj = J.d + 4 * j;
-    const float da0 = float(dj[0]), da1 = float(dj[1]), db0 = float(dj[2]), db1 = float(dj[3]);
+    const WarpRow R = warp_row_job(J, j);
+    const int64_t k = R.k;
+    const float wa = R.wa, wb = R.wb;
     int32_t *i0a = buf_i.data(), *i0b = buf_i.data() + W;
     float *fa = buf_f.data(), *fb = buf_f.data() + W;
     for (int y = y0; y < y1; ++y) {
@@ -1920,15 +1989,8 @@ void warp_rows(const WarpJob& J, int j, int y0, int y1, bool wide, std::vector<i
         } else {
             xall = every.data(); nx = W;
         }
-        int64_t lo = W, hi = -1;
-        warp_live_range(J.spans + (sa * H + y) * 2, J.wr + (sa * H + y) * 2, dj[0], dj[1], lo, hi);
-        warp_live_range(J.spans + (sb * H + y) * 2, J.wr + (sb * H + y) * 2, dj[2], dj[3], lo, hi);
-        int64_t n0 = nx, n1 = nx;
-        if (hi >= lo) {  // the columns before lo and after hi: a scan over them (they are filled next) instead
-            n0 = 0;      // of binary searches, whose dependent reads of a row not yet in cache took ~2 ms a frame
-            while (n0 < nx && xall[n0] < lo) ++n0;
-            while (n1 > n0 && xall[n1 - 1] > hi) --n1;
-        }
+        int64_t n0, n1;
+        warp_row_live(J, R, y, xall, nx, n0, n1);
         uint8_t* orow = J.out + (J.row0[j] + y) * J.Wq * 3;
         const int64_t c0 = J.col0[j];
         if (nx > 0 && xall[nx - 1] - xall[0] == nx - 1) {  // consecutive columns: two runs of background
@@ -1945,27 +2007,17 @@ void warp_rows(const WarpJob& J, int j, int y0, int y1, bool wide, std::vector<i
         const int32_t* xl = xall + n0;
         const int n = int(n1 - n0);
         if (n <= 0) continue;
-        const float* wra = J.wmaps + (sa * H + y) * W;
-        const float* wrb = J.wmaps + (sb * H + y) * W;
-        const float* ia = J.images + (sa * H + y) * int64_t(W) * 3;
-        const float* ib = J.images + (sb * H + y) * int64_t(W) * 3;
+        const float *ia, *ib;
+        warp_row_columns<IA>(J, R, y, xl, n, wide, i0a, fa, i0b, fb, ia, ib);
 #if HV_HAVE_AVX2_PATH
         if (wide) {
-            warp_columns16<IA>(wra, xl, n, da0, da1, J.iters, W, i0a, fa);
-            warp_columns16<IA>(wrb, xl, n, db0, db1, J.iters, W, i0b, fb);
             warp_blend16<BA>(ia, ib, i0a, i0b, fa, fb, wa, wb, n, W, rgb.data());
         } else
 #endif
         {
-            warp_columns_scalar<IA>(wra, xl, n, da0, da1, J.iters, W, i0a, fa);
-            warp_columns_scalar<IA>(wrb, xl, n, db0, db1, J.iters, W, i0b, fb);
-            for (int i = 0; i < n; ++i) {
-                const float ca0 = wa * (1.0f - fa[i]), ca1 = wa * fa[i], cb0 = wb * (1.0f - fb[i]), cb1 = wb * fb[i];
-                const float* pa = ia + 3 * i0a[i];
-                const float* pb = ib + 3 * i0b[i];
+            for (int i = 0; i < n; ++i)
                 for (int c = 0; c < 3; ++c)
-                    rgb[3 * i + c] = warp_blend_scalar<BA>(ca0, ca1, cb0, cb1, pa[c], pa[3 + c], pb[c], pb[3 + c]);
-            }
+                    rgb[3 * i + c] = warp_texel_channel<BA>(ia, ib, i0a, i0b, fa, fb, wa, wb, i, c);
         }
         if (xl[n - 1] - xl[0] == n - 1) {  // consecutive columns (sorted, distinct): one copy
             std::memcpy(orow + (c0 + xl[0]) * 3, rgb.data(), size_t(3 * n));
@@ -1980,6 +2032,28 @@ void warp_rows(const WarpJob& J, int j, int y0, int y1, bool wide, std::vector<i
 
 using WarpRowsFn = void (*)(const WarpJob&, int, int, int, bool, std::vector<int32_t>&, std::vector<int32_t>&,
                             std::vector<float>&, std::vector<uint8_t>&);
+
+// The listed-column table (offsets (V H + 1,), columns) lies inside its buffers: offsets increasing within
+// [0, n_cols], each row's first and last column in [0, W) (warp_views checks the rest of the table's range)
+inline bool warp_table_ok(const WarpJob& J, int64_t V, int64_t n_cols) {
+    const int64_t H = J.H;
+    for (int64_t i = 0; i <= V * H; ++i)
+        if (J.offsets[i] < 0 || J.offsets[i] > n_cols || (i > 0 && J.offsets[i] < J.offsets[i - 1])) return false;
+    for (int64_t r = 0; r < V * H; ++r)
+        if (J.offsets[r + 1] != J.offsets[r] && (J.columns[J.offsets[r]] < 0 || J.columns[J.offsets[r + 1] - 1] >= J.W))
+            return false;
+    return true;
+}
+
+// the AVX-512 row functions (mode 0 on a CPU that has it), else the scalar ones
+inline bool warp_wide(int mode) {
+#if HV_HAVE_AVX2_PATH
+    return mode == 0 && cpu_has_avx512();
+#else
+    (void)mode;
+    return false;
+#endif
+}
 
 PyObject* warp_u8(PyObject*, PyObject* args) {
     Py_buffer images{}, wmaps{}, slot{}, jobs{}, d{}, offsets{}, columns{}, spans{}, wr{}, bg{}, out{}, row0{}, col0{};
@@ -2017,23 +2091,14 @@ PyObject* warp_u8(PyObject*, PyObject* args) {
                  J.slot[b] >= 0 && J.slot[b] < S && J.row0[j] >= 0 && J.row0[j] + H <= Hq && J.col0[j] >= 0 &&
                  J.col0[j] + W <= Wq;
         }
-        for (int64_t i = 0; ok && listed && i <= V * H; ++i)
-            ok = J.offsets[i] >= 0 && J.offsets[i] <= n_cols && (i == 0 || J.offsets[i] >= J.offsets[i - 1]);
-        // each row's columns are increasing (warp_views checks the table's range; a row's first and last here)
-        for (int64_t r = 0; ok && listed && r < V * H; ++r)
-            ok = J.offsets[r + 1] == J.offsets[r] ||
-                 (J.columns[J.offsets[r]] >= 0 && J.columns[J.offsets[r + 1] - 1] < W);
+        ok = ok && (!listed || warp_table_ok(J, V, n_cols));
         if (!ok) PyErr_SetString(PyExc_ValueError, "_splat_cpp.warp_u8: a job, tile or column lies outside the arrays");
     }
     if (ok) {
         // numba's fusions (both sums fused on their first product): the same bytes, tested; the other
         // three choices differ on ~1e-5 of the pixels by 1 (measured on live frames)
         const WarpRowsFn fn = warp_rows<true, true>;
-#if HV_HAVE_AVX2_PATH
-        const bool wide = mode == 0 && cpu_has_avx512();
-#else
-        const bool wide = false;
-#endif
+        const bool wide = warp_wide(mode);
         const int rows = 16;
         const int per = (J.H + rows - 1) / rows;
         Py_BEGIN_ALLOW_THREADS
@@ -2095,11 +2160,6 @@ inline void native_prefetch_row(const NativeJob& N, int64_t k, int y) {
 // how many rows ahead (1 / 2 / 3: 28.5 / 28.1 / 26.9 ms a full-tile call, two process pairs, load 2.3-2.7)
 constexpr int NATIVE_PREFETCH_ROWS = 3;
 
-// one destination byte b of a texel: the synthesized value of its channel (scalar; warp_u8's expressions)
-template <bool BA>
-inline uint8_t warp_native_value(float ca0, float ca1, float cb0, float cb1, const float* a, const float* b, int c) {
-    return warp_blend_scalar<BA>(ca0, ca1, cb0, cb1, a[c], a[3 + c], b[c], b[3 + c]);
-}
 
 #if HV_HAVE_AVX2_PATH
 // 16 texels' two destination bytes: the blend of the channel each names (codes' low and high byte)
@@ -2107,45 +2167,20 @@ template <bool BA>
 HV_TARGET_AVX512 void warp_blend16_native(const float* ia, const float* ib, const int32_t* pa, const int32_t* pb,
                                           const float* fa, const float* fb, float wa, float wb, const uint16_t* codes,
                                           int n, int W, uint8_t* v0, uint8_t* v1) {
-    const __m512 vwa = _mm512_set1_ps(wa), vwb = _mm512_set1_ps(wb), one = _mm512_set1_ps(1.0f);
-    const __m512 k255 = _mm512_set1_ps(255.0f), half = _mm512_set1_ps(0.5f);
-    const __m512 lo = _mm512_set1_ps(-1.0f), hi = _mm512_set1_ps(256.0f);
-    const __m512i izero = _mm512_setzero_si512(), i255 = _mm512_set1_epi32(255), three = _mm512_set1_epi32(3);
     const __m512i ch_mask = _mm512_set1_epi32(3);
     int i = 0;
     for (; i + 16 <= n; i += 16) {
-        const __m512 fa_ = _mm512_loadu_ps(fa + i), fb_ = _mm512_loadu_ps(fb + i);
-        const __m512 ca0 = _mm512_mul_ps(vwa, _mm512_sub_ps(one, fa_)), ca1 = _mm512_mul_ps(vwa, fa_);
-        const __m512 cb0 = _mm512_mul_ps(vwb, _mm512_sub_ps(one, fb_)), cb1 = _mm512_mul_ps(vwb, fb_);
-        const __m512i pva = _mm512_loadu_si512(pa + i), pvb = _mm512_loadu_si512(pb + i);
+        WarpBlend16 s;
+        warp_blend16_setup(ia, ib, pa + i, pb + i, fa + i, fb + i, wa, wb, W, s);
         const __m512i code = _mm512_cvtepu16_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(codes + i)));
-        const __m512i chs[2] = {_mm512_and_si512(code, ch_mask),
-                                _mm512_and_si512(_mm512_srli_epi32(code, 8), ch_mask)};
-        WarpWindow wa_, wb_;
-        warp_window_rgb(ia, pva, W, wa_);
-        warp_window_rgb(ib, pvb, W, wb_);
-        const __m512i ta = wa_.t, tb = wb_.t;
-        for (int d = 0; d < 2; ++d) {
-            const __m512i tac = _mm512_add_epi32(ta, chs[d]), tbc = _mm512_add_epi32(tb, chs[d]);
-            const __m512i tac3 = _mm512_add_epi32(tac, three), tbc3 = _mm512_add_epi32(tbc, three);
-            const __m512 A = warp_tap(wa_, ia, tac), B = warp_tap(wa_, ia, tac3);
-            const __m512 C = warp_tap(wb_, ib, tbc), D = warp_tap(wb_, ib, tbc3);
-            __m512 v = BA ? _mm512_fmadd_ps(ca0, A, _mm512_mul_ps(ca1, B)) : _mm512_fmadd_ps(ca1, B, _mm512_mul_ps(ca0, A));
-            v = _mm512_fmadd_ps(cb0, C, v);
-            v = _mm512_fmadd_ps(cb1, D, v);
-            const __m512 s = _mm512_min_ps(_mm512_max_ps(_mm512_fmadd_ps(v, k255, half), lo), hi);
-            const __m512i r = _mm512_min_epi32(_mm512_max_epi32(_mm512_cvttps_epi32(s), izero), i255);
-            _mm_storeu_si128(reinterpret_cast<__m128i*>((d ? v1 : v0) + i), _mm512_cvtepi32_epi8(r));
-        }
+        const __m512i r0 = warp_blend16_channel<BA>(s, ia, ib, _mm512_and_si512(code, ch_mask));
+        const __m512i r1 = warp_blend16_channel<BA>(s, ia, ib, _mm512_and_si512(_mm512_srli_epi32(code, 8), ch_mask));
+        _mm_storeu_si128(reinterpret_cast<__m128i*>(v0 + i), _mm512_cvtepi32_epi8(r0));
+        _mm_storeu_si128(reinterpret_cast<__m128i*>(v1 + i), _mm512_cvtepi32_epi8(r1));
     }
     for (; i < n; ++i) {
-        const float ca0 = wa * (1.0f - fa[i]), ca1 = wa * fa[i], cb0 = wb * (1.0f - fb[i]), cb1 = wb * fb[i];
-        const float* a = ia + 3 * pa[i];
-        const float* b = ib + 3 * pb[i];
-        v0[i] = warp_blend_scalar_v<BA>(ca0, ca1, cb0, cb1, a[codes[i] & 3], a[3 + (codes[i] & 3)],
-                                        b[codes[i] & 3], b[3 + (codes[i] & 3)]);
-        const int c1 = (codes[i] >> 8) & 3;
-        v1[i] = warp_blend_scalar_v<BA>(ca0, ca1, cb0, cb1, a[c1], a[3 + c1], b[c1], b[3 + c1]);
+        v0[i] = warp_texel_channel_v<BA>(ia, ib, pa, pb, fa, fb, wa, wb, i, codes[i] & 3);
+        v1[i] = warp_texel_channel_v<BA>(ia, ib, pa, pb, fa, fb, wa, wb, i, (codes[i] >> 8) & 3);
     }
 }
 #endif
@@ -2155,12 +2190,9 @@ void warp_native_rows(const NativeJob& N, int j, int y0, int y1, bool wide, std:
                       std::vector<float>& buf_f, std::vector<uint8_t>& vals) {
     const WarpJob& J = N.w;
     const int H = J.H, W = J.W;
-    const int64_t k = J.jobs[3 * j], a = J.jobs[3 * j + 1], b = J.jobs[3 * j + 2];
-    const int64_t sa = J.slot[a], sb = J.slot[b];
-    const float wa = float(double(b - k) / double(b - a));
-    const float wb = 1.0f - wa;
-    const double* dj = J.d + 4 * j;
-    const float da0 = float(dj[0]), da1 = float(dj[1]), db0 = float(dj[2]), db1 = float(dj[3]);
+    const WarpRow R = warp_row_job(J, j);
+    const int64_t k = R.k;
+    const float wa = R.wa, wb = R.wb;
     int32_t *i0a = buf_i.data(), *i0b = buf_i.data() + W;
     float *fa = buf_f.data(), *fb = buf_f.data() + W;
     uint8_t *v0 = vals.data(), *v1 = vals.data() + W + 16;
@@ -2172,15 +2204,8 @@ void warp_native_rows(const NativeJob& N, int j, int y0, int y1, bool wide, std:
         const int64_t nx = o1 - o0;
         if (y + NATIVE_PREFETCH_ROWS < y1) native_prefetch_row(N, k, y + NATIVE_PREFETCH_ROWS);
         if (nx == 0) continue;
-        int64_t lo = W, hi = -1;
-        warp_live_range(J.spans + (sa * H + y) * 2, J.wr + (sa * H + y) * 2, dj[0], dj[1], lo, hi);
-        warp_live_range(J.spans + (sb * H + y) * 2, J.wr + (sb * H + y) * 2, dj[2], dj[3], lo, hi);
-        int64_t n0 = nx, n1 = nx;
-        if (hi >= lo) {  // the columns before lo and after hi: a scan over them (they are filled next) instead
-            n0 = 0;      // of binary searches, whose dependent reads of a row not yet in cache took ~2 ms a frame
-            while (n0 < nx && xall[n0] < lo) ++n0;
-            while (n1 > n0 && xall[n1 - 1] > hi) --n1;
-        }
+        int64_t n0, n1;
+        warp_row_live(J, R, y, xall, nx, n0, n1);
         // (byte stores may alias anything: the loops read their tables through local restrict pointers)
         uint8_t* __restrict nrow = N.native + N.rowoff[y];
         const int32_t* __restrict coloff = N.coloff;
@@ -2201,26 +2226,17 @@ void warp_native_rows(const NativeJob& N, int j, int y0, int y1, bool wide, std:
         const uint16_t* __restrict cl = call + n0;
         const int n = int(n1 - n0);
         if (n <= 0) continue;
-        const float* wra = J.wmaps + (sa * H + y) * W;
-        const float* wrb = J.wmaps + (sb * H + y) * W;
-        const float* ia = J.images + (sa * H + y) * int64_t(W) * 3;
-        const float* ib = J.images + (sb * H + y) * int64_t(W) * 3;
+        const float *ia, *ib;
+        warp_row_columns<IA>(J, R, y, xl, n, wide, i0a, fa, i0b, fb, ia, ib);
 #if HV_HAVE_AVX2_PATH
         if (wide) {
-            warp_columns16<IA>(wra, xl, n, da0, da1, J.iters, W, i0a, fa);
-            warp_columns16<IA>(wrb, xl, n, db0, db1, J.iters, W, i0b, fb);
             warp_blend16_native<BA>(ia, ib, i0a, i0b, fa, fb, wa, wb, cl, n, W, v0, v1);
         } else
 #endif
         {
-            warp_columns_scalar<IA>(wra, xl, n, da0, da1, J.iters, W, i0a, fa);
-            warp_columns_scalar<IA>(wrb, xl, n, db0, db1, J.iters, W, i0b, fb);
             for (int i = 0; i < n; ++i) {
-                const float ca0 = wa * (1.0f - fa[i]), ca1 = wa * fa[i], cb0 = wb * (1.0f - fb[i]), cb1 = wb * fb[i];
-                const float* pa = ia + 3 * i0a[i];
-                const float* pb = ib + 3 * i0b[i];
-                v0[i] = warp_native_value<BA>(ca0, ca1, cb0, cb1, pa, pb, cl[i] & 3);
-                v1[i] = warp_native_value<BA>(ca0, ca1, cb0, cb1, pa, pb, (cl[i] >> 8) & 3);
+                v0[i] = warp_texel_channel<BA>(ia, ib, i0a, i0b, fa, fb, wa, wb, i, cl[i] & 3);
+                v1[i] = warp_texel_channel<BA>(ia, ib, i0a, i0b, fa, fb, wa, wb, i, (cl[i] >> 8) & 3);
             }
         }
         const uint8_t* __restrict r0 = v0;
@@ -2309,11 +2325,7 @@ PyObject* warp_native(PyObject*, PyObject* args) {
             ok = k >= 0 && k < V && a >= 0 && a < V && b >= 0 && b < V && a < b && J.slot[a] >= 0 && J.slot[a] < S &&
                  J.slot[b] >= 0 && J.slot[b] < S && N.job_of[k] == j;
         }
-        for (int64_t i = 0; ok && i <= V * H; ++i)
-            ok = J.offsets[i] >= 0 && J.offsets[i] <= n_cols && (i == 0 || J.offsets[i] >= J.offsets[i - 1]);
-        for (int64_t r = 0; ok && r < V * H; ++r)
-            ok = J.offsets[r + 1] == J.offsets[r] ||
-                 (J.columns[J.offsets[r]] >= 0 && J.columns[J.offsets[r + 1] - 1] < W);
+        ok = ok && warp_table_ok(J, V, n_cols);
         // rowoff[y] + coloff[x] + lut[b] inside the native image for every y, x and b
         int64_t rmin = INT64_MAX, rmax = INT64_MIN, cmin = INT64_MAX, cmax = INT64_MIN, lmin = INT64_MAX, lmax = INT64_MIN;
         for (int64_t y = 0; y < H; ++y) { rmin = std::min(rmin, N.rowoff[y]); rmax = std::max(rmax, N.rowoff[y]); }
@@ -2324,11 +2336,7 @@ PyObject* warp_native(PyObject*, PyObject* args) {
     }
     if (ok) {
         const auto fn = warp_native_rows<true, true>;
-#if HV_HAVE_AVX2_PATH
-        const bool wide = mode == 0 && cpu_has_avx512();
-#else
-        const bool wide = false;
-#endif
+        const bool wide = warp_wide(mode);
         const int rows = 8;  // texel rows a work item (2, 4, 8, 16: the same CPU within 1 ms, measured)
         const int per = (J.H + rows - 1) / rows;
         Py_BEGIN_ALLOW_THREADS
