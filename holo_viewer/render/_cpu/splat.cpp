@@ -2138,7 +2138,7 @@ PyObject* warp_u8(PyObject*, PyObject* args) {
 struct NativeJob {
     WarpJob w;                       // out, row0, col0, Wq unused
     const int64_t* job_of;           // (V,) the warp job of view k, or -1 (a source)
-    const uint16_t* codes;           // parallel to columns
+    const uint32_t* xc;              // parallel to columns: column | code << 16 (one stream, 4 bytes a texel)
     const int64_t* rowoff;           // (H,) native offset of each texel row's first subpixel row
     const int32_t* coloff;           // (W,)
     const int32_t* lut;              // (256,)
@@ -2147,14 +2147,12 @@ struct NativeJob {
 };
 
 // Asks for the listed columns and codes of view k's texel row y ahead of their use: a row's entries are read
-// once a frame (~40 MB in all), and its first reads (the background scans from both ends) waited on them
+// once a frame (27 MB in all), and its first reads (the background scans from both ends) waited on them
 inline void native_prefetch_row(const NativeJob& N, int64_t k, int y) {
     const WarpJob& J = N.w;
     const int64_t o0 = J.offsets[k * J.H + y], o1 = J.offsets[k * J.H + y + 1];
-    const char* a = reinterpret_cast<const char*>(J.columns + o0);
-    const char* b = reinterpret_cast<const char*>(N.codes + o0);
+    const char* a = reinterpret_cast<const char*>(N.xc + o0);
     for (int64_t o = 0; o < (o1 - o0) * 4; o += 64) __builtin_prefetch(a + o);
-    for (int64_t o = 0; o < (o1 - o0) * 2; o += 64) __builtin_prefetch(b + o);
 }
 
 // how many rows ahead (1 / 2 / 3: 28.5 / 28.1 / 26.9 ms a full-tile call, two process pairs, load 2.3-2.7)
@@ -2187,7 +2185,8 @@ HV_TARGET_AVX512 void warp_blend16_native(const float* ia, const float* ib, cons
 
 template <bool IA, bool BA>
 void warp_native_rows(const NativeJob& N, int j, int y0, int y1, bool wide, std::vector<int32_t>& buf_i,
-                      std::vector<float>& buf_f, std::vector<uint8_t>& vals) {
+                      std::vector<float>& buf_f, std::vector<uint8_t>& vals, std::vector<int32_t>& xbuf,
+                      std::vector<uint16_t>& cbuf) {
     const WarpJob& J = N.w;
     const int H = J.H, W = J.W;
     const WarpRow R = warp_row_job(J, j);
@@ -2199,11 +2198,15 @@ void warp_native_rows(const NativeJob& N, int j, int y0, int y1, bool wide, std:
     const int32_t* __restrict lut = N.lut;
     for (int y = y0; y < y1; ++y) {
         const int64_t o0 = J.offsets[k * H + y], o1 = J.offsets[k * H + y + 1];
-        const int32_t* __restrict xall = J.columns + o0;
-        const uint16_t* __restrict call = N.codes + o0;
         const int64_t nx = o1 - o0;
         if (y + NATIVE_PREFETCH_ROWS < y1) native_prefetch_row(N, k, y + NATIVE_PREFETCH_ROWS);
         if (nx == 0) continue;
+        int32_t* __restrict xs = xbuf.data();
+        uint16_t* __restrict cs = cbuf.data();
+        const uint32_t* __restrict xc = N.xc + o0;
+        for (int64_t i = 0; i < nx; ++i) { xs[i] = int32_t(xc[i] & 0xFFFF); cs[i] = uint16_t(xc[i] >> 16); }
+        const int32_t* __restrict xall = xs;
+        const uint16_t* __restrict call = cs;
         int64_t n0, n1;
         warp_row_live(J, R, y, xall, nx, n0, n1);
         // (byte stores may alias anything: the loops read their tables through local restrict pointers)
@@ -2265,15 +2268,14 @@ inline void native_source_rows(const NativeJob& N, int64_t k, int y0, int y1) {
     const int H = J.H, W = J.W;
     const int32_t* __restrict lut = N.lut;
     const int32_t* __restrict coloff = N.coloff;
-    const int32_t* __restrict columns = J.columns;
-    const uint16_t* __restrict codes = N.codes;
+    const uint32_t* __restrict xcs = N.xc;
     for (int y = y0; y < y1; ++y) {
         const int64_t o0 = J.offsets[k * H + y], o1 = J.offsets[k * H + y + 1];
         if (y + NATIVE_PREFETCH_ROWS < y1) native_prefetch_row(N, k, y + NATIVE_PREFETCH_ROWS);
         const float* __restrict irow = J.images + (J.slot[k] * H + y) * int64_t(W) * 3;
         uint8_t* __restrict nrow = N.native + N.rowoff[y];
         for (int64_t i = o0; i < o1; ++i) {
-            const int x = columns[i], c = codes[i];
+            const int x = int(xcs[i] & 0xFFFF), c = int(xcs[i] >> 16);
             const int c0 = c & 0xFF, c1 = c >> 8;
             const uint8_t a = native_to_uint8(irow[3 * x + (c0 & 3)]), b = native_to_uint8(irow[3 * x + (c1 & 3)]);
             const int32_t base = coloff[x];
@@ -2284,13 +2286,13 @@ inline void native_source_rows(const NativeJob& N, int64_t k, int y0, int y1) {
 }
 
 PyObject* warp_native(PyObject*, PyObject* args) {
-    Py_buffer images{}, wmaps{}, slot{}, jobs{}, d{}, offsets{}, columns{}, codes{}, spans{}, wr{}, bg{}, job_of{},
+    Py_buffer images{}, wmaps{}, slot{}, jobs{}, d{}, offsets{}, columns{}, xc{}, spans{}, wr{}, bg{}, job_of{},
         rowoff{}, coloff{}, lut{}, native{};
     NativeJob N{};
     WarpJob& J = N.w;
     int S, n_threads, mode;
     if (!PyArg_ParseTuple(args, "y*y*y*y*y*iy*y*y*y*y*y*y*y*y*y*w*iiiiiii", &images, &wmaps, &slot, &jobs, &d,
-                          &J.iters, &offsets, &columns, &codes, &spans, &wr, &bg, &job_of, &rowoff, &coloff, &lut,
+                          &J.iters, &offsets, &columns, &xc, &spans, &wr, &bg, &job_of, &rowoff, &coloff, &lut,
                           &native, &S, &N.V, &J.T, &J.H, &J.W, &n_threads, &mode))
         return nullptr;
     const int V = N.V;
@@ -2303,13 +2305,13 @@ PyObject* warp_native(PyObject*, PyObject* args) {
          need(job_of, V * 8LL, "job_of") && need(offsets, (V * H + 1) * 8, "offsets") &&
          need(rowoff, H * 8, "rowoff") && need(coloff, W * 4, "coloff") && need(lut, 256 * 4, "lut");
     const int64_t n_cols = columns.len / 4, n_nat = native.len;
-    ok = ok && need(codes, n_cols * 2, "codes");
+    ok = ok && need(xc, n_cols * 4, "xc");
     if (ok) {
         J.images = (const float*)images.buf; J.wmaps = (const float*)wmaps.buf; J.slot = (const int64_t*)slot.buf;
         J.jobs = (const int64_t*)jobs.buf; J.d = (const double*)d.buf; J.spans = (const int64_t*)spans.buf;
         J.wr = (const double*)wr.buf; J.offsets = (const int64_t*)offsets.buf; J.columns = (const int32_t*)columns.buf;
         N.job_of = (const int64_t*)job_of.buf;
-        N.codes = (const uint16_t*)codes.buf; N.rowoff = (const int64_t*)rowoff.buf;
+        N.xc = (const uint32_t*)xc.buf; N.rowoff = (const int64_t*)rowoff.buf;
         N.coloff = (const int32_t*)coloff.buf; N.lut = (const int32_t*)lut.buf; N.native = (uint8_t*)native.buf;
         for (int c = 0; c < 3; ++c) {  // warp_u8's background bytes
             const double v = std::min(std::max(std::fma(double(((const float*)bg.buf)[c]), 255.0, 0.5), -1.0), 256.0);
@@ -2326,6 +2328,9 @@ PyObject* warp_native(PyObject*, PyObject* args) {
                  J.slot[b] >= 0 && J.slot[b] < S && N.job_of[k] == j;
         }
         ok = ok && warp_table_ok(J, V, n_cols);
+        for (int64_t r = 0; ok && r < V * H; ++r)  // xc's columns: a row's first and last within [0, W) too
+            ok = J.offsets[r + 1] == J.offsets[r] ||
+                 (int64_t(N.xc[J.offsets[r]] & 0xFFFF) < W && int64_t(N.xc[J.offsets[r + 1] - 1] & 0xFFFF) < W);
         // rowoff[y] + coloff[x] + lut[b] inside the native image for every y, x and b
         int64_t rmin = INT64_MAX, rmax = INT64_MIN, cmin = INT64_MAX, cmax = INT64_MIN, lmin = INT64_MAX, lmax = INT64_MIN;
         for (int64_t y = 0; y < H; ++y) { rmin = std::min(rmin, N.rowoff[y]); rmax = std::max(rmax, N.rowoff[y]); }
@@ -2341,9 +2346,12 @@ PyObject* warp_native(PyObject*, PyObject* args) {
         const int per = (J.H + rows - 1) / rows;
         Py_BEGIN_ALLOW_THREADS
         parallel_for(per, std::max(1, n_threads), [&](int item) {
-            thread_local std::vector<int32_t> bi;
+            thread_local std::vector<int32_t> bi, xbuf;
             thread_local std::vector<float> bf;
             thread_local std::vector<uint8_t> vals;
+            thread_local std::vector<uint16_t> cbuf;
+            if (xbuf.size() < size_t(J.W)) xbuf.resize(size_t(J.W));
+            if (cbuf.size() < size_t(J.W)) cbuf.resize(size_t(J.W));
             if (bi.size() < size_t(2 * J.W)) bi.resize(size_t(2 * J.W));
             if (bf.size() < size_t(2 * J.W)) bf.resize(size_t(2 * J.W));
             if (vals.size() < size_t(2 * J.W + 32)) vals.resize(size_t(2 * J.W + 32));
@@ -2352,12 +2360,12 @@ PyObject* warp_native(PyObject*, PyObject* args) {
                 for (int d = 0; k + 1 < N.V && d < NATIVE_PREFETCH_ROWS && y0 + d < y1; ++d)
                     native_prefetch_row(N, k + 1, y0 + d);
                 if (N.job_of[k] < 0) native_source_rows(N, k, y0, y1);
-                else fn(N, int(N.job_of[k]), y0, y1, wide, bi, bf, vals);
+                else fn(N, int(N.job_of[k]), y0, y1, wide, bi, bf, vals, xbuf, cbuf);
             }
         });
         Py_END_ALLOW_THREADS
     }
-    for (Py_buffer* b : {&images, &wmaps, &slot, &jobs, &d, &offsets, &columns, &codes, &spans, &wr, &bg, &job_of,
+    for (Py_buffer* b : {&images, &wmaps, &slot, &jobs, &d, &offsets, &columns, &xc, &spans, &wr, &bg, &job_of,
                          &rowoff, &coloff, &lut, &native})
         PyBuffer_Release(b);
     if (!ok) return nullptr;
