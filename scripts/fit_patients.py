@@ -31,11 +31,12 @@ weights; for ``STAGE8_PATIENTS`` (rafael) a cameras-alike stage (``cameras_alike
 ``--stage8 N``) weights pain 1 0.45 / neutral 0.35 with every camera drawn alike; for ``STAGE9_PATIENTS``
 (helen) a squared-error stage (``squared_error_stage_config``, ``--stage9 N``) fits the squared error and is
 averaged with the file it started from (``--stage9-rounds N``: N rounds, each from the last average); for
-``STAGE10_PATIENTS`` (none yet; measured on helen) the same stage on targets whose mesh colours are carried
-``CARRY_OUT_PX`` px past the outline (``carried_out_dataset``, ``--stage10 N``), again averaged with its start.
+``STAGE10_PATIENTS`` (helen) the same stage on targets whose mesh colours are carried ``CARRY_OUT_PX`` px past
+the outline (``carried_out_dataset``, ``--stage10 N``), again averaged with its start, with a patient's own pose
+weights (``STAGE10_POSE_WEIGHTS``: helen's pain 1 at 0.6) and extra quilt views (``STAGE10_EXTRA_VIEWS``).
 A patient whose textures were repainted is refitted from the earlier file with ``--recolour-from DIR`` (the
 textures that file was fitted to): its colours are rescaled by the new albedo over the old (``recolour_to_textures``) before
-the stages (measured for a darker hair on helen, not shipped: docs/avatar_fit.md "A greyer helen"). Writes
+the stages (helen's darker hair: docs/avatar_fit.md "A greyer helen", "helen at 35 dB"). Writes
 ``assets/patients/<name>/avatar.npz`` with ``fit_angle_range_deg`` and, in its ``info``, ``psnr_min_db``
 (worst of the 48 quilt views and the two slider-limit views, neutral). ``default`` as NAME fine-tunes the
 default avatar itself the same way (the second stage of ``scripts/fit_default_avatar.py``). Deterministic
@@ -166,9 +167,19 @@ STAGE9_ROUNDS: dict[str, int] = {}
 #: The fit's loss counts the black background round the outline, the fidelity (over the mesh mask) does not, so the
 #: edge Gaussians (seen edge-on, ~3 px past the outline) were fitted darker than the mesh inside it
 CARRY_OUT_PX = 2.0
-#: the patients whose shipped avatar has the carried-out stage: none (measured on helen: every pain-1 number and
-#: neutral's worst view and median up 0.1-0.5 dB, but neutral's +9.6 deg limit -0.08 and view 47 -0.11: not shipped)
-STAGE10_PATIENTS: tuple[str, ...] = ()
+#: the patients whose shipped avatar has the carried-out stage: helen (docs/avatar_fit.md "helen at 35 dB"; on her
+#: earlier textures alone: every pain-1 number up 0.1-0.5 dB, neutral's +9.6 deg limit -0.08: not shipped then)
+STAGE10_PATIENTS: tuple[str, ...] = ("helen",)
+#: the carried-out stage's pose weights per patient (default ``PAIN_STAGE_WEIGHTS``, the squared-error stage's;
+#: 0.05 for each pose a dict does not name): helen's pain 1 drawn 60 % of the time, her pain 1 being 0.7-1 dB under
+#: her neutral after stage 9 (pain 1 at 0.5 gained it 0.15-0.2 dB, at 0.6 0.4-0.7; docs/avatar_fit.md "helen at 35 dB")
+HELEN_STAGE10_WEIGHTS = {"neutral": 0.2, "pain_1": 0.6, "pain_0.5": 0.15, "smile_1": 0.0125, "mouth_open_1": 0.0125,
+                         "surprise_1": 0.0125, "random_00": 0.0125}
+STAGE10_POSE_WEIGHTS: dict[str, dict[str, float]] = {"helen": HELEN_STAGE10_WEIGHTS}
+#: quilt views added to the carried-out stage's training cameras per patient (its renders: a second dataset, kept
+#: in ``--dataset-cache``'s file + ``.stage10``): helen's worst views were 12-14 and 32-34, between the training
+#: views 9 / 19 and 28 / 38, where a training camera lifts its own view by ~0.2 dB
+STAGE10_EXTRA_VIEWS: dict[str, tuple[int, ...]] = {"helen": (14, 33)}
 N_LASH = 2000
 #: the cameras of the default avatar's own fit (scripts/fit_default_avatar.py): a transfer without a
 #: fine-tune (``--iterations 0``) records their range
@@ -232,6 +243,26 @@ def squared_error_stage_config(pose_names: list[str], cfg: fa.AvatarFitConfig,
     return fa.replace_config(silhouette_stage_config(pose_names, cfg, iterations), seed=c.seed,
                              photometric=c.photometric, ssim_weight=c.ssim_weight, w_opacity=c.w_opacity,
                              rim_weight=c.rim_weight)
+
+
+def carried_out_stage_config(name: str, pose_names: list[str], cfg: fa.AvatarFitConfig,
+                             iterations: int = SQUARED_ERROR_STAGE_CONFIG.iterations) -> fa.AvatarFitConfig:
+    """The carried-out stage's settings (stage 10) for ``name`` on a dataset of ``pose_names`` made with ``cfg``'s
+    cameras: :func:`squared_error_stage_config` with the poses weighted by ``STAGE10_POSE_WEIGHTS[name]`` (0.05 for
+    each pose it does not name) when set."""
+    c = squared_error_stage_config(pose_names, cfg, iterations)
+    pw = STAGE10_POSE_WEIGHTS.get(name)
+    if pw is None:
+        return c
+    return fa.replace_config(c, pose_weights=tuple(float(pw.get(n, 0.05)) for n in pose_names))
+
+
+def stage10_cameras(name: str, cfg: fa.AvatarFitConfig) -> fa.AvatarFitConfig:
+    """``cfg`` with ``STAGE10_EXTRA_VIEWS[name]`` added to its quilt views (sorted; ``cfg`` itself when none)."""
+    extra = STAGE10_EXTRA_VIEWS.get(name, ())
+    if not extra:
+        return cfg
+    return fa.replace_config(cfg, quilt_views=tuple(sorted(set(cfg.quilt_views) | set(extra))))
 
 
 def carried_out_dataset(data: Any, cfg: fa.AvatarFitConfig, px: float = CARRY_OUT_PX) -> Any:
@@ -519,9 +550,12 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
                   f"({time.process_time() - c9:.0f} s CPU), first/last 50 {np.mean(res9.losses[:50]):.5f} / "
                   f"{np.mean(res9.losses[-50:]):.5f}", flush=True)
         if stage10 > 0:
+            cfg10 = stage10_cameras(name, cfg)
+            data10 = data if cfg10 is cfg else _dataset(
+                pipe, poses, source, cfg10, head_path, args.dataset_cache and args.dataset_cache + ".stage10")
             c10 = time.process_time()
-            res10 = fa.fit_gaussians(start, binding, carried_out_dataset(data, cfg),
-                                     squared_error_stage_config(data.names, cfg, stage10), progress=False)
+            res10 = fa.fit_gaussians(start, binding, carried_out_dataset(data10, cfg10),
+                                     carried_out_stage_config(name, data10.names, cfg10, stage10), progress=False)
             before = (start if args.init and args.init_stage == 10  # a file's Gaussians: as stored
                       else _as_stored(start, binding, model, source.name, head_path))
             after = _as_stored(res10.local, binding, model, source.name, head_path)
@@ -608,7 +642,9 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
         info["method"] += "; then the same on targets carried past the outline, averaged with its start"
         info["stage10_iterations"] = stage10
         info["stage10"] = _stage_record(s9, {**s9_terms, "carry_out_px": CARRY_OUT_PX,
-                                             "carried_cameras": "abs_yaw_lt_25"})
+                                             "carried_cameras": "abs_yaw_lt_25",
+                                             "pose_weights": STAGE10_POSE_WEIGHTS.get(name, PAIN_STAGE_WEIGHTS),
+                                             "quilt_views": list(stage10_cameras(name, cfg).quilt_views)})
     if args.init:
         info["init_stage"] = args.init_stage
     if args.recolour_from:

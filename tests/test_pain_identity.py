@@ -162,6 +162,11 @@ def test_a_patient_json_carries_its_own_pain_gains(tmp_path):
     assert np.abs(shared).max() > 0
     assert ex.pain_expression(1.0, am) == pytest.approx(shared + 0.2 * ex.pain_aus(1.0)["AU4"] * am.row("AU4"))
     assert ex.au_map_for(P.load_patient_model("kwame")).pain_gains is None
+    # the shipped ward: helen alone carries a gain (her brows, docs/face_realism.md "helen's brows"), her recipe's
+    from holo_viewer.assets_build.patients import RECIPES
+
+    assert {r.name: r.pain_gains for r in RECIPES if r.pain_gains} == {"helen": {"AU4": 1.247}}
+    assert dict(ex.au_map_for(P.load_patient_model("helen")).pain_gains) == {"AU4": 1.247}
     for bad in ({"AU4": 2.0}, {"AU99": 1.1}, [1.2]):
         (folder / "patient.json").write_text(json.dumps({**info, "pain_gains": bad}))
         with pytest.raises(AvatarError, match=r"zed.patient\.json: field 'pain_gains'"):

@@ -466,7 +466,7 @@ def test_the_squared_error_stage_is_the_silhouette_stage_with_the_squared_error(
 
 
 def test_the_carried_out_stage_carries_the_mesh_colours_past_the_outline():
-    """``scripts/fit_patients.py``'s stage 10 (measured on helen, not shipped): ``carried_out_dataset`` sets each
+    """``scripts/fit_patients.py``'s stage 10 (helen's): ``carried_out_dataset`` sets each
     background pixel within ``px`` of the mesh mask to its nearest mesh pixel's colour (a rectangle's nearest
     pixel: the coordinates clamped into it, computed here in float64) at the cameras of |yaw| < 25 deg only; the masks, the other cameras
     and the input stay as they were; bad input and a negative count are errors."""
@@ -486,7 +486,16 @@ def test_the_carried_out_stage_carries_the_mesh_colours_past_the_outline():
             if (cy, cx) != (y, x) and np.hypot(y - cy, x - cx) <= 2.0:
                 want[:, [0, 1, 3], y, x] = images[:, [0, 1, 3], cy, cx]  # camera 2 (yaw -30) keeps its background
     assert np.array_equal(out.images, want) and not np.array_equal(want, images)
-    assert fp.STAGE10_PATIENTS == () and fp.CARRY_OUT_PX == 2.0  # measured on helen, not shipped
+    assert fp.STAGE10_PATIENTS == ("helen",) and fp.CARRY_OUT_PX == 2.0
+    # helen's stage: pain 1 60 % of the time, quilt views 14 and 33 added to the cameras; others as stage 9
+    names = ["neutral", "smile_1", "pain_0.5", "pain_1", "other"]
+    base = fp.PATIENT_CONFIG
+    assert fp.carried_out_stage_config("helen", names, base).pose_weights == (0.2, 0.0125, 0.15, 0.6, 0.05)
+    assert fp.carried_out_stage_config("mei", names, base) == fp.squared_error_stage_config(names, base)
+    c10 = fp.stage10_cameras("helen", base)
+    assert c10.quilt_views == (0, 9, 14, 19, 28, 33, 38, 47) and c10.orbit == base.orbit
+    assert fp.stage10_cameras("mei", base) is base
+    assert len(fp.carried_out_stage_config("helen", names, c10).camera_weights) == 14
     with pytest.raises(ValueError, match="px"):
         fp.carried_out_dataset(data, cfg, px=0.0)
     with pytest.raises(ValueError, match="expected 4 cameras"):
@@ -566,10 +575,11 @@ def test_the_silhouette_loss_weights_the_rim_and_adds_the_alpha_term():
     assert a == b
 
 
-def test_hair_value_scales_the_hair_shell_and_no_recipe_sets_it_yet():
+def test_hair_value_scales_the_hair_shell_and_only_helen_sets_it():
     """``Look.hair_value`` (issue 35, helen's greyer hair) multiplies the hair shell's painted colour exactly (the
     strands' pattern kept; 1, the default, paints the earlier hair), not the hair painted on the skin textures
-    (``hair_color``); no shipped recipe sets it yet (helen's 0.7 was measured, not shipped: docs/avatar_fit.md)."""
+    (``hair_color``); of the shipped recipes only helen's sets it (0.6: docs/avatar_fit.md "helen at 35 dB"), and
+    her ``patient.json`` states it."""
     import dataclasses
 
     from holo_viewer.assets_build.patients import RECIPES
@@ -591,7 +601,11 @@ def test_hair_value_scales_the_hair_shell_and_no_recipe_sets_it_yet():
     np.testing.assert_allclose(paint(dataclasses.replace(look, hair_value=0.7)), 0.7 * base, rtol=1e-12)
     np.testing.assert_array_equal(paint(dataclasses.replace(look, hair_value=0.7), shell=False), base)
     np.testing.assert_array_equal(paint(dataclasses.replace(look, hair_value=1.0)), base)
-    assert all(r.look.hair_value == 1.0 for r in RECIPES)  # the shipped textures: a change needs a refit
+    # the shipped textures: a change needs a refit
+    assert {r.name: r.look.hair_value for r in RECIPES if r.look.hair_value != 1.0} == {"helen": 0.6}
+    from holo_viewer.avatar.patients import patient_info
+
+    assert patient_info("helen").raw["look"]["hair_value"] == 0.6
 
 
 def test_recolouring_to_repainted_textures_scales_by_the_albedo_ratio(tmp_path):
