@@ -864,7 +864,6 @@ def warp_views(images: np.ndarray, wmaps: np.ndarray, sources: np.ndarray, rig: 
     return out
 
 
-
 def native_warp_available() -> bool:
     """True where the compiled kernel of ``warp_views(native=)`` is built (``_splat_cpp.warp_native``)."""
     cpp = _warp_cpp()
