@@ -40,6 +40,7 @@ rendering that samples the process RSS (the 10-minute memory check: ``--rss-seco
 from __future__ import annotations
 
 import argparse
+import bisect
 import json
 import os
 import sys
@@ -92,11 +93,15 @@ class ThreadCPU:
     CPU (``CLOCK_PROCESS_CPUTIME_ID``; /proc/self/stat until 2026-11-29) that no sampled thread holds, i.e. the C++ kernels' workers, started per call
     and gone within milliseconds (until 2026-11-28 20:05 uncounted: ~40 ms a frame, "1.5 cores busy"); with
     :class:`KernelWorkers` (:func:`name_ended`) they are named by kernel and ``ended threads`` keeps the rest
-    (0-0.6 ms a frame in live sessions: nothing else ends per frame)."""
+    (0-0.6 ms a frame in live sessions: nothing else ends per frame). A kernel's worker that a sample catches
+    alive is not a thread of its own (:meth:`mark_kernel_workers`): until 2026-11-29 07:00 its CPU up to that
+    sample counted as "native workers" *and* in its kernel's workers, 15-21 ms a displayed frame twice."""
 
     def __init__(self, period: float = 0.2) -> None:
         self.period = period
         self.snaps: list[tuple[float, dict]] = []  # (perf_counter, {key: (name, cpu_s)})
+        self.starts: list[float] = []  # perf_counter when each sample began reading (snaps[i][0]: when it ended)
+        self.transient: set[int] = set()  # tids of the kernels' per-call workers (mark_kernel_workers)
         self._names: dict[int, str] = {}
         self._roles: dict[int, str] = {}
         self._stop = threading.Event()
@@ -150,6 +155,7 @@ class ThreadCPU:
             if t.native_id is not None:
                 self._names[t.native_id] = t.name
         snap, children = {}, set()
+        start = time.perf_counter()
         # the whole process (its threads, also those that ended: the C++ kernels start their workers per call,
         # threads that live a few ms and are never in a sample); between() names what the tasks miss
         # in ns (the process clock, each thread's schedstat): the 50 ms intervals of busy_timeline need more than
@@ -160,13 +166,37 @@ class ThreadCPU:
             if not st:
                 continue
             name = self._names.get(int(tid))
-            snap[int(tid)] = (name or "native workers", int(st.split()[0]) / 1e9)
+            snap[int(tid)] = (name or NATIVE, int(st.split()[0]) / 1e9)
             children.update(int(c) for c in (self._read(f"/proc/self/task/{tid}/children") or "").split())
         for pid in children:
             st = self._stat(f"/proc/{pid}/stat")
             if st is not None:
                 snap[-pid] = (self._child_role(pid), st[1] / self._tck)
+        self.starts.append(start)
         self.snaps.append((time.perf_counter(), snap))
+
+    def mark_kernel_workers(self, calls: list[tuple[float, float]], max_life_s: float = 1.0) -> set[int]:
+        """Mark as the kernels' per-call workers (:attr:`transient`, then left to :data:`ENDED`, which
+        :func:`name_ended` names by kernel) the threads with no Python name first seen by a sample taken
+        during a kernel call (``calls``: (perf_counter start, end), :attr:`KernelWorkers.calls`) and seen
+        for less than ``max_life_s`` (a joined thread may linger in /proc a moment after its call). A
+        thread that lives on (numba's or torch's OpenMP worker, OpenBLAS's) is seen for the whole session
+        and keeps its name. Returns the marked tids."""
+        seen: dict[int, list[int]] = {}
+        for i, (_, snap) in enumerate(self.snaps):
+            for key, (name, _) in snap.items():
+                if key > 0 and name == NATIVE:
+                    seen.setdefault(key, []).append(i)
+        spans = sorted(calls)
+        starts = [c for c, _ in spans]
+        for tid, idx in seen.items():
+            read0, read1 = self.starts[idx[0]], self.snaps[idx[0]][0]  # the first sighting's read
+            if self.snaps[idx[-1]][0] - read0 >= max_life_s:
+                continue
+            k = bisect.bisect_left(starts, read1)  # calls begun before that read ended ...
+            if any(end > read0 for _, end in spans[:k]):  # ... and ended after it began
+                self.transient.add(tid)
+        return set(self.transient)
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -197,23 +227,26 @@ class ThreadCPU:
         last: dict = {}
         for _, snap in self.snaps[a:b + 1]:
             last.update(snap)
-        return self.snaps[b][0] - self.snaps[a][0], _with_ended(self.snaps[a][1], last)
+        return self.snaps[b][0] - self.snaps[a][0], _with_ended(self.snaps[a][1], last, self.transient)
 
 
+NATIVE = "native workers"  # threads of the process that Python did not start, alive across kernel calls
 PROCESS = "_process"  # the sampler's key 0: the process's own CPU (every thread it ran, ended ones too)
 ENDED = "ended threads"  # the process's CPU that no sampled thread holds: threads born and ended between samples
 
 
-def _with_ended(a: dict, b: dict) -> dict[str, float]:
+def _with_ended(a: dict, b: dict, transient=frozenset()) -> dict[str, float]:
     """CPU seconds per name from snapshot ``a`` to ``b`` (a thread new in ``b`` counts from 0), and
     :data:`ENDED`: the process's own CPU over the same span less its sampled threads' (the C++ kernels'
-    per-call workers, which live a few ms, are seen in no sample)."""
+    per-call workers, which live a few ms, are seen in no sample, or in one: ``transient``, their tids
+    (:meth:`ThreadCPU.mark_kernel_workers`), stay in ENDED)."""
     out: dict[str, float] = {}
     for key, (name, cpu) in b.items():
-        if key != 0:
+        if key != 0 and key not in transient:
             out[name] = out.get(name, 0.0) + cpu - (a[key][1] if key in a else 0.0)
     if 0 in a and 0 in b:
-        threads = sum(cpu - (a[key][1] if key in a else 0.0) for key, (_, cpu) in b.items() if key > 0)
+        threads = sum(cpu - (a[key][1] if key in a else 0.0) for key, (_, cpu) in b.items()
+                      if key > 0 and key not in transient)
         out[ENDED] = max(0.0, b[0][1] - a[0][1] - threads)
     return out
 
@@ -239,6 +272,7 @@ class KernelWorkers:
         import importlib
 
         self.rows: list[tuple[float, str, float, float]] = []
+        self.calls: list[tuple[float, float]] = []  # (perf_counter at the call, at its return) per call
         self._mods = []
         for name in modules:
             try:
@@ -269,6 +303,7 @@ class KernelWorkers:
 
     def _wrap(self, name: str, func):
         def call(*args, **kwargs):
+            start = time.perf_counter()
             p0, t0 = self._threads_ns()
             c0 = time.thread_time_ns()
             try:
@@ -279,7 +314,9 @@ class KernelWorkers:
                 # call started (ended, or still exiting: a joined thread may linger in /proc a moment)
                 p1, t1 = self._threads_ns(t0)
                 before = sum(t1[tid] - c for tid, c in t0.items() if tid in t1)
-                self.rows.append((time.perf_counter(), name, max(0, p1 - p0 - before) / 1e9, (c1 - c0) / 1e9))
+                end = time.perf_counter()
+                self.rows.append((end, name, max(0, p1 - p0 - before) / 1e9, (c1 - c0) / 1e9))
+                self.calls.append((start, end))
 
         return call
 
@@ -356,7 +393,7 @@ def busy_timeline(sampler: "ThreadCPU", done: list[float], render_s: list[float]
         inside = bool(((starts <= mid) & (mid <= ends)).any())
         part = parts["in_render" if inside else "between_renders"]
         part[0] += tb - ta
-        d_ab = _with_ended(a, b)
+        d_ab = _with_ended(a, b, sampler.transient)
         for name, d in (d_ab if workers is None else name_ended(d_ab, workers.between(ta, tb), clamp=False)).items():
             part[1][name] = part[1].get(name, 0.0) + d
     out = {}
@@ -523,6 +560,7 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
     with ThreadCPU(period=0.05) as sampler, KernelWorkers() as workers:
         summary = session.run(renderer, on_frame=times)
     t_end = time.perf_counter()
+    sampler.mark_kernel_workers(workers.calls)  # the kernels' workers a sample caught: theirs, not "native"
     cpu1, kids1 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu_s = cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime
     ffmpeg_s = kids1.ru_utime + kids1.ru_stime - kids0.ru_utime - kids0.ru_stime
@@ -563,12 +601,17 @@ def run_session(files: dict, out: Path, render: bool, tile_scale: float, mode: s
         if len(times.done) >= 3:
             span, cpu = sampler.between(times.done[1], times.done[-1])
             ta, tb = sampler.snaps[sampler.nearest(times.done[1])][0], sampler.snaps[sampler.nearest(times.done[-1])][0]
-            cpu = name_ended(cpu, workers.between(ta, tb))
+            named = workers.between(ta, tb)
+            # the kernels' workers measured around their calls beyond what the samples left unnamed: CPU that
+            # would count twice (name_ended clamps ENDED at 0); ~0 since mark_kernel_workers (15-21 ms before)
+            over = max(0.0, sum(named.values()) - cpu.get(ENDED, 0.0))
+            cpu = name_ended(cpu, named)
             nfr = sum(1 for d in times.done[2:] if d <= sampler.snaps[-1][0])
             total = sum(cpu.values())
             timing["in_session"] = {
                 "seconds": round(span, 2), "frames": nfr, "cores_used": round(total / max(span, 1e-9), 2),
                 "cpu_ms_per_displayed_frame": round(1000 * total / max(nfr, 1), 1),
+                "kernel_workers_counted_twice_ms": round(1000 * over / max(nfr, 1), 1),
                 "cpu_ms_per_displayed_frame_by_thread": {k: round(1000 * v / max(nfr, 1), 1) for k, v in
                                                          sorted(cpu.items(), key=lambda kv: -kv[1]) if v > 0},
                 # the C++ kernels' calls over the same span: their workers' CPU (above, by name) and their
