@@ -196,13 +196,19 @@ class VideoReplay:
 
 
 class Webcam:
-    """An OpenCV camera read by a background thread that keeps only the newest frame (RGB)."""
+    """An OpenCV camera read by a background thread that keeps only the newest frame (RGB).
+
+    OpenCV runs on one thread (``cv2.setNumThreads(1)``, for the process: the live loop uses OpenCV for
+    nothing else): its pool split each 640x480 ``cvtColor`` across the cores, 0.56-0.58 ms of CPU a frame
+    against 0.14 on one thread, the same pixels (three rounds at 30 Hz, 2026-11-29; ~13 ms of CPU a
+    second the renderer can have, docs/live.md)."""
 
     def __init__(self, index: int = 0, width: int = 640, height: int = 480) -> None:
         try:
             import cv2
         except ImportError as exc:
             raise MissingDependencyError("opencv-python-headless", "the webcam", extra="live") from exc
+        cv2.setNumThreads(1)  # a 640x480 colour swap is cheaper on the calling thread than woken workers
         self._cv2 = cv2
         cap = cv2.VideoCapture(int(index))
         if not cap.isOpened():
