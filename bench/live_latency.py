@@ -18,8 +18,9 @@ children (the session video's encoder, run nicer than the session on one thread,
 at close), also per displayed frame; ``frames_in_flight`` (the loop's renderers at once, ``holo_viewer.live.
 inflight``), ``twins_ready_s`` (when the second renderer joined, after the start-up's warm-up frame) and
 ``display_interval_ms`` (wall time between frames shown; a frame in flight renders longer than that); ``in_session``: the same split by thread and child (main thread,
-the render's native workers, tracker, reaction, video writer, ffmpeg encoder and the replayed webcam's
-decoder; the C++ kernels' per-call worker threads by kernel, :class:`KernelWorkers`) from the second displayed
+the render's native workers (numba's OpenMP worker), tracker, reaction, video writer, ffmpeg encoder and the replayed
+webcam's decoder; the C++ kernels' per-call worker threads by kernel, :class:`KernelWorkers`, each counted once:
+``kernel_workers_counted_twice_ms``, 0 since 2026-11-29, checks it) from the second displayed
 frame to the last, start-up excluded (:class:`ThreadCPU`), ``cpp_kernels_per_displayed_frame`` (each C++ kernel's
 calls and CPU a frame, its workers' and its caller's), and its
 ``timeline``: the cores each kept busy during the render calls and between them, and the idle ones
