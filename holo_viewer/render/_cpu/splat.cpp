@@ -251,6 +251,9 @@ inline int64_t row16_begin(const Job& J, int v, int t, TileBuf& b, Row16Tile& S)
     S.ids = J.ids + J.base[v];
     S.recv = J.rec + int64_t(v) * J.m * REC;
     S.e_end = off[t + 1];
+    // the list's first records at once (row16_splat prefetches PREFETCH entries ahead from there on)
+    for (int64_t e = off[t]; e < std::min(off[t] + PREFETCH, S.e_end); ++e)
+        _mm_prefetch(reinterpret_cast<const char*>(S.recv + int64_t(S.ids[e]) * REC), _MM_HINT_T0);
     return off[t];
 }
 
