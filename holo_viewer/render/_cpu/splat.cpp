@@ -268,6 +268,8 @@ struct Row16Splat {
 HV_ALWAYS_INLINE inline bool row16_splat(const Row16Tile& S, int64_t e, float l2thr, Row16Splat& o) {
     _mm_prefetch(reinterpret_cast<const char*>(S.recv + int64_t(S.ids[std::min(e + PREFETCH, S.e_end - 1)]) * REC),
                  _MM_HINT_T0);
+    _mm_prefetch(reinterpret_cast<const char*>(S.recv + int64_t(S.ids[std::min(e + 4 * PREFETCH, S.e_end - 1)]) * REC),
+                 _MM_HINT_T1);
     const float* r = S.recv + int64_t(S.ids[e]) * REC;
     int32_t bx[4];
     std::memcpy(bx, r + BOX_AT, sizeof(bx));
