@@ -536,14 +536,19 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
                 start = res_s.local
                 print(f"{name}: stage {number} ({what}) {steps} steps ({time.process_time() - c_stage:.0f} s CPU), "
                       f"first/last 50 {np.mean(res_s.losses[:50]):.4f} / {np.mean(res_s.losses[-50:]):.4f}", flush=True)
+
+        def averaged_stage(start: Any, dataset: Any, stage_cfg: fa.AvatarFitConfig, stored: bool) -> tuple[Any, Any]:
+            """Stages 9 and 10: a fit from ``start``, averaged with ``start``, both as a file stores them
+            (``stored``: ``start`` already is); (the average, the fit's result)."""
+            res = fa.fit_gaussians(start, binding, dataset, stage_cfg, progress=False)
+            before = start if stored else _as_stored(start, binding, model, source.name, head_path)
+            after = _as_stored(res.local, binding, model, source.name, head_path)
+            return fa.average_gaussians([before, after]).replace(extra=start.extra), res
+
         for round9 in range(stage9_rounds if stage9 > 0 else 0):
             c9 = time.process_time()
-            res9 = fa.fit_gaussians(start, binding, data, squared_error_stage_config(data.names, cfg, stage9),
-                                    progress=False)
-            before = (start if (args.init and args.init_stage == 9) or round9  # a file's Gaussians: as stored
-                      else _as_stored(start, binding, model, source.name, head_path))
-            after = _as_stored(res9.local, binding, model, source.name, head_path)
-            start = fa.average_gaussians([before, after]).replace(extra=start.extra)
+            start, res9 = averaged_stage(start, data, squared_error_stage_config(data.names, cfg, stage9),
+                                         bool(args.init and args.init_stage == 9) or round9 > 0)  # a file's: stored
             if round9 + 1 < stage9_rounds:  # the next round starts from the average as a file stores it
                 start = _as_stored(start, binding, model, source.name, head_path)
             print(f"{name}: stage 9 (squared error, averaged with its start) round {round9 + 1}: {stage9} steps "
@@ -554,12 +559,9 @@ def fit_one(name: str, args: argparse.Namespace) -> dict[str, Any]:
             data10 = data if cfg10 is cfg else _dataset(
                 pipe, poses, source, cfg10, head_path, args.dataset_cache and args.dataset_cache + ".stage10")
             c10 = time.process_time()
-            res10 = fa.fit_gaussians(start, binding, carried_out_dataset(data10, cfg10),
-                                     carried_out_stage_config(name, data10.names, cfg10, stage10), progress=False)
-            before = (start if args.init and args.init_stage == 10  # a file's Gaussians: as stored
-                      else _as_stored(start, binding, model, source.name, head_path))
-            after = _as_stored(res10.local, binding, model, source.name, head_path)
-            start = fa.average_gaussians([before, after]).replace(extra=start.extra)
+            start, res10 = averaged_stage(start, carried_out_dataset(data10, cfg10),
+                                          carried_out_stage_config(name, data10.names, cfg10, stage10),
+                                          bool(args.init and args.init_stage == 10))  # a file's Gaussians: stored
             print(f"{name}: stage 10 (squared error on targets carried {CARRY_OUT_PX:g} px out, averaged with its "
                   f"start): {stage10} steps ({time.process_time() - c10:.0f} s CPU), first/last 50 "
                   f"{np.mean(res10.losses[:50]):.5f} / {np.mean(res10.losses[-50:]):.5f}", flush=True)
